@@ -1,0 +1,190 @@
+"""FaceTex evaluation metrics (§3.1 of Kaur, Zhang & Dana 2017), numpy in, floats out.
+
+- :func:`landmark_error` — E(a, b), "mean square error of the landmarks" on the 66
+  FaceTex landmarks, at the paper's 1000 px working size.
+- :func:`texture_similarity` — S(a, b), Eq. 8 averaged over three skin patches.
+- :func:`identity_distance` — beyond the paper: distance of face-recognition
+  descriptors (dlib convention: < 0.6 means the same person).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .errors import BadInputError
+
+WORKING_SIZE = 1000  # px, long edge at which the paper measures E and S
+PATCH_SIZE = 100  # px at WORKING_SIZE (§3.1: 100 × 100 skin patches)
+SKIN_PATCHES = ("forehead", "left_cheek", "right_cheek")
+
+
+@dataclass(frozen=True)
+class LandmarkError:
+    """``mse_px2``: mean over the 66 points of the squared distance (px², the paper's E);
+    ``rms_px``: its square root (px), easier to read."""
+
+    mse_px2: float
+    rms_px: float
+
+
+def _as_points(p, name: str) -> np.ndarray:
+    p = np.asarray(p, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 2:
+        raise BadInputError(f"{name} must be an (N, 2) array of points, got shape {p.shape}")
+    return p
+
+
+def landmark_error_points(points_a, points_b, *, scale_a: float = 1.0, scale_b: float = 1.0) -> LandmarkError:
+    """E between two point sets: (1/N) Σ_k ‖s_a·a_k − s_b·b_k‖² in px² (and the RMS in px).
+
+    ``scale_*`` bring each set to the working size (WORKING_SIZE / long edge)."""
+    a = _as_points(points_a, "points_a") * scale_a
+    b = _as_points(points_b, "points_b") * scale_b
+    if a.shape != b.shape:
+        raise BadInputError(f"point sets differ in shape: {a.shape} vs {b.shape}")
+    mse = float(np.mean(np.sum((a - b) ** 2, axis=1)))  # FaceTex §3.1 landmark error
+    return LandmarkError(mse, float(np.sqrt(mse)))
+
+
+def working_scale(image_or_shape) -> float:
+    """Factor from an image's pixels to the 1000 px long-edge working size."""
+    shape = getattr(image_or_shape, "shape", image_or_shape)
+    return WORKING_SIZE / float(max(shape[0], shape[1]))
+
+
+def _points68(image, points68, source):
+    if points68 is not None:
+        return _as_points(points68, "points68")
+    from .landmarks import detect_face
+
+    return detect_face(image, source=source).points68
+
+
+def landmark_error(image_a, image_b, *, points_a=None, points_b=None, source_a=None, source_b=None) -> LandmarkError:
+    """E(a, b) on the 66 FaceTex landmarks, each image's points scaled to a 1000 px long edge.
+
+    Landmarks are detected (largest face) unless ``points_*`` (68 × 2) are given."""
+    from .landmarks import points66
+
+    pa = points66(_points68(image_a, points_a, source_a))
+    pb = points66(_points68(image_b, points_b, source_b))
+    return landmark_error_points(pa, pb, scale_a=working_scale(image_a), scale_b=working_scale(image_b))
+
+
+def normalized_correlation(p, q) -> float:
+    """Eq. 8 (FaceTex): normalized correlation coefficient of two equally sized patches."""
+    p = np.asarray(p, dtype=np.float64).ravel()
+    q = np.asarray(q, dtype=np.float64).ravel()
+    if p.shape != q.shape:
+        raise BadInputError(f"patches differ in size: {p.size} vs {q.size}")
+    p = p - p.mean()
+    q = q - q.mean()
+    denom = np.sqrt(np.sum(p * p) * np.sum(q * q))
+    return float(np.sum(p * q) / denom) if denom > 0 else 0.0
+
+
+def skin_patch_frames(points68, image_shape) -> dict[str, np.ndarray]:
+    """2 × 3 affine maps (image → patch) of the forehead and cheek patches.
+
+    Positions are landmark-relative, so the same facial spot is sampled in both images:
+    the frame's x axis follows the eye line; with ``d`` the distance between the eye
+    centres, the forehead patch's lower edge lies 0.08·d above the brow arches
+    (points 19 and 24), each cheek patch at the centroid of the jaw point 2 (or 14), the
+    nostril point 31 (35), the lower eyelid 41 (46) and the mouth corner 48 (54).
+    The patch side is 100 px at the 1000 px working size, scaled with the image."""
+    p = _as_points(points68, "points68")
+    if p.shape[0] != 68:
+        raise BadInputError(f"need 68 landmarks, got {p.shape[0]}")
+    left_eye, right_eye = p[36:42].mean(0), p[42:48].mean(0)
+    ex = right_eye - left_eye
+    d = float(np.hypot(*ex))
+    ex /= d
+    ey = np.array([-ex[1], ex[0]])  # image "down" direction for an upright face
+    side = PATCH_SIZE / working_scale(image_shape)
+    centres = {
+        # just above the brow arches: foreheads are short, hair starts soon above
+        "forehead": p[[19, 24]].mean(0) - (side / 2 + 0.08 * d) * ey,
+        "left_cheek": p[[2, 31, 41, 48]].mean(0),
+        "right_cheek": p[[14, 35, 46, 54]].mean(0),
+    }
+    frames = {}
+    for name, c in centres.items():
+        # patch pixel (u, v) samples image point c + (u - side/2)·ex + (v - side/2)·ey
+        origin = c - side / 2 * (ex + ey)
+        to_image = np.column_stack([ex, ey, origin])
+        frames[name] = cv2.invertAffineTransform(to_image)
+    return frames
+
+
+def _luminance(image: np.ndarray) -> np.ndarray:
+    image = np.asarray(image, dtype=np.float32)
+    if image.ndim == 2:
+        return image
+    return image[..., :3] @ np.array([0.299, 0.587, 0.114], dtype=np.float32)  # ITU-R BT.601 luma
+
+
+def skin_patches(image, points68, *, gray: bool = True) -> dict[str, np.ndarray]:
+    """The three skin patches (forehead, left cheek, right cheek) of an image."""
+    img = _luminance(image) if gray else np.asarray(image, dtype=np.float32)
+    side = int(round(PATCH_SIZE / working_scale(img.shape)))
+    return {
+        name: cv2.warpAffine(img, m, (side, side), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        for name, m in skin_patch_frames(points68, img.shape).items()
+    }
+
+
+def texture_similarity(image_a, image_b, *, points_a=None, points_b=None, gray: bool = True,
+                       source_a=None, source_b=None, per_patch: bool = False):
+    """S(a, b): Eq. 8 on the forehead and both cheek patches, averaged over the three.
+
+    Gray (BT.601 luminance) by default, as texture is mostly luminance detail; with
+    ``gray=False`` the RGB values of a patch are correlated together. Patches of both
+    images are resampled to the same size (100 px at the 1000 px scale of ``image_a``).
+    ``per_patch=True`` also returns the three values."""
+    pa = _points68(image_a, points_a, source_a)
+    pb = _points68(image_b, points_b, source_b)
+    patches_a = skin_patches(image_a, pa, gray=gray)
+    patches_b = skin_patches(image_b, pb, gray=gray)
+    values = {}
+    for name in SKIN_PATCHES:
+        qa, qb = patches_a[name], patches_b[name]
+        if qb.shape != qa.shape:
+            qb = cv2.resize(qb, qa.shape[1::-1], interpolation=cv2.INTER_AREA)
+        values[name] = normalized_correlation(qa, qb)
+    mean = float(np.mean(list(values.values())))
+    return (mean, values) if per_patch else mean
+
+
+def identity_distance(image_a, image_b, *, points_a=None, points_b=None, source_a=None, source_b=None) -> float:
+    """Euclidean distance of the FaceRecognitionNet (dlib ResNet) descriptors of two faces.
+
+    < 0.6 means the same person by dlib's convention."""
+    from .nets.dlib_resnet import face_descriptor
+
+    da = face_descriptor(image_a, _points68(image_a, points_a, source_a))
+    db = face_descriptor(image_b, _points68(image_b, points_b, source_b))
+    return float(np.linalg.norm(da - db))
+
+
+def transfer_metrics(output, content, style, *, points=None, sources=(None, None, None)) -> dict:
+    """All FaceTex metrics of a transfer output against its content and style images.
+
+    ``points`` may give the 68 landmarks of (output, content, style) to skip detection."""
+    images = (output, content, style)
+    pts = list(points) if points is not None else [None, None, None]
+    pts = [_points68(im, p, s) for im, p, s in zip(images, pts, sources)]
+    e_c = landmark_error(output, content, points_a=pts[0], points_b=pts[1])
+    e_s = landmark_error(output, style, points_a=pts[0], points_b=pts[2])
+    return {
+        "E_content": e_c.mse_px2,
+        "E_style": e_s.mse_px2,
+        "E_content_rms_px": e_c.rms_px,
+        "E_style_rms_px": e_s.rms_px,
+        "S_content": texture_similarity(output, content, points_a=pts[0], points_b=pts[1]),
+        "S_style": texture_similarity(output, style, points_a=pts[0], points_b=pts[2]),
+        "identity_content": identity_distance(output, content, points_a=pts[0], points_b=pts[1]),
+        "identity_style": identity_distance(output, style, points_a=pts[0], points_b=pts[2]),
+    }

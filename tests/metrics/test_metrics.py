@@ -1,0 +1,100 @@
+import json
+
+import numpy as np
+import pytest
+
+from facetex import metrics
+from facetex._resources import sample_path
+from facetex.errors import BadInputError
+
+
+def _grid_points68(scale=1.0, offset=(0.0, 0.0)):
+    # a plausible frontal 68-point layout is not needed for E; any 68 points do
+    rng = np.random.default_rng(0)
+    return rng.uniform(100, 300, size=(68, 2)) * scale + np.asarray(offset)
+
+
+def test_landmark_error_hand_computed():
+    a = np.zeros((4, 2))
+    b = np.array([[3.0, 4.0], [0, 0], [0, 0], [0, 0]])  # one point 5 px away
+    e = metrics.landmark_error_points(a, b)
+    assert e.mse_px2 == pytest.approx(25 / 4)
+    assert e.rms_px == pytest.approx(np.sqrt(25 / 4))
+
+
+def test_landmark_error_known_shift_and_working_scale():
+    p = _grid_points68()
+    # a shift of (3, 4) px in a 500 px image is (6, 8) px at the 1000 px working size
+    e = metrics.landmark_error_points(p, p + [3, 4], scale_a=2.0, scale_b=2.0)
+    assert e.mse_px2 == pytest.approx(100.0)
+    assert e.rms_px == pytest.approx(10.0)
+    assert metrics.working_scale((500, 400, 3)) == pytest.approx(2.0)
+
+
+def test_landmark_error_rejects_mismatched_sets():
+    with pytest.raises(BadInputError):
+        metrics.landmark_error_points(np.zeros((66, 2)), np.zeros((68, 2)))
+
+
+def test_normalized_correlation_cases():
+    rng = np.random.default_rng(1)
+    p = rng.random((100, 100))
+    assert metrics.normalized_correlation(p, p) == pytest.approx(1.0)
+    assert metrics.normalized_correlation(p, -p) == pytest.approx(-1.0)
+    assert metrics.normalized_correlation(p, 2 * p + 5) == pytest.approx(1.0)  # affine-invariant
+    # hand-computed: p = [1,2,3], q = [1,3,2] -> cov 0.5·(...)= (−1·−1 + 0·1 + 1·0)/(√2·√2) = 0.5
+    assert metrics.normalized_correlation([1, 2, 3], [1, 3, 2]) == pytest.approx(0.5)
+    assert metrics.normalized_correlation(np.ones(9), p[:3, :3]) == 0.0  # flat patch: defined as 0
+
+
+@pytest.fixture(scope="module")
+def face():
+    from facetex.io import read_image
+    from facetex.landmarks import detect_face
+
+    img = read_image(sample_path("frl_004_neutral.jpg"))
+    return img, detect_face(img).points68
+
+
+def test_skin_patches_lie_on_skin_and_scale_with_image(face):
+    img, p68 = face
+    patches = metrics.skin_patches(img, p68)
+    assert set(patches) == set(metrics.SKIN_PATCHES)
+    side = round(100 * 400 / 1000)
+    for name, patch in patches.items():
+        assert patch.shape == (side, side), name
+        # skin: no strong edges (brows, eyes, background) inside the patch
+        assert patch.std() < 0.1, name
+
+
+def test_texture_similarity_identical_and_negative(face):
+    img, p68 = face
+    assert metrics.texture_similarity(img, img, points_a=p68, points_b=p68) == pytest.approx(1.0)
+    s, per = metrics.texture_similarity(img, 1.0 - img, points_a=p68, points_b=p68, per_patch=True)
+    assert s == pytest.approx(-1.0)
+    assert all(v == pytest.approx(-1.0) for v in per.values())
+
+
+def test_landmark_error_identical_images_is_zero(face):
+    img, p68 = face
+    e = metrics.landmark_error(img, img, points_a=p68, points_b=p68)
+    assert e.mse_px2 == 0.0 and e.rms_px == 0.0
+
+
+def test_identity_distance_same_image_near_zero(face):
+    img, p68 = face
+    assert metrics.identity_distance(img, img, points_a=p68, points_b=p68) < 1e-4
+
+
+def test_metrics_cli_json(capsys):
+    from facetex.cli import main
+
+    a = str(sample_path("frl_004_neutral.jpg"))
+    b = str(sample_path("frl_005_neutral.jpg"))
+    assert main(["metrics", a, a, b, "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out) == {"E_content", "E_style", "E_content_rms_px", "E_style_rms_px",
+                        "S_content", "S_style", "identity_content", "identity_style"}
+    assert out["E_content"] == 0.0 and out["S_content"] == pytest.approx(1.0)
+    assert out["identity_content"] < 1e-4 and out["identity_style"] > 0.6
+    assert out["E_style"] > 1.0
