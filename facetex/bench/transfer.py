@@ -1,0 +1,334 @@
+"""``facetex bench transfer``: the facial style transfer benchmark of FaceTex §3.1.
+
+Content/style pairs of different people are drawn from a folder of ``NNN_neutral.jpg``
+portraits; every method (Neural Style = "gatys", MRF-CNN = "mrf", FaceTex) runs on every
+pair, each output is scored against its content and style images with
+:func:`facetex.metrics.transfer_metrics`, and the run is summarised as
+
+- ``table.md`` / ``table.csv`` — Table 1 (means per method, plus identity distances and
+  wall time; the paper's own values as a reference block in the Markdown);
+- ``grid.png`` — Figure 3 (style, content, MRF-CNN, FaceTex, Neural Style per pair);
+- ``scatter.png`` — Figure 4 ((a) landmark errors, (b) texture similarities per pair);
+- ``pairs.json`` — every number per pair and method, and the settings.
+
+Each (pair, method) is stored as ``images/<content>__<style>__<method>.png`` (+ ``.json``
+info) and ``results/<content>__<style>__<method>.json``; the result file is written last
+and atomically, so an interrupted run resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..errors import BadInputError, NoFaceError, OutputError
+from ..io import read_image, to_uint8, write_image, write_json
+from ._common import (Column, ResultStore, check_out_dir, csv_table, list_portraits, markdown_table,
+                      json_safe, mean_finite, select_pairs, versions, write_figure, write_grid, write_text)
+
+__all__ = ["METHODS", "METHOD_TITLES", "METHOD_COLOURS", "PAPER_TABLE1", "PRESETS",
+           "run_bench_transfer", "register_bench", "run"]
+
+DEFAULT_DATA = "/work/shared/data/frl-london"
+METHODS = ("gatys", "mrf", "facetex")
+PRESETS = ("default", "paper")
+METHOD_TITLES = {"gatys": "Neural Style", "mrf": "MRF-CNN", "facetex": "FaceTex"}
+METHOD_COLOURS = {"gatys": "tab:red", "mrf": "tab:green", "facetex": "tab:blue"}  # as in Figure 4
+GRID_ORDER = ("mrf", "facetex", "gatys")  # Figure 3: style, content, MRF-CNN, FaceTex, Neural Style
+SAME_PERSON = 0.6  # dlib's same-person threshold for the identity distance
+
+# FaceTex Table 1 (Kaur, Zhang & Dana 2017): means over the five pairs of Figure 3
+PAPER_TABLE1 = {
+    "gatys": {"E_content": 22.61, "E_style": 369.39, "S_content": 0.89, "S_style": 0.47},
+    "mrf": {"E_content": 106.17, "E_style": 191.47, "S_content": 0.70, "S_style": 0.68},
+    "facetex": {"E_content": 37.93, "E_style": 295.93, "S_content": 0.76, "S_style": 0.55},
+}
+METRIC_KEYS = ("E_content", "E_style", "E_content_rms_px", "E_style_rms_px", "S_content", "S_style",
+               "identity_content", "identity_style")
+
+TABLE_COLUMNS = (
+    Column("method", "method"),
+    Column("n_pairs", "pairs", "d"),
+    Column("E_content", "E(xt,xc)", ".2f"),
+    Column("E_style", "E(xt,xs)", ".2f"),
+    Column("E_content_rms_px", "RMS(xt,xc) px", ".2f"),
+    Column("E_style_rms_px", "RMS(xt,xs) px", ".2f"),
+    Column("S_content", "S(xt,xc)", ".3f"),
+    Column("S_style", "S(xt,xs)", ".3f"),
+    Column("identity_content", "id(xt,xc)", ".3f"),
+    Column("identity_style", "id(xt,xs)", ".3f"),
+    Column("same_identity", f"id(xt,xc)<{SAME_PERSON}", "d"),
+    Column("time_s", "s / image", ".1f"),
+)
+PAPER_COLUMNS = (Column("method", "method"), Column("E_content", "E(xt,xc)", ".2f"),
+                 Column("E_style", "E(xt,xs)", ".2f"), Column("S_content", "S(xt,xc)", ".2f"),
+                 Column("S_style", "S(xt,xs)", ".2f"))
+
+
+def parse_methods(methods) -> tuple[str, ...]:
+    """Methods from a comma-separated string or a sequence, validated, in Table 1 order."""
+    if isinstance(methods, str):
+        methods = methods.split(",")
+    out = []
+    for m in methods:
+        m = str(m).strip().lower()
+        if not m:
+            continue
+        if m not in METHODS:
+            raise BadInputError(f"unknown method {m!r}: use one or more of {', '.join(METHODS)}")
+        if m not in out:
+            out.append(m)
+    if not out:
+        raise BadInputError(f"no method given: use one or more of {', '.join(METHODS)}")
+    return tuple(m for m in METHODS if m in out)  # Table 1 order
+
+
+def _default_transfer_fn():
+    from ..transfer import transfer_with_info
+
+    return transfer_with_info
+
+
+def _inner_progress(progress, method: str):
+    """Turn the transfer's per-iteration callback into a postfix on the outer bar."""
+    if progress is None:
+        return None
+    count = 0
+
+    def update(n: int = 1, **postfix):
+        nonlocal count
+        count += n
+        shown = {k: v for k, v in postfix.items() if isinstance(v, (int, float, str))}
+        progress(n=0, method=method, it=count, **shown)
+
+    return update
+
+
+def _item_config(method, content_path, style_path, preset, seed, options) -> dict:
+    """What makes a stored result reusable: a different value means it must be redone."""
+    return {"method": method, "content_file": Path(content_path).name, "style_file": Path(style_path).name,
+            "preset": preset, "seed": int(seed), "options": dict(options)}
+
+
+def _score(output, content, style, points_c, points_s, metrics_fn) -> tuple[dict, str | None]:
+    """Metrics of one output; NaN with the reason when no face is found in the output."""
+    try:
+        m = metrics_fn(output, content, style, points=(None, points_c, points_s))
+        return {k: float(m[k]) for k in METRIC_KEYS}, None
+    except NoFaceError as e:
+        return {k: float("nan") for k in METRIC_KEYS}, f"no face in output: {e.message}"
+
+
+def _summary_rows(records: dict, pairs, methods) -> list[dict]:
+    rows = []
+    for method in methods:
+        recs = [records[(c, s, method)] for c, s in pairs if (c, s, method) in records]
+        row = {"method": METHOD_TITLES[method], "method_id": method, "n_pairs": len(recs)}
+        for k in METRIC_KEYS:
+            row[k] = mean_finite(r["metrics"][k] for r in recs)
+        row["same_identity"] = sum(1 for r in recs if r["metrics"]["identity_content"] < SAME_PERSON)
+        row["time_s"] = mean_finite(r["wall_s"] for r in recs)
+        rows.append(row)
+    return rows
+
+
+def _table_markdown(rows, settings) -> str:
+    paper = [{"method": f"{METHOD_TITLES[m]} (paper)", **PAPER_TABLE1[m]} for m in METHODS]
+    return "\n".join([
+        "# FaceTex Table 1 — facial style transfer benchmark",
+        "",
+        f"{settings['n_pairs']} content/style pairs of different people from `{settings['data']}` "
+        f"(seed {settings['seed']}, preset `{settings['preset']}`). Means over the pairs. "
+        "E = mean squared landmark distance on the 66 FaceTex landmarks at 1000 px (px²; RMS in px "
+        "beside it), S = Eq. 8 correlation of forehead and cheek patches, id = dlib face-descriptor "
+        f"distance (< {SAME_PERSON}: same person), time = wall-clock seconds per output image.",
+        "",
+        markdown_table(TABLE_COLUMNS, rows),
+        "## Paper (Kaur, Zhang & Dana 2017, Table 1; head portraits of Shih et al., 5 pairs)",
+        "",
+        markdown_table(PAPER_COLUMNS, paper),
+    ])
+
+
+def _write_scatter(path, records, pairs, methods) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.8))
+    panels = (("E_content", "E_style", "(a) landmark error (px² at 1000 px)", "E(xt, xc)", "E(xt, xs)"),
+              ("S_content", "S_style", "(b) texture similarity", "S(xt, xc)", "S(xt, xs)"))
+    for ax, (kx, ky, title, xl, yl) in zip(axes, panels):
+        for m in methods:
+            pts = np.array([[records[(c, s, m)]["metrics"][kx], records[(c, s, m)]["metrics"][ky]]
+                            for c, s in pairs if (c, s, m) in records], dtype=float).reshape(-1, 2)
+            ax.scatter(pts[:, 0], pts[:, 1], color=METHOD_COLOURS[m], label=METHOD_TITLES[m], s=36)
+            ref = PAPER_TABLE1[m]
+            ax.scatter([ref[kx]], [ref[ky]], color=METHOD_COLOURS[m], marker="x", s=70,
+                       label=f"{METHOD_TITLES[m]} (paper mean)")
+        ax.set_title(title)
+        ax.set_xlabel(xl)
+        ax.set_ylabel(yl)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle("FaceTex Figure 4: per-pair metrics (dots), paper means (crosses)")
+    return write_figure(path, fig)
+
+
+def _write_grid(path, out, pairs, paths, methods, records) -> Path:
+    cols = [m for m in GRID_ORDER if m in methods]
+    rows, labels = [], []
+    for c, s in pairs:
+        row = [read_image(paths[s]), read_image(paths[c])]
+        for m in cols:
+            img = out / "images" / f"{ResultStore.key(c, s, m)}.png"
+            row.append(read_image(img) if (c, s, m) in records and img.is_file() else None)
+        rows.append(row)
+        labels.append([f"style {s}", f"content {c}"] + [None] * len(cols))
+    titles = ["style", "content"] + [METHOD_TITLES[m] for m in cols]
+    return write_grid(path, rows, col_titles=titles, cell_labels=labels, cell=256)
+
+
+def run_bench_transfer(data=DEFAULT_DATA, out="bench-transfer", *, pairs: int = 5,
+                       methods: Sequence[str] | str = METHODS, preset: str = "default", seed: int = 0,
+                       size: int | None = None, device: str = "cpu", overwrite: bool = False,
+                       transfer_fn: Callable | None = None, metrics_fn: Callable | None = None,
+                       progress: Callable | None = None) -> dict:
+    """Run the FaceTex §3.1 benchmark and write its tables, figures and per-pair results to ``out``.
+
+    ``transfer_fn(content, style, *, method, preset, seed, device, progress, **options)``
+    returns ``(image, info)`` (default :func:`facetex.transfer.transfer_with_info`);
+    ``size`` is passed to it as the option ``size`` when given. Finished (pair, method)
+    results in ``out`` are reused unless ``overwrite``; a stored result made with other
+    settings raises OutputError. ``progress(n, **postfix)`` advances once per (pair,
+    method) and gets ``n=0`` updates with the transfer's own iteration count.
+    Returns the output paths, the Table 1 rows and the counts of run / reused items."""
+    methods = parse_methods(methods)
+    if preset not in PRESETS:
+        raise BadInputError(f"unknown preset {preset!r}: use one of {', '.join(PRESETS)}")
+    if size is not None and int(size) < 16:
+        raise BadInputError(f"--size must be at least 16 px, got {size}")
+    data = Path(data)
+    portraits = list_portraits(data, tag="neutral")
+    if len(portraits) < 2:
+        raise BadInputError(f"found {len(portraits)} person(s) with an NNN_neutral.jpg portrait, "
+                            "need at least 2 different people", path=data)
+    chosen = select_pairs(list(portraits), int(pairs), seed=seed)
+    out = check_out_dir(out)
+    (out / "images").mkdir(exist_ok=True)
+    store = ResultStore(out / "results")
+    options = {} if size is None else {"size": int(size)}
+    transfer_fn = transfer_fn or _default_transfer_fn()
+    if metrics_fn is None:
+        from ..metrics import transfer_metrics as metrics_fn
+    settings = {"data": str(data.resolve()), "seed": int(seed), "preset": preset, "methods": list(methods),
+                "n_pairs": len(chosen), "pairs_requested": int(pairs), "size": size, "device": device,
+                "versions": versions()}
+
+    records: dict[tuple[str, str, str], dict] = {}
+    n_run = n_reused = 0
+    for c, s in chosen:
+        content = style = points_c = points_s = None
+        for method in methods:
+            key = store.key(c, s, method)
+            config = _item_config(method, portraits[c], portraits[s], preset, seed, options)
+            image_path = out / "images" / f"{key}.png"
+            rec = None if overwrite else store.get(key)
+            if rec is not None and image_path.is_file():
+                if rec.get("config") != config:
+                    raise OutputError(f"holds a result made with other settings ({rec.get('config')}): "
+                                      "pass --overwrite to recompute or choose another --out",
+                                      path=store.path(key))
+                records[(c, s, method)] = rec
+                n_reused += 1
+                if progress:
+                    progress(n=1, pair=f"{c}/{s}", method=method, done="reused")
+                continue
+            if content is None:
+                from ..landmarks import detect_face
+
+                content, style = read_image(portraits[c]), read_image(portraits[s])
+                points_c = detect_face(content, source=portraits[c]).points68
+                points_s = detect_face(style, source=portraits[s]).points68
+            t0 = time.perf_counter()
+            output, info = transfer_fn(content, style, method=method, preset=preset, seed=seed,
+                                       device=device, progress=_inner_progress(progress, method), **options)
+            wall = time.perf_counter() - t0
+            # score what is saved (8-bit), so re-measuring the PNG gives the same numbers
+            output = to_uint8(np.asarray(output, dtype=np.float32)).astype(np.float32) / 255.0
+            metrics, error = _score(output, content, style, points_c, points_s, metrics_fn)
+            write_image(image_path, output, overwrite=True)
+            write_json(image_path.with_suffix(".json"), {
+                "content": str(portraits[c]), "style": str(portraits[s]), "method": method,
+                "preset": preset, "seed": int(seed), "device": device, "options": options,
+                "wall_s": wall, **dict(info or {}), "versions": settings["versions"]}, overwrite=True)
+            rec = {"content": c, "style": s, "method": method, "config": config, "metrics": metrics,
+                   "metrics_error": error, "wall_s": wall,
+                   "timings": dict((info or {}).get("timings", {})),
+                   "image": str(image_path.relative_to(out))}
+            store.put(key, rec)  # last: its presence marks the item done
+            records[(c, s, method)] = rec
+            n_run += 1
+            if progress:
+                progress(n=1, pair=f"{c}/{s}", method=method, done="run")
+
+    rows = _summary_rows(records, chosen, methods)
+    files = {"table_md": out / "table.md", "table_csv": out / "table.csv", "grid": out / "grid.png",
+             "scatter": out / "scatter.png", "pairs": out / "pairs.json"}
+    write_json(files["pairs"], json_safe({
+        "settings": settings,
+        "pairs": [{"content": c, "style": s, "content_path": str(portraits[c]), "style_path": str(portraits[s]),
+                   "results": {m: {k: records[(c, s, m)][k] for k in
+                                   ("metrics", "metrics_error", "wall_s", "timings", "image")}
+                               for m in methods}}
+                  for c, s in chosen],
+        "table": rows,
+        "paper_table1": PAPER_TABLE1,
+    }), overwrite=True)
+    write_text(files["table_md"], _table_markdown(rows, settings))
+    write_text(files["table_csv"], csv_table((Column("method_id", ""),) + TABLE_COLUMNS, rows))
+    _write_grid(files["grid"], out, chosen, portraits, methods, records)
+    _write_scatter(files["scatter"], records, chosen, methods)
+    return {"out": out, "files": files, "pairs": chosen, "table": rows, "n_run": n_run, "n_reused": n_reused}
+
+
+# --------------------------------------------------------------------------- CLI
+def register_bench(bench_subparsers) -> argparse.ArgumentParser:
+    """Add ``transfer`` to the ``facetex bench`` sub-parsers."""
+    from ..cli._common import add_overwrite, add_seed_device
+
+    p = bench_subparsers.add_parser(
+        "transfer", help="FaceTex §3.1 benchmark: Table 1, Figures 3 and 4",
+        description="Run Neural Style, MRF-CNN and FaceTex on content/style pairs of different people "
+                    "and write table.md/.csv, grid.png, scatter.png and pairs.json. Resumable: finished "
+                    "(pair, method) results in --out are reused.")
+    p.add_argument("--data", default=DEFAULT_DATA, help=f"folder of NNN_neutral.jpg portraits (default {DEFAULT_DATA})")
+    p.add_argument("--pairs", type=int, default=5, help="number of content/style pairs (default 5)")
+    p.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated subset of {','.join(METHODS)}")
+    p.add_argument("--preset", choices=PRESETS, default="default", help="transfer parameters (default: default)")
+    p.add_argument("--out", default="bench-transfer", help="output folder (created; default ./bench-transfer)")
+    p.add_argument("--size", type=int, default=None, help="working size in px passed to the transfer (optional)")
+    add_seed_device(p)
+    add_overwrite(p)
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args) -> int:
+    from ..cli._common import print_json, progress_bar
+
+    methods = parse_methods(args.methods)
+    total = max(1, int(args.pairs)) * len(methods)
+    with progress_bar(total=total, desc="bench transfer", unit="run") as update:
+        result = run_bench_transfer(args.data, args.out, pairs=args.pairs, methods=methods, preset=args.preset,
+                                    seed=args.seed, size=args.size, device=args.device,
+                                    overwrite=args.overwrite, progress=update)
+    print_json({"out": str(result["out"]), "files": {k: str(v) for k, v in result["files"].items()},
+                "run": result["n_run"], "reused": result["n_reused"],
+                "table": json_safe(result["table"])})
+    return 0
