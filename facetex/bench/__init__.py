@@ -1,0 +1,1 @@
+"""Benchmarks that reproduce and extend the papers' evaluations (``facetex bench ...``)."""
