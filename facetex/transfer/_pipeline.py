@@ -1,0 +1,403 @@
+"""The FaceTex transfer pipeline: landmarks → region → style pre-warp → masks → losses → L-BFGS.
+
+Data flow (FaceTex §2.3 and §3.1)::
+
+    content, style ──landmarks──> working region (face crop or whole image, long edge = size)
+    style ──align_style_to_content (Beier–Neely morph + SIFT-flow refinement)──> style_w
+    masks: facial prior × face region (gradient scaling, Sec. 2.2), face region (style patches)
+    optimize_image(content_w, per-level losses) ──> paste back into the full content image
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import time
+import warnings
+from dataclasses import asdict
+
+import cv2
+import numpy as np
+import torch
+
+from ..errors import BadImageError, BadInputError, MemoryBudgetError
+from .losses import StylePatches, _grid, gram_loss, gram_matrix, mrf_loss, mrf_memory_estimate, style_patches, tv_loss
+from .methods import TransferParams
+from .methods import preset as make_preset
+from .optimize import optimize_image, to_tensor
+from .prior import apply_facial_prior
+
+CROP_MARGIN = 0.12  # face crop margin around the face outline, × face width
+
+
+# ---------------------------------------------------------------- networks
+@functools.lru_cache(maxsize=4)
+def _texture_net(name: str, device: str, vgg19_weights: str | None):
+    if name == "effnet-lite0":
+        from ..nets.effnet import EfficientNetLite0Features
+
+        net = EfficientNetLite0Features()
+    elif name == "vgg19":
+        from ..nets.vgg import VGG19Features
+
+        net = VGG19Features(weights=vgg19_weights) if vgg19_weights else VGG19Features()
+    elif name == "vgg19-random":
+        from ..nets.vgg import VGG19Features
+
+        net = VGG19Features(weights="random")
+    else:
+        from ..nets.dlib_resnet import FaceRecognitionNet
+
+        net = FaceRecognitionNet()
+    return net.to(device)
+
+
+@functools.lru_cache(maxsize=2)
+def _structure_net(device: str):
+    from ..nets.dlib_resnet import FaceRecognitionNet
+
+    return FaceRecognitionNet().to(device)
+
+
+# ---------------------------------------------------------------- regions
+def face_crop_box(points68, shape, margin: float = CROP_MARGIN) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1) of the face (jaw + forehead arc) grown by ``margin`` × face width."""
+    from ..geometry.masks import face_outline, face_width
+
+    outline = face_outline(points68)
+    pad = margin * face_width(points68)
+    x0, y0 = np.floor(outline.min(0) - pad).astype(int)
+    x1, y1 = np.ceil(outline.max(0) + pad).astype(int)
+    h, w = shape[:2]
+    return max(0, x0), max(0, y0), min(w, x1), min(h, y1)
+
+
+def _resize(image: np.ndarray, size_wh: tuple[int, int]) -> np.ndarray:
+    shrink = size_wh[0] < image.shape[1]
+    interp = cv2.INTER_AREA if shrink else cv2.INTER_CUBIC
+    return np.clip(cv2.resize(image, size_wh, interpolation=interp), 0.0, 1.0).astype(np.float32)
+
+
+def _working_shape(h: int, w: int, size: int) -> tuple[int, int]:
+    s = size / max(h, w)
+    return max(8, round(h * s)), max(8, round(w * s))
+
+
+def _map_points(points, box, scale_xy):
+    """Points of the full image → points of the (cropped, resized) region (pixel centres)."""
+    p = np.asarray(points, np.float64)
+    x0, y0 = box[0], box[1]
+    return np.column_stack([(p[:, 0] - x0 + 0.5) * scale_xy[0] - 0.5, (p[:, 1] - y0 + 0.5) * scale_xy[1] - 0.5])
+
+
+def _check_rgb(image, name: str) -> np.ndarray:
+    a = np.asarray(image)
+    if a.ndim != 3 or a.shape[2] != 3:
+        raise BadImageError(f"{name} must be an (H, W, 3) RGB image, got shape {a.shape}")
+    if a.dtype == np.uint8:
+        a = a.astype(np.float32) / 255.0
+    a = a.astype(np.float32)
+    if min(a.shape[:2]) < 32:
+        raise BadImageError(f"{name} of {a.shape[1]}x{a.shape[0]} px is too small: use at least 32 px")
+    return a
+
+
+# ---------------------------------------------------------------- memory
+_BYTES_PER_PIXEL = {  # measured peak bytes per working-region pixel of one forward+backward
+    "effnet-lite0": 2600, "vgg19": 9000, "vgg19-random": 9000, "face-resnet": 2400,
+}
+
+
+def available_memory() -> int:
+    """Bytes of RAM available now (Linux MemAvailable; total RAM elsewhere)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def default_max_memory() -> int:
+    """75 % of the available RAM."""
+    return int(0.75 * available_memory())
+
+
+def estimate_transfer_memory(params: TransferParams, shape: tuple[int, int]) -> int:
+    """Estimated peak bytes of a transfer whose finest level is ``shape`` (h, w)."""
+    h, w = shape
+    px = h * w
+    net = params.texture_net
+    total = 350 * 2**20  # interpreter, torch, the networks' weights
+    total += _BYTES_PER_PIXEL.get(net, 9000) * px  # activations for forward + backward
+    if params.structure_weight:
+        total += 60 * 2**20  # face chip through FaceRecognitionNet
+    stride = {"effnet-lite0": (4, 8), "vgg19": (4, 8), "face-resnet": (4, 8)}.get(net, (4, 8))
+    chans = {"effnet-lite0": (24, 40), "vgg19": (256, 512), "face-resnet": (32, 64)}.get(net, (256, 512))
+    for s, c in zip(stride, chans):
+        if params.mrf_weight:
+            hw = (max(3, h // s), max(3, w // s))
+            total += mrf_memory_estimate(c, hw, hw, patch_size=params.patch_size, style_stride=params.style_stride)
+    total += 2 * params.lbfgs_history * 3 * px * 4  # L-BFGS curvature pairs
+    total += 40 * px * 4  # images, masks, pyramids
+    return int(total)
+
+
+# ---------------------------------------------------------------- losses per level
+def _resize_t(x: torch.Tensor, shape) -> torch.Tensor:
+    if tuple(x.shape[-2:]) == tuple(shape):
+        return x
+    shrink = shape[0] < x.shape[-2]
+    return torch.nn.functional.interpolate(x, size=tuple(shape), mode="bilinear", align_corners=False,
+                                           antialias=shrink)
+
+
+def _masked_style_patches(feat: torch.Tensor, mask: torch.Tensor, params: TransferParams) -> StylePatches:
+    """Style patches whose centre lies in ``mask`` (the style's face region): hair and
+    background are kept out of the matching, where most artifacts came from."""
+    sp = style_patches(feat, params.patch_size, params.style_stride)
+    h, w = feat.shape[-2:]
+    k = params.patch_size
+    m = _resize_t(mask, (h, w))[0, 0]
+    ys = _grid(h, k, params.style_stride) + k // 2
+    xs = _grid(w, k, params.style_stride) + k // 2
+    keep = (m[ys][:, xs] > 0.5).reshape(-1)
+    if int(keep.sum()) < 16:
+        return sp
+    return StylePatches(sp.unit[keep], sp.norm[keep], sp.channels, sp.size)
+
+
+class _LevelLoss:
+    """Weighted loss terms of one resolution level (Eqs. 2, 3, 4, 6)."""
+
+    def __init__(self, builder: "_LossBuilder", shape):
+        p, dev = builder.params, builder.device
+        self.p = p
+        self.net = builder.texture_net
+        self.struct_net = builder.structure_net
+        c = _resize_t(builder.content, shape)
+        s = _resize_t(builder.style, shape)
+        self.prior = _resize_t(builder.prior, shape) if builder.prior is not None else None
+        self.norms: dict[str, float] | None = None
+        with torch.no_grad():
+            tex_layers = list(dict.fromkeys(p.mrf_layers + p.style_layers))
+            fs = self.net.features(s, tex_layers) if tex_layers else {}
+            fc = self.net.features(c, list(p.content_layers)) if p.content_layers else {}
+            if p.style_region == "face":
+                face = _resize_t(builder.face, shape)
+                self.patches = {l: _masked_style_patches(fs[l], face, p) for l in p.mrf_layers}
+            else:
+                self.patches = {l: style_patches(fs[l], p.patch_size, p.style_stride) for l in p.mrf_layers}
+            self.grams = {l: gram_matrix(fs[l]) for l in p.style_layers}
+            self.content_t = {l: fc[l] for l in p.content_layers}
+            self.content_ms = {l: float(fc[l].square().mean()) + 1e-12 for l in p.content_layers}
+            self.chip_m = None
+            if p.structure_weight:
+                from ..nets.chip import face_chip_matrix, face_chip_tensor
+
+                sx, sy = shape[1] / builder.shape[1], shape[0] / builder.shape[0]
+                pts = (builder.points + 0.5) * [sx, sy] - 0.5
+                self.chip_m = face_chip_matrix(pts)
+                self._chip = lambda x: face_chip_tensor(x, self.chip_m, 150)
+                fsc = self.struct_net.features(self._chip(c), list(p.structure_layers))
+                self.struct_t = fsc
+                self.struct_ms = {l: float(v.square().mean()) + 1e-12 for l, v in fsc.items()}
+            self.tv_ref = float(tv_loss(c)) + 1e-12
+
+    def raw_terms(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
+        p = self.p
+        xin = apply_facial_prior(x, self.prior) if (p.prior and self.prior is not None) else x
+        layers = list(dict.fromkeys(p.mrf_layers + p.style_layers + p.content_layers))
+        f = self.net.features(xin, layers) if layers else {}
+        terms = {}
+        for l in p.mrf_layers:  # Eq. 2
+            terms[f"mrf:{l}"] = mrf_loss(f[l], self.patches[l], patch_size=p.patch_size,
+                                         style_stride=p.style_stride, variant=p.mrf_variant)
+        for l in p.style_layers:  # Eq. 6, style term
+            terms[f"gram:{l}"] = gram_loss(f[l], self.grams[l])
+        for l in p.content_layers:  # Eq. 6/7, content term
+            terms[f"content:{l}"] = (f[l] - self.content_t[l]).square().mean() / self.content_ms[l]
+        if p.structure_weight:  # Eq. 3: Σ_i 1/(C_i H_i W_i) ‖δ_i(x_t) − δ_i(x_c)‖², relative to ‖δ_i(x_c)‖²
+            fst = self.struct_net.features(self._chip(xin), list(p.structure_layers))
+            terms["structure"] = sum((fst[l] - self.struct_t[l]).square().mean() / self.struct_ms[l]
+                                     for l in p.structure_layers)
+        if p.tv_weight:  # Eq. 4
+            terms["tv"] = tv_loss(x) / self.tv_ref
+        return terms
+
+    def __call__(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
+        p = self.p
+        raw = self.raw_terms(x)
+        if self.norms is None:  # value at the start of the level (MRF and Gram terms)
+            self.norms = {k: (max(float(v.detach()), 1e-12) if p.normalize and k.split(":")[0] in ("mrf", "gram")
+                              else 1.0) for k, v in raw.items()}
+        weights = {"mrf": p.mrf_weight, "gram": p.style_weight, "content": p.content_weight,
+                   "structure": p.structure_weight, "tv": p.tv_weight}
+        return {k: v * (weights[k.split(":")[0]] / self.norms[k]) for k, v in raw.items()}
+
+
+class _LossBuilder:
+    def __init__(self, params, content, style, prior, face, points, device):
+        self.params = params
+        self.device = device
+        self.shape = content.shape[:2]
+        self.content = to_tensor(content, device)
+        self.style = to_tensor(style, device)
+        self.prior = None if prior is None else torch.from_numpy(prior)[None, None].to(device)
+        self.face = torch.from_numpy(face)[None, None].to(device)
+        self.points = np.asarray(points, np.float64)
+        net = params.texture_net
+        if net == "vgg19" and params.vgg19_weights == "random":
+            net = "vgg19-random"
+        needs_tex = bool(params.mrf_layers or params.style_layers or params.content_layers)
+        self.texture_net = _texture_net(net, str(device), None if net == "vgg19-random" else params.vgg19_weights) \
+            if needs_tex else None
+        self.structure_net = _structure_net(str(device)) if params.structure_weight else None
+
+    def __call__(self, level: int, scale: float, shape) -> _LevelLoss:
+        return _LevelLoss(self, shape)
+
+
+# ---------------------------------------------------------------- public API
+def transfer_with_info(content, style, *, method: str = "facetex", preset: str = "default", seed: int = 0, device: str = "cpu", progress=None,
+                       callback=None, save_every: int | None = None, content_points=None, style_points=None,
+                       content_source=None, style_source=None, max_memory: int | None = None,
+                       **options) -> tuple[np.ndarray, dict]:
+    """Transfer the skin texture of ``style`` onto ``content`` (FaceTex, or a baseline).
+
+    ``content``/``style``: (H, W, 3) RGB, float in [0, 1] or uint8. ``method``: "facetex"
+    (Eq. 5), "mrf" (Eq. 7) or "gatys" (Eq. 6); ``preset``: "default" or "paper"; any
+    :class:`TransferParams` field may be overridden as a keyword (``size``, ``iters``,
+    ``texture_net``, ``structure_weight`` …). Returns the output at the content's size and
+    an info dict (parameters, timings, per-level loss terms). ``progress(n=1, level=, loss=)``
+    is called per loss evaluation; ``callback(image=, level=, evaluation=)`` every
+    ``save_every`` evaluations and after each level (images of the working region).
+    Raises NoFaceError (naming ``*_source``), MemoryBudgetError above ``max_memory`` bytes.
+    """
+    from ..landmarks import detect_face
+    from .. import __version__
+
+    t_start = time.perf_counter()
+    base = make_preset(method, preset, options.pop("texture_net", None))
+    params = base.with_options(**options)
+    content = _check_rgb(content, f"content image{'' if content_source is None else ' ' + str(content_source)}")
+    style = _check_rgb(style, f"style image{'' if style_source is None else ' ' + str(style_source)}")
+    timings = {}
+    t0 = time.perf_counter()
+    cp = detect_face(content, source=content_source).points68 if content_points is None else np.asarray(content_points, float)
+    sp = detect_face(style, source=style_source).points68 if style_points is None else np.asarray(style_points, float)
+    timings["landmarks_s"] = time.perf_counter() - t0
+
+    # working region
+    H, W = content.shape[:2]
+    box = face_crop_box(cp, content.shape) if params.crop == "face" else (0, 0, W, H)
+    region = content[box[1]:box[3], box[0]:box[2]]
+    wh = _working_shape(region.shape[0], region.shape[1], params.size)
+    scale_xy = (wh[1] / region.shape[1], wh[0] / region.shape[0])
+    content_w = _resize(region, (wh[1], wh[0]))
+    cpw = _map_points(cp, box, scale_xy)
+    warn = []
+    if max(region.shape[:2]) < params.size:
+        warn.append(f"content {'face' if params.crop == 'face' else 'image'} region is "
+                    f"{region.shape[1]}x{region.shape[0]} px: upscaled to {wh[1]}x{wh[0]} (pass a smaller --size)")
+    sbox = face_crop_box(sp, style.shape) if params.crop == "face" else (0, 0, style.shape[1], style.shape[0])
+    if max(sbox[2] - sbox[0], sbox[3] - sbox[1]) < params.size:
+        warn.append(f"style {'face' if params.crop == 'face' else 'image'} region is "
+                    f"{sbox[2] - sbox[0]}x{sbox[3] - sbox[1]} px, smaller than the working size {params.size} px: "
+                    "its texture is upscaled")
+    for w_ in warn:
+        warnings.warn(w_, stacklevel=2)
+
+    budget = default_max_memory() if max_memory is None else int(max_memory)
+    need = estimate_transfer_memory(params, wh)
+    if need > budget:
+        raise MemoryBudgetError(f"this transfer needs about {need / 2**30:.1f} GiB at {wh[1]}x{wh[0]} px, over the "
+                                f"{budget / 2**30:.1f} GiB budget: use a smaller --size or raise --max-memory")
+
+    # style pre-warp onto the content geometry (Sec. 2.3)
+    t0 = time.perf_counter()
+    from ..geometry.masks import face_mask, prior_mask
+
+    if params.align:
+        from ..geometry.morph import align_style_to_content
+
+        # scale the style so its face matches the region's face size before morphing
+        style_w = align_style_to_content(style, content_w, style_points=sp, content_points=cpw,
+                                         method=params.align, refine=params.align_refine).image
+    else:
+        sreg = style[sbox[1]:sbox[3], sbox[0]:sbox[2]]
+        style_w = _resize(sreg, (wh[1], wh[0]))
+    style_w = np.clip(style_w, 0, 1).astype(np.float32)
+    timings["align_s"] = time.perf_counter() - t0
+    face = face_mask(cpw, wh)
+    prior = prior_mask(cpw, wh) if params.prior else None
+
+    # optimisation (Eq. 5 / 6 / 7), multi-resolution L-BFGS
+    torch.manual_seed(seed)
+    np.random.seed(seed % 2**32)
+    builder = _LossBuilder(params, content_w, style_w, prior, face, cpw, device)
+    out_w, info = optimize_image(content_w, builder, levels=params.levels, iters=params.iters,
+                                 lbfgs_history=params.lbfgs_history, line_search=params.line_search,
+                                 seed=seed, device=device, progress=progress, callback=callback,
+                                 save_every=save_every, level_init=params.level_init)
+    timings["optimize_s"] = info["seconds"]
+
+    # back to the content image
+    out = content.copy()
+    rh, rw = region.shape[:2]
+    # paste the *change* back at the region's full resolution: the content's own detail
+    # above the working resolution survives instead of being blurred by the resampling
+    delta = cv2.resize(out_w - content_w, (rw, rh), interpolation=cv2.INTER_CUBIC)
+    out_region = np.clip(region + delta, 0.0, 1.0)
+    if params.crop == "face":
+        alpha = _edge_feather((rh, rw), box, (H, W))
+        out[box[1]:box[3], box[0]:box[2]] = alpha[..., None] * out_region + (1 - alpha[..., None]) * region
+    else:
+        out = out_region
+    timings["total_s"] = time.perf_counter() - t_start
+    info = {
+        "method": params.method, "preset": params.preset, "params": _jsonable(asdict(params)),
+        "seed": seed, "device": str(device), "timings": timings, "levels": info["levels"],
+        "optimizer": {k: info[k] for k in ("optimizer", "line_search", "lbfgs_history", "clamp")},
+        "region_box": list(map(int, box)), "working_shape": list(wh), "warnings": warn,
+        "memory_estimate_bytes": need, "versions": _versions(__version__),
+        "images": {"content_w": content_w, "style_w": style_w, "output_w": out_w, "prior": prior, "face": face},
+    }
+    return out.astype(np.float32), info
+
+
+def _edge_feather(shape, box, full_shape, frac: float = 0.08) -> np.ndarray:
+    """Blend weight of a pasted region: 1 inside, ramping to 0 at crop edges that lie inside
+    the image (edges on the image border need no blending)."""
+    h, w = shape
+    r = max(2, int(frac * min(h, w)))
+    y = np.ones(h, np.float32)
+    x = np.ones(w, np.float32)
+    ramp = (np.arange(r, dtype=np.float32) + 0.5) / r
+    if box[1] > 0:
+        y[:r] = np.minimum(y[:r], ramp)
+    if box[3] < full_shape[0]:
+        y[-r:] = np.minimum(y[-r:], ramp[::-1])
+    if box[0] > 0:
+        x[:r] = np.minimum(x[:r], ramp)
+    if box[2] < full_shape[1]:
+        x[-r:] = np.minimum(x[-r:], ramp[::-1])
+    return np.outer(y, x)
+
+
+def _jsonable(d):
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
+
+
+def _versions(version: str) -> dict:
+    import platform
+
+    return {"facetex": version, "torch": torch.__version__, "numpy": np.__version__, "opencv": cv2.__version__,
+            "python": platform.python_version()}
+
+
+def transfer(content, style, *, method: str = "facetex", **options) -> np.ndarray:
+    """:func:`transfer_with_info` returning only the output image (H, W, 3) float32."""
+    return transfer_with_info(content, style, method=method, **options)[0]

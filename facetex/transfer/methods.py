@@ -1,0 +1,146 @@
+"""Method presets: FaceTex (Eq. 5), MRF-CNN (Eq. 7) and Gatys neural style (Eq. 6).
+
+One frozen dataclass holds every weight, layer and schedule of a run; :func:`preset`
+builds it from (method, preset, texture network). Two presets:
+
+- ``paper``: the paper's schedule — whole image at 1000 px long edge, 3 levels × 200
+  L-BFGS iterations (Gatys: 1000 iterations at full size), the paper's layers when the
+  texture network is VGG-19.
+- ``default``: the best quality we measured in a few minutes on a 2-core CPU — a face
+  crop (forehead to chin plus margin: FaceTex works on tight head portraits, and hair and
+  background caused most artifacts in our measurements) at 384 px, 3 levels × 100
+  iterations (the authors' CNNMRF defaults), EfficientNet-Lite0 texture features.
+
+Loss weights are *normalised* in both presets (``normalize=True``): each MRF and Gram
+term is divided by its value at the start of its level, content and structure terms by
+the mean square of their target features, TV by the content image's TV. The paper's raw
+weights (λ_c = 5, λ_s = 100, λ_TV = 1e-3; CNNMRF's 1e-4 / 2e1 / 1e-3) are tied to
+Caffe-VGG feature scales and 0–255 BGR pixels and do not carry over to other networks
+(findings: "raw CNNMRF weights do not carry over between networks"). The paper's ratio
+λ_s/λ_c = 20 is kept for Gatys as the ratio of the normalised weights' *effects* only
+approximately; ``normalize=False`` runs the raw sums with whatever weights you give.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+from ..errors import BadInputError
+
+METHODS = ("facetex", "mrf", "gatys")
+PRESETS = ("default", "paper")
+TEXTURE_NETS = ("effnet-lite0", "vgg19", "face-resnet")
+
+# Layer roles per texture network: MRF texture layers, content layer, Gram style layers.
+# VGG-19 names are the paper's; the others were chosen by measurement (docs/texture-nets.md):
+# matching strides 4 and 8 as VGG's relu3_1/relu4_1, content at stride 16 as relu4_2.
+NET_LAYERS = {
+    "vgg19": {"mrf": ("relu3_1", "relu4_1"), "content": ("relu4_2",),
+              "style": ("relu1_1", "relu2_1", "relu3_1", "relu4_1", "relu5_1")},
+    "effnet-lite0": {"mrf": ("block2", "block4"), "content": ("block7",),
+                     "style": ("stem", "block2", "block4", "block7", "block14")},
+    "face-resnet": {"mrf": ("pool1", "level2"), "content": ("level3",),
+                    "style": ("conv1", "level1", "level2", "level3", "level4")},
+}
+# FaceRecognitionNet layers for the facial-structure loss (Eq. 3), the stand-in for
+# VGG-Face relu4_2: mid-level maps on the 150 px face chip (see docs/texture-nets.md).
+STRUCTURE_LAYERS = ("level2", "level3")
+
+
+@dataclass(frozen=True)
+class TransferParams:
+    """Everything that defines a transfer run (recorded in the output's JSON sidecar)."""
+
+    method: str = "facetex"
+    preset: str = "default"
+    texture_net: str = "effnet-lite0"
+    size: int = 384  # long edge of the working region (px) at the finest level
+    crop: str = "face"  # "face": work on a face crop and paste back; "image": whole image
+    levels: int = 3
+    iters: tuple[int, ...] = (100, 100, 100)
+    # losses (weights are per term; see the module docstring on normalisation)
+    mrf_layers: tuple[str, ...] = ()
+    mrf_weight: float = 0.0
+    mrf_variant: str = "paper"  # "paper" (Eq. 2) or "reference" (CNNMRF's code)
+    patch_size: int = 3
+    style_stride: int = 2
+    style_region: str = "face"  # MRF style patches from the style's face region only, or "image"
+    content_layers: tuple[str, ...] = ()
+    content_weight: float = 0.0
+    style_layers: tuple[str, ...] = ()
+    style_weight: float = 0.0
+    structure_layers: tuple[str, ...] = ()
+    structure_weight: float = 0.0
+    tv_weight: float = 0.0
+    prior: bool = False  # facial prior gradient mask (Sec. 2.2)
+    normalize: bool = True
+    align: str | None = "beier-neely"  # style → content pre-warp (Sec. 2.3), None to skip
+    align_refine: str | None = "sift-flow"
+    lbfgs_history: int = 25
+    level_init: str = "residual"  # "upsample" is CNNMRF's (see optimize_image)
+    line_search: str | None = "strong_wolfe"
+    vgg19_weights: str | None = None
+    extra: dict = field(default_factory=dict)
+
+    def with_options(self, **options) -> "TransferParams":
+        """A copy with some fields replaced; unknown names are an error."""
+        names = set(self.__dataclass_fields__)
+        unknown = sorted(set(options) - names)
+        if unknown:
+            raise BadInputError(f"unknown transfer option(s) {unknown}; valid: {sorted(names)}")
+        if "iters" in options and options["iters"] is not None:
+            iters = options["iters"]
+            iters = (int(iters),) if isinstance(iters, int) else tuple(int(i) for i in iters)
+            options["iters"] = iters
+            options.setdefault("levels", len(iters))
+        p = replace(self, **{k: v for k, v in options.items() if v is not None})
+        if len(p.iters) == 1 and p.levels > 1:
+            p = replace(p, iters=p.iters * p.levels)
+        p.validate()
+        return p
+
+    def validate(self) -> None:
+        if self.method not in METHODS:
+            raise BadInputError(f"unknown method {self.method!r}: use one of {', '.join(METHODS)}")
+        if self.texture_net not in TEXTURE_NETS:
+            raise BadInputError(f"unknown texture network {self.texture_net!r}: use one of {', '.join(TEXTURE_NETS)}")
+        if self.crop not in ("face", "image"):
+            raise BadInputError(f"crop must be 'face' or 'image', not {self.crop!r}")
+        if len(self.iters) != self.levels:
+            raise BadInputError(f"{len(self.iters)} iteration counts for {self.levels} levels")
+        if not 32 <= self.size <= 4096:
+            raise BadInputError(f"size {self.size} px is out of range 32..4096")
+
+
+def preset(method: str = "facetex", name: str = "default", texture_net: str | None = None) -> TransferParams:
+    """The parameters of ``method`` under preset ``name`` with the given texture network."""
+    if method not in METHODS:
+        raise BadInputError(f"unknown method {method!r}: use one of {', '.join(METHODS)}")
+    if name not in PRESETS:
+        raise BadInputError(f"unknown preset {name!r}: use one of {', '.join(PRESETS)}")
+    net = texture_net or "effnet-lite0"
+    if net not in TEXTURE_NETS:
+        raise BadInputError(f"unknown texture network {net!r}: use one of {', '.join(TEXTURE_NETS)}")
+    layers = NET_LAYERS[net]
+    base = TransferParams(method=method, preset=name, texture_net=net)
+    if name == "paper":
+        base = replace(base, size=1000, crop="image", levels=3, iters=(200, 200, 200))
+    else:
+        # measured on 10 FRL pairs at 1000 px (benchmarks/geometry_align.py): optical-flow
+        # refinement left 2.66 px landmark error vs 2.93 px for SIFT flow, at 1/7 of the time
+        base = replace(base, align_refine="optical-flow")
+    if method == "facetex":  # Eq. 5: texture + facial structure + TV, prior mask
+        p = replace(base, mrf_layers=layers["mrf"], mrf_weight=1.0, structure_layers=STRUCTURE_LAYERS,
+                    structure_weight=1.0, tv_weight=0.05, prior=True)
+    elif method == "mrf":  # Eq. 7: texture + content + TV
+        p = replace(base, mrf_layers=layers["mrf"], mrf_weight=1.0, content_layers=layers["content"],
+                    content_weight=0.3, tv_weight=0.05, style_region="image")
+        if name == "paper":  # §3.1: "Three resolutions with 100 iterations each"
+            p = replace(p, iters=(100, 100, 100))
+    else:  # Eq. 6: content + Gram style + TV
+        p = replace(base, content_layers=layers["content"], content_weight=1.0, style_layers=layers["style"],
+                    style_weight=1.0, tv_weight=0.05, align=None, align_refine=None)
+        if name == "paper":
+            p = replace(p, levels=1, iters=(1000,))
+    p.validate()
+    return p

@@ -1,0 +1,176 @@
+"""Generic multi-resolution pixel optimiser (CNNMRF / FaceTex Eq. 5 solver).
+
+As in CNNMRF's ``transfer_CNNMRF_wrapper.lua``: level sizes are ceil(size · scale) with the
+scale doubling per level up to 1; level 0 starts from the init image resized down, each
+next level from the previous result upsampled bilinearly; the loss targets (resized
+content/style/masks, style patches) are rebuilt per level by the caller's ``loss_builder``.
+
+Choices and how they differ from the authors' code (``mylib/myoptimizer.lua``):
+
+- L-BFGS is ``torch.optim.LBFGS`` (a port of torch7 ``optim.lbfgs``, which mylbfgs copies),
+  ``max_iter`` = the level's iterations, ``max_eval`` = 1.25 × that, history 25
+  (``nCorrection=25``). ``line_search="strong_wolfe"`` (default) is robust to the loss scale;
+  ``line_search=None`` is CNNMRF's behaviour: no line search, step min(1, 1/‖g‖₁) first and
+  1 after. CNNMRF also sets tolFun = tolX = 0 (always run every iteration); we keep torch's
+  small tolerances (1e-9 change, 1e-7 gradient) so a converged level stops early.
+- The loss value is real here; CNNMRF's feval returns 0 (gradients come from the layers).
+- Clamping: none inside a level (a projection between L-BFGS steps invalidates its curvature
+  pairs); with ``clamp=True`` the result is clamped to [0, 1] after every level and at the
+  end. CNNMRF never clamps; it min-max normalises when saving.
+- Resizing: antialiased bilinear when shrinking the init, plain bilinear when upsampling
+  (torch7 ``image.scale`` bilinear does neither antialiasing nor corner alignment).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Callable, Protocol
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from ..errors import BadInputError
+
+__all__ = ["LevelLoss", "level_shapes", "optimize_image", "to_tensor", "to_image"]
+
+
+class LevelLoss(Protocol):
+    def __call__(self, x: torch.Tensor) -> dict[str, torch.Tensor]: ...
+
+
+def to_tensor(image: np.ndarray, device: str | torch.device = "cpu") -> torch.Tensor:
+    """(H, W, 3) float RGB → (1, 3, H, W) float32 tensor."""
+    return torch.from_numpy(np.ascontiguousarray(image, dtype=np.float32)).permute(2, 0, 1)[None].to(device)
+
+
+def to_image(x: torch.Tensor) -> np.ndarray:
+    """(1, 3, H, W) tensor → (H, W, 3) float32 numpy array."""
+    return x.detach()[0].permute(1, 2, 0).to("cpu", torch.float32).contiguous().numpy()
+
+
+def _resize(x: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
+    if tuple(x.shape[-2:]) == tuple(shape):
+        return x.clone()
+    shrink = shape[0] < x.shape[-2] or shape[1] < x.shape[-1]
+    return F.interpolate(x, size=shape, mode="bilinear", align_corners=False, antialias=shrink)
+
+
+def level_shapes(shape: tuple[int, int], levels: int = 3, start_scale: float | None = None) -> list[tuple[float, tuple[int, int]]]:
+    """(scale, (h, w)) per level: scale = start_scale · 2^l (default 2^-(levels-1), so the last
+    level is full size); sizes ceil(size · scale) as in CNNMRF's image pyramid."""
+    if levels < 1:
+        raise BadInputError(f"levels must be >= 1, got {levels}")
+    start = 2.0 ** -(levels - 1) if start_scale is None else float(start_scale)
+    out = []
+    for level in range(levels):
+        s = start * 2.0**level
+        out.append((s, (max(1, math.ceil(shape[0] * s)), max(1, math.ceil(shape[1] * s)))))
+    return out
+
+
+def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[int, int]], LevelLoss], *,
+                   levels: int = 3, iters: int | tuple[int, ...] = (100, 100, 100), start_scale: float | None = None,
+                   optimizer: str = "lbfgs", lbfgs_history: int = 25, line_search: str | None = "strong_wolfe",
+                   lr: float | None = None, clamp: bool = True, seed: int = 0, device: str | torch.device = "cpu",
+                   progress: Callable[..., None] | None = None, callback: Callable[..., None] | None = None,
+                   save_every: int | None = None, level_init: str = "upsample") -> tuple[np.ndarray, dict]:
+    """Minimise Σ of the loss terms over the image pixels, coarse to fine (FaceTex Eq. 5).
+
+    ``loss_builder(level, scale, (h, w))`` prepares that level's targets and returns a callable
+    ``x (1, 3, h, w) -> {name: weighted scalar}``; the objective is the sum of the terms.
+    ``iters`` is per level (an int is used for every level). ``optimizer`` "lbfgs" or "adam"
+    (``lr`` default 1 for L-BFGS, 0.01 for Adam). ``progress(n=1, level=, loss=)`` is called
+    once per function evaluation; ``callback(image=, level=, evaluation=)`` every
+    ``save_every`` evaluations (if set) and after each level, with the (h, w, 3) image.
+    ``level_init``: "upsample" starts each level from the previous result upsampled (CNNMRF);
+    "residual" from the init image at the new size plus the upsampled *change* of the
+    previous level, which keeps the init's fine detail (our default for transfers).
+
+    Returns the final image (H, W, 3) float32 and ``info``: per-level scale, shape, seconds,
+    evaluations, iterations and final value of every term; the total-loss history; settings.
+    """
+    init = np.asarray(init)
+    if init.ndim != 3 or init.shape[2] != 3 or init.shape[0] < 1 or init.shape[1] < 1:
+        raise BadInputError(f"init must be an (H, W, 3) RGB image, got shape {init.shape}")
+    iters = (iters,) * levels if isinstance(iters, int) else tuple(int(i) for i in iters)
+    if len(iters) != levels:
+        raise BadInputError(f"iters has {len(iters)} entries for {levels} levels")
+    if optimizer not in ("lbfgs", "adam"):
+        raise BadInputError(f"optimizer must be 'lbfgs' or 'adam', not {optimizer!r}")
+    if level_init not in ("upsample", "residual"):
+        raise BadInputError(f"level_init must be 'upsample' or 'residual', not {level_init!r}")
+    if line_search not in (None, "strong_wolfe"):
+        raise BadInputError(f"line_search must be None or 'strong_wolfe', not {line_search!r}")
+    plan = level_shapes(init.shape[:2], levels, start_scale)
+
+    det_before = torch.are_deterministic_algorithms_enabled()
+    warn_before = torch.is_deterministic_algorithms_warn_only_enabled()
+    torch.use_deterministic_algorithms(True, warn_only=True)
+    torch.manual_seed(seed)
+    info = {"optimizer": optimizer, "level_init": level_init, "line_search": line_search if optimizer == "lbfgs" else None,
+            "lbfgs_history": lbfgs_history, "clamp": clamp, "seed": seed, "levels": [], "loss_history": []}
+    t_all = time.perf_counter()
+    try:
+        source = to_tensor(init, device)
+        x_prev = None
+        for level, ((scale, shape), n_iter) in enumerate(zip(plan, iters)):
+            t0 = time.perf_counter()
+            if x_prev is None:
+                start = _resize(source, shape)
+            elif level_init == "residual":
+                # upsample only the change made so far: the init's detail at this resolution
+                # survives instead of the previous level's blur (CNNMRF upsamples the image)
+                prev_src = _resize(source, tuple(x_prev.shape[-2:]))
+                start = _resize(source, shape) + _resize(x_prev - prev_src, shape)
+            else:
+                start = _resize(x_prev, shape)
+            level_loss = loss_builder(level, scale, shape)
+            x = start.detach().clone(memory_format=torch.contiguous_format).requires_grad_(True)
+            evals = 0
+
+            def closure():
+                nonlocal evals
+                opt.zero_grad(set_to_none=False)
+                terms = level_loss(x)
+                total = sum(terms.values())
+                total.backward()
+                evals += 1
+                value = float(total.detach())
+                info["loss_history"].append(value)
+                if progress is not None:
+                    progress(n=1, level=level, loss=value)
+                if callback is not None and save_every and evals % save_every == 0:
+                    callback(image=to_image(x), level=level, evaluation=evals)
+                return total
+
+            iterations = 0
+            if n_iter > 0:
+                if optimizer == "lbfgs":
+                    opt = torch.optim.LBFGS([x], lr=1.0 if lr is None else lr, max_iter=n_iter,
+                                            max_eval=n_iter * 5 // 4, history_size=lbfgs_history,
+                                            line_search_fn=line_search)
+                    opt.step(closure)
+                    iterations = int(opt.state[x].get("n_iter", 0))
+                else:
+                    opt = torch.optim.Adam([x], lr=1e-2 if lr is None else lr)
+                    for _ in range(n_iter):
+                        opt.step(closure)
+                    iterations = n_iter
+            with torch.no_grad():
+                if clamp:
+                    x.clamp_(0.0, 1.0)
+            # Final value of every term at the level's result (one extra evaluation).
+            with torch.no_grad():
+                terms = {k: float(v.detach()) for k, v in level_loss(x).items()}
+            x_prev = x.detach()
+            info["levels"].append({"level": level, "scale": scale, "shape": tuple(shape), "iterations": iterations,
+                                   "evaluations": evals, "seconds": time.perf_counter() - t0,
+                                   "loss_terms": terms, "loss": float(sum(terms.values()))})
+            if callback is not None:
+                callback(image=to_image(x_prev), level=level, evaluation=evals)
+    finally:
+        torch.use_deterministic_algorithms(det_before, warn_only=warn_before)
+    info["seconds"] = time.perf_counter() - t_all
+    return to_image(x_prev), info

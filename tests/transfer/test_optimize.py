@@ -1,0 +1,106 @@
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+from facetex.errors import BadInputError
+from facetex.transfer.losses import content_loss, mrf_loss, style_patches, tv_loss
+from facetex.transfer.optimize import level_shapes, optimize_image, to_tensor
+
+
+def _target(h=16, w=16):
+    yy, xx = np.mgrid[0:h, 0:w] / max(h, w)
+    return np.stack([xx, yy, 0.5 * (xx + yy)], axis=-1).astype(np.float32)
+
+
+def _l2_tv_builder(target, seen=None):
+    def build(level, scale, shape):
+        if seen is not None:
+            seen.append((level, scale, shape))
+        t = F.interpolate(to_tensor(target), size=shape, mode="bilinear", align_corners=False)
+        return lambda x: {"l2": content_loss(x, t), "tv": 1e-3 * tv_loss(x)}
+    return build
+
+
+def test_level_shapes():
+    assert level_shapes((16, 16)) == [(0.25, (4, 4)), (0.5, (8, 8)), (1.0, (16, 16))]
+    assert [s for _, s in level_shapes((15, 17), 3)] == [(4, 5), (8, 9), (15, 17)]  # ceil, as CNNMRF
+    assert level_shapes((10, 10), 1) == [(1.0, (10, 10))]
+
+
+@pytest.mark.parametrize("line_search", ["strong_wolfe", None])
+def test_converges_on_l2_plus_tv(line_search):
+    target = _target()
+    init = np.full_like(target, 0.5)
+    seen, calls = [], []
+    out, info = optimize_image(init, _l2_tv_builder(target, seen), iters=(20, 20, 20), line_search=line_search,
+                               progress=lambda n, **kw: calls.append((n, kw)))
+    assert out.shape == target.shape and out.dtype == np.float32
+    assert [s[2] for s in seen] == [(4, 4), (8, 8), (16, 16)]
+    assert [lv["shape"] for lv in info["levels"]] == [(4, 4), (8, 8), (16, 16)]
+    start = content_loss(torch.from_numpy(init), torch.from_numpy(target)).item()
+    assert info["levels"][-1]["loss"] < 0.01 * start
+    assert np.abs(out - target).max() < 0.05
+    assert len(calls) == sum(lv["evaluations"] for lv in info["levels"]) == len(info["loss_history"])
+    assert set(info["levels"][0]["loss_terms"]) == {"l2", "tv"}
+    assert all(lv["seconds"] > 0 for lv in info["levels"])
+
+
+def test_deterministic_bitwise():
+    target = _target(12, 10)
+    init = np.random.default_rng(0).random((12, 10, 3)).astype(np.float32)
+    a, ia = optimize_image(init, _l2_tv_builder(target), levels=2, iters=8, seed=3)
+    b, ib = optimize_image(init, _l2_tv_builder(target), levels=2, iters=8, seed=3)
+    assert np.array_equal(a, b) and ia["loss_history"] == ib["loss_history"]
+
+
+def test_clamp_and_callback():
+    target = _target() * 3 - 1  # out of range: the optimum is clipped to [0, 1]
+    got = []
+    out, _ = optimize_image(_target(), _l2_tv_builder(target), levels=2, iters=5, save_every=2,
+                            callback=lambda image, level, evaluation: got.append((level, image.shape)))
+    assert out.min() >= 0 and out.max() <= 1
+    assert (0, (8, 8, 3)) in got and got[-1] == (1, (16, 16, 3))
+    out2, _ = optimize_image(_target(), _l2_tv_builder(target), levels=1, iters=5, clamp=False)
+    assert out2.min() < 0
+
+
+def test_mrf_with_tiny_random_feature_net_decreases_loss():
+    torch.manual_seed(0)
+    net = torch.nn.Sequential(torch.nn.Conv2d(3, 8, 3, padding=1), torch.nn.ReLU(),
+                              torch.nn.Conv2d(8, 8, 3, stride=2, padding=1), torch.nn.ReLU()).requires_grad_(False)
+    style = np.random.default_rng(1).random((32, 32, 3)).astype(np.float32)
+
+    def build(level, scale, shape):
+        s = F.interpolate(to_tensor(style), size=shape, mode="bilinear", align_corners=False, antialias=True)
+        sp = style_patches(net(s))
+        return lambda x: {"mrf": mrf_loss(net(x), sp), "tv": 1e-2 * tv_loss(x)}
+
+    out, info = optimize_image(_target(32, 32), build, levels=2, iters=(10, 10))
+    first = info["loss_history"][len(info["loss_history"]) - info["levels"][-1]["evaluations"]]
+    assert info["levels"][-1]["loss"] < first
+    assert out.shape == (32, 32, 3)
+    again, _ = optimize_image(_target(32, 32), build, levels=2, iters=(10, 10))
+    assert np.array_equal(out, again)  # matching, scatter and L-BFGS are deterministic on CPU
+
+
+def test_bad_arguments():
+    with pytest.raises(BadInputError):
+        optimize_image(np.zeros((4, 4)), _l2_tv_builder(_target()))
+    with pytest.raises(BadInputError):
+        optimize_image(_target(), _l2_tv_builder(_target()), levels=3, iters=(1, 2))
+    with pytest.raises(BadInputError):
+        optimize_image(_target(), _l2_tv_builder(_target()), optimizer="sgd")
+
+
+def test_level_init_residual_keeps_init_detail():
+    init = np.random.default_rng(2).random((16, 16, 3)).astype(np.float32)
+
+    def build(level, scale, shape):
+        return lambda x: {"zero": 0.0 * x.sum()}  # nothing changes the image
+
+    up, _ = optimize_image(init, build, levels=2, iters=2, level_init="upsample")
+    res, info = optimize_image(init, build, levels=2, iters=2, level_init="residual")
+    assert np.allclose(res, init, atol=1e-6)  # init + upsampled (zero) change
+    assert not np.allclose(up, init, atol=1e-2)  # the half-size image, upsampled: blurred
+    assert info["level_init"] == "residual"
