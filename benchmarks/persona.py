@@ -1,0 +1,134 @@
+"""Persona texture speed and memory (Tom Hanks Sec. 6 "Runtime": 0.34 s per texture on one core).
+
+    python benchmarks/persona.py [--data /work/shared/data/lfw/George_W_Bush] [--cache DIR]
+
+1. build time per photo on 2 cores (``--build-photos`` photos, jobs = 2);
+2. synthesis time per target, median over 50 targets, one thread (OMP/BLAS/OpenCV = 1),
+   for a persona of >= 200 photos, per method (after the one-off precomputation);
+3. in-RAM size of the full (530-photo) persona: stored arrays + precomputation, and RSS.
+Personas are cached in ``--cache`` (built once). Prints a Markdown table.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_v] = "1"
+
+import argparse  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+
+def _rss_mb(field: str = "VmRSS") -> float:
+    for line in open("/proc/self/status"):
+        if line.startswith(field):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def _persona(data: Path, files, cache: Path, jobs: int):
+    from facetex.persona import build_persona, load_persona
+
+    if cache.exists():
+        return load_persona(cache), None
+    t = time.perf_counter()
+    p = build_persona(data, files=files, jobs=jobs)
+    dt = time.perf_counter() - t
+    p.save(cache, overwrite=True)
+    return p, dt
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", default="/work/shared/data/lfw/George_W_Bush")
+    ap.add_argument("--cache", default="bench_out/persona_speed")
+    ap.add_argument("--build-photos", type=int, default=60)
+    ap.add_argument("--synth-photos", type=int, default=250)
+    ap.add_argument("--targets", type=int, default=50)
+    args = ap.parse_args()
+    cv2.setNumThreads(1)
+    try:
+        import torch
+
+        torch.set_num_threads(1)
+    except ImportError:
+        pass
+    from facetex.persona import synthesize_texture
+    from facetex.persona.collection import _list_photos
+    from facetex.persona.texture import prepare_persona
+
+    data = Path(args.data)
+    cache = Path(args.cache)
+    cache.mkdir(parents=True, exist_ok=True)
+    files = _list_photos(data)
+    rows = []
+
+    # 1. build time per photo, 2 worker processes (pool start-up and model loading included)
+    t = time.perf_counter()
+    from facetex.persona import build_persona
+
+    small = build_persona(data, files=files[: args.build_photos], jobs=2)
+    dt = time.perf_counter() - t
+    rows.append((f"build, 2 processes ({args.build_photos} photos, {len(small)} usable)",
+                 f"{dt / args.build_photos * 1000:.0f} ms / photo", f"total {dt:.1f} s"))
+    del small
+
+    # 2. synthesis per target, one thread: the first --synth-photos photos of the full persona
+    #    (sliced: its alignment is relative to the full collection's mean, irrelevant for timing)
+    import dataclasses
+
+    full, dt_full = _persona(data, files, cache / f"{data.name}_all.persona", 2)
+    n = min(args.synth_photos, len(full))
+    p = dataclasses.replace(full, _cache={}, photos=full.photos[:n], **{
+        k: getattr(full, k)[:n] for k in ("images", "visibility", "fiducials", "points68", "poses", "flows")})
+    t = time.perf_counter()
+    prepare_persona(p)
+    t_prep = time.perf_counter() - t
+    rng = np.random.default_rng(0)
+    idx = rng.choice(len(p), size=args.targets, replace=len(p) < args.targets)
+    targets = [p.fiducials[i] + rng.normal(0, 1.0, (49, 2)) for i in idx]
+    for method in ("ours", "static", "weighted", "prewarp"):
+        synthesize_texture(p, fiducials=targets[0], method=method)  # lazy per-method caches
+        ts = []
+        for f in targets:
+            t = time.perf_counter()
+            synthesize_texture(p, fiducials=f, method=method)
+            ts.append(time.perf_counter() - t)
+        rows.append((f"synthesize `{method}`, 1 thread, {len(p)}-photo persona, 192x240",
+                     f"{np.median(ts) * 1000:.1f} ms / target",
+                     f"median of {len(ts)}; p90 {np.percentile(ts, 90) * 1000:.1f} ms"))
+    rows.append((f"precompute (once per persona, {len(p)} photos)", f"{t_prep:.2f} s", "TPS maps, alignment, pyramids"))
+    del p
+
+    # 3. memory of the full persona
+    rss0 = _rss_mb()
+    stored = sum(getattr(full, k).nbytes for k in ("images", "visibility", "fiducials", "points68", "poses",
+                                                  "flows", "subspace"))
+    prep = prepare_persona(full)
+    t = time.perf_counter()
+    synthesize_texture(full, fiducials=full.fiducials[1], method="ours")
+    t_one = time.perf_counter() - t
+    rows.append((f"in-RAM persona, {len(full)} photos: stored arrays", f"{stored / 2**20:.0f} MiB", ""))
+    rows.append(("+ precomputation for `ours`", f"{prep.nbytes() / 2**20:.0f} MiB",
+                 f"total {(stored + prep.nbytes()) / 2**30:.2f} GiB; RSS +{_rss_mb() - rss0:.0f} MiB"))
+    rows.append((f"synthesize `ours`, {len(full)}-photo persona, 1 thread", f"{t_one * 1000:.1f} ms", "single target"))
+    for m in ("weighted", "prewarp"):
+        synthesize_texture(full, fiducials=full.fiducials[0], method=m)
+    rows.append(("+ lazy single-scale stacks (`weighted`, `prewarp`)", f"{prep.nbytes() / 2**20:.0f} MiB",
+                 f"total {(stored + prep.nbytes()) / 2**30:.2f} GiB; peak RSS {_rss_mb('VmHWM'):.0f} MiB"))
+    if dt_full is not None:
+        rows.append((f"build, 2 processes ({len(files)} photos)", f"{dt_full / len(files) * 1000:.0f} ms / photo",
+                     f"total {dt_full:.0f} s"))
+    print("| measurement | value | note |\n|---|---:|---|")
+    for r in rows:
+        print(f"| {r[0]} | {r[1]} | {r[2]} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

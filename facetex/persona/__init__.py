@@ -1,0 +1,17 @@
+"""Persona textures from a photo collection ("What makes Tom Hanks look like Tom Hanks", Sec. 5)."""
+
+from .collection import Persona, PersonaParams, build_persona, load_persona
+from .texture import METHODS, STAGES, TextureParams, average_face, prepare_persona, synthesize_texture
+
+__all__ = [
+    "Persona",
+    "PersonaParams",
+    "build_persona",
+    "load_persona",
+    "TextureParams",
+    "synthesize_texture",
+    "average_face",
+    "prepare_persona",
+    "METHODS",
+    "STAGES",
+]

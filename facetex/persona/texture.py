@@ -1,0 +1,458 @@
+"""Expression-dependent texture synthesis from a persona (Tom Hanks Sec. 5, Figs. 4-7).
+
+Pipeline of the paper, for target fiducials F^T: TPS-warp every photo to F^T (Eq. 1),
+refine by collection flow (flow to the projection onto the rank-4 appearance subspace
+of the warped stack), then blend Laplacian pyramids with the per-pixel weights of Eq. 3
+and collapse.
+
+Fast path (``precomputed=True``, default). Everything target-independent is done
+once per persona: each photo is aligned (TPS + collection flow) to the collection's
+mean fiducials M (the "neutral frame", at build time), and its Laplacian pyramid and
+Laplacian responses are computed there. Per target only the scalar expression weights
+change, so each pyramid level of the blend is one matrix-vector product over the
+precomputed stack; the blended texture is then warped once by the TPS M -> F^T
+(one resampling of one image). Approximations against the paper's per-target
+pipeline: (1) the photo-to-target warp TPS(F^T -> F^i) is replaced by
+align_i(M -> F^i) o TPS(F^T -> M), which maps the fiducials the same way but differs
+between them; (2) the collection flow and the Laplacian responses are computed in the
+neutral frame instead of the target frame; (3) pyramid blending and the final warp
+are swapped (exact for an affine warp). ``precomputed=False`` runs the paper's
+per-target pipeline (one optical flow per photo and target: slow) to measure this.
+
+Eq. 3 indexing: pyramid levels are l = 0 (coarsest, the Gaussian residual) ...
+p - 1 (finest), as in the paper. The uniform term tau * l^-beta is infinite at l = 0,
+so the coarsest level is blended with expression-independent weights (the limit of the
+normalised weights); at l = 1 it equals tau (comparable to the best expression weight 1);
+from l = 2 on it is <= 2^-20. The pyramid has p levels with the coarsest about 8 px.
+
+sigma units: ||F^T - F^i|| is the Euclidean norm of the 98-vector of fiducial
+differences, in pixels of a frame whose eye-centre distance is ``iod_ref`` = 69.12 px
+(our default 192 x 240 canonical frame; the paper's ~194 x 244 face frame is similar).
+L (Laplacian response): |Laplacian| (3x3) of the luminance of each Gaussian-pyramid
+level, Gaussian-blurred (sigma 1 px of that level) plus a small floor; alpha = 1.
+Deviation: L is multiplied by the photo's frontalization visibility (with its mirror,
+as the frontal image was symmetry-filled) so photos contribute where they were seen.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from ..errors import BadInputError
+from .collection import (
+    Persona,
+    appearance_subspace,
+    collection_flow,
+    compose_map_flow,
+    face_region,
+    project_onto_subspace,
+    remap_stack,
+    tps_map,
+    tps_maps,
+)
+
+__all__ = [
+    "TextureParams",
+    "METHODS",
+    "STAGES",
+    "synthesize_texture",
+    "average_face",
+    "prepare_persona",
+    "expression_similarity",
+    "eq3_weights",
+    "laplacian_pyramid",
+    "collapse_pyramid",
+    "blend_pyramids",
+    "pyramid_levels",
+    "laplacian_response",
+    "frontalize_reference",
+]
+
+METHODS = ("ours", "static", "weighted", "prewarp")
+STAGES = ("a", "b", "c", "d")
+
+
+@dataclass(frozen=True)
+class TextureParams:
+    """Eq. 3 constants (alpha, beta, tau) = (1, 20, 1), sigma = 10 (Tom Hanks Sec. 6) and ours."""
+
+    sigma: float = 10.0
+    alpha: float = 1.0
+    beta: float = 20.0
+    tau: float = 1.0
+    iod_ref: float = 69.12
+    min_level_side: int = 8
+    laplacian_blur: float = 1.0
+    laplacian_floor: float = 1e-3
+    use_visibility: bool = True
+    visibility_floor: float = 0.05
+
+
+# ------------------------------------------------------------------ pyramids, Eq. 3
+def pyramid_levels(shape, min_side: int = 8) -> int:
+    """Number of levels p so the coarsest level's smaller side is about ``min_side`` px."""
+    s = min(int(shape[0]), int(shape[1]))
+    return max(1, int(math.floor(math.log2(max(s, 1) / min_side))) + 1)
+
+
+def laplacian_pyramid(image: np.ndarray, levels: int) -> list[np.ndarray]:
+    """Laplacian pyramid (cv2.pyrDown / pyrUp), finest band first, Gaussian residual last."""
+    g = [np.asarray(image, np.float32)]
+    for _ in range(levels - 1):
+        g.append(cv2.pyrDown(g[-1]))
+    pyr = [g[k] - cv2.pyrUp(g[k + 1], dstsize=(g[k].shape[1], g[k].shape[0])) for k in range(levels - 1)]
+    pyr.append(g[-1])
+    return pyr
+
+
+def collapse_pyramid(pyr: list[np.ndarray]) -> np.ndarray:
+    """Inverse of :func:`laplacian_pyramid` (exact up to float rounding)."""
+    img = pyr[-1]
+    for band in reversed(pyr[:-1]):
+        img = band + cv2.pyrUp(img, dstsize=(band.shape[1], band.shape[0]))
+    return img
+
+
+def laplacian_response(gaussian_level: np.ndarray, *, blur: float = 1.0, floor: float = 1e-3) -> np.ndarray:
+    """L of Eq. 3 on one pyramid level: blurred |Laplacian| of the luminance, plus a floor."""
+    g = gaussian_level
+    if g.ndim == 3:
+        g = cv2.cvtColor(np.ascontiguousarray(g, np.float32), cv2.COLOR_RGB2GRAY)
+    L = np.abs(cv2.Laplacian(g.astype(np.float32), cv2.CV_32F, ksize=3))
+    if blur > 0:
+        L = cv2.GaussianBlur(L, (0, 0), blur)
+    return L + np.float32(floor)
+
+
+def expression_similarity(target, fiducials, sigma: float = 10.0, *, scale: float = 1.0) -> np.ndarray:
+    """exp(-||F^T - F^i||^2 / 2 sigma^2) per photo (n,), float64; distances times ``scale``."""
+    t = np.asarray(target, np.float64)
+    f = np.asarray(fiducials, np.float64)
+    d2 = ((f - t) ** 2).sum(axis=(-2, -1)) * scale**2
+    return np.exp(-d2 / (2.0 * sigma**2))
+
+
+def _uniform_term(level: int, tau: float, beta: float) -> float:
+    return math.inf if level == 0 else tau * float(level) ** (-beta)
+
+
+def eq3_weights(similarity, laplacian, level: int, *, tau: float = 1.0, beta: float = 20.0,
+                alpha: float = 1.0) -> np.ndarray:
+    """Unnormalised W^i_jk = (similarity_i + tau l^-beta) (L^i_jk)^alpha  # Eq. 3 (Tom Hanks)
+
+    ``similarity`` (n,), ``laplacian`` (n, ...); ``level`` l with 0 the coarsest. At l = 0
+    the uniform term is infinite: returned are its normalisation-equivalent limit L^alpha."""
+    s = np.asarray(similarity, np.float64)
+    L = np.asarray(laplacian, np.float64) ** alpha
+    u = _uniform_term(level, tau, beta)
+    a = np.ones_like(s) if math.isinf(u) else s + u
+    return a.reshape((-1,) + (1,) * (L.ndim - 1)) * L
+
+
+def _level_scalars(similarity: np.ndarray, level: int, tau: float, beta: float) -> np.ndarray:
+    """Per-photo factor of Eq. 3 at ``level``, divided by its maximum (the normalisation of
+    the weights cancels it; this keeps float32 away from underflow)."""
+    u = _uniform_term(level, tau, beta)
+    if math.isinf(u):
+        return np.ones(len(similarity), np.float32)
+    a = similarity + u
+    return (a / max(float(a.max()), 1e-300)).astype(np.float32)
+
+
+def blend_pyramids(pyramids: list[list[np.ndarray]], weights: list[list[np.ndarray]]) -> np.ndarray:
+    """Collapse of the per-level weighted average (normalised per pixel) of Laplacian pyramids.
+
+    pyramids[i][k]: level k (finest first) of photo i; weights[i][k]: (h_k, w_k) weights."""
+    out = []
+    for k in range(len(pyramids[0])):
+        num = sum(w[k][..., None] * p[k] for p, w in zip(pyramids, weights))
+        den = sum(w[k] for w in weights)[..., None]
+        out.append(num / np.maximum(den, 1e-30))
+    return collapse_pyramid(out)
+
+
+# ------------------------------------------------------------------ precomputation
+def _confidence(vis_u8: np.ndarray, tp: TextureParams) -> np.ndarray:
+    """(n, H, W) float32 visibility confidence of the symmetry-filled frontal images."""
+    if not tp.use_visibility:
+        return np.ones(vis_u8.shape, np.float32)
+    v = vis_u8.astype(np.float32) / 255.0
+    v = v + (1.0 - v) * v[:, :, ::-1]
+    return v + np.float32(tp.visibility_floor)
+
+
+def _pyramid_stack(aligned: np.ndarray, conf: np.ndarray, levels: int, tp: TextureParams) -> list[np.ndarray]:
+    """Per level k (finest first): (n, h_k * w_k * 4) float32 of [L' band (3 ch), L'] with
+    L' = L^alpha * confidence, so a level of the blend is one matrix-vector product."""
+    n = len(aligned)
+    stacks = None
+    for i in range(n):
+        pyr = laplacian_pyramid(aligned[i], levels)
+        g = aligned[i]
+        c = conf[i]
+        for k in range(levels):
+            if k > 0:
+                g = cv2.pyrDown(g)
+                c = cv2.pyrDown(c)
+            L = laplacian_response(g, blur=tp.laplacian_blur, floor=tp.laplacian_floor)
+            if tp.alpha != 1:
+                L = L ** np.float32(tp.alpha)
+            L = L * c
+            if stacks is None:
+                stacks = [None] * levels
+            if stacks[k] is None:
+                stacks[k] = np.empty((n, L.size * 4), np.float32)
+            row = stacks[k][i].reshape(L.shape + (4,))
+            row[..., :3] = pyr[k] * L[..., None]
+            row[..., 3] = L
+    return stacks
+
+
+def _single_stack(images: np.ndarray, conf: np.ndarray, tp: TextureParams) -> np.ndarray:
+    """(n, H * W * 4) float32 [L' image, L'] at full resolution (single-scale baselines)."""
+    n = len(images)
+    out = np.empty((n, images[0].shape[0] * images[0].shape[1] * 4), np.float32)
+    for i in range(n):
+        L = laplacian_response(images[i], blur=tp.laplacian_blur, floor=tp.laplacian_floor)
+        if tp.alpha != 1:
+            L = L ** np.float32(tp.alpha)
+        L = L * conf[i]
+        row = out[i].reshape(L.shape + (4,))
+        row[..., :3] = images[i] * L[..., None]
+        row[..., 3] = L
+    return out
+
+
+def _gemv_blend(stack: np.ndarray, w: np.ndarray, shape) -> np.ndarray:
+    r = (w @ stack).reshape(tuple(shape) + (4,))
+    return r[..., :3] / np.maximum(r[..., 3:], 1e-30)
+
+
+class _Prepared:
+    """Target-independent data of a persona for :func:`synthesize_texture` (see module doc)."""
+
+    def __init__(self, persona: Persona, tp: TextureParams, progress: Callable | None = None):
+        W, H = persona.size
+        self.shape = (H, W)
+        self.tp = tp
+        self.levels = pyramid_levels(self.shape, tp.min_level_side)
+        self.M = persona.mean_fiducials
+        maps = persona._cache.get("tps_maps")
+        if maps is None or maps.shape[0] != len(persona):
+            maps = tps_maps(persona.fiducials, self.M, self.shape, persona.params.tps_smoothing)
+        align_maps = compose_map_flow(maps, persona.flows)
+        self.aligned = remap_stack(persona.images, align_maps)
+        conf = _confidence(persona.visibility, tp)
+        self.conf_frontal = conf
+        self.conf_aligned = remap_stack(conf, align_maps)
+        # the maps are dropped after use (2 x n x H x W x 2 floats): only Fig. 6 b needs the TPS alone
+        self._stage = {"b": np.clip(remap_stack(persona.images, maps).mean(axis=0), 0, 1).astype(np.float32)}
+        del maps, align_maps
+        persona._cache.pop("tps_maps", None)
+        self.pyr = _pyramid_stack(self.aligned, self.conf_aligned, self.levels, tp)
+        self.level_shapes = [p.shape[:2] for p in laplacian_pyramid(self.aligned[0], self.levels)]
+        self.region = face_region(persona.points68.mean(axis=0), self.shape)
+        self._single = {}
+        if progress:
+            progress(n=1, stage="precompute")
+
+    def single(self, which: str, persona: Persona) -> np.ndarray:
+        if which not in self._single:
+            if which == "aligned":
+                self._single[which] = _single_stack(self.aligned, self.conf_aligned, self.tp)
+            else:
+                front = persona.images.astype(np.float32) / 255.0
+                self._single[which] = _single_stack(front, self.conf_frontal, self.tp)
+        return self._single[which]
+
+    def blend_ours(self, similarity: np.ndarray) -> np.ndarray:
+        p = self.levels
+        bands = []
+        for k in range(p):
+            w = _level_scalars(similarity, p - 1 - k, self.tp.tau, self.tp.beta)  # paper l = p-1-k
+            bands.append(_gemv_blend(self.pyr[k], w, self.level_shapes[k]))
+        return collapse_pyramid(bands)
+
+    def nbytes(self) -> int:
+        arrs = [self.aligned, self.conf_frontal, self.conf_aligned, *self.pyr,
+                *self._single.values()]
+        return int(sum(a.nbytes for a in arrs))
+
+
+def prepare_persona(persona: Persona, params: TextureParams | None = None, *, progress=None) -> _Prepared:
+    """Precompute (once, cached on the persona) the target-independent synthesis data."""
+    tp = params or TextureParams()
+    key = ("prepared", tp)
+    if key not in persona._cache:
+        persona._cache[key] = _Prepared(persona, tp, progress)
+    return persona._cache[key]
+
+
+# ------------------------------------------------------------------ synthesis
+def _fiducials49(fiducials) -> np.ndarray:
+    from ..landmarks import POINTS49_INDEX
+
+    f = np.asarray(fiducials, np.float64)
+    if f.shape == (68, 2):
+        f = f[POINTS49_INDEX]
+    if f.shape != (49, 2) or not np.all(np.isfinite(f)):
+        raise BadInputError(f"target fiducials must be finite (49, 2) or (68, 2) (x, y) points, got {f.shape}")
+    return f
+
+
+def frontalize_reference(reference, size) -> tuple[np.ndarray, np.ndarray]:
+    """(frontal image float32 (H, W, 3), pose-corrected fiducials (49, 2)) of a reference
+    photo (a path or an RGB image)."""
+    from ..geometry.frontalize import frontalize
+    from ..io import read_image
+    from ..landmarks import POINTS49_INDEX, detect_face
+
+    src = None
+    if isinstance(reference, (str, bytes)) or hasattr(reference, "__fspath__"):
+        src = reference
+        reference = read_image(reference)
+    face = detect_face(reference, source=src)
+    fr = frontalize(reference, face.points68, size=size)
+    return fr.image, np.asarray(fr.points68, np.float64)[POINTS49_INDEX]
+
+
+def _sigma_scale(persona: Persona, tp: TextureParams) -> float:
+    from ..geometry._generic_face import EYE_SPAN
+
+    return tp.iod_ref / (EYE_SPAN * persona.size[0])
+
+
+def _check_sigma(sigma) -> float:
+    s = float(sigma)
+    if not (math.isfinite(s) and s > 0):
+        raise BadInputError(f"sigma must be a positive number (typically 6-12), got {sigma!r}")
+    return s
+
+
+def _remap(img: np.ndarray, m: np.ndarray) -> np.ndarray:
+    return cv2.remap(np.ascontiguousarray(img, np.float32), m[..., 0], m[..., 1], cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)
+
+
+def _reference_flow(ref_image: np.ndarray, subspace: np.ndarray, region: np.ndarray, alpha: float,
+                    method: str) -> np.ndarray:
+    """Flow from the reference to its projection onto the collection's appearance subspace:
+    warping the collection's blend by it moves it onto the reference (Tom Hanks Sec. 5)."""
+    from ..geometry.flow import optical_flow
+
+    proj = project_onto_subspace(ref_image, subspace, region)
+    return optical_flow(ref_image, np.clip(proj, 0, 1), alpha=alpha, method=method)
+
+
+def _compose(m: np.ndarray, flow: np.ndarray) -> np.ndarray:
+    return compose_map_flow(m[None], flow[None])[0]
+
+
+def synthesize_texture(persona: Persona, *, fiducials=None, reference=None, method: str = "ours",
+                       sigma: float = 10.0, progress: Callable | None = None,
+                       params: TextureParams | None = None, precomputed: bool = True) -> np.ndarray:
+    """Texture (H, W, 3) float32 in [0, 1] in the canonical frame for target fiducials
+    ``fiducials`` (49 or 68 (x, y) points in the canonical frame) or the expression of a
+    ``reference`` photo (path or image; its frontalization gives F^T and the final flow).
+
+    ``method``: "ours" (TPS + collection flow + Eq. 3 multi-scale blend), "static" (the
+    stage-d average TPS-warped to the target), "weighted" (single-scale Eq. 3 weighted
+    average of the unaligned frontal photos), "prewarp" (TPS + collection flow, then a
+    single-scale weighted average). ``precomputed=False``: the paper's per-target pipeline
+    (slow; "ours" and "prewarp" only differ).
+    """
+    if method not in METHODS:
+        raise BadInputError(f"unknown method {method!r}: use one of {', '.join(METHODS)}")
+    if (fiducials is None) == (reference is None):
+        raise BadInputError("give exactly one of target fiducials or a reference photo")
+    sigma = _check_sigma(sigma)
+    tp = params or TextureParams()
+    W, H = persona.size
+    ref_img = None
+    if reference is not None:
+        ref_img, FT = frontalize_reference(reference, persona.size)
+    else:
+        FT = _fiducials49(fiducials)
+    s = expression_similarity(FT, persona.fiducials, sigma, scale=_sigma_scale(persona, tp))
+    pp = persona.params
+    if not precomputed and method in ("ours", "prewarp"):
+        return _synthesize_exact(persona, FT, ref_img, s, method, tp, progress)
+    prep = prepare_persona(persona, tp, progress=progress)
+    p = prep.levels
+    if method == "weighted":  # no alignment: the frontal photos as they are
+        w = _level_scalars(s, p - 1, tp.tau, tp.beta)
+        out = _gemv_blend(prep.single("frontal", persona), w, (H, W))
+        return np.clip(out, 0, 1).astype(np.float32)
+    m = tps_map(FT, prep.M, (H, W), pp.tps_smoothing)  # target -> neutral frame
+    if method == "static":
+        return np.clip(_remap(average_face(persona, "d", params=tp), m), 0, 1)
+    if method == "prewarp":
+        w = _level_scalars(s, p - 1, tp.tau, tp.beta)
+        blend = _gemv_blend(prep.single("aligned", persona), w, (H, W))
+    else:
+        blend = prep.blend_ours(s)
+    if progress:
+        progress(n=1, stage="blend")
+    if ref_img is not None:
+        sub_t = np.stack([_remap(b, m) for b in persona.subspace])
+        region_t = _remap(prep.region.astype(np.float32), m) > 0.5
+        h = _reference_flow(ref_img, sub_t, region_t, pp.flow_alpha, pp.flow_method)
+        m = _compose(m, h)
+    return np.clip(_remap(blend, m), 0, 1).astype(np.float32)
+
+
+def _synthesize_exact(persona: Persona, FT, ref_img, s, method, tp: TextureParams, progress) -> np.ndarray:
+    """The paper's per-target pipeline: TPS F^T -> F^i, subspace and collection flow at the
+    target, (optionally) the reference flow, then the blend in the target frame."""
+    from ..geometry.tps import ThinPlateSpline
+
+    pp = persona.params
+    W, H = persona.size
+    maps = tps_maps(persona.fiducials, FT, (H, W), pp.tps_smoothing)
+    warped = remap_stack(persona.images, maps)
+    M = persona.mean_fiducials
+    p68 = ThinPlateSpline.fit(M, FT, smoothing=pp.tps_smoothing)(persona.points68.mean(axis=0))
+    region = face_region(p68, (H, W))
+    subspace, proj = appearance_subspace(warped, region, pp.subspace_rank)
+    flows = collection_flow(warped, proj, pp, progress=progress)
+    amaps = compose_map_flow(maps, flows)
+    if ref_img is not None:
+        h = _reference_flow(ref_img, subspace, region, pp.flow_alpha, pp.flow_method)
+        hh = np.broadcast_to(h, amaps.shape)
+        amaps = compose_map_flow(amaps, hh)
+    aligned = remap_stack(persona.images, amaps)
+    conf = remap_stack(_confidence(persona.visibility, tp), amaps)
+    levels = pyramid_levels((H, W), tp.min_level_side)
+    if method == "prewarp":
+        w = _level_scalars(s, levels - 1, tp.tau, tp.beta)
+        return np.clip(_gemv_blend(_single_stack(aligned, conf, tp), w, (H, W)), 0, 1).astype(np.float32)
+    stacks = _pyramid_stack(aligned, conf, levels, tp)
+    shapes = [b.shape[:2] for b in laplacian_pyramid(aligned[0], levels)]
+    bands = [_gemv_blend(stacks[k], _level_scalars(s, levels - 1 - k, tp.tau, tp.beta), shapes[k])
+             for k in range(levels)]
+    return np.clip(collapse_pyramid(bands), 0, 1).astype(np.float32)
+
+
+def average_face(persona: Persona, stage: str = "d", *, params: TextureParams | None = None) -> np.ndarray:
+    """The collection's average face (Tom Hanks Fig. 6), (H, W, 3) float32 in [0, 1]:
+    a: mean of the frontalized photos; b: after TPS to the mean fiducials; c: after the
+    dense (collection-flow) warp; d: the multi-scale Eq. 3 blend at the mean fiducials."""
+    if stage not in STAGES:
+        raise BadInputError(f"unknown average stage {stage!r}: use one of {', '.join(STAGES)}")
+    tp = params or TextureParams()
+    if stage == "a":
+        return (persona.images.astype(np.float32).mean(axis=0) / 255.0).astype(np.float32)
+    prep = prepare_persona(persona, tp)
+    if stage not in prep._stage:
+        if stage == "c":
+            img = prep.aligned.mean(axis=0)
+        else:
+            s = expression_similarity(prep.M, persona.fiducials, tp.sigma, scale=_sigma_scale(persona, tp))
+            img = prep.blend_ours(s)
+        prep._stage[stage] = np.clip(img, 0, 1).astype(np.float32)
+    return prep._stage[stage].copy()
