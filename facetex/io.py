@@ -223,6 +223,8 @@ def check_output_path(path, *, overwrite: bool = False) -> Path:
     path = Path(path)
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
+        if folder.exists():
+            raise OutputError(f"{folder} is a file, not a folder: choose another output path", path=path)
         raise OutputError(f"output folder {folder} does not exist: create it first", path=path)
     if not os.access(folder, os.W_OK | os.X_OK):
         raise OutputError(f"output folder {folder} is not writable: choose another folder", path=path)
@@ -345,27 +347,44 @@ def iter_video_frames(path, *, max_frames: int | None = None) -> Iterator[np.nda
     A damaged file that still decodes some frames yields those, then warns
     (UserWarning) and stops; one that decodes none raises BadVideoError."""
     path = Path(path)
-    c = _open_input(path)
     n, error = 0, ""
-    try:
-        s = _video_stream(c, path)
-        s.thread_type = "AUTO"
+    # Frame threading is fast but drops the frames it holds when a later packet is
+    # corrupt, so after an error the file is decoded again, packet by packet, without it.
+    for threads in ("AUTO", "SLICE"):
+        c = _open_input(path)
         try:
-            for frame in c.decode(s):
-                if max_frames is not None and n >= max_frames:
-                    return
-                n += 1
-                yield frame.to_ndarray(format="rgb24").astype(np.float32) / 255.0
-        except _AV_ERRORS as e:
-            error = f" ({_cause(e)})"
-        if n == 0 and max_frames != 0:
-            raise BadVideoError(f"truncated or corrupt video, no decodable frame{error}: "
-                                "re-export or replace it", path=path)
-        if error or n < (s.frames or 0):  # the header declares more frames than decoded
-            warnings.warn(f"{path}: video damaged, decoded {n} of {s.frames or '?'} frames{error}",
-                          stacklevel=2)
-    finally:
-        c.close()
+            s = _video_stream(c, path)
+            s.thread_type = threads
+            k, packets = 0, c.demux(s)
+            while True:
+                try:
+                    packet = next(packets, None)
+                    if packet is None:
+                        break
+                    frames = s.decode(packet)
+                except _AV_ERRORS as e:
+                    error = f" ({_cause(e)})"
+                    if threads == "AUTO":
+                        break
+                    continue  # skip the corrupt packet; the final flush packet still comes
+                for frame in frames:
+                    k += 1
+                    if k <= n:  # already yielded by the threaded pass
+                        continue
+                    if max_frames is not None and n >= max_frames:
+                        return
+                    n += 1
+                    yield frame.to_ndarray(format="rgb24").astype(np.float32) / 255.0
+            if not error or threads == "SLICE":
+                break
+        finally:
+            c.close()
+    if n == 0 and max_frames != 0:
+        raise BadVideoError(f"truncated or corrupt video, no decodable frame{error}: "
+                            "re-export or replace it", path=path)
+    if error or n < (s.frames or 0):  # the header declares more frames than decoded
+        warnings.warn(f"{path}: video damaged, decoded {n} of {s.frames or '?'} frames{error}",
+                      stacklevel=2)
 
 
 def read_video(path, *, max_frames: int | None = None,

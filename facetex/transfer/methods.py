@@ -19,6 +19,14 @@ Caffe-VGG feature scales and 0–255 BGR pixels and do not carry over to other n
 (findings: "raw CNNMRF weights do not carry over between networks"). The paper's ratio
 λ_s/λ_c = 20 is kept for Gatys as the ratio of the normalised weights' *effects* only
 approximately; ``normalize=False`` runs the raw sums with whatever weights you give.
+
+The texture network, its layers, the structure layers and the weights were chosen by
+measurement on FRL London pairs (``benchmarks/transfer_choices.py``, docs/texture-nets.md):
+EfficientNet-Lite0 blocks 2 + 4 (content block 7); structure on FaceRecognitionNet
+level2 + level3, weight 1; texture weight 2 for FaceTex, 1 for MRF-CNN; Gram weight 0.1 for
+Gatys (with 1 it moved more texture than MRF-CNN and changed the landmarks more than
+FaceTex, contrary to Table 1); 384 px × 3 levels × 100 iterations ran in 46 s on the idle
+2-core machine (512 px: 72 s).
 """
 
 from __future__ import annotations
@@ -32,8 +40,10 @@ PRESETS = ("default", "paper")
 TEXTURE_NETS = ("effnet-lite0", "vgg19", "face-resnet")
 
 # Layer roles per texture network: MRF texture layers, content layer, Gram style layers.
-# VGG-19 names are the paper's; the others were chosen by measurement (docs/texture-nets.md):
-# matching strides 4 and 8 as VGG's relu3_1/relu4_1, content at stride 16 as relu4_2.
+# VGG-19 names are the paper's; the others match VGG's strides (relu3_1/relu4_1 = 4 and 8,
+# relu4_2 = 16). EfficientNet-Lite0 block2+block4 kept identity and landmarks best of the
+# sets we measured (block1+block4, block4 alone; face-resnet pool1/level1+level2: ghost
+# features and colour blotches; random VGG-19: chroma noise, 3x slower): docs/texture-nets.md.
 NET_LAYERS = {
     "vgg19": {"mrf": ("relu3_1", "relu4_1"), "content": ("relu4_2",),
               "style": ("relu1_1", "relu2_1", "relu3_1", "relu4_1", "relu5_1")},
@@ -43,7 +53,8 @@ NET_LAYERS = {
                     "style": ("conv1", "level1", "level2", "level3", "level4")},
 }
 # FaceRecognitionNet layers for the facial-structure loss (Eq. 3), the stand-in for
-# VGG-Face relu4_2: mid-level maps on the 150 px face chip (see docs/texture-nets.md).
+# VGG-Face relu4_2: mid-level maps on the 150 px face chip (17² and 8²); at weight 1 they
+# kept landmarks and identity best of level1..level4 and pairs of them (docs/texture-nets.md).
 STRUCTURE_LAYERS = ("level2", "level3")
 
 
@@ -130,7 +141,8 @@ def preset(method: str = "facetex", name: str = "default", texture_net: str | No
         # refinement left 2.66 px landmark error vs 2.93 px for SIFT flow, at 1/7 of the time
         base = replace(base, align_refine="optical-flow")
     if method == "facetex":  # Eq. 5: texture + facial structure + TV, prior mask
-        p = replace(base, mrf_layers=layers["mrf"], mrf_weight=1.0, structure_layers=STRUCTURE_LAYERS,
+        # texture 2 : structure 1 (docs/texture-nets.md): more texture than MRF-CNN, identity kept
+        p = replace(base, mrf_layers=layers["mrf"], mrf_weight=2.0, structure_layers=STRUCTURE_LAYERS,
                     structure_weight=1.0, tv_weight=0.05, prior=True)
     elif method == "mrf":  # Eq. 7: texture + content + TV
         p = replace(base, mrf_layers=layers["mrf"], mrf_weight=1.0, content_layers=layers["content"],
@@ -138,8 +150,10 @@ def preset(method: str = "facetex", name: str = "default", texture_net: str | No
         if name == "paper":  # §3.1: "Three resolutions with 100 iterations each"
             p = replace(p, iters=(100, 100, 100))
     else:  # Eq. 6: content + Gram style + TV
+        # Gram weight 0.1 of the content's (docs/texture-nets.md): Table 1's Neural Style keeps
+        # the landmarks best and moves the least texture; at 1 it did neither on our data
         p = replace(base, content_layers=layers["content"], content_weight=1.0, style_layers=layers["style"],
-                    style_weight=1.0, tv_weight=0.05, align=None, align_refine=None)
+                    style_weight=0.1, tv_weight=0.05, align=None, align_refine=None)
         if name == "paper":
             p = replace(p, levels=1, iters=(1000,))
     p.validate()

@@ -1,0 +1,48 @@
+"""``facetex puppet --driver VIDEO --puppet PERSON.persona -o OUT.mp4`` — persona puppetry (Tom Hanks §4, §6)."""
+
+from __future__ import annotations
+
+import sys
+
+from ._common import add_overwrite, print_json, progress_bar
+
+
+def register(sub) -> None:
+    p = sub.add_parser("puppet", help="drive a persona's 3D face with another person's video")
+    p.add_argument("--driver", required=True, help="driver video (MP4/MOV/MKV/AVI/MPG) showing one face")
+    p.add_argument("--puppet", required=True, help="puppet .persona file (facetex persona build)")
+    p.add_argument("-o", "--output", required=True, help="output H.264 .mp4 (the driver's audio is kept)")
+    p.add_argument("--driver-photos", help="folder of photos of the driver for its average shape "
+                                           "(default: the video's frames)")
+    p.add_argument("--side-by-side", action="store_true", help="put the driver frame left of the puppet")
+    p.add_argument("--size", type=int, help="longer side of the output frame (per panel) in px "
+                                            "(default: the driver's)")
+    p.add_argument("--background", choices=("driver", "plain"), default="driver",
+                   help="composite the puppet over the driver's frame (default) or a plain grey")
+    p.add_argument("--texture", choices=("ours", "static"), default="ours",
+                   help="expression-dependent texture (default) or the static average texture")
+    p.add_argument("--max-frames", type=int, help="use only the first N frames")
+    add_overwrite(p)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..io import check_output_path, video_info
+    from ..persona import load_persona
+    from ..persona.puppet import PuppetParams, puppeteer
+
+    check_output_path(args.output, overwrite=args.overwrite)
+    persona = load_persona(args.puppet)
+    n = video_info(args.driver)["n_frames"]
+    if args.max_frames is not None:
+        n = min(n, max(0, args.max_frames))
+    with progress_bar(2 * n, desc="puppet", unit="frame") as bar:
+        report = puppeteer(args.driver, persona, args.output, driver_photos=args.driver_photos,
+                           side_by_side=args.side_by_side, size=args.size, background=args.background,
+                           overwrite=args.overwrite, max_frames=args.max_frames,
+                           params=PuppetParams(texture=args.texture), progress=bar)
+    if report["lost_frames"]:
+        print(f"{args.driver}: face lost in {report['lost_frames']} of {report['frames']} frames "
+              "(filled from the neighbouring frames)", file=sys.stderr)
+    print_json(report)
+    return 0

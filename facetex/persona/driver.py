@@ -1,0 +1,457 @@
+"""Driver motion from a video (Tom Hanks §4, "Dynamic 3D Model").
+
+The paper reconstructs the driver's per-frame 3D flow with Total Moving Face
+Reconstruction (its ref. [23]). Substitution: we track MediaPipe's 468-point face
+mesh per frame (:func:`facetex.landmarks.face_mesh468`, seeded by dlib's 68
+landmarks), which gives a per-vertex 3D position of the same surface points in every
+frame. Then:
+
+1. **Rigid part.** Generalized Procrustes (hand-written Umeyama similarity, no
+   library does weighted 3D similarity Procrustes) aligns every frame's mesh to the
+   driver's mean mesh; each frame's head pose (scale, rotation, translation) is kept
+   separately for rendering.
+2. **Canonical frame.** The mean mesh is mapped by one similarity onto the canonical
+   frontal frame (192 x 240, as the frontalized photos): mesh vertices nearest to the
+   dlib fiducials are matched to the driver's mean pose-corrected fiducials (x, y) and
+   the generic face's depth (z).
+3. **Translation field.** Per frame, the non-rigid residual of every vertex (aligned
+   mesh minus mean mesh) is interpolated linearly (fixed Delaunay triangulation of the
+   mean mesh) onto the canonical depth-map grid: Δ (H, W, 3) of Tom Hanks §4.
+4. **Fiducials.** The 68 dlib points of a frame are lifted onto that frame's mesh
+   (barycentric in its 2D projection) and un-posed: expression fiducials in the
+   canonical frame, pose removed.
+
+Lost frames (no face, or the mesh network's face score < 0.5) are filled by linear
+interpolation between the nearest tracked frames (held at the ends) and counted.
+Temporal smoothing: the whole video is available offline, so a zero-lag, zero-phase
+Savitzky-Golay filter (scipy.signal.savgol_filter, window 5 frames, order 2) is run
+forwards over the series of aligned meshes, poses and fiducials: it removes
+frame-to-frame jitter but keeps a quadratic's peak (fast mouth openings) in place.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ..errors import FacetexError, NoFaceError
+
+__all__ = [
+    "DriverParams",
+    "DriverTrack",
+    "DriverMotion",
+    "track_driver",
+    "driver_motion",
+    "similarity_procrustes",
+    "generalized_procrustes",
+    "fill_lost",
+    "smooth_series",
+    "mouth_opening",
+    "GridInterpolator",
+]
+
+#: iBUG-68 indices of the inner lips (upper 61, 62, 63 over lower 67, 66, 65) and outer eye corners.
+_INNER_UPPER = (61, 62, 63)
+_INNER_LOWER = (67, 66, 65)
+_EYE_OUTER = (36, 45)
+
+
+@dataclass(frozen=True)
+class DriverParams:
+    """size: canonical frame (W, H); grid_step: depth-map grid step (canonical px) of the
+    deformation field; smooth_window / smooth_order: Savitzky-Golay filter over frames (a
+    window of 1 disables it); subspace_frames: frontalized frames kept for the driver's 2D
+    average and appearance subspace; min_mesh_score: mesh face score below which a frame is lost;
+    redetect_every: frames between face detections (landmarks are tracked in between)."""
+
+    size: tuple[int, int] = (192, 240)
+    grid_step: int = 2
+    smooth_window: int = 5
+    smooth_order: int = 2
+    subspace_frames: int = 24
+    min_mesh_score: float = 0.5
+    procrustes_iters: int = 3
+    redetect_every: int = 10
+
+
+# ---------------------------------------------------------------------------------- maths
+def similarity_procrustes(src, dst, weights=None, *, scale: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
+    """(s, R, t) minimising Σ w ||s R src + t − dst||², R a proper rotation (Umeyama 1991).
+
+    ``src``, ``dst`` (N, D). Hand-written: scipy's Rotation.align_vectors has no scale
+    and no translation."""
+    a = np.asarray(src, np.float64)
+    b = np.asarray(dst, np.float64)
+    w = np.ones(len(a)) if weights is None else np.asarray(weights, np.float64)
+    w = w / w.sum()
+    ma, mb = w @ a, w @ b
+    ac, bc = a - ma, b - mb
+    cov = (bc * w[:, None]).T @ ac
+    u, sv, vt = np.linalg.svd(cov)
+    d = np.ones(a.shape[1])
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:
+        d[-1] = -1.0
+    r = (u * d) @ vt
+    var = float(w @ (ac**2).sum(axis=1))
+    s = float((sv * d).sum() / var) if scale and var > 0 else 1.0
+    return s, r, mb - s * r @ ma
+
+
+def generalized_procrustes(meshes, *, iters: int = 3):
+    """Mean shape of (N, V, 3) meshes under similarity alignment (the first mesh's scale).
+
+    Returns (mean (V, 3), scales (N,), rotations (N, 3, 3), translations (N, 3)) with
+    meshes[i] ≈ scales[i] rotations[i] mean + translations[i]."""
+    x = np.asarray(meshes, np.float64)
+    mean = x[0] - x[0].mean(axis=0)
+    ref_size = np.sqrt((mean**2).sum())
+    n = len(x)
+    s, R, t = np.ones(n), np.tile(np.eye(3), (n, 1, 1)), np.zeros((n, 3))
+    for _ in range(max(1, iters)):
+        aligned = np.empty_like(x)
+        for i in range(n):
+            si, ri, ti = similarity_procrustes(x[i], mean)
+            aligned[i] = si * x[i] @ ri.T + ti
+        mean = aligned.mean(axis=0)
+        mean -= mean.mean(axis=0)
+        mean *= ref_size / np.sqrt((mean**2).sum())
+    for i in range(n):
+        s[i], R[i], t[i] = similarity_procrustes(mean, x[i])
+    return mean, s, R, t
+
+
+def fill_lost(series, found) -> np.ndarray:
+    """Copy of a (N, ...) series with the frames where ``found`` is False linearly
+    interpolated from the nearest found frames (held constant before the first / after the last)."""
+    x = np.asarray(series, np.float64)
+    found = np.asarray(found, bool)
+    if found.all() or not found.any():
+        return x.copy()
+    idx = np.flatnonzero(found)
+    flat = x.reshape(len(x), -1)
+    out = np.empty_like(flat)
+    frames = np.arange(len(x))
+    for k in range(flat.shape[1]):
+        out[:, k] = np.interp(frames, idx, flat[idx, k])
+    return out.reshape(x.shape)
+
+
+def smooth_series(series, window: int = 5, order: int = 2) -> np.ndarray:
+    """Zero-phase Savitzky-Golay smoothing of a (N, ...) series along frames (scipy.signal)."""
+    from scipy.signal import savgol_filter
+
+    x = np.asarray(series, np.float64)
+    w = min(int(window), len(x) if len(x) % 2 else len(x) - 1)
+    if w < 3 or w <= order:
+        return x.copy()
+    return savgol_filter(x, w, order, axis=0, mode="interp")
+
+
+def mouth_opening(points68) -> np.ndarray:
+    """Inner-lip opening over inter-ocular (outer eye corner) distance, per face: (...,) for (..., 68, 2)."""
+    p = np.asarray(points68, np.float64)
+    gap = np.linalg.norm(p[..., _INNER_UPPER, :] - p[..., _INNER_LOWER, :], axis=-1).mean(axis=-1)
+    iod = np.linalg.norm(p[..., _EYE_OUTER[0], :] - p[..., _EYE_OUTER[1], :], axis=-1)
+    return gap / np.maximum(iod, 1e-9)
+
+
+class GridInterpolator:
+    """Piecewise-linear interpolation of per-vertex values onto a pixel grid (fixed
+    Delaunay triangulation of the vertices' (x, y); scipy.spatial.Delaunay). Grid pixels
+    outside the triangulation are invalid (``mask`` False) and get 0."""
+
+    def __init__(self, xy, grid_xy):
+        from scipy.spatial import Delaunay
+
+        tri = Delaunay(np.asarray(xy, np.float64))
+        g = np.asarray(grid_xy, np.float64)
+        self.shape = g.shape[:-1]
+        pts = g.reshape(-1, 2)
+        simplex = tri.find_simplex(pts)
+        self.mask = (simplex >= 0).reshape(self.shape)
+        inside = simplex >= 0
+        s = simplex[inside]
+        trans = tri.transform[s]
+        b = np.einsum("nij,nj->ni", trans[:, :2], pts[inside] - trans[:, 2])
+        self.weights = np.c_[b, 1 - b.sum(axis=1)]
+        self.vertices = tri.simplices[s]
+        self.flat = np.flatnonzero(inside)
+
+    def __call__(self, values) -> np.ndarray:
+        v = np.asarray(values, np.float64)
+        out = np.zeros((int(np.prod(self.shape)),) + v.shape[1:])
+        out[self.flat] = np.einsum("nk,nk...->n...", self.weights, v[self.vertices])
+        return out.reshape(self.shape + v.shape[1:])
+
+
+# ------------------------------------------------------------------------------ tracking
+@dataclass(eq=False)
+class DriverTrack:
+    """Raw per-frame tracking of a driver video (N frames).
+
+    points68 (N, 68, 2) and mesh (N, 468, 3) in image pixels (NaN where lost); found (N,)
+    bool; score (N,) mesh face score; frontal (K, H, W, 3) float32 frontalized frames and
+    frontal_points68 (K, 68, 2) their pose-corrected landmarks (every ``stride``-th tracked
+    frame, K <= subspace_frames); frame_size (W, H); fps; path."""
+
+    points68: np.ndarray
+    mesh: np.ndarray
+    found: np.ndarray
+    score: np.ndarray
+    frontal: np.ndarray
+    frontal_points68: np.ndarray
+    frame_size: tuple[int, int]
+    fps: float
+    path: str
+    has_audio: bool = False
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.found)
+
+    @property
+    def n_lost(self) -> int:
+        return int((~self.found).sum())
+
+
+def _box_of(points68: np.ndarray, ref_box, ref_points: np.ndarray):
+    """The detector box ``ref_box`` (found with ``ref_points``) moved and scaled with the landmarks."""
+    c0, c1 = ref_points.mean(axis=0), points68.mean(axis=0)
+    k = float(np.ptp(points68, axis=0).max() / max(np.ptp(ref_points, axis=0).max(), 1e-6))
+    bc = np.array([(ref_box[0] + ref_box[2]) / 2, (ref_box[1] + ref_box[3]) / 2])
+    half = np.array([ref_box[2] - ref_box[0], ref_box[3] - ref_box[1]]) * k / 2
+    c = c1 + (bc - c0) * k
+    return (c[0] - half[0], c[1] - half[1], c[0] + half[0], c[1] + half[1])
+
+
+def _track_frame(frame, prev, params: DriverParams, detect: bool):
+    """(points68, mesh, score, anchor) of the face in one frame, or None when it is lost.
+
+    ``prev``: (points68, anchor) of the previous frame or None; anchor = (detector box, the
+    landmarks found in it). Between detections (every ``redetect_every`` frames, and whenever
+    the face was lost) the landmarks are re-fitted in the detector box carried along by the
+    landmarks' motion (dlib's predictor expects detector boxes); the mesh score checks them."""
+    from ..landmarks import detect_faces, face_mesh468, landmarks_in_box
+
+    cands = []  # (points68, anchor)
+    if prev is not None and not detect:
+        box = _box_of(prev[0], *prev[1])
+        cands.append((landmarks_in_box(frame, box), prev[1]))
+    else:
+        faces = detect_faces(frame, upsample=0)
+        if not faces and max(frame.shape[:2]) <= 640:
+            faces = detect_faces(frame, upsample=1)
+        if faces:
+            if prev is not None and len(faces) > 1:  # keep following the same person
+                c = prev[0].mean(axis=0)
+                faces = sorted(faces, key=lambda f: np.hypot(*(f.points68.mean(axis=0) - c)))
+            cands.append((faces[0].points68, (tuple(faces[0].box), faces[0].points68)))
+        elif prev is not None:  # detector miss: landmarks in the carried box, checked by the mesh score
+            box = _box_of(prev[0], *prev[1])
+            cands.append((landmarks_in_box(frame, box), prev[1]))
+    for p68, anchor in cands:
+        try:
+            mesh, score = face_mesh468(frame, p68, return_score=True, min_score=0.0)
+        except FacetexError:
+            continue
+        if score >= params.min_mesh_score:
+            return p68, mesh, score, anchor
+    return None
+
+
+def track_driver(path, *, max_frames: int | None = None, params: DriverParams = DriverParams(),
+                 progress: Callable | None = None) -> DriverTrack:
+    """Track the face through a driver video (first pass). NoFaceError naming the file
+    when no frame has a face."""
+    from ..geometry.frontalize import frontalize
+    from ..io import iter_video_frames, video_info
+
+    path = Path(path)
+    info = video_info(path)
+    n_est = info["n_frames"] if max_frames is None else min(info["n_frames"], int(max_frames))
+    stride = max(1, int(math.ceil(max(n_est, 1) / params.subspace_frames)))
+    p68s, meshes, found, scores, frontal, frontal_p = [], [], [], [], [], []
+    prev = None
+    size = None
+    last_detect = -(10**9)
+    for i, frame in enumerate(iter_video_frames(path, max_frames=max_frames)):
+        size = (frame.shape[1], frame.shape[0])
+        detect = prev is None or i - last_detect >= params.redetect_every
+        last_detect = i if detect else last_detect
+        r = _track_frame(frame, prev, params, detect)
+        if r is None:
+            p68s.append(np.full((68, 2), np.nan))
+            meshes.append(np.full((468, 3), np.nan))
+            found.append(False)
+            scores.append(0.0)
+            prev = None
+        else:
+            p68, mesh, score, anchor = r
+            prev = (p68, anchor)
+            p68s.append(p68)
+            meshes.append(mesh)
+            found.append(True)
+            scores.append(score)
+            if i % stride == 0 and len(frontal) < params.subspace_frames:
+                try:
+                    fr = frontalize(frame, p68, size=params.size)
+                    frontal.append(fr.image)
+                    frontal_p.append(fr.points68)
+                except FacetexError:
+                    pass
+        if progress:
+            progress(n=1, stage="track", lost=len(found) - int(sum(found)))
+    if not found or not any(found):
+        raise NoFaceError("no face found in any frame of the driver video: use a video showing one face "
+                          "frontally, at least ~80 px wide", path=path)
+    if not frontal:  # every sampled frame failed to frontalize: take any tracked one
+        j = int(np.flatnonzero(found)[0])
+        frame = next(f for k, f in enumerate(iter_video_frames(path, max_frames=j + 1)) if k == j)
+        fr = frontalize(frame, p68s[j], size=params.size)
+        frontal, frontal_p = [fr.image], [fr.points68]
+    W, H = params.size
+    return DriverTrack(
+        points68=np.array(p68s), mesh=np.array(meshes), found=np.array(found), score=np.array(scores),
+        frontal=np.array(frontal, np.float32).reshape(-1, H, W, 3), frontal_points68=np.array(frontal_p),
+        frame_size=size, fps=float(info["fps"]) or 25.0, path=str(path), has_audio=bool(info["has_audio"]))
+
+
+# ------------------------------------------------------------------------------- motion
+@dataclass(eq=False)
+class DriverMotion:
+    """The driver's motion in the canonical frame (N frames, canonical W x H, grid h x w).
+
+    pose_A (N, 3, 3), pose_b (N, 3): head pose, image pixel = A X + b for a canonical point
+    X = (x, y, z) (A = scale x rotation; orthographic image x, y; z for depth order);
+    mean_mesh (468, 3) canonical; deltas (N, 468, 3) canonical per-vertex residuals;
+    fiducials (N, 49, 2) canonical expression fiducials, mean_fiducials (49, 2);
+    grid: :class:`GridInterpolator` onto the depth-map grid, grid_mesh (h, w, 3) the mean
+    mesh on it (NaN outside), grid_step; found (N,) as tracked; opening (N,) mouth opening
+    of the (filled, unsmoothed) tracked landmarks."""
+
+    pose_A: np.ndarray
+    pose_b: np.ndarray
+    mean_mesh: np.ndarray
+    deltas: np.ndarray
+    fiducials: np.ndarray
+    mean_fiducials: np.ndarray
+    grid: GridInterpolator
+    grid_mesh: np.ndarray
+    grid_step: int
+    found: np.ndarray
+    opening: np.ndarray
+    points68: np.ndarray
+    anchors: np.ndarray = field(repr=False, default=None)
+
+    def __len__(self) -> int:
+        return len(self.found)
+
+    def delta_field(self, i: int) -> np.ndarray:
+        """Δ_i (h, w, 3): M_D^i − M̄_D on the driver's depth-map grid (Tom Hanks §4)."""
+        return self.grid(self.deltas[i])
+
+    @property
+    def iod(self) -> float:
+        """Eye-centre distance of the mean fiducials (canonical px)."""
+        return _iod49(self.mean_fiducials)
+
+
+def _iod49(f49: np.ndarray) -> float:
+    # 49-point layout: right eye 19..24, left eye 25..30 (iBUG 36..41, 42..47)
+    return float(np.linalg.norm(f49[19:25].mean(axis=0) - f49[25:31].mean(axis=0)))
+
+
+def _anchor_vertices(points68: np.ndarray, mesh: np.ndarray, found: np.ndarray) -> np.ndarray:
+    """For each iBUG point, the mesh vertex nearest to it in 2D on average over the tracked frames."""
+    p = points68[found]
+    m = mesh[found, :, :2]
+    step = max(1, len(p) // 30)
+    d = np.linalg.norm(p[::step, :, None, :] - m[::step, None, :, :], axis=-1).mean(axis=0)  # (68, 468)
+    return d.argmin(axis=1)
+
+
+def _lift_points(points: np.ndarray, mesh: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(P, 3) positions on a (468, 3) mesh of (P, 2) image points: barycentric in the mesh
+    triangle (of the fixed triangulation ``triangles``) containing the point in 2D, or the
+    nearest one (barycentrics clamped) outside the mesh."""
+    a, b, c = (mesh[triangles[:, k]] for k in range(3))
+    e1, e2 = b[:, :2] - a[:, :2], c[:, :2] - a[:, :2]
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    det = np.where(np.abs(det) < 1e-12, 1e-12, det)
+    d = points[:, None, :] - a[None, :, :2]
+    l1 = (d[..., 0] * e2[:, 1] - d[..., 1] * e2[:, 0]) / det
+    l2 = (e1[:, 0] * d[..., 1] - e1[:, 1] * d[..., 0]) / det
+    lam = np.stack([1.0 - l1 - l2, l1, l2], axis=-1)  # (P, T, 3)
+    best = lam.min(axis=-1).argmax(axis=1)
+    w = np.clip(lam[np.arange(len(points)), best], 0, None)
+    w /= w.sum(axis=1, keepdims=True)
+    tri = triangles[best]
+    out = np.einsum("pk,pkc->pc", w, mesh[tri])
+    out[:, :2] = points  # keep the tracked position exactly; only z comes from the mesh
+    return out
+
+
+def driver_motion(track: DriverTrack, params: DriverParams = DriverParams(), *, shape_mask=None) -> DriverMotion:
+    """Rigid/non-rigid decomposition of a tracked driver in the canonical frame (module doc).
+
+    ``shape_mask`` (H, W) bool in the canonical frame: further limits the grid's valid area."""
+    from ..geometry._generic_face import canonical_frame, load_generic_face
+    from ..landmarks import POINTS49_INDEX
+
+    found = track.found
+    mesh = fill_lost(track.mesh, found)
+    p68 = fill_lost(track.points68, found)
+    mean, s, R, t = generalized_procrustes(mesh[found], iters=params.procrustes_iters)
+    # pose of every frame (interpolated for lost frames; rotation by its rotation vector)
+    from scipy.spatial.transform import Rotation
+
+    n = len(found)
+    rv = np.zeros((n, 3))
+    rv[found] = Rotation.from_matrix(R).as_rotvec()
+    ls, tt = np.zeros(n), np.zeros((n, 3))
+    ls[found], tt[found] = np.log(s), t
+    rv, ls, tt = (fill_lost(a, found) for a in (rv, ls, tt))
+    aligned = np.einsum("nij,nvj->nvi", Rotation.from_rotvec(rv).as_matrix().transpose(0, 2, 1),
+                        mesh - tt[:, None]) / np.exp(ls)[:, None, None]
+    w, o = params.smooth_window, params.smooth_order
+    aligned = smooth_series(aligned, w, o)
+    rv, ls, tt = smooth_series(rv, w, o), smooth_series(ls, w, o), smooth_series(tt, w, o)
+    # mean mesh -> canonical frame: anchors (vertices at the fiducials) onto the mean frontalized
+    # fiducials (x, y) and the generic face's depth (z)
+    anchors = _anchor_vertices(p68, mesh, found)
+    frame = canonical_frame(params.size)
+    gen = load_generic_face().points68
+    fid_mean = track.frontal_points68.mean(axis=0)
+    target = np.c_[fid_mean, gen[:, 2] * frame.scale][POINTS49_INDEX]
+    sc, Rc, tc = similarity_procrustes(mean[anchors[POINTS49_INDEX]], target)
+    mean_c = sc * mean @ Rc.T + tc
+    deltas = sc * (aligned - mean) @ Rc.T
+    # image = s R X_mean + t,  X_mean = Rc^T (X_c - tc) / sc
+    Rf = Rotation.from_rotvec(rv).as_matrix()
+    A = (np.exp(ls) / sc)[:, None, None] * Rf @ Rc.T
+    b = tt - np.einsum("nij,j->ni", A, tc)
+    # expression fiducials: tracked points lifted on their frame's mesh, un-posed (lost frames interpolated)
+    from scipy.spatial import Delaunay
+
+    triangles = Delaunay(mean[:, :2]).simplices
+    fid = np.zeros((n, 49, 2))
+    for i in np.flatnonzero(found):
+        x3 = _lift_points(p68[i][POINTS49_INDEX], mesh[i], triangles)
+        fid[i] = (np.linalg.solve(A[i], (x3 - b[i]).T).T)[:, :2]
+    fid = smooth_series(fill_lost(fid, found), w, o)
+    # depth-map grid
+    W, H = params.size
+    st = int(params.grid_step)
+    gy, gx = np.mgrid[0:H:st, 0:W:st].astype(np.float64)
+    grid = GridInterpolator(mean_c[:, :2], np.stack([gx, gy], axis=-1))
+    if shape_mask is not None:
+        grid.mask &= np.asarray(shape_mask, bool)[::st, ::st]
+    z = grid(mean_c[:, 2])
+    gm = np.stack([gx, gy, np.where(grid.mask, z, np.nan)], axis=-1)
+    return DriverMotion(pose_A=A, pose_b=b, mean_mesh=mean_c, deltas=deltas, fiducials=fid,
+                        mean_fiducials=fid[found].mean(axis=0), grid=grid, grid_mesh=gm, grid_step=st,
+                        found=found.copy(), opening=mouth_opening(p68), points68=p68, anchors=anchors)

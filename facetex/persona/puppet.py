@@ -1,0 +1,433 @@
+"""Persona puppetry: drive one person's 3D face with another person's video (Tom Hanks §4, §6).
+
+Per driver video (see :mod:`facetex.persona.driver` for the motion):
+
+1. **Average shapes.** Puppet: photometric stereo on the persona's aligned photos
+   (:func:`facetex.persona.shape.reconstruct_average_shape`, computed on demand and cached on
+   the persona object; the ``.persona`` file does not store it). Driver: from
+   ``driver_photos`` the same way; from the video alone the tracked mean mesh is used
+   instead (a video has one lighting, so photometric stereo on its frames is degenerate).
+2. **Correspondence** (§4, §6): the puppet's 2D average is projected onto the driver's
+   rank-4 appearance subspace and the optical flow (α, ratio, minWidth, outer, inner, SOR)
+   = (0.02, 0.85, 20, 4, 1, 40) from the projection to the puppet's average gives, for
+   every driver pixel, its puppet pixel (collection flow).
+3. **Deformation transfer** per frame with magnitude adjustment and Huber-ROF
+   (:class:`facetex.persona.deform.DeformationTransfer`) on a depth-map grid of 2 px.
+4. **Texture** per frame (§6, Figs. 8-9): synthesized *in the neutral frame* of the
+   average model — the mesh carries the expression — with the Eq. 3 blending weights of
+   the target fiducials F^T = M_P + k (F_D^i − M̄_D) (k: ratio of the eye distances).
+5. **Rendering** with the driver's head pose (orthographic, z-buffered), composited over a
+   plain background or the driver's frame with a feathered mask.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from typing import Callable, Iterator
+
+import cv2
+import numpy as np
+
+from ..errors import BadInputError
+from .deform import DeformationTransfer, DeformParams
+from .driver import DriverMotion, DriverParams, DriverTrack, driver_motion, track_driver
+
+__all__ = [
+    "PuppetParams",
+    "Puppeteer",
+    "PuppetSession",
+    "puppet_average_shape",
+    "driver_collection",
+    "collection_correspondence",
+    "target_fiducials",
+    "neutral_texture",
+    "prepare_puppetry",
+    "render_frames",
+    "puppeteer",
+    "BACKGROUNDS",
+    "TEXTURES",
+]
+
+BACKGROUNDS = ("driver", "plain")
+TEXTURES = ("ours", "static")
+
+
+@dataclass(frozen=True)
+class PuppetParams:
+    """Driver-puppet flow (Tom Hanks §6): alpha, ratio, minWidth, outer, inner, SOR iterations;
+    sigma of Eq. 3; texture "ours" (expression-dependent) or "static" (the average texture);
+    feather: sigma of the compositing mask edge as a fraction of the rendered face width;
+    plain: background colour; max_depth_error: a reconstructed average depth whose RMS
+    difference to the generic face exceeds this fraction of the frame width is replaced by
+    the generic depth (too few or too uniformly lit photos); shape "generic" skips the
+    photometric-stereo reconstruction of the puppet and uses the generic face's depth;
+    shape_photos: at most this many (evenly spaced) photos feed the photometric stereo (its SVD
+    grows with the square of the count; a few dozen lightings determine the rank-4 factorization)."""
+
+    flow_alpha: float = 0.02
+    flow_ratio: float = 0.85
+    flow_min_width: int = 20
+    flow_outer: int = 4
+    flow_inner: int = 1
+    flow_sor: int = 40
+    sigma: float = 10.0
+    texture: str = "ours"
+    feather: float = 0.04
+    plain: tuple[float, float, float] = (0.5, 0.5, 0.5)
+    max_depth_error: float = 0.08
+    shape: str = "collection"
+    shape_photos: int = 128
+    deform: DeformParams = field(default_factory=DeformParams)
+    driver: DriverParams = field(default_factory=DriverParams)
+
+
+# ----------------------------------------------------------------------------- shapes
+def _checked_depth(shape, region: np.ndarray, size, params: PuppetParams) -> tuple[np.ndarray, str]:
+    """(depth (H, W), source) from an AverageShape, falling back to the generic face."""
+    from .shape import generic_depth_px
+
+    gen = generic_depth_px(size)
+    if shape is not None:
+        d = shape.depth
+        ok = region & np.isfinite(d)
+        if ok.sum() > 0.5 * region.sum():
+            rms = float(np.sqrt(np.mean((d[ok] - gen[ok]) ** 2)))
+            if rms <= params.max_depth_error * size[0]:
+                out = np.where(ok, d, gen)
+                return out, "collection"
+    return gen.astype(np.float64), "generic"
+
+
+def puppet_average_shape(persona, params: PuppetParams = PuppetParams()) -> tuple[np.ndarray, np.ndarray, str]:
+    """(depth (H, W) canonical px, mask (H, W) bool, source "collection" | "generic") of the
+    persona's average 3D face (Tom Hanks §4), cached on the persona object."""
+    from .shape import reconstruct_average_shape
+    from .texture import prepare_persona
+
+    key = ("puppet_shape", params.max_depth_error, params.shape, params.shape_photos)
+    if key not in persona._cache:
+        prep = prepare_persona(persona)
+        region = prep.region
+        shape = None
+        if len(persona) >= 4 and params.shape == "collection":
+            try:
+                step = max(1, -(-len(persona) // max(4, params.shape_photos)))
+                shape = reconstruct_average_shape(prep.aligned[::step], region)
+            except BadInputError:
+                shape = None
+        depth, src = _checked_depth(shape, region, persona.size, params)
+        persona._cache[key] = (depth, region, src)
+    return persona._cache[key]
+
+
+@dataclass(eq=False)
+class DriverCollection:
+    """The driver's canonical-frame collection data: subspace (1 + rank, H, W, 3) (mean first),
+    region (H, W) bool, depth (H, W) or None (use the tracked mean mesh), source text."""
+
+    subspace: np.ndarray
+    region: np.ndarray
+    depth: np.ndarray | None
+    source: str
+
+
+def driver_collection(track: DriverTrack, *, driver_photos=None, params: PuppetParams = PuppetParams(),
+                      progress: Callable | None = None) -> DriverCollection:
+    """The driver's 2D average, appearance subspace and (with photos) average shape.
+
+    From ``driver_photos`` (a folder): a persona build of it (fewest photos 4). Otherwise the
+    frontalized video frames kept by :func:`track_driver`, TPS-aligned to their mean fiducials."""
+    from ..landmarks import POINTS49_INDEX
+    from .collection import PersonaParams, appearance_subspace, build_persona, face_region, remap_stack, tps_maps
+    from .shape import reconstruct_average_shape
+    from .texture import prepare_persona
+
+    W, H = params.driver.size
+    if driver_photos is not None:
+        dp = build_persona(driver_photos, jobs=1, progress=progress,
+                           params=PersonaParams(size=(W, H), min_photos=4))
+        prep = prepare_persona(dp)
+        try:
+            shape = reconstruct_average_shape(prep.aligned, prep.region)
+        except BadInputError:
+            shape = None
+        depth, src = _checked_depth(shape, prep.region, (W, H), params)
+        return DriverCollection(dp.subspace, prep.region, depth, f"photos ({len(dp)}, shape: {src})")
+    fid = track.frontal_points68[:, POINTS49_INDEX]
+    M = fid.mean(axis=0)
+    maps = tps_maps(fid, M, (H, W), 10.0)
+    warped = remap_stack(track.frontal, maps)
+    region = face_region(track.frontal_points68.mean(axis=0), (H, W))
+    sub, _ = appearance_subspace(warped, region, 4)
+    return DriverCollection(sub, region, None, f"video frames ({len(warped)}, shape: tracked mean mesh)")
+
+
+def collection_correspondence(driver_subspace: np.ndarray, driver_region: np.ndarray, puppet_average: np.ndarray,
+                              params: PuppetParams = PuppetParams()) -> np.ndarray:
+    """(H, W, 2) puppet-frame (x, y) of every driver-frame pixel (Tom Hanks §4, §6): the flow
+    from the projection of the puppet's average onto the driver's appearance subspace to the
+    puppet's average (illumination-matched pair; collection flow)."""
+    from ..geometry.flow import map_from_flow, optical_flow
+    from .collection import project_onto_subspace
+
+    proj = np.clip(project_onto_subspace(puppet_average, driver_subspace, driver_region), 0, 1)
+    flow = optical_flow(proj, puppet_average, alpha=params.flow_alpha, ratio=params.flow_ratio,
+                        min_width=params.flow_min_width, outer_iters=params.flow_outer,
+                        inner_iters=params.flow_inner, sor_iters=params.flow_sor)
+    return map_from_flow(flow)
+
+
+# ----------------------------------------------------------------------------- texture
+def target_fiducials(persona, motion: DriverMotion, i: int) -> np.ndarray:
+    """F^T (49, 2) for frame i: the puppet's mean fiducials plus the driver's expression
+    offset, scaled by the ratio of eye-centre distances."""
+    from .driver import _iod49
+
+    M = persona.mean_fiducials
+    k = _iod49(M) / max(motion.iod, 1e-9)
+    return M + k * (motion.fiducials[i] - motion.mean_fiducials)
+
+
+def neutral_texture(persona, fiducials, *, method: str = "ours", sigma: float = 10.0) -> np.ndarray:
+    """Texture (H, W, 3) in the persona's neutral frame (its mean fiducials) with the Eq. 3
+    weights of the target ``fiducials`` (Tom Hanks §6: "we only synthesize textures in their
+    neutral expressions for the average models but use the target expressions to calculate
+    the blending weights"). ``method`` "static": the expression-independent average."""
+    from ..geometry._generic_face import EYE_SPAN
+    from .texture import TextureParams, average_face, expression_similarity, prepare_persona
+
+    if method not in TEXTURES:
+        raise BadInputError(f"unknown puppet texture {method!r}: use one of {', '.join(TEXTURES)}")
+    if method == "static":
+        key = ("puppet_static",)
+        if key not in persona._cache:
+            persona._cache[key] = average_face(persona, "d")
+        return persona._cache[key]
+    tp = TextureParams(sigma=sigma)
+    prep = prepare_persona(persona)
+    scale = tp.iod_ref / (EYE_SPAN * persona.size[0])
+    s = expression_similarity(fiducials, persona.fiducials, sigma, scale=scale)
+    return np.clip(prep.blend_ours(s), 0, 1).astype(np.float32)
+
+
+# ----------------------------------------------------------------------------- puppeteer
+class Puppeteer:
+    """Puppet mesh, texture and rendering for each frame of a driver motion.
+
+    Precomputes (once): the puppet's and the driver's average meshes on the depth-map grid,
+    their correspondence and the :class:`DeformationTransfer`, the puppet's triangulation."""
+
+    def __init__(self, persona, motion: DriverMotion, collection: DriverCollection,
+                 params: PuppetParams = PuppetParams()):
+        from .mesh_io import depth_to_mesh
+        from .texture import average_face
+
+        self.persona, self.motion, self.params = persona, motion, params
+        st = motion.grid_step
+        W, H = persona.size
+        if (W, H) != tuple(params.driver.size):
+            raise BadInputError(f"the persona's canonical frame {W}x{H} differs from the driver's "
+                                f"{params.driver.size}: rebuild the persona at {params.driver.size}")
+        self.timings: dict[str, float] = {}
+        t0 = time.perf_counter()
+        depth, region, self.shape_source = puppet_average_shape(persona, params)
+        gy, gx = np.mgrid[0:H:st, 0:W:st].astype(np.float64)
+        pmask = region[::st, ::st] & np.isfinite(depth[::st, ::st])
+        self.puppet_grid = np.stack([gx, gy, depth[::st, ::st]], axis=-1)
+        self.puppet_mask = pmask
+        self.timings["puppet_shape_s"] = time.perf_counter() - t0
+        # driver mesh on the grid: photo-collection depth if given, else the tracked mean mesh
+        dmesh = motion.grid_mesh.copy()
+        dmask = motion.grid.mask.copy()
+        if collection.depth is not None:
+            dmesh[..., 2] = collection.depth[::st, ::st]
+            dmask &= collection.region[::st, ::st]
+        t0 = time.perf_counter()
+        self.puppet_average = average_face(persona, "d")
+        corr = collection_correspondence(collection.subspace, collection.region, self.puppet_average, params)
+        self.correspondence = corr
+        corr_grid = (corr[::st, ::st] / st).astype(np.float32)
+        self.timings["correspondence_s"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        self.transfer = DeformationTransfer(dmesh, self.puppet_grid, corr_grid, driver_mask=dmask,
+                                            puppet_mask=pmask, params=params.deform)
+        self.timings["transfer_setup_s"] = time.perf_counter() - t0
+        depth_for_mesh = np.where(pmask, self.puppet_grid[..., 2], np.nan)
+        _, self.faces, self.uv = depth_to_mesh(depth_for_mesh, pmask)
+
+    def mesh(self, i: int) -> np.ndarray:
+        """Puppet vertices (V, 3) in its canonical frame for frame i (M_P^i, Tom Hanks §4)."""
+        return self.transfer(self.motion.delta_field(i))[self.puppet_mask]
+
+    def texture(self, i: int, method: str | None = None) -> np.ndarray:
+        """Texture (H, W, 3) of frame i in the puppet's neutral frame."""
+        f = target_fiducials(self.persona, self.motion, i)
+        return neutral_texture(self.persona, f, method=method or self.params.texture, sigma=self.params.sigma)
+
+    def render(self, i: int, vertices: np.ndarray, texture: np.ndarray, background: np.ndarray,
+               scale: float) -> tuple[np.ndarray, np.ndarray]:
+        """(image, soft alpha) of the puppet in frame i composited over ``background``
+        (H, W, 3) of the output panel; ``scale`` output px per driver px."""
+        from .render import render_mesh
+
+        h, w = background.shape[:2]
+        A = self.motion.pose_A[i] * scale
+        b = self.motion.pose_b[i] * scale
+        far = 1e5
+        c = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+        img, mask = render_mesh(vertices, self.faces, self.uv, texture, rotation=A,
+                                translation=np.r_[b[:2] - c, b[2] + far], focal=far, size=(w, h),
+                                weak_perspective=True)
+        width = float(np.linalg.norm(A[:, 0])) * self.persona.size[0] * 0.6
+        sig = max(0.8, self.params.feather * width)
+        m = mask.astype(np.float32)
+        k = int(round(sig)) * 2 + 1
+        m = cv2.erode(m, np.ones((k, k), np.uint8))
+        alpha = cv2.GaussianBlur(m, (0, 0), sig) * mask
+        out = alpha[..., None] * img + (1 - alpha[..., None]) * background
+        return out.astype(np.float32), alpha
+
+
+@dataclass(eq=False)
+class PuppetSession:
+    """Everything prepared for rendering a driver video with a puppet."""
+
+    track: DriverTrack
+    motion: DriverMotion
+    collection: DriverCollection
+    puppeteer: Puppeteer
+    timings: dict
+
+
+def _load(persona):
+    from .collection import Persona, load_persona
+
+    return persona if isinstance(persona, Persona) else load_persona(persona)
+
+
+def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | None = None,
+                     params: PuppetParams = PuppetParams(), progress: Callable | None = None) -> PuppetSession:
+    """Track the driver video and set up the puppet (everything before the per-frame rendering)."""
+    from .texture import prepare_persona
+
+    if params.texture not in TEXTURES:
+        raise BadInputError(f"unknown puppet texture {params.texture!r}: use one of {', '.join(TEXTURES)}")
+    persona = _load(persona)
+    if tuple(params.driver.size) != tuple(persona.size):  # work in the persona's canonical frame
+        params = replace(params, driver=replace(params.driver, size=tuple(persona.size)))
+    timings = {}
+    t0 = time.perf_counter()
+    track = track_driver(driver, max_frames=max_frames, params=params.driver, progress=progress)
+    timings["track_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    coll = driver_collection(track, driver_photos=driver_photos, params=params)
+    motion = driver_motion(track, params.driver)
+    timings["motion_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    prepare_persona(persona)
+    timings["persona_prepare_s"] = time.perf_counter() - t0
+    pup = Puppeteer(persona, motion, coll, params)
+    timings.update(pup.timings)
+    return PuppetSession(track, motion, coll, pup, timings)
+
+
+def _even(v: float) -> int:
+    return max(2, int(round(v / 2.0)) * 2)
+
+
+def output_size(frame_size, size: int | None) -> tuple[int, int, float]:
+    """(W, H, scale) of one output panel: the driver frame with its longer side ``size`` (even sides)."""
+    w, h = frame_size
+    if size is None:
+        return _even(w), _even(h), 1.0
+    if int(size) < 32:
+        raise BadInputError(f"--size must be at least 32 px, got {size}")
+    s = float(size) / max(w, h)
+    return _even(w * s), _even(h * s), s
+
+
+def render_frames(session: PuppetSession, *, size: int | None = None, background: str = "driver",
+                  side_by_side: bool = False, texture: str | None = None, max_frames: int | None = None,
+                  progress: Callable | None = None) -> Iterator[dict]:
+    """Yield per frame {"index", "driver" (panel), "puppet" (panel), "frame" (output), "alpha",
+    "lost"}: the second pass over the driver video. Per-stage times accumulate in
+    ``session.timings`` (mesh_s, texture_s, render_s)."""
+    from ..io import iter_video_frames
+
+    if background not in BACKGROUNDS:
+        raise BadInputError(f"unknown background {background!r}: use one of {', '.join(BACKGROUNDS)}")
+    pup = session.puppeteer
+    W, H, scale = output_size(session.track.frame_size, size)
+    n = session.track.n_frames
+    tm = session.timings
+    for key in ("mesh_s", "texture_s", "render_s"):
+        tm.setdefault(key, 0.0)
+    for i, frame in enumerate(iter_video_frames(session.track.path, max_frames=n)):
+        if i >= n:
+            break
+        drv = cv2.resize(frame, (W, H), interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
+        bg = drv if background == "driver" else np.broadcast_to(
+            np.asarray(pup.params.plain, np.float32), drv.shape).copy()
+        t0 = time.perf_counter()
+        verts = pup.mesh(i)
+        t1 = time.perf_counter()
+        tex = pup.texture(i, texture)
+        t2 = time.perf_counter()
+        img, alpha = pup.render(i, verts, tex, bg, scale)
+        t3 = time.perf_counter()
+        tm["mesh_s"] += t1 - t0
+        tm["texture_s"] += t2 - t1
+        tm["render_s"] += t3 - t2
+        out = np.concatenate([drv, img], axis=1) if side_by_side else img
+        lost = not bool(session.track.found[i])
+        if progress:
+            progress(n=1, stage="render", lost=session.track.n_lost)
+        yield {"index": i, "driver": drv, "puppet": img, "frame": out, "alpha": alpha, "lost": lost}
+
+
+def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool = False, size: int | None = None,
+              background: str = "driver", overwrite: bool = False, max_frames: int | None = None,
+              params: PuppetParams = PuppetParams(), progress: Callable | None = None,
+              on_frame: Callable | None = None) -> dict:
+    """Render ``driver`` (a video) performed by ``persona`` (a Persona or .persona path) to
+    ``output`` (H.264 MP4, written atomically, the driver's audio passed through).
+
+    Frames where the driver's face is lost are filled from the neighbouring motion and
+    counted; a video without any face raises NoFaceError naming it (nothing is written).
+    ``on_frame(record)`` receives each frame record of :func:`render_frames`.
+    Returns a report dict (frames, lost frames, timings, shape/collection sources)."""
+    from ..io import check_output_path, write_video
+
+    if background not in BACKGROUNDS:
+        raise BadInputError(f"unknown background {background!r}: use one of {', '.join(BACKGROUNDS)}")
+    out = check_output_path(output, overwrite=overwrite)
+    t_start = time.perf_counter()
+    session = prepare_puppetry(driver, persona, driver_photos=driver_photos, max_frames=max_frames, params=params,
+                               progress=progress)
+
+    def frames():
+        for rec in render_frames(session, size=size, background=background, side_by_side=side_by_side,
+                                 progress=progress):
+            if on_frame:
+                on_frame(rec)
+            yield rec["frame"]
+
+    t0 = time.perf_counter()
+    write_video(out, frames(), session.track.fps, audio_from=driver if session.track.has_audio else None,
+                overwrite=overwrite)
+    tm = session.timings
+    tm["render_pass_s"] = time.perf_counter() - t0
+    tm["total_s"] = time.perf_counter() - t_start
+    tr = session.track
+    return {
+        "output": str(out),
+        "frames": tr.n_frames,
+        "lost_frames": tr.n_lost,
+        "lost_indices": [int(i) for i in np.flatnonzero(~tr.found)],
+        "fps": tr.fps,
+        "audio": tr.has_audio,
+        "puppet_shape": session.puppeteer.shape_source,
+        "driver_collection": session.collection.source,
+        "timings": {k: round(v, 3) for k, v in tm.items()},
+    }

@@ -1,0 +1,157 @@
+"""Persona puppetry end to end on a tiny synthetic driver video and a tiny persona."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from facetex._resources import sample_path
+from facetex.errors import NoFaceError
+from facetex.io import read_image, video_info, write_video
+
+N_MORPH = 8  # neutral -> smiling frames
+N_BLANK = 2  # frames without a face
+N_HOLD = 2  # smiling frames after the gap
+SIDE = 288
+
+
+def _landmarks(img):
+    from facetex.landmarks import detect_face
+
+    return detect_face(img).points68
+
+
+def morph_frames(n_morph: int = N_MORPH, n_blank: int = N_BLANK, n_hold: int = N_HOLD, side: int = SIDE):
+    """Frames morphing frl_004 neutral -> smiling (piecewise-affine warp + cross-fade),
+    then ``n_blank`` grey frames (face lost), then ``n_hold`` smiling frames."""
+    from facetex.geometry.morph import piecewise_affine_map, remap
+
+    a = cv2.resize(read_image(sample_path("frl_004_neutral.jpg")), (side, side), interpolation=cv2.INTER_AREA)
+    b = cv2.resize(read_image(sample_path("frl_004_smiling.jpg")), (side, side), interpolation=cv2.INTER_AREA)
+    pa, pb = _landmarks(a), _landmarks(b)
+    ident = np.stack(np.meshgrid(np.arange(side), np.arange(side)), axis=-1).astype(np.float32)
+    # displacement fields of the full morphs, scaled by t for the in-between frames
+    da = piecewise_affine_map(pa, pb, a.shape[:2]) - ident
+    db = piecewise_affine_map(pb, pa, b.shape[:2]) - ident
+    frames = []
+    for t in np.linspace(0, 1, n_morph):
+        wa = remap(a, ident + t * da)
+        wb = remap(b, ident + (1 - t) * db)
+        frames.append(np.clip((1 - t) * wa + t * wb, 0, 1).astype(np.float32))
+    frames += [np.full_like(a, 0.45)] * n_blank + [b] * n_hold
+    return frames
+
+
+@pytest.fixture(scope="module")
+def driver_video(tmp_path_factory):
+    path = tmp_path_factory.mktemp("driver") / "driver.mp4"
+    write_video(path, morph_frames(), fps=10)
+    return path
+
+
+@pytest.fixture(scope="module")
+def tiny_persona(tmp_path_factory):
+    """8 jittered, differently lit copies of frl_004 neutral/smiling (min_photos lowered to 6)."""
+    from facetex.io import write_image
+    from facetex.persona import PersonaParams, build_persona
+
+    folder = tmp_path_factory.mktemp("photos")
+    rng = np.random.default_rng(0)
+    for name in ("frl_004_neutral.jpg", "frl_004_smiling.jpg"):
+        img = read_image(sample_path(name))
+        h, w = img.shape[:2]
+        for k in range(4):
+            m = cv2.getRotationMatrix2D((w / 2, h / 2), rng.uniform(-6, 6), rng.uniform(0.92, 1.05))
+            m[:, 2] += rng.uniform(-10, 10, 2)
+            j = cv2.warpAffine(img, m, (w, h), borderMode=cv2.BORDER_REPLICATE)
+            ramp = np.linspace(-1, 1, w, dtype=np.float32)[None, :, None] * rng.uniform(-0.25, 0.25)
+            vramp = np.linspace(-1, 1, h, dtype=np.float32)[:, None, None] * rng.uniform(-0.2, 0.2)
+            j = np.clip(j * rng.uniform(0.8, 1.1) * (1 + ramp + vramp), 0, 1)
+            write_image(folder / f"{name[:-4]}_{k}.png", j)
+    # a half-size canonical frame keeps the test fast; the puppet works in the persona's frame
+    return build_persona(folder, jobs=1, params=PersonaParams(min_photos=6, size=(96, 120)))
+
+
+@pytest.fixture(scope="module")
+def puppet_run(driver_video, tiny_persona, tmp_path_factory):
+    from facetex.persona.puppet import puppeteer
+
+    out = tmp_path_factory.mktemp("out") / "puppet.mp4"
+    records = []
+    report = puppeteer(driver_video, tiny_persona, out, size=160, side_by_side=True,
+                       on_frame=lambda r: records.append({k: r[k] for k in ("index", "puppet", "alpha", "lost")}))
+    return out, report, records
+
+
+def test_output_video_frames_and_size(puppet_run):
+    out, report, records = puppet_run
+    info = video_info(out)
+    n = N_MORPH + N_BLANK + N_HOLD
+    assert info["n_frames"] == n == report["frames"] == len(records)
+    assert (info["width"], info["height"]) == (2 * 160, 160)  # side by side, square driver
+
+
+def test_lost_frames_counted_and_filled(puppet_run):
+    _, report, records = puppet_run
+    assert report["lost_frames"] == N_BLANK
+    assert report["lost_indices"] == list(range(N_MORPH, N_MORPH + N_BLANK))
+    # filled frames still show a rendered puppet face
+    for r in records:
+        assert r["alpha"].max() > 0.9, r["index"]
+
+
+def test_puppet_face_is_rendered_over_the_driver(puppet_run):
+    _, _, records = puppet_run
+    alpha = records[0]["alpha"]
+    ys, xs = np.nonzero(alpha > 0.5)
+    # the face covers a plausible part of the 160 px panel around its centre
+    assert 0.05 < (alpha > 0.5).mean() < 0.6
+    assert 40 < xs.mean() < 120 and 40 < ys.mean() < 130
+
+
+def test_no_face_video_raises_and_writes_nothing(tmp_path, tiny_persona):
+    from facetex.persona.puppet import puppeteer
+
+    blank = tmp_path / "blank.mp4"
+    write_video(blank, [np.full((96, 96, 3), 0.3, np.float32)] * 3, fps=10)
+    out = tmp_path / "out.mp4"
+    with pytest.raises(NoFaceError) as e:
+        puppeteer(blank, tiny_persona, out)
+    assert e.value.path == str(blank)
+    assert not out.exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["blank.mp4"]
+
+
+def test_neutral_texture_weights_follow_expression(tiny_persona):
+    from facetex.persona.puppet import neutral_texture
+
+    p = tiny_persona
+    smiling = np.array(["smiling" in f for f in p.photos])
+    t_neu = neutral_texture(p, p.fiducials[~smiling].mean(axis=0), sigma=4.0)
+    t_smi = neutral_texture(p, p.fiducials[smiling].mean(axis=0), sigma=4.0)
+    static = neutral_texture(p, p.fiducials[0], method="static")
+    assert t_neu.shape == t_smi.shape == static.shape == (120, 96, 3)
+    # different target expressions blend different photos (the static texture does not change)
+    assert np.abs(t_neu - t_smi).mean() > 1e-3
+    np.testing.assert_array_equal(static, neutral_texture(p, p.fiducials[-1], method="static"))
+
+
+def test_cli_puppet(tmp_path, driver_video, tiny_persona, capsys):
+    from facetex.cli import main
+
+    persona_file = tiny_persona.save(tmp_path / "tiny.persona")
+    out = tmp_path / "cli.mp4"
+    code = main(["puppet", "--driver", str(driver_video), "--puppet", str(persona_file), "-o", str(out),
+                 "--max-frames", "3", "--size", "96", "--background", "plain"])
+    assert code == 0 and out.is_file()
+    assert video_info(out)["n_frames"] == 3
+    assert '"lost_frames": 0' in capsys.readouterr().out
+    # existing output without --overwrite, and a video without faces: one-line errors, non-zero exit
+    assert main(["puppet", "--driver", str(driver_video), "--puppet", str(persona_file), "-o", str(out)]) != 0
+    blank = tmp_path / "blank.mp4"
+    write_video(blank, [np.full((64, 64, 3), 0.5, np.float32)] * 2, fps=5)
+    assert main(["puppet", "--driver", str(blank), "--puppet", str(persona_file), "-o", str(tmp_path / "x.mp4")]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "blank.mp4" in err[-1] and "no face" in err[-1]
+    assert not (tmp_path / "x.mp4").exists()

@@ -1,0 +1,81 @@
+"""``facetex puppet`` with bad driver videos, bad personas and bad outputs.
+
+Skipped while the puppet command is not registered."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from _robust import assert_one_error, run_cli, snapshot
+from conftest import has_command
+
+pytestmark = pytest.mark.skipif(not has_command("puppet"), reason="`facetex puppet` not registered yet")
+
+
+@pytest.mark.parametrize("video, cause", [
+    ("noface.mp4", r"no face"),
+    ("truncated.mp4", r"not a readable video|truncated|corrupt"),
+    ("cut_first.mp4", r"no decodable frame|truncated|corrupt"),
+    ("empty.mp4", r"empty"),
+    ("text.mp4", r"not a readable video"),
+    ("missing.mp4", r"not found"),
+])
+def test_bad_driver(capsys, videos, outdir, persona_file, video, cause):
+    path = videos.get(video, videos["face.mp4"].parent / video)
+    run = run_cli(capsys, "puppet", "--driver", path, "--puppet", persona_file, "-o", outdir / "o.mp4",
+                  "--size", "96")
+    assert_one_error(run, names=[path], cause=cause)
+    assert snapshot(outdir) == {}
+
+
+@pytest.fixture(scope="module")
+def bad_personas(tmp_path_factory, persona_file):
+    import json
+
+    d = tmp_path_factory.mktemp("puppet_personas")
+    (d / "random.persona").write_bytes(np.random.default_rng(2).integers(0, 256, 3000, dtype=np.uint8).tobytes())
+    raw = persona_file.read_bytes()
+    (d / "truncated.persona").write_bytes(raw[: len(raw) // 3])
+    head = {"format": "facetex-persona", "version": 7}
+    with open(d / "future.persona", "wb") as fh:
+        np.savez(fh, header=np.frombuffer(json.dumps(head).encode(), np.uint8))
+    return d
+
+
+@pytest.mark.parametrize("name, cause", [("random.persona", r"corrupt|not a persona"),
+                                         ("truncated.persona", r"corrupt"),
+                                         ("future.persona", r"version 7"),
+                                         ("missing.persona", r"not found")])
+def test_bad_persona(capsys, videos, outdir, bad_personas, name, cause):
+    path = bad_personas / name
+    run = run_cli(capsys, "puppet", "--driver", videos["face.mp4"], "--puppet", path, "-o", outdir / "o.mp4")
+    assert_one_error(run, names=[path], cause=cause)
+    assert snapshot(outdir) == {}
+
+
+@pytest.mark.parametrize("target, cause", [("missing/o.mp4", r"does not exist"), ("o.mp4", r"exists.*--overwrite"),
+                                           ("afile/o.mp4", r"not a folder")])
+def test_bad_output(capsys, videos, outdir, persona_file, target, cause):
+    (outdir / "o.mp4").write_bytes(b"old")
+    (outdir / "afile").write_bytes(b"a file")
+    before = snapshot(outdir)
+    run = run_cli(capsys, "puppet", "--driver", videos["face.mp4"], "--puppet", persona_file,
+                  "-o", outdir / target)
+    assert_one_error(run, names=[outdir / target], cause=cause)
+    assert snapshot(outdir) == before
+
+
+def test_partly_decodable_driver_warns_and_works(capsys, videos, outdir, persona_file):
+    """A video cut after two whole frames: those two are used, with one warning line naming it."""
+    from facetex.io import video_info
+
+    path = videos["cut_mid.mp4"]
+    run = run_cli(capsys, "puppet", "--driver", path, "--puppet", persona_file, "-o", outdir / "o.mp4",
+                  "--size", "96")
+    assert run.code == 0, run.err
+    assert "Traceback" not in run.err and run.lines == [], run.lines
+    warnings = [l for l in run.err.replace("\r", "\n").splitlines() if l.startswith("facetex: warning:")]
+    assert warnings and all(path.name in w and "damaged" in w for w in warnings)
+    assert [p.name for p in outdir.iterdir()] == ["o.mp4"]  # no temp file
+    assert video_info(outdir / "o.mp4")["n_frames"] == 2
