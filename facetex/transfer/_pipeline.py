@@ -104,7 +104,7 @@ def _check_rgb(image, name: str) -> np.ndarray:
 
 # ---------------------------------------------------------------- memory
 _BYTES_PER_PIXEL = {  # measured peak bytes per working-region pixel of one forward+backward
-    "effnet-lite0": 2600, "vgg19": 9000, "vgg19-random": 9000, "face-resnet": 2400,
+    "effnet-lite0": 1800, "vgg19": 9000, "vgg19-random": 9000, "face-resnet": 2400,
 }
 
 
@@ -130,7 +130,7 @@ def estimate_transfer_memory(params: TransferParams, shape: tuple[int, int]) -> 
     h, w = shape
     px = h * w
     net = params.texture_net
-    total = 350 * 2**20  # interpreter, torch, the networks' weights
+    total = 550 * 2**20  # interpreter, torch, dlib models, the networks' weights (measured, benchmarks/memory.py)
     total += _BYTES_PER_PIXEL.get(net, 9000) * px  # activations for forward + backward
     if params.structure_weight:
         total += 60 * 2**20  # face chip through FaceRecognitionNet
