@@ -108,3 +108,16 @@ def flow_epe(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> fl
     if w.sum() <= 0:
         raise BadInputError("mask is empty: pass a mask with at least one nonzero pixel")
     return float((err * w).sum() / w.sum())
+
+
+def gray01(img: np.ndarray, name: str, min_side: int = 2) -> np.ndarray:
+    """Float32 luminance in [0, 1] of a gray (H, W[, 1]) or RGB (H, W, 3) float/uint8 image."""
+    img = np.asarray(img)
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[..., 0]
+    if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3) or min(img.shape[:2]) < min_side:
+        raise BadInputError(f"{name} must be a gray (H,W) or RGB (H,W,3) image of at least "
+                            f"{min_side}x{min_side}, got shape {img.shape}")
+    img = img.astype(np.float32) / 255 if img.dtype == np.uint8 else img.astype(np.float32, copy=False)
+    return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
+

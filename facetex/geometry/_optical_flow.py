@@ -29,22 +29,13 @@ import cv2
 import numpy as np
 
 from ..errors import BadInputError
+from ._flow_core import gray01
 
 _METHODS = ("variational", "dis", "dis_fast", "farneback")
 
 
 def _to_gray255(img: np.ndarray, name: str) -> np.ndarray:
-    img = np.asarray(img)
-    if img.ndim == 3 and img.shape[2] == 1:
-        img = img[..., 0]
-    if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3) or min(img.shape[:2]) < 2:
-        raise BadInputError(f"{name} must be a gray (H,W) or RGB (H,W,3) image, got shape {img.shape}")
-    if img.dtype == np.uint8:
-        img = img.astype(np.float32) / 255
-    img = img.astype(np.float32, copy=False)
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
-    return img * 255
+    return gray01(img, name, 2) * 255
 
 
 def _pyramid_scales(h: int, w: int, ratio: float, min_width: int) -> list[float]:

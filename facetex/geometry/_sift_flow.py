@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 
 from ..errors import BadInputError
+from ._flow_core import gray01
 
 
 
@@ -49,13 +50,7 @@ class SiftFlowParams:
 
 
 def _gray(img: np.ndarray, name: str) -> np.ndarray:
-    img = np.asarray(img)
-    if img.ndim == 3 and img.shape[2] == 1:
-        img = img[..., 0]
-    if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3) or min(img.shape[:2]) < 8:
-        raise BadInputError(f"{name} must be a gray (H,W) or RGB (H,W,3) image of at least 8x8, got {img.shape}")
-    img = img.astype(np.float32) / 255 if img.dtype == np.uint8 else img.astype(np.float32, copy=False)
-    return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
+    return gray01(img, name, 8)
 
 
 def _dense_sift_cf(gray: np.ndarray, cell: int) -> np.ndarray:
