@@ -21,9 +21,11 @@ import numpy as np
 import torch
 
 from ..errors import BadImageError, BadInputError, MemoryBudgetError
+from ..io import to_float32
 from .losses import StylePatches, _grid, gram_loss, gram_matrix, mrf_loss, mrf_memory_estimate, style_patches, tv_loss
 from .methods import TransferParams
 from .methods import preset as make_preset
+from .optimize import _resize as _resize_level
 from .optimize import optimize_image, to_tensor
 from .prior import apply_facial_prior
 
@@ -94,9 +96,7 @@ def _check_rgb(image, name: str) -> np.ndarray:
     a = np.asarray(image)
     if a.ndim != 3 or a.shape[2] != 3:
         raise BadImageError(f"{name} must be an (H, W, 3) RGB image, got shape {a.shape}")
-    if a.dtype == np.uint8:
-        a = a.astype(np.float32) / 255.0
-    a = a.astype(np.float32)
+    a = to_float32(a)
     if min(a.shape[:2]) < 32:
         raise BadImageError(f"{name} of {a.shape[1]}x{a.shape[0]} px is too small: use at least 32 px")
     return a
@@ -146,21 +146,13 @@ def estimate_transfer_memory(params: TransferParams, shape: tuple[int, int]) -> 
 
 
 # ---------------------------------------------------------------- losses per level
-def _resize_t(x: torch.Tensor, shape) -> torch.Tensor:
-    if tuple(x.shape[-2:]) == tuple(shape):
-        return x
-    shrink = shape[0] < x.shape[-2]
-    return torch.nn.functional.interpolate(x, size=tuple(shape), mode="bilinear", align_corners=False,
-                                           antialias=shrink)
-
-
 def _masked_style_patches(feat: torch.Tensor, mask: torch.Tensor, params: TransferParams) -> StylePatches:
     """Style patches whose centre lies in ``mask`` (the style's face region): hair and
     background are kept out of the matching, where most artifacts came from."""
     sp = style_patches(feat, params.patch_size, params.style_stride)
     h, w = feat.shape[-2:]
     k = params.patch_size
-    m = _resize_t(mask, (h, w))[0, 0]
+    m = _resize_level(mask, (h, w))[0, 0]
     ys = _grid(h, k, params.style_stride) + k // 2
     xs = _grid(w, k, params.style_stride) + k // 2
     keep = (m[ys][:, xs] > 0.5).reshape(-1)
@@ -177,16 +169,16 @@ class _LevelLoss:
         self.p = p
         self.net = builder.texture_net
         self.struct_net = builder.structure_net
-        c = _resize_t(builder.content, shape)
-        s = _resize_t(builder.style, shape)
-        self.prior = _resize_t(builder.prior, shape) if builder.prior is not None else None
+        c = _resize_level(builder.content, shape)
+        s = _resize_level(builder.style, shape)
+        self.prior = _resize_level(builder.prior, shape) if builder.prior is not None else None
         self.norms: dict[str, float] | None = None
         with torch.no_grad():
             tex_layers = list(dict.fromkeys(p.mrf_layers + p.style_layers))
             fs = self.net.features(s, tex_layers) if tex_layers else {}
             fc = self.net.features(c, list(p.content_layers)) if p.content_layers else {}
             if p.style_region == "face":
-                face = _resize_t(builder.face, shape)
+                face = _resize_level(builder.face, shape)
                 self.patches = {l: _masked_style_patches(fs[l], face, p) for l in p.mrf_layers}
             else:
                 self.patches = {l: style_patches(fs[l], p.patch_size, p.style_stride) for l in p.mrf_layers}
