@@ -14,8 +14,9 @@ def test_facetex_moves_texture_towards_style_and_keeps_identity():
     c = read_image(sample_path("frl_004_neutral.jpg"))
     s = read_image(sample_path("frl_005_neutral.jpg"))
     pc, ps = detect_face(c).points68, detect_face(s).points68
-    out, _ = transfer_with_info(c, s, method="facetex", size=192, iters=(30, 30, 30), content_points=pc,
-                                style_points=ps)
+    # the default preset: at 192 px x 30 iterations the texture barely moves (S_style fell 0.71 -> 0.68)
+    with pytest.warns(UserWarning, match="upscaled"):  # the 400 px samples are below the 384 px working size
+        out, _ = transfer_with_info(c, s, method="facetex", content_points=pc, style_points=ps)
     m = transfer_metrics(out, c, s, points=(None, pc, ps))
     assert m["identity_content"] < 0.6  # still the content person
     assert m["identity_content"] < m["identity_style"]
