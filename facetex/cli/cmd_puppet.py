@@ -28,16 +28,16 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from ..io import check_output_path, video_info
-    from ..persona import load_persona
+    from ..persona import read_persona_header
     from ..persona.puppet import PuppetParams, puppeteer
 
     check_output_path(args.output, overwrite=args.overwrite)
-    persona = load_persona(args.puppet)
+    read_persona_header(args.puppet)  # fail fast on a wrong file; the arrays load while the driver is tracked
     n = video_info(args.driver)["n_frames"]
     if args.max_frames is not None:
         n = min(n, max(0, args.max_frames))
     with progress_bar(2 * n, desc="puppet", unit="frame") as bar:
-        report = puppeteer(args.driver, persona, args.output, driver_photos=args.driver_photos,
+        report = puppeteer(args.driver, args.puppet, args.output, driver_photos=args.driver_photos,
                            side_by_side=args.side_by_side, size=args.size, background=args.background,
                            overwrite=args.overwrite, max_frames=args.max_frames,
                            params=PuppetParams(texture=args.texture), progress=bar)

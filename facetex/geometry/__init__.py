@@ -31,10 +31,10 @@ from .morph import (
     piecewise_affine_warp,
     remap,
 )
-from .tps import ThinPlateSpline, tps_warp
+from .tps import ThinPlateSpline, tps_evaluate_many, tps_warp
 
 __all__ = [
-    "ThinPlateSpline", "tps_warp",
+    "ThinPlateSpline", "tps_evaluate_many", "tps_warp",
     "BeierNeelyParams", "AlignParams", "AlignResult", "align_style_to_content", "beier_neely_map", "beier_neely_warp",
     "piecewise_affine_map", "piecewise_affine_warp", "remap", "compose_maps",
     "warp_with_flow", "compose_flows", "invert_flow", "flow_from_map", "map_from_flow", "flow_epe", "optical_flow",

@@ -29,7 +29,7 @@ import numpy as np
 
 from ..errors import BadInputError
 
-__all__ = ["ThinPlateSpline", "tps_warp", "tps_kernel", "LAMBDA_TOM_HANKS", "DENSE_MAP_STEP"]
+__all__ = ["ThinPlateSpline", "tps_warp", "tps_evaluate_many", "tps_kernel", "LAMBDA_TOM_HANKS", "DENSE_MAP_STEP"]
 
 #: lambda of Eq. 1 in the Tom Hanks paper (§ Implementation details).
 LAMBDA_TOM_HANKS = 10.0
@@ -75,28 +75,8 @@ class ThinPlateSpline:
             raise BadInputError(f"target_pts and source_pts differ in shape: {t.shape} vs {s.shape}")
         if not (math.isfinite(smoothing) and smoothing >= 0):
             raise BadInputError(f"smoothing must be a finite number >= 0, got {smoothing}")
-        n = len(t)
-        if n < 3:
-            raise BadInputError(f"a thin-plate spline needs at least 3 points, got {n}")
-        # centre and scale the affine columns for conditioning (does not change the solution)
-        mu, sc = t.mean(axis=0), max(float(np.ptp(t, axis=0).max()), 1e-9)
-        P = np.hstack([np.ones((n, 1)), (t - mu) / sc])
-        K = tps_kernel(np.linalg.norm(t[:, None] - t[None], axis=-1))
-        L = np.zeros((n + 3, n + 3))
-        L[:n, :n] = K + 8.0 * math.pi * smoothing * np.eye(n)  # Eq. 1: lambda * 8 pi on the diagonal
-        L[:n, n:] = P
-        L[n:, :n] = P.T
-        rhs = np.zeros((n + 3, 2))
-        rhs[:n] = s
-        try:
-            sol = np.linalg.solve(L, rhs)
-        except np.linalg.LinAlgError:
-            sol = np.linalg.lstsq(L, rhs, rcond=None)[0]  # collinear / duplicate points
-        w, a = sol[:n], sol[n:]
-        # undo the scaling: [1, (x - mu)/sc] a = [1, x] A
-        A = np.empty((3, 2))
-        A[1:] = a[1:] / sc
-        A[0] = a[0] - mu @ A[1:]
+        w, A = _solve(t, s[None], smoothing)
+        w, A = w[0], A[0]
         for arr in (t, w, A):
             arr.setflags(write=False)
         return cls(t.copy(), w, A, float(smoothing))
@@ -163,6 +143,55 @@ class ThinPlateSpline:
             U = _phi_r2(dy2[i : i + rows, None, :] + dx2[None])
             out[i : i + rows] = self.affine[0] + xy[i : i + rows] @ self.affine[1:] + U @ self.weights
         return out
+
+
+def _solve(t: np.ndarray, sources: np.ndarray, smoothing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Weights (K, N, 2) and affine parts (K, 3, 2) of K splines sharing the target points
+    ``t`` (N, 2), one per source set in ``sources`` (K, N, 2): one system, K right-hand sides."""
+    n = len(t)
+    if n < 3:
+        raise BadInputError(f"a thin-plate spline needs at least 3 points, got {n}")
+    # centre and scale the affine columns for conditioning (does not change the solution)
+    mu, sc = t.mean(axis=0), max(float(np.ptp(t, axis=0).max()), 1e-9)
+    P = np.hstack([np.ones((n, 1)), (t - mu) / sc])
+    K = tps_kernel(np.linalg.norm(t[:, None] - t[None], axis=-1))
+    L = np.zeros((n + 3, n + 3))
+    L[:n, :n] = K + 8.0 * math.pi * smoothing * np.eye(n)  # Eq. 1: lambda * 8 pi on the diagonal
+    L[:n, n:] = P
+    L[n:, :n] = P.T
+    k = len(sources)
+    rhs = np.zeros((n + 3, k * 2))
+    rhs[:n] = np.asarray(sources, np.float64).transpose(1, 0, 2).reshape(n, k * 2)
+    try:
+        sol = np.linalg.solve(L, rhs)
+    except np.linalg.LinAlgError:
+        sol = np.linalg.lstsq(L, rhs, rcond=None)[0]  # collinear / duplicate points
+    sol = sol.reshape(n + 3, k, 2).transpose(1, 0, 2)
+    w, a = sol[:, :n], sol[:, n:]
+    # undo the scaling: [1, (x - mu)/sc] a = [1, x] A
+    A = np.empty((k, 3, 2))
+    A[:, 1:] = a[:, 1:] / sc
+    A[:, 0] = a[:, 0] - mu @ A[:, 1:]
+    return np.ascontiguousarray(w), A
+
+
+def tps_evaluate_many(target_pts, source_pts, points, *, smoothing: float = LAMBDA_TOM_HANKS) -> np.ndarray:
+    """(K, P, 2): K splines fitted with r_k(target_pts) ~ source_pts[k] (Eq. 1), all evaluated
+    at the same ``points`` (P, 2). Equal to K separate :meth:`ThinPlateSpline.fit` calls but
+    with one factorization and one kernel matrix (a photo collection warped to its mean
+    fiducials shares both)."""
+    t = _points(target_pts, "target_pts")
+    s = np.asarray(source_pts, np.float64)
+    if s.ndim != 3 or s.shape[1:] != t.shape or not np.all(np.isfinite(s)):
+        raise BadInputError(f"source_pts must be a finite (K, {len(t)}, 2) array, got shape {s.shape}")
+    if not (math.isfinite(smoothing) and smoothing >= 0):
+        raise BadInputError(f"smoothing must be a finite number >= 0, got {smoothing}")
+    q = _points(points, "points")
+    w, A = _solve(t, s, smoothing)
+    U = _phi_r2((q[:, None, 0] - t[None, :, 0]) ** 2 + (q[:, None, 1] - t[None, :, 1]) ** 2)  # (P, N)
+    k, n = w.shape[:2]
+    out = (U @ w.transpose(1, 0, 2).reshape(n, k * 2)).reshape(len(q), k, 2).transpose(1, 0, 2)
+    return out + A[:, None, 0] + np.einsum("pd,kde->kpe", q, A[:, 1:])
 
 
 def _phi_r2(r2: np.ndarray) -> np.ndarray:

@@ -1,6 +1,6 @@
 """Persona textures from a photo collection ("What makes Tom Hanks look like Tom Hanks", Sec. 5)."""
 
-from .collection import Persona, PersonaParams, build_persona, load_persona
+from .collection import Persona, PersonaParams, build_persona, load_persona, read_persona_header
 from .texture import METHODS, STAGES, TextureParams, average_face, prepare_persona, synthesize_texture
 
 __all__ = [
@@ -8,6 +8,7 @@ __all__ = [
     "PersonaParams",
     "build_persona",
     "load_persona",
+    "read_persona_header",
     "TextureParams",
     "synthesize_texture",
     "average_face",

@@ -13,8 +13,10 @@ every photo to the collection's mean fiducials M ("neutral frame"):
    flow (alpha = 0.3) from its projection to it.
 
 Synthesis for a target F^T then composes one TPS M -> F^T with these alignments
-(see :mod:`facetex.persona.texture`). ``.persona`` files are ``.npz`` zips with a
-JSON header, loaded with ``allow_pickle=False``.
+(see :mod:`facetex.persona.texture`). Last, the average 3D face (Tom Hanks Sec. 4):
+photometric stereo on (at most ``shape_photos``) aligned photos, see :func:`average_depth`.
+``.persona`` files are ``.npz`` zips with a JSON header, loaded with ``allow_pickle=False``;
+version 2 adds the average depth (version 1 files load with ``depth=None``).
 """
 
 from __future__ import annotations
@@ -22,6 +24,8 @@ from __future__ import annotations
 import json
 import multiprocessing
 import zipfile
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -36,13 +40,15 @@ __all__ = [
     "Persona",
     "build_persona",
     "load_persona",
+    "read_persona_header",
+    "average_depth",
     "PERSONA_FORMAT",
     "PERSONA_VERSION",
     "IMAGE_EXTENSIONS",
 ]
 
 PERSONA_FORMAT = "facetex-persona"
-PERSONA_VERSION = 1
+PERSONA_VERSION = 2
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 
 
@@ -55,7 +61,9 @@ class PersonaParams:
     subspace_rank: principal components besides the mean; max_yaw: |yaw| (deg) above
     which a photo is skipped; dominant_ratio: a second face larger than this fraction
     of the largest makes the photo ambiguous; min_photos: fewest usable photos;
-    flow_method: see :func:`facetex.geometry.flow.optical_flow`.
+    flow_method: see :func:`facetex.geometry.flow.optical_flow`; shape_photos: at most this
+    many evenly spaced photos feed the photometric stereo of the average 3D face (its SVD
+    grows with the square of the count; a few dozen lightings fix the rank-4 factorization).
     """
 
     size: tuple[int, int] = (192, 240)
@@ -66,6 +74,7 @@ class PersonaParams:
     dominant_ratio: float = 0.8
     min_photos: int = 10
     flow_method: str = "variational"
+    shape_photos: int = 128
 
 
 @dataclass(eq=False)
@@ -79,6 +88,9 @@ class Persona:
     to the TPS-warped photo); subspace (1 + rank, H, W, 3) float32 mean and orthonormal
     (inside the face mask) principal components of the TPS-warped photos.
     ``photos``: file names; ``skipped``: [{"file", "reason"}].
+    depth (H, W) float32: the raw photometric-stereo average depth (canonical px, NaN off
+    the face region; all NaN when the reconstruction failed) or None (version-1 file, not
+    computed); depth_photos: photos that fed it (0 when it failed or is absent).
     """
 
     images: np.ndarray
@@ -92,6 +104,8 @@ class Persona:
     skipped: list[dict] = field(default_factory=list)
     params: PersonaParams = field(default_factory=PersonaParams)
     source: str = ""
+    depth: np.ndarray | None = None
+    depth_photos: int = 0
     _cache: dict = field(default_factory=dict, repr=False)
 
     def __len__(self) -> int:
@@ -118,6 +132,8 @@ class Persona:
                 for f, p in zip(self.photos, self.poses)
             ],
             "skipped": list(self.skipped),
+            # None: no depth array stored
+            "depth_photos": None if self.depth is None else int(self.depth_photos),
         }
 
     def save(self, path, *, overwrite: bool = False) -> Path:
@@ -126,10 +142,22 @@ class Persona:
 
         path = check_output_path(path, overwrite=overwrite)
         head = np.frombuffer(json.dumps(self.header()).encode("utf-8"), dtype=np.uint8)
+        arrays = {k: getattr(self, k) for k in _ARRAYS}
+        if self.depth is not None:
+            arrays["depth"] = np.asarray(self.depth, np.float32)
         with atomic_path(path) as tmp:
-            with open(tmp, "wb") as fh:
-                np.savez_compressed(fh, header=head, **{k: getattr(self, k) for k in _ARRAYS})
+            with open(tmp, "wb") as fh, zipfile.ZipFile(fh, "w", allowZip64=True) as z:
+                for name, arr in {"header": head, **arrays}.items():
+                    info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+                    info.compress_type = zipfile.ZIP_STORED if name in _STORED else zipfile.ZIP_DEFLATED
+                    with z.open(info, "w", force_zip64=True) as f:
+                        np.lib.format.write_array(f, np.ascontiguousarray(arr), allow_pickle=False)
         return path
+
+
+#: members written uncompressed (an npz is a zip: np.load reads both kinds). Deflate saved
+#: 20-27 % of these two but cost 1.7 s of every load of a 519-photo persona (measured).
+_STORED = ("images", "flows")
 
 
 # name -> (dtype, trailing shape given (n, H, W, rank)) of the stored arrays
@@ -144,53 +172,93 @@ _ARRAYS = {
 }
 
 
-def load_persona(path) -> Persona:
-    """Read a ``.persona`` file; BadPersonaError naming it if corrupt, of another format
-    or version, or with inconsistent arrays."""
-    path = Path(path)
+def _bad(path, what: str) -> BadPersonaError:
+    return BadPersonaError(f"{what}: rebuild it with `facetex persona build`", path=path)
+
+
+def _read_header(path: Path) -> tuple[dict, PersonaParams, list[str]]:
+    """Parse and validate only the JSON header member (no array is decompressed)."""
     if not path.is_file():
         raise BadPersonaError("persona file not found: build one with `facetex persona build`", path=path)
-
-    def bad(what: str) -> BadPersonaError:
-        return BadPersonaError(f"{what}: rebuild it with `facetex persona build`", path=path)
-
     try:
-        with np.load(path, allow_pickle=False) as z:
-            if "header" not in z.files:
-                raise bad("not a persona file (no header)")
-            header = json.loads(z["header"].tobytes().decode("utf-8"))
-            if not isinstance(header, dict) or header.get("format") != PERSONA_FORMAT:
-                raise bad("not a persona file (unknown format)")
-            version = header.get("version")
-            if not isinstance(version, int) or version > PERSONA_VERSION or version < 1:
-                raise BadPersonaError(
-                    f"persona format version {version!r} is not supported (this facetex reads up to "
-                    f"{PERSONA_VERSION}): upgrade facetex or rebuild the persona", path=path)
-            missing = [k for k in _ARRAYS if k not in z.files]
-            if missing:
-                raise bad(f"persona file lacks arrays {missing}")
-            arrays = {k: z[k] for k in _ARRAYS}
+        with zipfile.ZipFile(path) as zf:
+            if "header.npy" not in zf.namelist():
+                raise _bad(path, "not a persona file (no header)")
+            with zf.open("header.npy") as fh:
+                raw = np.lib.format.read_array(fh, allow_pickle=False)
+        header = json.loads(raw.tobytes().decode("utf-8"))
     except BadPersonaError:
         raise
     except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError, UnicodeDecodeError) as e:
-        raise bad(f"corrupt persona file ({type(e).__name__}: {e})") from None
+        raise _bad(path, f"corrupt persona file ({type(e).__name__}: {e})") from None
+    if not isinstance(header, dict) or header.get("format") != PERSONA_FORMAT:
+        raise _bad(path, "not a persona file (unknown format)")
+    version = header.get("version")
+    if not isinstance(version, int) or version > PERSONA_VERSION or version < 1:
+        raise BadPersonaError(
+            f"persona format version {version!r} is not supported (this facetex reads up to "
+            f"{PERSONA_VERSION}): upgrade facetex or rebuild the persona", path=path)
     try:
         p = header["parameters"]
-        params = PersonaParams(**{**p, "size": tuple(p["size"])})
+        params = PersonaParams(**{**p, "size": tuple(int(v) for v in p["size"])})
         photos = [str(ph["file"]) for ph in header["photos"]]
-        skipped = list(header.get("skipped", []))
+        if len(params.size) != 2:
+            raise ValueError(f"size {params.size}")
+        dp = header.get("depth_photos") if version >= 2 else None
+        if dp is not None and (not isinstance(dp, int) or dp < 0):
+            raise ValueError(f"depth_photos {dp!r}")
     except (KeyError, TypeError, ValueError) as e:
-        raise bad(f"corrupt persona header ({type(e).__name__}: {e})") from None
+        raise _bad(path, f"corrupt persona header ({type(e).__name__}: {e})") from None
+    return header, params, photos
+
+
+def read_persona_header(path) -> dict:
+    """The JSON header of a ``.persona`` file plus ``"size"`` (W, H) and ``"n_photos"``, without
+    reading its arrays (cheap: for listings and checks). Same errors as :func:`load_persona`
+    for missing, corrupt, foreign or too-new files."""
+    header, params, photos = _read_header(Path(path))
+    return {**header, "size": tuple(params.size), "n_photos": len(photos)}
+
+
+def load_persona(path) -> Persona:
+    """Read a ``.persona`` file; BadPersonaError naming it if corrupt, of another format
+    or version, or with inconsistent arrays. Version-1 files have no depth (``depth=None``)."""
+    path = Path(path)
+    header, params, photos = _read_header(path)
+    depth_photos = header.get("depth_photos") if header["version"] >= 2 else None
+    names = list(_ARRAYS) + (["depth"] if depth_photos is not None else [])
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            missing = [k for k in names if k not in z.files]
+            if missing:
+                raise _bad(path, f"persona file lacks arrays {missing}")
+            arrays = {k: z[k] for k in names}
+        bad = [k for k, a in arrays.items() if not isinstance(a, np.ndarray)]  # npz members that are not .npy
+        if bad:
+            raise _bad(path, f"corrupt persona file (members {bad} are not arrays)")
+    except BadPersonaError:
+        raise
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError, UnicodeDecodeError) as e:
+        raise _bad(path, f"corrupt persona file ({type(e).__name__}: {e})") from None
+    try:
+        skipped = list(header.get("skipped", []))
+    except TypeError as e:
+        raise _bad(path, f"corrupt persona header ({type(e).__name__}: {e})") from None
     n = len(photos)
     W, H = params.size
-    for k, (dtype, shape) in _ARRAYS.items():
+    want_shapes = {k: (dtype, shape(n, H, W, params.subspace_rank)) for k, (dtype, shape) in _ARRAYS.items()}
+    if depth_photos is not None:
+        want_shapes["depth"] = (np.float32, (H, W))
+    for k, (dtype, want) in want_shapes.items():
         a = arrays[k]
-        want = shape(n, H, W, params.subspace_rank)
         if a.dtype != dtype or a.shape != want:
-            raise bad(f"array {k!r} has {a.dtype} {a.shape}, expected {np.dtype(dtype)} {want}")
+            raise _bad(path, f"array {k!r} has {a.dtype} {a.shape}, expected {np.dtype(dtype)} {want}")
     if not all(np.all(np.isfinite(arrays[k])) for k in ("fiducials", "points68", "poses", "flows", "subspace")):
-        raise bad("persona arrays contain NaN or infinite values")
-    return Persona(photos=photos, skipped=skipped, params=params, source=str(header.get("source", "")), **arrays)
+        raise _bad(path, "persona arrays contain NaN or infinite values")
+    if depth_photos is not None and np.isinf(arrays["depth"]).any():
+        raise _bad(path, "persona depth contains infinite values")
+    return Persona(photos=photos, skipped=skipped, params=params, source=str(header.get("source", "")),
+                   depth_photos=int(depth_photos or 0), **arrays)
 
 
 # ------------------------------------------------------------------------- building
@@ -258,7 +326,9 @@ def _flow_star(args):
 
 class _Pool:
     """``jobs`` worker processes (forkserver: safe after OpenCV / BLAS threads ran in the
-    parent), kept for all passes of a build; jobs <= 1 runs in this process."""
+    parent), kept for all passes of a build; jobs <= 1 runs in this process. A worker that
+    dies (killed, out of memory) fails the build with an error instead of hanging it
+    (concurrent.futures notices dead workers; multiprocessing.Pool waits forever)."""
 
     def __init__(self, jobs: int):
         self.jobs = max(1, int(jobs))
@@ -266,23 +336,26 @@ class _Pool:
 
     def __enter__(self):
         if self.jobs > 1:
-            self.pool = multiprocessing.get_context("forkserver").Pool(self.jobs, initializer=_init_worker)
+            self.pool = ProcessPoolExecutor(self.jobs, mp_context=multiprocessing.get_context("forkserver"),
+                                            initializer=_init_worker)
         return self
 
     def __exit__(self, *exc):
         if self.pool is not None:
-            self.pool.terminate() if exc[0] else self.pool.close()
-            self.pool.join()
+            self.pool.shutdown(wait=True, cancel_futures=exc[0] is not None)
 
     def map(self, func, items, *, progress: Callable | None = None, **postfix) -> list:
         """``[func(x) for x in items]`` in order; progress(n=1, **postfix) per item."""
         items = list(items)
-        it = map(func, items) if self.pool is None or len(items) <= 1 else self.pool.imap(func, items, chunksize=1)
+        it = map(func, items) if self.pool is None or len(items) <= 1 else self.pool.map(func, items)
         out = []
-        for r in it:
-            out.append(r)
-            if progress:
-                progress(n=1, **postfix)
+        try:
+            for r in it:
+                out.append(r)
+                if progress:
+                    progress(n=1, **postfix)
+        except BrokenProcessPool:
+            raise FacetexError("a worker process died (out of memory or killed): retry with --jobs 1") from None
         return out
 
 
@@ -292,27 +365,36 @@ class _Pool:
 TPS_GRID_STEP = 4
 
 
-def tps_map(target, source, shape, smoothing: float, *, step: int = TPS_GRID_STEP) -> np.ndarray:
-    """(H, W, 2) float32 TPS sampling map: target-frame pixel -> source pixel (Eq. 1), fitted
-    with r(target) ~ source (``ThinPlateSpline``) and evaluated on a ``step`` px grid."""
-    from ..geometry.tps import ThinPlateSpline
-
+def _tps_grid(shape, step: int):
     H, W = int(shape[0]), int(shape[1])
-    T = ThinPlateSpline.fit(target, source, smoothing=smoothing)
     gy = np.arange(-step, H + 2 * step, step, dtype=np.float64)
     gx = np.arange(-step, W + 2 * step, step, dtype=np.float64)
     xx, yy = np.meshgrid(gx, gy)
-    G = T(np.stack([xx.ravel(), yy.ravel()], axis=1)).reshape(len(gy), len(gx), 2).astype(np.float32)
     mx, my = np.meshgrid(np.arange(W, dtype=np.float32) / step + 1, np.arange(H, dtype=np.float32) / step + 1)
-    return cv2.remap(G, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return np.stack([xx.ravel(), yy.ravel()], axis=1), (len(gy), len(gx)), mx, my
 
 
-def tps_maps(fiducials: np.ndarray, target: np.ndarray, shape, smoothing: float) -> np.ndarray:
-    """(n, H, W, 2) float32 TPS sampling maps: target-frame pixel -> photo-i pixel (Eq. 1)."""
-    H, W = shape
+def tps_map(target, source, shape, smoothing: float, *, step: int = TPS_GRID_STEP) -> np.ndarray:
+    """(H, W, 2) float32 TPS sampling map: target-frame pixel -> source pixel (Eq. 1), fitted
+    with r(target) ~ source (``ThinPlateSpline``) and evaluated on a ``step`` px grid."""
+    return tps_maps(np.asarray(source, np.float64)[None], target, shape, smoothing, step=step)[0]
+
+
+def tps_maps(fiducials: np.ndarray, target: np.ndarray, shape, smoothing: float, *,
+             step: int = TPS_GRID_STEP) -> np.ndarray:
+    """(n, H, W, 2) float32 TPS sampling maps: target-frame pixel -> photo-i pixel (Eq. 1).
+
+    All n splines share the target points, so they are fitted and evaluated together
+    (:func:`facetex.geometry.tps.tps_evaluate_many`)."""
+    from ..geometry.tps import tps_evaluate_many
+
+    H, W = int(shape[0]), int(shape[1])
+    grid, gshape, mx, my = _tps_grid((H, W), step)
     out = np.empty((len(fiducials), H, W, 2), np.float32)
-    for i, f in enumerate(fiducials):
-        out[i] = tps_map(target, f, (H, W), smoothing)
+    for i0 in range(0, len(fiducials), 64):  # bounds the (64, grid, 2) float64 block
+        G = tps_evaluate_many(target, fiducials[i0:i0 + 64], grid, smoothing=smoothing)
+        for j, g in enumerate(G.reshape(-1, *gshape, 2).astype(np.float32)):
+            out[i0 + j] = cv2.remap(g, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return out
 
 
@@ -395,7 +477,9 @@ def build_persona(photo_dir, *, jobs: int = 2, progress: Callable | None = None,
     Per photo (``jobs`` processes, results in file-name order): detect, frontalize,
     pose-correct the fiducials; unusable photos are skipped and listed with the reason.
     Then align the collection to its mean fiducials (TPS + collection flow).
-    ``progress(n=1, stage=...)`` is called once per photo for each of the two passes.
+    Last, the average 3D face (:func:`average_depth`) is stored as ``depth``.
+    ``progress(n=1, stage=...)`` is called once per photo for each of the two passes
+    (and with n=0, stage="shape" before the average depth).
     ``files`` restricts the build to these paths (e.g. leave-out evaluation).
     Raises BadInputError (naming the folder) when it holds no images or fewer than
     ``params.min_photos`` usable photos.
@@ -446,5 +530,48 @@ def _build(folder: Path, paths: list[Path], params: PersonaParams, pool: _Pool, 
         params=params,
         source=str(folder),
     )
+    if progress:
+        progress(n=0, stage="shape")
+    persona.depth, persona.depth_photos = average_depth(persona, maps=maps)
     persona._cache["tps_maps"] = maps  # reused by the texture precomputation
     return persona
+
+
+def shape_photo_indices(n: int, shape_photos: int) -> np.ndarray:
+    """Indices of the at most ``max(4, shape_photos)`` evenly spaced photos (of n) that feed
+    the photometric stereo."""
+    step = max(1, -(-int(n) // max(4, int(shape_photos))))
+    return np.arange(0, int(n), step)
+
+
+def average_depth(persona: Persona, *, maps: np.ndarray | None = None,
+                  shape_photos: int | None = None) -> tuple[np.ndarray, int]:
+    """The persona's average 3D face (Tom Hanks Sec. 4): (depth (H, W) float32 in canonical px,
+    NaN off the face region, photos used). Photometric stereo
+    (:func:`facetex.persona.shape.reconstruct_average_shape`) on at most ``shape_photos``
+    (default ``persona.params.shape_photos``) evenly spaced photos aligned to the neutral frame
+    (TPS + collection flow). ``maps``: the (n, H, W, 2) TPS maps of all photos, if at hand.
+    When the reconstruction fails (too few photos, degenerate lighting) the depth is all NaN
+    and the count 0: callers fall back to the generic face
+    (:func:`facetex.persona.shape.checked_depth`)."""
+    from .shape import reconstruct_average_shape
+
+    W, H = persona.size
+    idx = shape_photo_indices(len(persona), persona.params.shape_photos if shape_photos is None else shape_photos)
+    failed = np.full((H, W), np.nan, np.float32), 0
+    if len(idx) < 4:
+        return failed
+    if maps is None:
+        sel = tps_maps(persona.fiducials[idx], persona.mean_fiducials, (H, W), persona.params.tps_smoothing)
+    else:
+        sel = maps[idx]
+    aligned = remap_stack(persona.images[idx], compose_map_flow(sel, persona.flows[idx]))
+    del sel
+    region = face_region(persona.points68.mean(axis=0), (H, W))
+    try:
+        shape = reconstruct_average_shape(aligned, region)
+    except (BadInputError, np.linalg.LinAlgError):
+        return failed
+    if not np.isfinite(shape.depth[region]).any():
+        return failed
+    return shape.depth.astype(np.float32), len(idx)

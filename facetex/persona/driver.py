@@ -24,7 +24,7 @@ frame. Then:
 Lost frames (no face, or the mesh network's face score < 0.5) are filled by linear
 interpolation between the nearest tracked frames (held at the ends) and counted.
 Temporal smoothing: the whole video is available offline, so a zero-lag, zero-phase
-Savitzky-Golay filter (scipy.signal.savgol_filter, window 5 frames, order 2) is run
+Savitzky-Golay filter (window 5 frames, order 2) is run
 forwards over the series of aligned meshes, poses and fiducials: it removes
 frame-to-frame jitter but keeps a quadratic's peak (fast mouth openings) in place.
 """
@@ -141,14 +141,28 @@ def fill_lost(series, found) -> np.ndarray:
 
 
 def smooth_series(series, window: int = 5, order: int = 2) -> np.ndarray:
-    """Zero-phase Savitzky-Golay smoothing of a (N, ...) series along frames (scipy.signal)."""
-    from scipy.signal import savgol_filter
+    """Zero-phase Savitzky-Golay smoothing of a (N, ...) series along frames; the ends are
+    fitted by one polynomial over the first/last window (scipy's ``mode="interp"``).
 
+    Written with numpy (a least-squares polynomial per window) because importing
+    ``scipy.signal`` costs ~2 s here (it loads scipy.stats); tested against
+    ``scipy.signal.savgol_filter``."""
     x = np.asarray(series, np.float64)
-    w = min(int(window), len(x) if len(x) % 2 else len(x) - 1)
+    n = len(x)
+    w = min(int(window), n)
+    w -= 1 - w % 2  # an odd window, centred on its frame
     if w < 3 or w <= order:
         return x.copy()
-    return savgol_filter(x, w, order, axis=0, mode="interp")
+    half = w // 2
+    V = np.vander(np.arange(-half, half + 1, dtype=np.float64), order + 1, increasing=True)  # (w, order + 1)
+    P = np.linalg.pinv(V)  # polynomial coefficients from w samples; P[0]: the value at the centre
+    flat = x.reshape(n, -1)
+    out = np.zeros_like(flat)
+    for j in range(w):
+        out[half:n - half] += P[0, j] * flat[j:n - w + 1 + j]
+    out[:half] = V[:half] @ (P @ flat[:w])
+    out[n - half:] = V[half + 1:] @ (P @ flat[n - w:])
+    return out.reshape(x.shape)
 
 
 def mouth_opening(points68) -> np.ndarray:

@@ -3,8 +3,9 @@
 Per driver video (see :mod:`facetex.persona.driver` for the motion):
 
 1. **Average shapes.** Puppet: photometric stereo on the persona's aligned photos
-   (:func:`facetex.persona.shape.reconstruct_average_shape`, computed on demand and cached on
-   the persona object; the ``.persona`` file does not store it). Driver: from
+   (:func:`facetex.persona.shape.reconstruct_average_shape`, computed when the persona is
+   built and stored in the ``.persona``; checked against the generic face by
+   :func:`facetex.persona.shape.checked_depth`). Driver: from
    ``driver_photos`` the same way; from the video alone the tracked mean mesh is used
    instead (a video has one lighting, so photometric stereo on its frames is degenerate).
 2. **Correspondence** (§4, §6): the puppet's 2D average is projected onto the driver's
@@ -42,6 +43,7 @@ __all__ = [
     "collection_correspondence",
     "target_fiducials",
     "neutral_texture",
+    "neutral_textures",
     "prepare_puppetry",
     "render_frames",
     "puppeteer",
@@ -83,40 +85,22 @@ class PuppetParams:
 
 
 # ----------------------------------------------------------------------------- shapes
-def _checked_depth(shape, region: np.ndarray, size, params: PuppetParams) -> tuple[np.ndarray, str]:
-    """(depth (H, W), source) from an AverageShape, falling back to the generic face."""
-    from .shape import generic_depth_px
-
-    gen = generic_depth_px(size)
-    if shape is not None:
-        d = shape.depth
-        ok = region & np.isfinite(d)
-        if ok.sum() > 0.5 * region.sum():
-            rms = float(np.sqrt(np.mean((d[ok] - gen[ok]) ** 2)))
-            if rms <= params.max_depth_error * size[0]:
-                out = np.where(ok, d, gen)
-                return out, "collection"
-    return gen.astype(np.float64), "generic"
-
-
 def puppet_average_shape(persona, params: PuppetParams = PuppetParams()) -> tuple[np.ndarray, np.ndarray, str]:
     """(depth (H, W) canonical px, mask (H, W) bool, source "collection" | "generic") of the
-    persona's average 3D face (Tom Hanks §4), cached on the persona object."""
-    from .shape import reconstruct_average_shape
-    from .texture import prepare_persona
+    persona's average 3D face (Tom Hanks §4): the one stored in the .persona (computed at
+    build time), else computed now (version-1 files); cached on the persona object."""
+    from .collection import average_depth, face_region
+    from .shape import checked_depth
 
     key = ("puppet_shape", params.max_depth_error, params.shape, params.shape_photos)
     if key not in persona._cache:
-        prep = prepare_persona(persona)
-        region = prep.region
-        shape = None
-        if len(persona) >= 4 and params.shape == "collection":
-            try:
-                step = max(1, -(-len(persona) // max(4, params.shape_photos)))
-                shape = reconstruct_average_shape(prep.aligned[::step], region)
-            except BadInputError:
-                shape = None
-        depth, src = _checked_depth(shape, region, persona.size, params)
+        W, H = persona.size
+        region = face_region(persona.points68.mean(axis=0), (H, W))
+        depth = None
+        if params.shape == "collection":
+            stored = persona.depth is not None and params.shape_photos == persona.params.shape_photos
+            depth = persona.depth if stored else average_depth(persona, shape_photos=params.shape_photos)[0]
+        depth, src = checked_depth(depth, region, persona.size, params.max_depth_error)
         persona._cache[key] = (depth, region, src)
     return persona._cache[key]
 
@@ -140,20 +124,15 @@ def driver_collection(track: DriverTrack, *, driver_photos=None, params: PuppetP
     frontalized video frames kept by :func:`track_driver`, TPS-aligned to their mean fiducials."""
     from ..landmarks import POINTS49_INDEX
     from .collection import PersonaParams, appearance_subspace, build_persona, face_region, remap_stack, tps_maps
-    from .shape import reconstruct_average_shape
-    from .texture import prepare_persona
+    from .shape import checked_depth
 
     W, H = params.driver.size
     if driver_photos is not None:
         dp = build_persona(driver_photos, jobs=1, progress=progress,
-                           params=PersonaParams(size=(W, H), min_photos=4))
-        prep = prepare_persona(dp)
-        try:
-            shape = reconstruct_average_shape(prep.aligned, prep.region)
-        except BadInputError:
-            shape = None
-        depth, src = _checked_depth(shape, prep.region, (W, H), params)
-        return DriverCollection(dp.subspace, prep.region, depth, f"photos ({len(dp)}, shape: {src})")
+                           params=PersonaParams(size=(W, H), min_photos=4, shape_photos=params.shape_photos))
+        region = face_region(dp.points68.mean(axis=0), (H, W))
+        depth, src = checked_depth(dp.depth, region, (W, H), params.max_depth_error)
+        return DriverCollection(dp.subspace, region, depth, f"photos ({len(dp)}, shape: {src})")
     fid = track.frontal_points68[:, POINTS49_INDEX]
     M = fid.mean(axis=0)
     maps = tps_maps(fid, M, (H, W), 10.0)
@@ -194,6 +173,12 @@ def neutral_texture(persona, fiducials, *, method: str = "ours", sigma: float = 
     weights of the target ``fiducials`` (Tom Hanks §6: "we only synthesize textures in their
     neutral expressions for the average models but use the target expressions to calculate
     the blending weights"). ``method`` "static": the expression-independent average."""
+    return neutral_textures(persona, [fiducials], method=method, sigma=sigma)[0]
+
+
+def neutral_textures(persona, fiducials, *, method: str = "ours", sigma: float = 10.0) -> list[np.ndarray]:
+    """:func:`neutral_texture` for a sequence of target fiducials (B, 49, 2), blended together
+    (one matrix product per pyramid level for the batch)."""
     from ..geometry._generic_face import EYE_SPAN
     from .texture import TextureParams, average_face, expression_similarity, prepare_persona
 
@@ -203,12 +188,13 @@ def neutral_texture(persona, fiducials, *, method: str = "ours", sigma: float = 
         key = ("puppet_static",)
         if key not in persona._cache:
             persona._cache[key] = average_face(persona, "d")
-        return persona._cache[key]
+        return [persona._cache[key]] * len(fiducials)
     tp = TextureParams(sigma=sigma)
     prep = prepare_persona(persona)
     scale = tp.iod_ref / (EYE_SPAN * persona.size[0])
-    s = expression_similarity(fiducials, persona.fiducials, sigma, scale=scale)
-    return np.clip(prep.blend_ours(s), 0, 1).astype(np.float32)
+    targets = np.asarray(fiducials, np.float64)[:, None]  # (B, 1, 49, 2) against (n, 49, 2)
+    s = expression_similarity(targets, persona.fiducials, sigma, scale=scale)
+    return list(np.clip(prep.blend_ours_many(s), 0, 1).astype(np.float32))
 
 
 # ----------------------------------------------------------------------------- puppeteer
@@ -262,8 +248,12 @@ class Puppeteer:
 
     def texture(self, i: int, method: str | None = None) -> np.ndarray:
         """Texture (H, W, 3) of frame i in the puppet's neutral frame."""
-        f = target_fiducials(self.persona, self.motion, i)
-        return neutral_texture(self.persona, f, method=method or self.params.texture, sigma=self.params.sigma)
+        return self.textures([i], method)[0]
+
+    def textures(self, frames, method: str | None = None) -> list[np.ndarray]:
+        """Textures of several frames, blended as one batch (faster per frame)."""
+        f = [target_fiducials(self.persona, self.motion, i) for i in frames]
+        return neutral_textures(self.persona, f, method=method or self.params.texture, sigma=self.params.sigma)
 
     def render(self, i: int, vertices: np.ndarray, texture: np.ndarray, background: np.ndarray,
                scale: float) -> tuple[np.ndarray, np.ndarray]:
@@ -306,29 +296,68 @@ def _load(persona):
     return persona if isinstance(persona, Persona) else load_persona(persona)
 
 
+def _persona_size(persona) -> tuple[int, int]:
+    """Canonical frame (W, H) of a Persona or a .persona path (read from its header only)."""
+    from .collection import Persona, read_persona_header
+
+    if isinstance(persona, Persona):
+        return persona.size
+    return tuple(read_persona_header(persona)["size"])
+
+
+def _prepare_puppet_side(persona, params: PuppetParams, timings: dict):
+    """Everything of the puppet that does not depend on the driver: load, the synthesis
+    precomputation, the average shape and the average texture (all cached on the persona)."""
+    from .texture import average_face, prepare_persona
+
+    t0 = time.perf_counter()
+    persona = _load(persona)
+    t1 = time.perf_counter()
+    prepare_persona(persona)
+    t2 = time.perf_counter()
+    puppet_average_shape(persona, params)
+    t3 = time.perf_counter()
+    average_face(persona, "d")
+    t4 = time.perf_counter()
+    timings.update(persona_load_s=t1 - t0, persona_prepare_s=t2 - t1, puppet_shape_s=t3 - t2,
+                   puppet_average_s=t4 - t3)
+    return persona
+
+
 def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | None = None,
                      params: PuppetParams = PuppetParams(), progress: Callable | None = None) -> PuppetSession:
-    """Track the driver video and set up the puppet (everything before the per-frame rendering)."""
-    from .texture import prepare_persona
+    """Track the driver video and set up the puppet (everything before the per-frame rendering).
+
+    ``persona``: a Persona or a .persona path. The puppet side (loading, precomputation,
+    average shape) runs on a second thread while the driver is tracked: neither needs the
+    other, and OpenCV, numpy, zlib and BLAS release the GIL."""
+    from concurrent.futures import ThreadPoolExecutor
 
     if params.texture not in TEXTURES:
         raise BadInputError(f"unknown puppet texture {params.texture!r}: use one of {', '.join(TEXTURES)}")
-    persona = _load(persona)
-    if tuple(params.driver.size) != tuple(persona.size):  # work in the persona's canonical frame
-        params = replace(params, driver=replace(params.driver, size=tuple(persona.size)))
-    timings = {}
-    t0 = time.perf_counter()
-    track = track_driver(driver, max_frames=max_frames, params=params.driver, progress=progress)
-    timings["track_s"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    coll = driver_collection(track, driver_photos=driver_photos, params=params)
-    motion = driver_motion(track, params.driver)
-    timings["motion_s"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    prepare_persona(persona)
-    timings["persona_prepare_s"] = time.perf_counter() - t0
+    size = _persona_size(persona)
+    if tuple(params.driver.size) != size:  # work in the persona's canonical frame
+        params = replace(params, driver=replace(params.driver, size=size))
+    timings, puppet_timings = {}, {}
+    with ThreadPoolExecutor(1, thread_name_prefix="facetex-puppet") as pool:
+        puppet_side = pool.submit(_prepare_puppet_side, persona, params, puppet_timings)
+        try:
+            t0 = time.perf_counter()
+            track = track_driver(driver, max_frames=max_frames, params=params.driver, progress=progress)
+            timings["track_s"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            coll = driver_collection(track, driver_photos=driver_photos, params=params)
+            motion = driver_motion(track, params.driver)
+            timings["motion_s"] = time.perf_counter() - t0
+        except BaseException:
+            puppet_side.cancel()
+            raise
+        t0 = time.perf_counter()
+        persona = puppet_side.result()
+        timings["puppet_wait_s"] = time.perf_counter() - t0
+    timings.update(puppet_timings)
     pup = Puppeteer(persona, motion, coll, params)
-    timings.update(pup.timings)
+    timings.update({k: v for k, v in pup.timings.items() if k not in timings})  # not the cached look-ups
     return PuppetSession(track, motion, coll, pup, timings)
 
 
@@ -347,12 +376,18 @@ def output_size(frame_size, size: int | None) -> tuple[int, int, float]:
     return _even(w * s), _even(h * s), s
 
 
+#: frames whose textures are blended together (a batch reads the precomputed stack once)
+TEXTURE_BATCH = 32
+
+
 def render_frames(session: PuppetSession, *, size: int | None = None, background: str = "driver",
                   side_by_side: bool = False, texture: str | None = None, max_frames: int | None = None,
                   progress: Callable | None = None) -> Iterator[dict]:
     """Yield per frame {"index", "driver" (panel), "puppet" (panel), "frame" (output), "alpha",
     "lost"}: the second pass over the driver video. Per-stage times accumulate in
-    ``session.timings`` (mesh_s, texture_s, render_s)."""
+    ``session.timings`` (mesh_s, texture_s, render_s; mesh and texture overlap rendering)."""
+    from concurrent.futures import ThreadPoolExecutor
+
     from ..io import iter_video_frames
 
     if background not in BACKGROUNDS:
@@ -363,27 +398,41 @@ def render_frames(session: PuppetSession, *, size: int | None = None, background
     tm = session.timings
     for key in ("mesh_s", "texture_s", "render_s"):
         tm.setdefault(key, 0.0)
-    for i, frame in enumerate(iter_video_frames(session.track.path, max_frames=n)):
-        if i >= n:
-            break
-        drv = cv2.resize(frame, (W, H), interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
-        bg = drv if background == "driver" else np.broadcast_to(
-            np.asarray(pup.params.plain, np.float32), drv.shape).copy()
+
+    def meshes_and_textures(i0: int) -> list:
+        frames = range(i0, min(i0 + TEXTURE_BATCH, n))
         t0 = time.perf_counter()
-        verts = pup.mesh(i)
+        verts = [pup.mesh(i) for i in frames]
         t1 = time.perf_counter()
-        tex = pup.texture(i, texture)
-        t2 = time.perf_counter()
-        img, alpha = pup.render(i, verts, tex, bg, scale)
-        t3 = time.perf_counter()
+        tex = pup.textures(frames, texture)
         tm["mesh_s"] += t1 - t0
-        tm["texture_s"] += t2 - t1
-        tm["render_s"] += t3 - t2
-        out = np.concatenate([drv, img], axis=1) if side_by_side else img
-        lost = not bool(session.track.found[i])
-        if progress:
-            progress(n=1, stage="render", lost=session.track.n_lost)
-        yield {"index": i, "driver": drv, "puppet": img, "frame": out, "alpha": alpha, "lost": lost}
+        tm["texture_s"] += time.perf_counter() - t1
+        return list(zip(verts, tex))
+
+    # the next batch of meshes and textures is computed on a second thread while this
+    # batch is rendered and encoded (frames still come out in order)
+    with ThreadPoolExecutor(1, thread_name_prefix="facetex-puppet-frame") as pool:
+        ahead = pool.submit(meshes_and_textures, 0) if n else None
+        batch: list = []
+        for i, frame in enumerate(iter_video_frames(session.track.path, max_frames=n)):
+            if i >= n:
+                break
+            drv = cv2.resize(frame, (W, H), interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
+            bg = drv if background == "driver" else np.broadcast_to(
+                np.asarray(pup.params.plain, np.float32), drv.shape).copy()
+            if i % TEXTURE_BATCH == 0:
+                batch = ahead.result()
+                if i + TEXTURE_BATCH < n:
+                    ahead = pool.submit(meshes_and_textures, i + TEXTURE_BATCH)
+            verts, tex = batch[i % TEXTURE_BATCH]
+            t2 = time.perf_counter()
+            img, alpha = pup.render(i, verts, tex, bg, scale)
+            tm["render_s"] += time.perf_counter() - t2
+            out = np.concatenate([drv, img], axis=1) if side_by_side else img
+            lost = not bool(session.track.found[i])
+            if progress:
+                progress(n=1, stage="render", lost=session.track.n_lost)
+            yield {"index": i, "driver": drv, "puppet": img, "frame": out, "alpha": alpha, "lost": lost}
 
 
 def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool = False, size: int | None = None,

@@ -24,7 +24,7 @@ import scipy.sparse.linalg as spla
 from ..errors import BadInputError
 
 __all__ = ["AverageShape", "reconstruct_average_shape", "generic_depth_px", "normals_from_depth",
-           "integrate_normals"]
+           "integrate_normals", "checked_depth"]
 
 #: Grazing normals are clipped to this |n_z| before integration (gradients bounded by ~10).
 MIN_NZ = 0.1
@@ -61,6 +61,29 @@ def generic_depth_px(size) -> np.ndarray:
 
     surf = canonical_surface(size)
     return surf.xyz[..., 2] * surf.frame.scale
+
+
+def checked_depth(depth, region, size, max_error: float = 0.08) -> tuple[np.ndarray, str]:
+    """(depth (H, W) float64 canonical px, source "collection" | "generic").
+
+    ``depth`` (a reconstructed average, NaN off its mask, or None) is used when it is finite
+    on more than half of ``region`` and its RMS difference to the generic face there is at
+    most ``max_error`` x the frame width (too few or too uniformly lit photos give flat or
+    bent surfaces); its holes are filled with the generic depth. Otherwise the generic
+    face's depth of the frame ``size`` (W, H) is returned.
+    """
+    gen = generic_depth_px(size)
+    region = np.asarray(region, dtype=bool)
+    if depth is not None:
+        d = np.asarray(depth, dtype=np.float64)
+        if d.shape != gen.shape or region.shape != gen.shape:
+            raise BadInputError(f"depth {d.shape} and region {region.shape} must be (H, W) = {gen.shape}")
+        ok = region & np.isfinite(d)
+        if ok.sum() > 0.5 * region.sum():
+            rms = float(np.sqrt(np.mean((d[ok] - gen[ok]) ** 2)))
+            if rms <= max_error * size[0]:
+                return np.where(ok, d, gen), "collection"
+    return gen.astype(np.float64), "generic"
 
 
 def normals_from_depth(depth: np.ndarray) -> np.ndarray:

@@ -37,12 +37,14 @@ as the frontal image was symmetry-filled) so photos contribute where they were s
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Callable
 
 import cv2
 import numpy as np
 
+from .._parallel import available_cpus
 from ..errors import BadInputError
 from .collection import (
     Persona,
@@ -155,13 +157,14 @@ def eq3_weights(similarity, laplacian, level: int, *, tau: float = 1.0, beta: fl
 
 
 def _level_scalars(similarity: np.ndarray, level: int, tau: float, beta: float) -> np.ndarray:
-    """Per-photo factor of Eq. 3 at ``level``, divided by its maximum (the normalisation of
-    the weights cancels it; this keeps float32 away from underflow)."""
+    """Per-photo factor of Eq. 3 at ``level`` ((n,) or (B, n) for B targets), divided by its
+    maximum per target (the normalisation of the weights cancels it; this keeps float32
+    away from underflow)."""
     u = _uniform_term(level, tau, beta)
     if math.isinf(u):
-        return np.ones(len(similarity), np.float32)
+        return np.ones(np.shape(similarity), np.float32)
     a = similarity + u
-    return (a / max(float(a.max()), 1e-300)).astype(np.float32)
+    return (a / np.maximum(a.max(axis=-1, keepdims=True), 1e-300)).astype(np.float32)
 
 
 def blend_pyramids(pyramids: list[list[np.ndarray]], weights: list[list[np.ndarray]]) -> np.ndarray:
@@ -186,11 +189,13 @@ def _confidence(vis_u8: np.ndarray, tp: TextureParams) -> np.ndarray:
     return v + np.float32(tp.visibility_floor)
 
 
-def _pyramid_stack(aligned: np.ndarray, conf: np.ndarray, levels: int, tp: TextureParams) -> list[np.ndarray]:
+def _pyramid_stack(aligned: np.ndarray, conf: np.ndarray, levels: int, tp: TextureParams,
+                   out: list[np.ndarray] | None = None) -> list[np.ndarray]:
     """Per level k (finest first): (n, h_k * w_k * 4) float32 of [L' band (3 ch), L'] with
-    L' = L^alpha * confidence, so a level of the blend is one matrix-vector product."""
+    L' = L^alpha * confidence, so a level of the blend is one matrix-vector product.
+    ``out``: preallocated per-level (n, ...) arrays to fill."""
     n = len(aligned)
-    stacks = None
+    stacks = out if out is not None else [None] * levels
     for i in range(n):
         pyr = laplacian_pyramid(aligned[i], levels)
         g = aligned[i]
@@ -203,8 +208,6 @@ def _pyramid_stack(aligned: np.ndarray, conf: np.ndarray, levels: int, tp: Textu
             if tp.alpha != 1:
                 L = L ** np.float32(tp.alpha)
             L = L * c
-            if stacks is None:
-                stacks = [None] * levels
             if stacks[k] is None:
                 stacks[k] = np.empty((n, L.size * 4), np.float32)
             row = stacks[k][i].reshape(L.shape + (4,))
@@ -236,26 +239,44 @@ def _gemv_blend(stack: np.ndarray, w: np.ndarray, shape) -> np.ndarray:
 class _Prepared:
     """Target-independent data of a persona for :func:`synthesize_texture` (see module doc)."""
 
+    #: photos per work unit of the precomputation (bounds the per-chunk maps to ~24 MB)
+    CHUNK = 32
+
     def __init__(self, persona: Persona, tp: TextureParams, progress: Callable | None = None):
         W, H = persona.size
+        n = len(persona)
         self.shape = (H, W)
         self.tp = tp
         self.levels = pyramid_levels(self.shape, tp.min_level_side)
         self.M = persona.mean_fiducials
-        maps = persona._cache.get("tps_maps")
-        if maps is None or maps.shape[0] != len(persona):
-            maps = tps_maps(persona.fiducials, self.M, self.shape, persona.params.tps_smoothing)
-        align_maps = compose_map_flow(maps, persona.flows)
-        self.aligned = remap_stack(persona.images, align_maps)
-        conf = _confidence(persona.visibility, tp)
-        self.conf_frontal = conf
-        self.conf_aligned = remap_stack(conf, align_maps)
-        # the maps are dropped after use (2 x n x H x W x 2 floats): only Fig. 6 b needs the TPS alone
-        self._stage = {"b": np.clip(remap_stack(persona.images, maps).mean(axis=0), 0, 1).astype(np.float32)}
-        del maps, align_maps
-        persona._cache.pop("tps_maps", None)
-        self.pyr = _pyramid_stack(self.aligned, self.conf_aligned, self.levels, tp)
-        self.level_shapes = [p.shape[:2] for p in laplacian_pyramid(self.aligned[0], self.levels)]
+        self.level_shapes = [p.shape[:2] for p in laplacian_pyramid(np.zeros((H, W, 3), np.float32), self.levels)]
+        self.aligned = np.empty((n, H, W, 3), np.float32)
+        self.conf_frontal = _confidence(persona.visibility, tp)
+        self.conf_aligned = np.empty((n, H, W), np.float32)
+        self.pyr = [np.empty((n, h * w * 4), np.float32) for h, w in self.level_shapes]
+        built = persona._cache.pop("tps_maps", None)  # left by build_persona; dropped after use
+        if built is not None and built.shape[0] != n:
+            built = None
+
+        def chunk(i0: int, i1: int) -> np.ndarray:
+            if built is not None:
+                maps = built[i0:i1]
+            else:
+                maps = tps_maps(persona.fiducials[i0:i1], self.M, self.shape, persona.params.tps_smoothing)
+            align = compose_map_flow(maps, persona.flows[i0:i1])
+            self.aligned[i0:i1] = remap_stack(persona.images[i0:i1], align)
+            self.conf_aligned[i0:i1] = remap_stack(self.conf_frontal[i0:i1], align)
+            _pyramid_stack(self.aligned[i0:i1], self.conf_aligned[i0:i1], self.levels, tp,
+                           out=[p[i0:i1] for p in self.pyr])
+            # Fig. 6 b needs the TPS alone: its sum is kept, the maps are not
+            return remap_stack(persona.images[i0:i1], maps).sum(axis=0, dtype=np.float64)
+
+        # photos are independent: chunks run on a thread pool (OpenCV and numpy release the
+        # GIL); results do not depend on the thread count (partial sums are added in order)
+        bounds = [(i, min(i + self.CHUNK, n)) for i in range(0, n, self.CHUNK)]
+        with ThreadPoolExecutor(max(1, min(len(bounds), available_cpus()))) as pool:
+            sums = list(pool.map(lambda b: chunk(*b), bounds))
+        self._stage = {"b": np.clip(np.sum(sums, axis=0) / max(n, 1), 0, 1).astype(np.float32)}
         self.region = face_region(persona.points68.mean(axis=0), self.shape)
         self._single = {}
         if progress:
@@ -271,12 +292,20 @@ class _Prepared:
         return self._single[which]
 
     def blend_ours(self, similarity: np.ndarray) -> np.ndarray:
+        return self.blend_ours_many(np.asarray(similarity)[None])[0]
+
+    def blend_ours_many(self, similarities: np.ndarray) -> np.ndarray:
+        """(B, H, W, 3) blends for B targets' similarities (B, n): one matrix product per
+        level for all of them, which reads the stack once (a per-target product is
+        memory-bound: measured 34 ms per target alone, 6 ms each in batches of 32)."""
         p = self.levels
+        S = np.atleast_2d(similarities)
         bands = []
         for k in range(p):
-            w = _level_scalars(similarity, p - 1 - k, self.tp.tau, self.tp.beta)  # paper l = p-1-k
-            bands.append(_gemv_blend(self.pyr[k], w, self.level_shapes[k]))
-        return collapse_pyramid(bands)
+            w = _level_scalars(S, p - 1 - k, self.tp.tau, self.tp.beta)  # paper l = p-1-k
+            r = (w @ self.pyr[k]).reshape((len(S),) + tuple(self.level_shapes[k]) + (4,))
+            bands.append(r[..., :3] / np.maximum(r[..., 3:], 1e-30))
+        return np.stack([collapse_pyramid([b[j] for b in bands]) for j in range(len(S))])
 
     def nbytes(self) -> int:
         arrs = [self.aligned, self.conf_frontal, self.conf_aligned, *self.pyr,

@@ -143,3 +143,20 @@ def test_bad_inputs():
         ThinPlateSpline.fit(np.zeros((5, 2)), np.zeros((4, 2)))
     with pytest.raises(BadInputError):
         ThinPlateSpline.fit(np.eye(3, 2), np.eye(3, 2), smoothing=-1)
+
+
+def test_evaluate_many_equals_separate_fits():
+    from facetex.geometry.tps import tps_evaluate_many
+
+    rng = np.random.default_rng(3)
+    target = rng.uniform(0, 100, (12, 2))
+    sources = target[None] + rng.normal(scale=4.0, size=(5, 12, 2))
+    pts = rng.uniform(-10, 110, (40, 2))
+    for lam in (0.0, 10.0):
+        many = tps_evaluate_many(target, sources, pts, smoothing=lam)
+        assert many.shape == (5, 40, 2)
+        for k in range(5):
+            np.testing.assert_allclose(many[k], ThinPlateSpline.fit(target, sources[k], smoothing=lam)(pts),
+                                       atol=1e-9)
+    with pytest.raises(BadInputError, match="source_pts"):
+        tps_evaluate_many(target, sources[:, :5], pts)

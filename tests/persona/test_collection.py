@@ -18,9 +18,10 @@ from facetex.persona import (
     average_face,
     build_persona,
     load_persona,
+    read_persona_header,
     synthesize_texture,
 )
-from facetex.persona.collection import _Pool, _process_star
+from facetex.persona.collection import PERSONA_VERSION, _Pool, _process_star, average_depth, face_region
 
 SIZE = (96, 120)  # small canonical frame: fast flows
 PARAMS = PersonaParams(size=SIZE, min_photos=8)
@@ -87,12 +88,24 @@ def test_parallel_workers_keep_order(photo_dir):
         assert np.array_equal(a["image"], b["image"]) and np.allclose(a["fiducials"], b["fiducials"])
 
 
+def test_dead_worker_fails_the_build_instead_of_hanging():
+    import os
+
+    from facetex.errors import FacetexError
+
+    with pytest.raises(FacetexError, match="worker process died"):
+        with _Pool(2) as pool:
+            pool.map(os._exit, [3, 3, 3])  # each worker exits at once, as an OOM kill would
+
+
 def test_save_load_roundtrip_exact(persona, tmp_path):
     path = persona.save(tmp_path / "p.persona")
     q = load_persona(path)
     for k in ("images", "visibility", "fiducials", "points68", "poses", "flows", "subspace"):
         a, b = getattr(persona, k), getattr(q, k)
         assert a.dtype == b.dtype and np.array_equal(a, b), k
+    assert q.depth.dtype == np.float32 and np.array_equal(q.depth, persona.depth, equal_nan=True)
+    assert q.depth_photos == persona.depth_photos
     assert q.photos == persona.photos and q.skipped == persona.skipped and q.params == persona.params
     with pytest.raises(Exception):
         persona.save(path)  # exists without overwrite
@@ -220,3 +233,130 @@ def test_cli_texture_and_average(persona, tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text("[[1, 2]]")
     assert main(["persona", "texture", str(pf), "--fiducials", str(bad), "-o", str(tmp_path / "x.png")]) == 2
+
+
+# ------------------------------------------------------------------ average depth (format v2)
+def test_build_stores_the_average_depth(persona):
+    W, H = SIZE
+    region = face_region(persona.points68.mean(axis=0), (H, W))
+    assert persona.depth.shape == (H, W) and persona.depth.dtype == np.float32
+    assert persona.depth_photos == 12  # fewer photos than shape_photos: all of them
+    assert np.isfinite(persona.depth[region]).all() and np.isnan(persona.depth[~region]).all()
+    # same photos from the loaded arrays (TPS maps recomputed, not the build's): same depth
+    again, n = average_depth(persona)
+    assert n == 12 and np.allclose(again, persona.depth, atol=0.05, equal_nan=True)
+    # evenly spaced subset: step = ceil(12 / max(4, 5)) = 3 -> photos 0, 3, 6, 9
+    sub, n = average_depth(persona, shape_photos=5)
+    assert n == 4 and np.isfinite(sub[region]).all()
+    assert average_depth(persona, shape_photos=1)[1] == 4  # at least 4 lightings
+
+
+def test_average_depth_failure_is_all_nan(persona):
+    W, H = SIZE
+    flat = PersonaParams(size=SIZE, min_photos=1)
+    from facetex.persona import Persona
+
+    p3 = Persona(**{k: getattr(persona, k)[:3] for k in ("images", "visibility", "fiducials", "points68", "poses",
+                                                         "flows")},
+                 subspace=persona.subspace, photos=persona.photos[:3], params=flat)
+    assert p3.depth is None and p3.depth_photos == 0
+    d, n = average_depth(p3)  # 3 photos < rank 4
+    assert n == 0 and d.shape == (H, W) and d.dtype == np.float32 and np.isnan(d).all()
+
+
+def _npz(path, header, arrays):
+    head = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
+    with open(path, "wb") as fh:
+        np.savez(fh, header=head, **arrays)
+    return path
+
+
+_BASE = ("images", "visibility", "fiducials", "points68", "poses", "flows", "subspace")
+
+
+def test_version1_file_loads_without_depth(persona, tmp_path):
+    assert PERSONA_VERSION == 2
+    head = persona.header()
+    head["version"] = 1
+    del head["depth_photos"]
+    head["parameters"].pop("shape_photos")  # v1 parameters did not have it
+    v1 = _npz(tmp_path / "v1.persona", head, {k: getattr(persona, k) for k in _BASE})
+    q = load_persona(v1)
+    assert q.depth is None and q.depth_photos == 0 and len(q) == len(persona)
+    assert np.array_equal(q.flows, persona.flows)
+    h = read_persona_header(v1)
+    assert h["version"] == 1 and h["n_photos"] == 12 and h["size"] == SIZE
+    # a v1 file saved again becomes v2 without depth; with a depth it keeps it
+    q.save(tmp_path / "v2none.persona")
+    assert load_persona(tmp_path / "v2none.persona").depth is None
+    q.depth, q.depth_photos = persona.depth, 7
+    r = load_persona(q.save(tmp_path / "v2.persona"))
+    assert r.depth_photos == 7 and np.array_equal(r.depth, persona.depth, equal_nan=True)
+
+
+def test_bad_depth_refused(persona, tmp_path):
+    W, H = SIZE
+    head = persona.header()
+    base = {k: getattr(persona, k) for k in _BASE}
+    cases = [
+        ("shape", {**base, "depth": np.zeros((H, W + 1), np.float32)}, "'depth'"),
+        ("dtype", {**base, "depth": np.zeros((H, W), np.float64)}, "'depth'"),
+        ("inf", {**base, "depth": np.full((H, W), np.inf, np.float32)}, "infinite"),
+        ("missing", base, "lacks arrays ['depth']"),
+    ]
+    for name, arrays, words in cases:
+        path = _npz(tmp_path / f"{name}.persona", head, arrays)
+        with pytest.raises(BadPersonaError) as e:
+            load_persona(path)
+        assert e.value.path == str(path) and words in str(e.value), str(e.value)
+    path = _npz(tmp_path / "count.persona", {**head, "depth_photos": -1}, {**base, "depth": persona.depth})
+    with pytest.raises(BadPersonaError) as e:
+        read_persona_header(path)
+    assert e.value.path == str(path) and "corrupt persona header" in str(e.value)
+
+
+def test_header_reader_does_not_read_arrays(persona, tmp_path):
+    good = persona.save(tmp_path / "good.persona")
+    h = read_persona_header(good)
+    assert h["format"] == "facetex-persona" and h["version"] == PERSONA_VERSION
+    assert h["size"] == SIZE and h["n_photos"] == 12 and h["depth_photos"] == persona.depth_photos
+    assert [p["file"] for p in h["photos"]] == persona.photos
+
+    def garble(name, data):  # every array member destroyed, the header intact
+        return data if name == "header.npy" else b"garbage"
+
+    broken = tmp_path / "broken.persona"
+    _rewrite(good, broken, garble)
+    h2 = read_persona_header(broken)
+    assert h2 == h
+    with pytest.raises(BadPersonaError) as e:
+        load_persona(broken)
+    assert "corrupt" in str(e.value) and e.value.path == str(broken)
+    # same validation as load_persona
+    for path, words in [(tmp_path / "missing.persona", "not found")]:
+        with pytest.raises(BadPersonaError) as e:
+            read_persona_header(path)
+        assert words in str(e.value)
+    junk = tmp_path / "junk.persona"
+    junk.write_bytes(b"hello")
+    noheader = tmp_path / "nohead.persona"
+    np.savez(noheader.open("wb"), images=np.zeros(3))
+    foreign = _npz(tmp_path / "foreign.persona", {"format": "other", "version": 1}, {})
+    future = _npz(tmp_path / "future.persona", {**persona.header(), "version": PERSONA_VERSION + 1}, {})
+    for path, words in [(junk, "corrupt"), (noheader, "no header"), (foreign, "unknown format"),
+                        (future, f"version {PERSONA_VERSION + 1}")]:
+        for reader in (read_persona_header, load_persona):
+            with pytest.raises(BadPersonaError) as e:
+                reader(path)
+            assert e.value.path == str(path) and words in str(e.value), (reader, str(e.value))
+
+
+def test_large_members_are_stored_uncompressed(persona, tmp_path):
+    import zipfile
+
+    path = persona.save(tmp_path / "s.persona")
+    with zipfile.ZipFile(path) as z:
+        kinds = {i.filename: i.compress_type for i in z.infolist()}
+    assert kinds["images.npy"] == kinds["flows.npy"] == zipfile.ZIP_STORED  # loads without inflating
+    assert kinds["visibility.npy"] == zipfile.ZIP_DEFLATED
+    assert persona.save(tmp_path / "t.persona").read_bytes() == path.read_bytes()  # byte-reproducible

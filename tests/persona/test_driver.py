@@ -73,6 +73,17 @@ def test_smoothing_removes_jitter_without_lag():
     assert int(np.argmax(smooth_series(pulse, 5, 2))) == 30
 
 
+@pytest.mark.parametrize("n, window, order", [(60, 5, 2), (7, 5, 2), (30, 9, 3), (5, 7, 2), (12, 6, 2)])
+def test_smoothing_matches_scipy_savgol(n, window, order):
+    from scipy.signal import savgol_filter
+
+    x = np.random.default_rng(n).normal(size=(n, 3, 2))
+    w = min(window, n)
+    w -= 1 - w % 2
+    np.testing.assert_allclose(smooth_series(x, window, order), savgol_filter(x, w, order, axis=0, mode="interp"),
+                               atol=1e-12)
+
+
 def test_mouth_opening_hand_computed():
     p = np.zeros((68, 2))
     p[36], p[45] = [0, 0], [100, 0]

@@ -155,3 +155,42 @@ def test_cli_puppet(tmp_path, driver_video, tiny_persona, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert "blank.mp4" in err[-1] and "no face" in err[-1]
     assert not (tmp_path / "x.mp4").exists()
+
+
+def test_batched_textures_match_per_frame(tiny_persona):
+    from facetex.persona.puppet import neutral_texture, neutral_textures
+
+    p = tiny_persona
+    targets = [p.fiducials[0], p.fiducials[5], p.mean_fiducials]
+    batch = neutral_textures(p, targets, sigma=4.0)
+    for t, b in zip(targets, batch):
+        np.testing.assert_allclose(b, neutral_texture(p, t, sigma=4.0), atol=1e-5)
+    assert np.abs(batch[0] - batch[1]).mean() > 1e-3  # different expressions, different blends
+
+
+def test_render_frames_do_not_depend_on_the_batch_size(driver_video, tiny_persona, monkeypatch):
+    import facetex.persona.puppet as pp
+
+    session = pp.prepare_puppetry(driver_video, tiny_persona)
+    ref = [r["puppet"] for r in pp.render_frames(session, size=96)]
+    monkeypatch.setattr(pp, "TEXTURE_BATCH", 5)  # 12 frames: batches 5 + 5 + 2
+    small = [r["puppet"] for r in pp.render_frames(session, size=96)]
+    assert len(ref) == len(small) == session.track.n_frames
+    for a, b in zip(ref, small):
+        np.testing.assert_allclose(a, b, atol=1e-4)
+
+
+def test_texture_precomputation_does_not_depend_on_threads(tiny_persona, monkeypatch):
+    import dataclasses
+
+    import facetex.persona.texture as tx
+
+    results = []
+    for threads in (1, 2):
+        p = dataclasses.replace(tiny_persona, _cache={})
+        monkeypatch.setattr(tx, "available_cpus", lambda t=threads: t)
+        monkeypatch.setattr(tx._Prepared, "CHUNK", 3)  # 8 photos: chunks 3 + 3 + 2
+        prep = tx.prepare_persona(p)
+        results.append((prep.aligned, prep.pyr[0], prep.pyr[-1], prep._stage["b"]))
+    for a, b in zip(*results):
+        np.testing.assert_array_equal(a, b)

@@ -7,7 +7,13 @@ from scipy import ndimage
 from facetex.errors import BadInputError
 from facetex.geometry._generic_face import canonical_surface
 from facetex.persona.mesh_io import depth_to_mesh, read_obj, write_obj
-from facetex.persona.shape import generic_depth_px, integrate_normals, normals_from_depth, reconstruct_average_shape
+from facetex.persona.shape import (
+    checked_depth,
+    generic_depth_px,
+    integrate_normals,
+    normals_from_depth,
+    reconstruct_average_shape,
+)
 
 W, H = 192, 240
 
@@ -111,3 +117,30 @@ def test_write_obj_roundtrip(tmp_path):
     # the y axis is flipped for viewers: first vertex line is (x, -y, -z)
     first = next(line for line in text.splitlines() if line.startswith("v "))
     np.testing.assert_allclose([float(t) for t in first.split()[1:]], v[0] * [1, -1, -1], atol=1e-5)
+
+
+def test_checked_depth_accepts_plausible_and_falls_back(face_mask):
+    gen = generic_depth_px((W, H))
+    # a plausible depth: the template plus a 5 px bump (RMS well under 0.08 W = 15.4 px), NaN off the mask
+    yy, xx = np.mgrid[0:H, 0:W]
+    bump = 5.0 * np.exp(-((xx - W / 2) ** 2 + (yy - H / 2) ** 2) / (2 * 20.0**2))
+    d = np.where(face_mask, gen + bump, np.nan)
+    hole = d.copy()
+    hole[H // 2, W // 2] = np.nan
+    out, src = checked_depth(hole, face_mask, (W, H))
+    assert src == "collection" and out.dtype == np.float64 and np.isfinite(out[face_mask]).all()
+    assert out[H // 2, W // 2] == gen[H // 2, W // 2]  # hole filled with the template
+    assert np.allclose(out[face_mask & np.isfinite(hole)], hole[face_mask & np.isfinite(hole)])
+    # RMS 16 px > 15.36 px: rejected; 15 px passes (the threshold is max_error * W)
+    assert checked_depth(np.where(face_mask, gen + 16.0, np.nan), face_mask, (W, H))[1] == "generic"
+    assert checked_depth(np.where(face_mask, gen + 15.0, np.nan), face_mask, (W, H))[1] == "collection"
+    assert checked_depth(np.where(face_mask, gen + 15.0, np.nan), face_mask, (W, H), max_error=0.05)[1] == "generic"
+    # finite on at most half of the region, all NaN, or None: the generic face
+    half = d.copy()
+    half[:, : W // 2] = np.nan
+    half[: H // 2] = np.nan
+    for bad in (half, np.full((H, W), np.nan), None):
+        out, src = checked_depth(bad, face_mask, (W, H))
+        assert src == "generic" and np.array_equal(out, gen, equal_nan=True)
+    with pytest.raises(BadInputError):
+        checked_depth(np.zeros((10, 10)), face_mask, (W, H))
