@@ -37,30 +37,11 @@ def _images() -> tuple[Path, Path]:
     return sample_path("frl_004_neutral.jpg"), sample_path("frl_005_neutral.jpg")
 
 
-def _peak_rss() -> int:
-    """Peak resident set of this process in bytes."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # KiB on Linux
-
-
-def _rss() -> int:
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) * 1024
-    return 0
-
-
 def child(config: str, iters: int) -> dict:
     """Run one transfer here; return the numbers (called in the fresh process)."""
     import torch
 
+    from facetex._memory import current_rss, peak_rss
     from facetex.io import read_image
     from facetex.transfer import transfer_with_info
     from facetex.transfer.methods import preset
@@ -70,14 +51,14 @@ def child(config: str, iters: int) -> dict:
     levels = preset(method, name, net).levels
     content_path, style_path = _images()
     content, style = read_image(content_path), read_image(style_path)
-    base = _rss()
+    base = current_rss()
     t = time.perf_counter()
     # With a few iterations L-BFGS stores only that many curvature pairs, so the history is
     # capped to match: the estimate then counts what this short run can hold.
     _, info = transfer_with_info(content, style, method=method, preset=name, texture_net=net, size=int(size),
                                  iters=(iters,) * levels, lbfgs_history=iters, max_memory=1 << 50)
     return {"config": config, "working_shape": info["working_shape"], "levels": levels,
-            "estimate": info["memory_estimate_bytes"], "peak": _peak_rss(), "base": base,
+            "estimate": info["memory_estimate_bytes"], "peak": peak_rss(), "base": base,
             "seconds": time.perf_counter() - t, "threads": torch.get_num_threads()}
 
 

@@ -122,22 +122,13 @@ def _measure_peak(channels, hw, variant):
     code = textwrap.dedent(f"""
         import torch
         from facetex.transfer.losses import mrf_loss
-        def _status(key):
-            for line in open("/proc/self/status"):
-                if line.startswith(key):
-                    return int(line.split()[1]) * 1024
-        def start():
-            try:
-                open("/proc/self/clear_refs", "w").write("5")  # reset the peak (VmHWM) to now
-                return _status("VmRSS")
-            except OSError:
-                return _status("VmHWM")
+        from facetex._memory import peak_rss, reset_peak_rss
         t = torch.rand(1, {channels}, {hw[0]}, {hw[1]}, requires_grad=True)
         s = torch.rand(1, {channels}, {hw[0]}, {hw[1]})
         mrf_loss(t[..., :8, :8], s[..., :8, :8]).backward(); t.grad = None
-        base = start()
+        base = reset_peak_rss()
         mrf_loss(t, s, variant="{variant}").backward()
-        print(_status("VmHWM") - base)
+        print(peak_rss() - base)
     """)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     return int(out.stdout.strip())

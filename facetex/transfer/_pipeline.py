@@ -11,7 +11,6 @@ Data flow (FaceTex §2.3 and §3.1)::
 from __future__ import annotations
 
 import functools
-import os
 import time
 import warnings
 from dataclasses import asdict
@@ -20,6 +19,7 @@ import cv2
 import numpy as np
 import torch
 
+from .._memory import available_memory
 from ..errors import BadImageError, BadInputError, MemoryBudgetError
 from ..io import to_float32
 from .losses import StylePatches, _grid, gram_loss, gram_matrix, mrf_loss, mrf_memory_estimate, style_patches, tv_loss
@@ -106,18 +106,6 @@ def _check_rgb(image, name: str) -> np.ndarray:
 _BYTES_PER_PIXEL = {  # measured peak bytes per working-region pixel of one forward+backward
     "effnet-lite0": 1800, "vgg19": 9000, "vgg19-random": 9000, "face-resnet": 2400,
 }
-
-
-def available_memory() -> int:
-    """Bytes of RAM available now (Linux MemAvailable; total RAM elsewhere)."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
 def default_max_memory() -> int:

@@ -189,23 +189,14 @@ def test_mrf_measured_peak_memory_stays_below_full_matrix():
     code = textwrap.dedent("""
         import torch
         from facetex.transfer.losses import mrf_loss, mrf_memory_estimate
-        def _status(key):
-            for line in open("/proc/self/status"):
-                if line.startswith(key):
-                    return int(line.split()[1]) * 1024
-        def start():
-            try:
-                open("/proc/self/clear_refs", "w").write("5")  # reset the peak (VmHWM) to now
-                return _status("VmRSS")
-            except OSError:
-                return _status("VmHWM")
+        from facetex._memory import peak_rss, reset_peak_rss
         torch.manual_seed(0)
         t = torch.rand(1, 8, 125, 125, requires_grad=True); s = torch.rand(1, 8, 125, 125)
         mrf_loss(t[..., :8, :8], s[..., :8, :8]).backward()  # warm up allocator and kernels
         t.grad = None
-        base = start()
+        base = reset_peak_rss()
         mrf_loss(t, s).backward()
-        print(_status("VmHWM") - base, mrf_memory_estimate(8, (125, 125), (125, 125)))
+        print(peak_rss() - base, mrf_memory_estimate(8, (125, 125), (125, 125)))
     """)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
     grown, estimate = map(int, out.stdout.split())
