@@ -5,6 +5,16 @@
 - :func:`texture_similarity` — S(a, b), Eq. 8 averaged over three skin patches.
 - :func:`identity_distance` — beyond the paper: distance of face-recognition
   descriptors (dlib convention: < 0.6 means the same person).
+
+Beyond the paper, to see whether texture really moved and nothing else did:
+
+- :func:`skin_detail` — std (0–255) of a σ = 2 px high-pass of the luminance in the same
+  three skin patches, at the image's native resolution (pores, fine wrinkles, stubble);
+- :func:`protected_change` — mean |Δ| (0–255) over eyes, brows and lips;
+- :func:`background_change` — mean |Δ| (0–255) outside the face;
+- in :func:`transfer_metrics`: ``S_style_gain`` = S(xt, xs) − S(xc, xs) (the move towards
+  the style compared with doing nothing) and ``detail_ratio`` = detail(output) / detail(the
+  style aligned onto the content).
 """
 
 from __future__ import annotations
@@ -158,6 +168,76 @@ def texture_similarity(image_a, image_b, *, points_a=None, points_b=None, gray: 
     return (mean, values) if per_patch else mean
 
 
+DETAIL_SIGMA = 2.0  # px, native: the high-pass is luminance minus its Gaussian blur of this sigma
+
+
+def skin_detail(image, points68=None, *, sigma: float = DETAIL_SIGMA, source=None, per_patch: bool = False):
+    """Fine skin detail: std (0–255 scale) of ``L − G_sigma * L`` over the forehead and both
+    cheek patches of :func:`skin_patch_frames`, at the image's own resolution (the patch
+    pixels are sampled with nearest-neighbour, so no interpolation smooths them)."""
+    img = np.asarray(image, dtype=np.float32)
+    if img.ndim != 3 or img.shape[2] < 3:
+        raise BadInputError(f"expected an (H, W, 3) image, got shape {img.shape}")
+    if img.max() > 1.5:
+        img = img / 255.0
+    p = _points68(img, points68, source)
+    lum = _luminance(img) * 255.0
+    hp = lum - cv2.GaussianBlur(lum, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    side = int(round(PATCH_SIZE / working_scale(img.shape)))
+    values = {}
+    for name, m in skin_patch_frames(p, img.shape).items():
+        patch = cv2.warpAffine(hp, m, (side, side), flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_REFLECT)
+        values[name] = float(patch.std())
+    mean = float(np.mean(list(values.values())))
+    return (mean, values) if per_patch else mean
+
+
+def _abs_change(a, b) -> np.ndarray:
+    a = np.asarray(a, np.float32)
+    b = np.asarray(b, np.float32)
+    if a.shape != b.shape:
+        raise BadInputError(f"images differ in shape: {a.shape} vs {b.shape}")
+    if max(float(a.max()), float(b.max())) > 1.5:
+        a, b = a / 255.0, b / 255.0
+    d = np.abs(a - b) * 255.0
+    return d.mean(axis=2) if d.ndim == 3 else d
+
+
+def protected_change(output, content, *, points=None, source=None) -> float:
+    """Mean |output − content| (0–255, averaged over channels) over the eyes, brows and lips
+    of the content (:func:`facetex.geometry.skin.protected_mask`)."""
+    from .geometry.skin import protected_mask
+
+    p = _points68(content, points, source)
+    m = protected_mask(p, np.asarray(content).shape[:2])
+    return float(_abs_change(output, content)[m].mean()) if m.any() else 0.0
+
+
+def face_area_mask(image, points68, *, mesh=None, margin: float = 0.03) -> np.ndarray:
+    """bool (H, W): the face (jaw + forehead outline, united with the mesh's face oval when
+    ``mesh`` is given) grown by ``margin`` × face width. Its complement is the background."""
+    from .geometry.masks import face_outline, face_width
+    from .geometry.skin import FACE_OVAL_468
+
+    p = _as_points(points68, "points68")
+    h, w = np.asarray(image).shape[:2]
+    m = np.zeros((h, w), np.uint8)
+    cv2.fillPoly(m, [np.round(face_outline(p) * 16).astype(np.int32)], 1, cv2.LINE_8, 4)
+    if mesh is not None:
+        oval = np.asarray(mesh)[list(FACE_OVAL_468), :2]
+        cv2.fillPoly(m, [np.round(oval * 16).astype(np.int32)], 1, cv2.LINE_8, 4)
+    r = max(1, int(round(margin * face_width(p))))
+    m = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    return m.astype(bool)
+
+
+def background_change(output, content, *, points=None, mesh=None, source=None) -> float:
+    """Mean |output − content| (0–255) outside :func:`face_area_mask` of the content."""
+    p = _points68(content, points, source)
+    bg = ~face_area_mask(content, p, mesh=mesh)
+    return float(_abs_change(output, content)[bg].mean()) if bg.any() else 0.0
+
+
 def identity_distance(image_a, image_b, *, points_a=None, points_b=None, source_a=None, source_b=None) -> float:
     """Euclidean distance of the FaceRecognitionNet (dlib ResNet) descriptors of two faces.
 
@@ -169,22 +249,46 @@ def identity_distance(image_a, image_b, *, points_a=None, points_b=None, source_
     return float(np.linalg.norm(da - db))
 
 
-def transfer_metrics(output, content, style, *, points=None, sources=(None, None, None)) -> dict:
+def transfer_metrics(output, content, style, *, points=None, sources=(None, None, None),
+                     aligned_style=None, content_mesh=None) -> dict:
     """All FaceTex metrics of a transfer output against its content and style images.
 
-    ``points`` may give the 68 landmarks of (output, content, style) to skip detection."""
+    ``points`` may give the 68 landmarks of (output, content, style) to skip detection.
+    ``aligned_style``: the style warped onto the content geometry (as the transfer's
+    pre-warp makes it; computed here with :func:`facetex.geometry.align_style_to_content`
+    on the full images, Lanczos resampling, when not given) for ``detail_ratio``."""
     images = (output, content, style)
     pts = list(points) if points is not None else [None, None, None]
     pts = [_points68(im, p, s) for im, p, s in zip(images, pts, sources)]
     e_c = landmark_error(output, content, points_a=pts[0], points_b=pts[1])
     e_s = landmark_error(output, style, points_a=pts[0], points_b=pts[2])
+    s_style = texture_similarity(output, style, points_a=pts[0], points_b=pts[2])
+    s_none = texture_similarity(content, style, points_a=pts[1], points_b=pts[2])
+    if aligned_style is None:
+        from .geometry.morph import align_style_to_content
+
+        aligned_style = align_style_to_content(np.asarray(style, np.float32), np.asarray(content, np.float32),
+                                               style_points=pts[2], content_points=pts[1], refine=None,
+                                               interpolation="lanczos").image
+    d_out = skin_detail(output, pts[0])
+    d_con = skin_detail(content, pts[1])
+    d_sty = skin_detail(aligned_style, pts[1])
     return {
         "E_content": e_c.mse_px2,
         "E_style": e_s.mse_px2,
         "E_content_rms_px": e_c.rms_px,
         "E_style_rms_px": e_s.rms_px,
         "S_content": texture_similarity(output, content, points_a=pts[0], points_b=pts[1]),
-        "S_style": texture_similarity(output, style, points_a=pts[0], points_b=pts[2]),
+        "S_style": s_style,
+        "S_style_none": s_none,
+        "S_style_gain": s_style - s_none,
         "identity_content": identity_distance(output, content, points_a=pts[0], points_b=pts[1]),
         "identity_style": identity_distance(output, style, points_a=pts[0], points_b=pts[2]),
+        "detail_output": d_out,
+        "detail_content": d_con,
+        "detail_style": d_sty,
+        "detail_style_own": skin_detail(style, pts[2]),
+        "detail_ratio": d_out / max(d_sty, 1e-9),
+        "protected_change": protected_change(output, content, points=pts[1]),
+        "background_change": background_change(output, content, points=pts[1], mesh=content_mesh),
     }

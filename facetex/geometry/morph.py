@@ -32,6 +32,10 @@ __all__ = [
     "AlignResult",
     "morph_points",
     "morph_segments",
+    "similarity_transform",
+    "similarity_frame",
+    "jacobian_determinant",
+    "unfold_map",
     "beier_neely_lines_map",
     "beier_neely_map",
     "beier_neely_warp",
@@ -58,6 +62,11 @@ class BeierNeelyParams:
        every landmark lands exactly: closely spaced segments (a closed mouth's inner lips,
        1-3 px apart) otherwise pull each other by up to ~1 px in the map and ~3 px after
        inversion where the morph compresses.
+    inner_lips: also drive the field with the inner-lip segments. Off by default: on a
+       closed mouth they lie 1–3 px from each other with opposite directions, and folded
+       the map on 11 of 30 FRL pairs (the pin still puts the inner-lip points in place).
+    unfold: where the map still folds (Jacobian determinant ≤ 0.02; 3 of 30 pairs, at a
+       brow end or a lip corner), blend it locally towards a smooth field (:func:`unfold_map`).
     """
 
     a: float | None = None
@@ -65,6 +74,8 @@ class BeierNeelyParams:
     b: float = 2.0
     p: float = 0.5
     pin: bool = True
+    inner_lips: bool = False
+    unfold: bool = True
 
 
 #: Number of forehead-arc points added above the brows (see masks.forehead_points).
@@ -96,16 +107,59 @@ def _frame_points(shape) -> np.ndarray:
     return np.array([[0, 0], [W / 2, 0], [W, 0], [W, H / 2], [W, H], [W / 2, H], [0, H], [0, H / 2]], dtype=np.float64)
 
 
-def morph_points(points68, shape, *, n_forehead: int = N_FOREHEAD) -> np.ndarray:
-    """(68 + n_forehead + 8, 2): the landmarks, a forehead arc (p16 side to p0 side), the frame."""
+def morph_points(points68, shape, *, n_forehead: int = N_FOREHEAD, frame=None) -> np.ndarray:
+    """(68 + n_forehead + 8, 2): the landmarks, a forehead arc (p16 side to p0 side), the frame.
+
+    ``frame``: the 8 frame points to use instead of the corners and edge midpoints of
+    ``shape`` (e.g. another image's frame mapped through a similarity)."""
     p = _check68(points68)
-    return np.vstack([p, forehead_points(p, n_forehead), _frame_points(shape)])
+    fr = _frame_points(shape) if frame is None else np.asarray(frame, np.float64).reshape(8, 2)
+    return np.vstack([p, forehead_points(p, n_forehead), fr])
 
 
-def morph_segments(n_forehead: int = N_FOREHEAD) -> np.ndarray:
-    """(S, 2) index pairs into :func:`morph_points`: landmark contours, nose tip -> base,
-    jaw end -> forehead arc -> other jaw end, and the image frame loop."""
-    segs = [s for idx, closed in _CHAINS for s in _chain(idx, closed)]
+def similarity_transform(src_points, dst_points) -> np.ndarray:
+    """2 × 3 least-squares similarity (rotation, uniform scale, translation) taking
+    ``src_points`` (N, 2) to ``dst_points`` (Umeyama 1991, without reflection)."""
+    a = np.asarray(src_points, np.float64)
+    b = np.asarray(dst_points, np.float64)
+    if a.shape != b.shape or a.ndim != 2 or a.shape[1] != 2 or len(a) < 2:
+        raise BadInputError(f"similarity_transform needs two (N >= 2, 2) point sets, got {a.shape} and {b.shape}")
+    ma, mb = a.mean(0), b.mean(0)
+    A, B = a - ma, b - mb
+    U, S, Vt = np.linalg.svd(B.T @ A)
+    D = np.diag([1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    R = U @ D @ Vt
+    s = float(np.trace(np.diag(S) @ D) / max((A * A).sum(), 1e-12))
+    return np.hstack([s * R, (mb - s * R @ ma)[:, None]])
+
+
+def similarity_frame(src_points, dst_points, shape) -> np.ndarray:
+    """(8, 2) source-image positions of the destination frame (corners and edge midpoints
+    of ``shape``) under the landmark similarity destination → source: pinning the frame
+    there keeps the morph a near-similarity away from the face, for any crop of either
+    image (pinning it to the source image's own frame squeezes a whole photo into a crop)."""
+    T = similarity_transform(dst_points, src_points)
+    fr = _frame_points(shape)
+    return fr @ T[:, :2].T + T[:, 2]
+
+
+def jacobian_determinant(map_xy: np.ndarray) -> np.ndarray:
+    """(H, W) float32 determinant of the sampling map's Jacobian (central differences,
+    one-sided at the border). ≤ 0 where the warp folds over (or collapses) the source."""
+    m = np.asarray(map_xy, np.float32)
+    if m.ndim != 3 or m.shape[2] != 2 or min(m.shape[:2]) < 2:
+        raise BadInputError(f"expected an (H, W, 2) map with H, W >= 2, got shape {m.shape}")
+    dy = np.gradient(m, axis=0)
+    dx = np.gradient(m, axis=1)
+    return (dx[..., 0] * dy[..., 1] - dx[..., 1] * dy[..., 0]).astype(np.float32)
+
+
+def morph_segments(n_forehead: int = N_FOREHEAD, *, inner_lips: bool = True) -> np.ndarray:
+    """(S, 2) index pairs into :func:`morph_points`: landmark contours (the inner lips only
+    if ``inner_lips``), nose tip -> base, jaw end -> forehead arc -> other jaw end, and the
+    image frame loop."""
+    chains = _CHAINS if inner_lips else _CHAINS[:-1]
+    segs = [s for idx, closed in chains for s in _chain(idx, closed)]
     segs.append((30, 33))
     arc = [16] + list(range(68, 68 + n_forehead)) + [0]
     segs += list(zip(arc[:-1], arc[1:]))
@@ -222,8 +276,10 @@ def beier_neely_map(
     b: float = 2.0,
     p: float = 0.5,
     src_shape=None,
+    src_frame=None,
     params: BeierNeelyParams | None = None,
     step: int | None = None,
+    fold_mask=None,
 ) -> np.ndarray:
     """(H, W, 2) float32 sampling map moving ``src_points`` (68, 2) onto ``dst_points``.
 
@@ -236,18 +292,86 @@ def beier_neely_map(
     """
     H, W = _shape2(shape)
     prm = params or BeierNeelyParams(a=a, b=b, p=p)
-    src = morph_points(src_points, (H, W) if src_shape is None else _shape2(src_shape))
+    src = morph_points(src_points, (H, W) if src_shape is None else _shape2(src_shape), frame=src_frame)
     dst = morph_points(dst_points, (H, W))
-    seg = morph_segments()
+    seg = morph_segments(inner_lips=prm.inner_lips)
     fw = face_width(dst[:68])
     A = float(prm.a) if prm.a is not None else prm.a_rel * fw
     step = max(1, int(round(fw / 80 if step is None else step)))
     exact = np.ones(len(seg), bool)
     exact[len(seg) - 8 :] = False  # the frame loop
     out = beier_neely_lines_map(src[seg], dst[seg], (H, W), a=A, b=prm.b, p=prm.p, step=step, exact_lines=exact)
-    if prm.pin:
-        out += _pin_correction(out, src, dst, (H, W))
-    return out
+    if not prm.pin and not prm.unfold:
+        return out
+    check = np.ones((H, W), bool) if fold_mask is None else np.asarray(fold_mask, bool)
+
+    def folds(m):
+        return bool(((jacobian_determinant(m) <= _MIN_DET) & check).any())
+
+    sharp = out + _pin_correction(out, src, dst, (H, W)) if prm.pin else out
+    if not prm.unfold or not folds(sharp):
+        return sharp
+    # The map folds: the pin's residual spline between nearly coincident points, or close
+    # segments with different transforms (brow end / jaw top, lip corners). Blend it locally
+    # towards the first fold-free of: the field without the pin, a smooth field (8 × a),
+    # the landmark similarity.
+    def smooth():
+        return beier_neely_lines_map(src[seg], dst[seg], (H, W), a=8 * A, b=prm.b, p=prm.p, step=step,
+                                     exact_lines=exact)
+
+    def similarity():
+        T = similarity_transform(dst[:68], src[:68])
+        yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
+        return np.stack([T[0, 0] * xx + T[0, 1] * yy + T[0, 2], T[1, 0] * xx + T[1, 1] * yy + T[1, 2]], -1)
+
+    def fold_free(chain):
+        # each map in the chain is blended locally towards the (made fold-free) next one
+        m = chain[0]()
+        if len(chain) == 1 or not folds(m):
+            return m
+        ref = fold_free(chain[1:])
+        return unfold_map(lambda alpha, d=m - ref: ref + alpha[..., None] * d, (H, W), mask=check)
+
+    chain = ([lambda: sharp, lambda: out] if prm.pin else [lambda: out]) + [smooth, similarity]
+    return fold_free(chain).astype(np.float32)
+
+
+_MIN_DET = 0.02  # smallest Jacobian determinant accepted as unfolded (≈ 50× local compression)
+
+
+def unfold_map(build, shape, *, mask=None, min_det: float = _MIN_DET, iters: int = 20,
+               sigma: float | None = None) -> np.ndarray:
+    """The map ``build(alpha)`` with a per-pixel blend ``alpha`` in [0, 1] reduced, smoothly,
+    where the map folds: ``build(0)`` must be fold-free (e.g. the map without a correction),
+    ``build(1)`` is the map wanted. Each round halves ``alpha`` around pixels (in ``mask``,
+    default everywhere) whose Jacobian determinant is ≤ ``min_det`` and re-smooths it
+    (Gaussian ``sigma`` px, default 2 × the largest |build(1) − build(0)| near the folds,
+    at least 3: a steeper alpha folds the map itself); after ``iters`` rounds ``alpha`` is
+    ~1e-6 there. Hand-written."""
+    H, W = int(shape[0]), int(shape[1])
+    alpha = np.ones((H, W), np.float32)
+    check = np.ones((H, W), bool) if mask is None else np.asarray(mask, bool)
+    m = build(alpha)
+    if sigma is None:
+        bad = (jacobian_determinant(m) <= min_det) & check
+        if not bad.any():
+            return m
+        d = np.linalg.norm(m - build(np.zeros_like(alpha)), axis=2)
+        near = cv2.dilate(bad.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (31, 31))) > 0
+        sigma = float(np.clip(2.0 * d[near].max(), 3.0, 0.1 * max(H, W)))
+    for it in range(iters + 1):
+        bad = (jacobian_determinant(m) <= min_det) & check
+        if not bad.any():
+            return m
+        if it == iters:
+            break
+        else:
+            r = int(np.ceil(sigma))
+            grow = cv2.dilate(bad.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0
+            alpha = np.where(grow, alpha * 0.5, alpha)
+            alpha = np.minimum(alpha, cv2.GaussianBlur(alpha, (0, 0), sigma))
+        m = build(alpha)
+    return m
 
 
 def _pin_correction(m: np.ndarray, src: np.ndarray, dst: np.ndarray, shape) -> np.ndarray:
@@ -316,14 +440,26 @@ class _BNField:
         return out
 
 
-def remap(image: np.ndarray, map_xy: np.ndarray, *, border: str = "replicate") -> np.ndarray:
-    """Sample ``image`` at ``map_xy`` (bilinear; border 'replicate' or 'constant' 0)."""
+_INTERP = {"linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC, "lanczos": cv2.INTER_LANCZOS4,
+           "nearest": cv2.INTER_NEAREST}
+
+
+def remap(image: np.ndarray, map_xy: np.ndarray, *, border: str = "replicate", interpolation: str = "linear") -> np.ndarray:
+    """Sample ``image`` at ``map_xy`` (border 'replicate' or 'constant' 0). ``interpolation``
+    'linear' (default), 'cubic', 'lanczos' (keeps pore-level detail: bilinear resampling
+    at sub-pixel offsets halves the energy at 2–3 px periods) or 'nearest'."""
     mode = {"replicate": cv2.BORDER_REPLICATE, "constant": cv2.BORDER_CONSTANT}[border]
+    if interpolation not in _INTERP:
+        raise BadInputError(f"interpolation must be one of {sorted(_INTERP)}, not {interpolation!r}")
     m = np.asarray(map_xy, dtype=np.float32)
     img = np.asarray(image)
     if img.dtype == np.float64:
         img = img.astype(np.float32)
-    return cv2.remap(img, m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderMode=mode)
+    out = cv2.remap(img, m[..., 0], m[..., 1], _INTERP[interpolation], borderMode=mode)
+    if interpolation in ("cubic", "lanczos") and np.issubdtype(img.dtype, np.floating):
+        lo, hi = float(img.min()), float(img.max())  # no overshoot beyond the source's range
+        np.clip(out, lo, hi, out=out)
+    return out
 
 
 def beier_neely_warp(image, src_points, dst_points, *, output_shape=None, **kw) -> np.ndarray:
@@ -337,7 +473,7 @@ def beier_neely_warp(image, src_points, dst_points, *, output_shape=None, **kw) 
 # piecewise affine
 
 
-def piecewise_affine_map(src_points, dst_points, shape, *, src_shape=None) -> np.ndarray:
+def piecewise_affine_map(src_points, dst_points, shape, *, src_shape=None, src_frame=None) -> np.ndarray:
     """(H, W, 2) float32 sampling map, affine on each Delaunay triangle of the destination
     points (landmarks + forehead arc + frame, so the whole image is covered).
 
@@ -345,7 +481,7 @@ def piecewise_affine_map(src_points, dst_points, shape, *, src_shape=None) -> np
     triangle's affine (neighbours agree on shared edges, so edge pixels are exact).
     """
     H, W = _shape2(shape)
-    src = morph_points(src_points, (H, W) if src_shape is None else _shape2(src_shape))
+    src = morph_points(src_points, (H, W) if src_shape is None else _shape2(src_shape), frame=src_frame)
     dst = morph_points(dst_points, (H, W))
     tri = Delaunay(dst).simplices
     Dt = dst[tri]  # (T, 3, 2)
@@ -454,6 +590,7 @@ class AlignParams:
     landmark_radius: float = 0.03
     max_shift: float = 0.02
     crop_margin: float = 0.1
+    flow_smooth: float = 0.015  # Gaussian sigma of the flow × face width (folds without it)
     beier_neely: BeierNeelyParams = field(default_factory=BeierNeelyParams)
 
 
@@ -467,10 +604,13 @@ class AlignResult:
     map_xy: np.ndarray
     points: np.ndarray
     timings: dict = field(default_factory=dict)
+    #: face pixels (content face mask > 0.5) where the map folds (Jacobian determinant ≤ 0)
+    folds: int = 0
 
 
 _METHODS = ("beier-neely", "piecewise-affine")
 _REFINE = ("sift-flow", "optical-flow", None)
+_FRAMES = ("similarity", "image")
 
 
 def refinement_weight(content_points, shape, params: AlignParams = AlignParams()) -> np.ndarray:
@@ -497,8 +637,17 @@ def align_style_to_content(
     refine: str | None = "sift-flow",
     params: AlignParams | None = None,
     flow_kw: dict | None = None,
+    frame: str = "similarity",
+    interpolation: str = "linear",
 ) -> AlignResult:
     """Warp ``style`` onto the face geometry of ``content`` (FaceTex §2.3 "Pre-processing").
+
+    ``content`` may be any crop of a photo (its landmarks in crop coordinates): the
+    morph's frame points are pinned where a landmark similarity puts them in the style
+    image (``frame="similarity"``, :func:`similarity_frame`), so the style keeps its scale
+    and the area around the face maps as a near-similarity. ``frame="image"`` pins the
+    content's frame onto the style image's frame (only right for two uncropped photos
+    framed alike). ``interpolation`` of the final resampling ('lanczos' keeps pores).
 
     1. landmarks (detected with :func:`facetex.landmarks.detect_face` when not given);
     2. morph the style landmarks onto the content's (Beier-Neely, ref. [1], or piecewise
@@ -512,6 +661,8 @@ def align_style_to_content(
         raise BadInputError(f"unknown alignment method {method!r}: use one of {', '.join(_METHODS)}")
     if refine not in _REFINE:
         raise BadInputError(f"unknown refinement {refine!r}: use 'sift-flow', 'optical-flow' or None")
+    if frame not in _FRAMES:
+        raise BadInputError(f"unknown frame mode {frame!r}: use 'similarity' or 'image'")
     prm = params or AlignParams()
     style = _check_image(style)
     content = _check_image(content)
@@ -529,11 +680,15 @@ def align_style_to_content(
 
     t0 = time.perf_counter()
     shape = content.shape[:2]
+    src_frame = similarity_frame(sp, cp, shape) if frame == "similarity" else None
+    face = face_mask(cp, shape) > 0.5
+    near_face = cv2.dilate(face.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
     if method == "beier-neely":
         bn = prm.beier_neely
-        m = beier_neely_map(sp, cp, shape, src_shape=style.shape[:2], params=bn)
+        m = beier_neely_map(sp, cp, shape, src_shape=style.shape[:2], src_frame=src_frame, params=bn,
+                            fold_mask=near_face)
     else:
-        m = piecewise_affine_map(sp, cp, shape, src_shape=style.shape[:2])
+        m = piecewise_affine_map(sp, cp, shape, src_shape=style.shape[:2], src_frame=src_frame)
     t["morph"] = time.perf_counter() - t0
 
     t["refine"] = 0.0
@@ -557,15 +712,20 @@ def align_style_to_content(
         cap = prm.max_shift * face_width(cp)
         mag = np.linalg.norm(f, axis=2, keepdims=True)
         f *= np.minimum(1.0, cap / np.maximum(mag, 1e-9))
-        m = compose_maps(m, _flow.map_from_flow(f.astype(np.float32)))
+        if prm.flow_smooth > 0:  # flow between two people is noisy at pixel scale; only its trend helps
+            f = cv2.GaussianBlur(f, (0, 0), prm.flow_smooth * face_width(cp))
+        base = m
+        m = unfold_map(lambda alpha: compose_maps(base, _flow.map_from_flow((f * alpha[..., None]).astype(np.float32))),
+                       shape, mask=near_face)
         t["refine"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    image = remap(style, m)
+    image = remap(style, m, interpolation=interpolation)
     points = invert_map_points(m, sp, init=cp)
+    folds = int(np.count_nonzero((jacobian_determinant(m) <= 0) & face))
     t["warp"] = time.perf_counter() - t0
     t["total"] = sum(t.values())
-    return AlignResult(image=image, map_xy=m, points=points, timings=t)
+    return AlignResult(image=image, map_xy=m, points=points, timings=t, folds=folds)
 
 
 def _span(lo: int, hi: int, n: int, mult: int = 64) -> tuple[int, int]:

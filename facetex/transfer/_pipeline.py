@@ -135,8 +135,8 @@ def estimate_transfer_memory(params: TransferParams, shape: tuple[int, int]) -> 
 
 # ---------------------------------------------------------------- losses per level
 def _masked_style_patches(feat: torch.Tensor, mask: torch.Tensor, params: TransferParams) -> StylePatches:
-    """Style patches whose centre lies in ``mask`` (the style's face region): hair and
-    background are kept out of the matching, where most artifacts came from."""
+    """Style patches whose centre lies in ``mask`` (> 0.5): the style's skin (or face),
+    so its hair, background and any warp artefact never become texture sources."""
     sp = style_patches(feat, params.patch_size, params.style_stride)
     h, w = feat.shape[-2:]
     k = params.patch_size
@@ -165,11 +165,15 @@ class _LevelLoss:
             tex_layers = list(dict.fromkeys(p.mrf_layers + p.style_layers))
             fs = self.net.features(s, tex_layers) if tex_layers else {}
             fc = self.net.features(c, list(p.content_layers)) if p.content_layers else {}
-            if p.style_region == "face":
-                face = _resize_level(builder.face, shape)
-                self.patches = {l: _masked_style_patches(fs[l], face, p) for l in p.mrf_layers}
+            if builder.style_mask is not None:
+                sm = _resize_level(builder.style_mask, shape)
+                self.patches = {l: _masked_style_patches(fs[l], sm, p) for l in p.mrf_layers}
             else:
                 self.patches = {l: style_patches(fs[l], p.patch_size, p.style_stride) for l in p.mrf_layers}
+            self.target_w = {}
+            if builder.target_mask is not None:  # texture loss only where the content may change
+                tm = _resize_level(builder.target_mask, shape)
+                self.target_w = {l: _resize_level(tm, tuple(fs[l].shape[-2:]))[0, 0] for l in p.mrf_layers}
             self.grams = {l: gram_matrix(fs[l]) for l in p.style_layers}
             self.content_t = {l: fc[l] for l in p.content_layers}
             self.content_ms = {l: float(fc[l].square().mean()) + 1e-12 for l in p.content_layers}
@@ -194,7 +198,8 @@ class _LevelLoss:
         terms = {}
         for l in p.mrf_layers:  # Eq. 2
             terms[f"mrf:{l}"] = mrf_loss(f[l], self.patches[l], patch_size=p.patch_size,
-                                         style_stride=p.style_stride, variant=p.mrf_variant)
+                                         style_stride=p.style_stride, variant=p.mrf_variant,
+                                         target_weight=self.target_w.get(l))
         for l in p.style_layers:  # Eq. 6, style term
             terms[f"gram:{l}"] = gram_loss(f[l], self.grams[l])
         for l in p.content_layers:  # Eq. 6/7, content term
@@ -219,14 +224,16 @@ class _LevelLoss:
 
 
 class _LossBuilder:
-    def __init__(self, params, content, style, prior, face, points, device):
+    def __init__(self, params, content, style, prior, style_mask, target_mask, points, device):
         self.params = params
         self.device = device
         self.shape = content.shape[:2]
         self.content = to_tensor(content, device)
         self.style = to_tensor(style, device)
-        self.prior = None if prior is None else torch.from_numpy(prior)[None, None].to(device)
-        self.face = torch.from_numpy(face)[None, None].to(device)
+        as_t = lambda m: None if m is None else torch.from_numpy(np.ascontiguousarray(m, np.float32))[None, None].to(device)  # noqa: E731
+        self.prior = as_t(prior)
+        self.style_mask = as_t(style_mask)
+        self.target_mask = as_t(target_mask)
         self.points = np.asarray(points, np.float64)
         net = params.texture_net
         if net == "vgg19" and params.vgg19_weights == "random":
@@ -240,6 +247,38 @@ class _LossBuilder:
         return _LevelLoss(self, shape)
 
 
+# ---------------------------------------------------------------- masks and pre-warp
+def _face_mesh(image, points68):
+    """MediaPipe mesh of the face at ``points68``, or None when the mesh finds no face there
+    (the skin mask then falls back to the landmark outline)."""
+    from ..errors import FacetexError
+    from ..landmarks import face_mesh468
+
+    try:
+        return face_mesh468(image, points68)
+    except FacetexError:
+        return None
+
+
+def _crop_map_energies(style, style_map, face_width_style, dparams):
+    """The style's band energies (detail stage) computed on the part of the style the map
+    reads from, then carried into the content frame through the map."""
+    from ..geometry.morph import remap
+    from .detail import style_band_energies
+
+    h, w = style.shape[:2]
+    pad = int(np.ceil(6 * max(dparams.sigmas) * face_width_style / 330.0)) + 4
+    x0 = int(max(0, np.floor(style_map[..., 0].min()) - pad))
+    x1 = int(min(w, np.ceil(style_map[..., 0].max()) + pad + 1))
+    y0 = int(max(0, np.floor(style_map[..., 1].min()) - pad))
+    y1 = int(min(h, np.ceil(style_map[..., 1].max()) + pad + 1))
+    if x1 - x0 < 8 or y1 - y0 < 8:
+        return None
+    energies = style_band_energies(style[y0:y1, x0:x1], face_width=face_width_style, params=dparams)
+    shifted = (style_map - np.array([x0, y0], np.float32)).astype(np.float32)
+    return [remap(e, shifted, border="replicate") for e in energies]
+
+
 # ---------------------------------------------------------------- public API
 def transfer_with_info(content, style, *, method: str = "facetex", preset: str = "default", seed: int = 0, device: str = "cpu", progress=None,
                        callback=None, save_every: int | None = None, content_points=None, style_points=None,
@@ -251,8 +290,10 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
     (Eq. 5), "mrf" (Eq. 7) or "gatys" (Eq. 6); ``preset``: "default" or "paper"; any
     :class:`TransferParams` field may be overridden as a keyword (``size``, ``iters``,
     ``texture_net``, ``structure_weight`` …). Returns the output at the content's size and
-    an info dict (parameters, timings, per-level loss terms). ``progress(n=1, level=, loss=)``
-    is called per loss evaluation; ``callback(image=, level=, evaluation=)`` every
+    an info dict (parameters, timings, per-level loss terms, pre-warp folds, and under
+    ``"images"`` the working-region images: content, pre-warped style at native and working
+    resolution, skin masks, the optimiser's output). ``progress(n=1, level=, loss=)`` is
+    called per loss evaluation; ``callback(image=, level=, evaluation=)`` every
     ``save_every`` evaluations and after each level (images of the working region).
     Raises NoFaceError (naming ``*_source``), MemoryBudgetError above ``max_memory`` bytes.
     """
@@ -274,14 +315,16 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
     H, W = content.shape[:2]
     box = face_crop_box(cp, content.shape) if params.crop == "face" else (0, 0, W, H)
     region = content[box[1]:box[3], box[0]:box[2]]
-    wh = _working_shape(region.shape[0], region.shape[1], params.size)
-    scale_xy = (wh[1] / region.shape[1], wh[0] / region.shape[0])
+    rh, rw = region.shape[:2]
+    wh = _working_shape(rh, rw, params.size)
+    scale_xy = (wh[1] / rw, wh[0] / rh)
     content_w = _resize(region, (wh[1], wh[0]))
+    cpr = cp - [box[0], box[1]]
     cpw = _map_points(cp, box, scale_xy)
     warn = []
-    if max(region.shape[:2]) < params.size:
+    if max(rh, rw) < params.size:
         warn.append(f"content {'face' if params.crop == 'face' else 'image'} region is "
-                    f"{region.shape[1]}x{region.shape[0]} px: upscaled to {wh[1]}x{wh[0]} (pass a smaller --size)")
+                    f"{rw}x{rh} px: upscaled to {wh[1]}x{wh[0]} (pass a smaller --size)")
     sbox = face_crop_box(sp, style.shape) if params.crop == "face" else (0, 0, style.shape[1], style.shape[0])
     if max(sbox[2] - sbox[0], sbox[3] - sbox[1]) < params.size:
         warn.append(f"style {'face' if params.crop == 'face' else 'image'} region is "
@@ -296,54 +339,99 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
         raise MemoryBudgetError(f"this transfer needs about {need / 2**30:.1f} GiB at {wh[1]}x{wh[0]} px, over the "
                                 f"{budget / 2**30:.1f} GiB budget: use a smaller --size or raise --max-memory")
 
-    # style pre-warp onto the content geometry (Sec. 2.3)
+    # style pre-warp onto the content region's geometry, at the region's own resolution (Sec. 2.3)
     t0 = time.perf_counter()
-    from ..geometry.masks import face_mask, prior_mask
+    from ..geometry.masks import face_mask, face_width, prior_mask
+    from ..geometry.morph import remap
 
+    folds, style_map = 0, None
     if params.align:
         from ..geometry.morph import align_style_to_content
 
-        # scale the style so its face matches the region's face size before morphing
-        style_w = align_style_to_content(style, content_w, style_points=sp, content_points=cpw,
-                                         method=params.align, refine=params.align_refine).image
+        al = align_style_to_content(style, region, style_points=sp, content_points=cpr, method=params.align,
+                                    refine=params.align_refine, frame=params.align_frame, interpolation="lanczos")
+        style_native, style_map, folds = al.image, al.map_xy, al.folds
     else:
         sreg = style[sbox[1]:sbox[3], sbox[0]:sbox[2]]
-        style_w = _resize(sreg, (wh[1], wh[0]))
-    style_w = np.clip(style_w, 0, 1).astype(np.float32)
+        style_native = _resize(sreg, (rw, rh))
+    style_native = np.clip(style_native, 0, 1).astype(np.float32)
+    style_w = _resize(style_native, (wh[1], wh[0]))
     timings["align_s"] = time.perf_counter() - t0
+
+    # masks: skin of both faces (content region frame), facial prior, face region
+    t0 = time.perf_counter()
+    needs_skin = params.constraint == "skin" or params.style_region == "skin" or params.target_region == "skin" \
+        or params.detail
+    skin_c = skin_s = None
+    if needs_skin:
+        from ..geometry.skin import skin_mask
+
+        skin_c = skin_mask(content, cp, mesh=_face_mesh(content, cp))[box[1]:box[3], box[0]:box[2]]
+        skin_style_own = skin_mask(style, sp, mesh=_face_mesh(style, sp))
+        if style_map is not None:
+            skin_s = remap(skin_style_own, style_map, border="constant")
+        else:
+            skin_s = _resize(np.repeat(skin_style_own[sbox[1]:sbox[3], sbox[0]:sbox[2], None], 3, 2), (rw, rh))[..., 0]
+        skin_s = np.clip(skin_s, 0, 1).astype(np.float32)
+    down = lambda m: None if m is None else cv2.resize(m, (wh[1], wh[0]), interpolation=cv2.INTER_AREA)  # noqa: E731
+    skin_cw, skin_sw = down(skin_c), down(skin_s)
     face = face_mask(cpw, wh)
     prior = prior_mask(cpw, wh) if params.prior else None
+    style_mask = {"skin": None if skin_sw is None else skin_sw * (skin_cw > 0.05), "face": face,
+                  "image": None}[params.style_region]
+    target_mask = skin_cw if params.target_region == "skin" else None
+    change_mask = None
+    if params.constraint == "skin":
+        cm = torch.from_numpy(np.ascontiguousarray(skin_cw))[None, None].to(device)
+        change_mask = lambda shape: _resize_level(cm, shape)  # noqa: E731
+    timings["masks_s"] = time.perf_counter() - t0
 
     # optimisation (Eq. 5 / 6 / 7), multi-resolution L-BFGS
     torch.manual_seed(seed)
     np.random.seed(seed % 2**32)
-    builder = _LossBuilder(params, content_w, style_w, prior, face, cpw, device)
+    builder = _LossBuilder(params, content_w, style_w, prior, style_mask, target_mask, cpw, device)
     out_w, info = optimize_image(content_w, builder, levels=params.levels, iters=params.iters,
                                  lbfgs_history=params.lbfgs_history, line_search=params.line_search,
                                  seed=seed, device=device, progress=progress, callback=callback,
-                                 save_every=save_every, level_init=params.level_init)
+                                 save_every=save_every, level_init=params.level_init, change_mask=change_mask)
     timings["optimize_s"] = info["seconds"]
 
-    # back to the content image
-    out = content.copy()
-    rh, rw = region.shape[:2]
-    # paste the *change* back at the region's full resolution: the content's own detail
+    # back to the region's full resolution: paste the *change*, so the content's own detail
     # above the working resolution survives instead of being blurred by the resampling
+    t0 = time.perf_counter()
     delta = cv2.resize(out_w - content_w, (rw, rh), interpolation=cv2.INTER_CUBIC)
+    if params.constraint == "skin":
+        delta *= (skin_c > 0)[..., None]  # exactly nothing outside the skin (cubic rings 1–2 px)
     out_region = np.clip(region + delta, 0.0, 1.0)
-    if params.crop == "face":
+    detail_info = None
+    if params.detail:
+        from .detail import DetailParams, transfer_skin_detail
+
+        dparams = DetailParams(strength=params.detail_strength)
+        energies = None
+        if style_map is not None:
+            energies = _crop_map_energies(style, style_map, face_width(sp), dparams)
+        out_region, detail_info = transfer_skin_detail(out_region, style_native, skin_c, skin_s,
+                                                       style_energy=energies, face_width=face_width(cpr),
+                                                       params=dparams, return_info=True)
+    timings["detail_s"] = time.perf_counter() - t0
+    out = content.copy()
+    if params.crop == "face" and params.constraint != "skin":
         alpha = _edge_feather((rh, rw), box, (H, W))
         out[box[1]:box[3], box[0]:box[2]] = alpha[..., None] * out_region + (1 - alpha[..., None]) * region
     else:
-        out = out_region
+        out[box[1]:box[3], box[0]:box[2]] = out_region
     timings["total_s"] = time.perf_counter() - t_start
     info = {
         "method": params.method, "preset": params.preset, "params": _jsonable(asdict(params)),
         "seed": seed, "device": str(device), "timings": timings, "levels": info["levels"],
         "optimizer": {k: info[k] for k in ("optimizer", "line_search", "lbfgs_history", "clamp")},
         "region_box": list(map(int, box)), "working_shape": list(wh), "warnings": warn,
+        "prewarp_folds": int(folds), "detail": detail_info,
         "memory_estimate_bytes": need, "versions": _versions(__version__),
-        "images": {"content_w": content_w, "style_w": style_w, "output_w": out_w, "prior": prior, "face": face},
+        "images": {"content_w": content_w, "style_w": style_w, "output_w": out_w, "prior": prior, "face": face,
+                   "region": region, "style_native": style_native, "skin_content": skin_c, "skin_style": skin_s,
+                   "output_region": out_region},
     }
     return out.astype(np.float32), info
 

@@ -247,7 +247,7 @@ def mrf_match(target_feat: torch.Tensor, style_feat: torch.Tensor | StylePatches
 def mrf_loss(target_feat: torch.Tensor, style_feat: torch.Tensor | StylePatches, *, patch_size: int = 3,
              style_stride: int = 2, target_stride: int | None = None, chunk: int = 1024,
              reduction: str = "sum", variant: str = "paper", threshold: float | None = ...,
-             matches: torch.Tensor | None = None) -> torch.Tensor:
+             matches: torch.Tensor | None = None, target_weight: torch.Tensor | None = None) -> torch.Tensor:
     """Eq. 2: Σ_i ‖Ψ_i(Φ(x_t)) − Ψ_NN(i)(Φ(x_s))‖² over the target patches.
 
     ``style_feat`` is a style feature map or :func:`style_patches` prepared once per level.
@@ -256,6 +256,8 @@ def mrf_loss(target_feat: torch.Tensor, style_feat: torch.Tensor | StylePatches,
     it. ``reduction`` "sum" or "mean" (over the kept target patches). ``matches`` (rows, cols),
     e.g. from :func:`mrf_match`, fixes the matching (for gradient checks). Matches are
     otherwise recomputed on every call; gradients flow only through ``target_feat``.
+    ``target_weight`` (H, W) ≥ 0 weights each feature position's squared differences
+    (beyond the paper: restricts the texture loss to the content's skin).
     """
     if variant not in MRF_VARIANTS:
         raise BadInputError(f"variant must be one of {sorted(MRF_VARIANTS)}, not {variant!r}")
@@ -299,6 +301,11 @@ def mrf_loss(target_feat: torch.Tensor, style_feat: torch.Tensor | StylePatches,
             _scatter_patches(q_map, sq, ys[r0:r1], xs, k)
         n_kept = len(ys) * len(xs) if keep is None else int(keep.sum())
         weight = torch.ones_like(count) if cfg["weighting"] == "sum" else 0.5 / (count + 1e-10)
+        if target_weight is not None:
+            tw = torch.as_tensor(target_weight, dtype=feat.dtype, device=feat.device).reshape(-1, h, w)
+            if tw.shape != (1, h, w):
+                raise BadInputError(f"target_weight must be ({h}, {w}), got {tuple(target_weight.shape)}")
+            weight = weight * tw
     loss = _PatchSSD.apply(feat, count, r_map, q_map, weight)  # Eq. 2
     if reduction == "mean":
         loss = loss / max(n_kept, 1)

@@ -75,7 +75,9 @@ class TransferParams:
     mrf_variant: str = "paper"  # "paper" (Eq. 2) or "reference" (CNNMRF's code)
     patch_size: int = 3
     style_stride: int = 2
-    style_region: str = "face"  # MRF style patches from the style's face region only, or "image"
+    style_region: str = "face"  # MRF style patches from: "skin" (the style's skin, warped), "face", "image"
+    target_region: str = "image"  # texture loss over "image" or only the content's "skin"
+    constraint: str | None = None  # "skin": x = c + m ⊙ z, only the content's skin can change
     content_layers: tuple[str, ...] = ()
     content_weight: float = 0.0
     style_layers: tuple[str, ...] = ()
@@ -87,6 +89,9 @@ class TransferParams:
     normalize: bool = True
     align: str | None = "beier-neely"  # style → content pre-warp (Sec. 2.3), None to skip
     align_refine: str | None = "sift-flow"
+    align_frame: str = "similarity"  # pre-warp frame pinning (see geometry.morph.align_style_to_content)
+    detail: bool = False  # native-resolution skin detail stage (transfer/detail.py)
+    detail_strength: float = 1.0
     lbfgs_history: int = 25
     level_init: str = "residual"  # "upsample" is CNNMRF's (see optimize_image)
     line_search: str | None = "strong_wolfe"
@@ -121,6 +126,14 @@ class TransferParams:
             raise BadInputError(f"{len(self.iters)} iteration counts for {self.levels} levels")
         if not 32 <= self.size <= 4096:
             raise BadInputError(f"size {self.size} px is out of range 32..4096")
+        if self.style_region not in ("skin", "face", "image"):
+            raise BadInputError(f"style_region must be 'skin', 'face' or 'image', not {self.style_region!r}")
+        if self.target_region not in ("skin", "image"):
+            raise BadInputError(f"target_region must be 'skin' or 'image', not {self.target_region!r}")
+        if self.constraint not in (None, "skin"):
+            raise BadInputError(f"constraint must be None or 'skin', not {self.constraint!r}")
+        if not 0.0 <= self.detail_strength <= 2.0:
+            raise BadInputError(f"detail_strength must be in [0, 2], got {self.detail_strength}")
 
 
 def preset(method: str = "facetex", name: str = "default", texture_net: str | None = None) -> TransferParams:
@@ -144,6 +157,11 @@ def preset(method: str = "facetex", name: str = "default", texture_net: str | No
         # texture 2 : structure 1 (docs/texture-nets.md): more texture than MRF-CNN, identity kept
         p = replace(base, mrf_layers=layers["mrf"], mrf_weight=2.0, structure_layers=STRUCTURE_LAYERS,
                     structure_weight=1.0, tv_weight=0.05, prior=True)
+        if name == "default":
+            # only the content's skin changes (hard constraint instead of the gradient-scaling
+            # prior, which L-BFGS undoes), texture from the style's skin only, and the style's
+            # own pore-level detail at native resolution (docs/facetex-fidelity.md)
+            p = replace(p, prior=False, constraint="skin", style_region="skin", target_region="skin", detail=True)
     elif method == "mrf":  # Eq. 7: texture + content + TV
         p = replace(base, mrf_layers=layers["mrf"], mrf_weight=1.0, content_layers=layers["content"],
                     content_weight=0.3, tv_weight=0.05, style_region="image")

@@ -1,0 +1,275 @@
+"""Skin masks: the face region minus eyes, brows, lips and nostrils, minus hair, glasses
+and other occluders. One module for both papers (FaceTex: where texture may change and
+where style patches may come from; Persona: what belongs to the face).
+
+Three parts, combined by :func:`skin_mask`:
+
+1. the **face region**: MediaPipe's face-oval polygon (468-point mesh), which reaches
+   the hairline, or the jaw + extrapolated forehead arc of :func:`.masks.face_outline`
+   when no mesh is given;
+2. the **features** (:func:`feature_mask`): eyes, brows, lips and nostrils from the 68
+   landmarks, each grown by a margin relative to the face width (lids, lashes, lip line
+   and brow hairs lie outside the landmark polygons);
+3. the face's own **skin colour** (:func:`skin_colour_distance`): a Gaussian in CIELAB
+   fitted robustly to the cheeks and the nose bridge (never the forehead, where a fringe
+   may hang); pixels far from it in chroma, or much darker than the skin, are hair,
+   brows, glasses frames, shadows of occluders or background. Lightness gets a wide
+   tolerance because shading varies over a face more than skin chroma does.
+
+Choices measured on the 60 FRL London neutral portraits (overlays looked at one by
+one, ``benchmarks/skin_masks.py``): the landmark-only face region left a fringe of hair
+inside the mask on 9 of 60 faces; with the colour test none kept more than a few hair
+strands, while specular highlights (low chroma) are re-admitted by a hole fill.
+Hand-written (no library segments skin from a colour model seeded by landmarks).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..errors import BadInputError
+from .masks import face_outline, face_width
+
+__all__ = [
+    "FACE_OVAL_468",
+    "SkinParams",
+    "feature_mask",
+    "face_region_mask",
+    "skin_colour_distance",
+    "skin_mask",
+    "protected_mask",
+]
+
+#: MediaPipe face-mesh indices of the face oval, clockwise from the forehead top (10).
+FACE_OVAL_468 = (10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365, 379, 378, 400, 377,
+                 152, 148, 176, 149, 150, 136, 172, 58, 132, 93, 234, 127, 162, 21, 54, 103, 67, 109)
+
+_EYES = (tuple(range(36, 42)), tuple(range(42, 48)))
+_BROWS = (tuple(range(17, 22)), tuple(range(22, 27)))
+_LIPS = tuple(range(48, 60))
+_NOSTRILS = (31, 32, 33, 34, 35)
+
+
+@dataclass(frozen=True)
+class SkinParams:
+    """Margins are fractions of the face width |p16 − p0| (≈ 330 px on a 1000 px FRL portrait)."""
+
+    eye_margin: float = 0.045  # lids and lashes around the 6-point eye polygon
+    brow_width: float = 0.075  # brow drawn as a line through its 5 points
+    brow_margin: float = 0.02
+    lip_margin: float = 0.02
+    nostril_margin: float = 0.02
+    chroma_sigmas: float = 4.0  # Mahalanobis radius in rg chromaticity
+    dark_sigmas: float = 4.0  # darker than median − this × MAD(log I): hair, brows, frames
+    highlight_sigmas: float = 2.0  # brighter than median + this × MAD(log I): a highlight, skin
+    hole_fill: float = 0.04  # holes smaller than this (× face width)² are skin (highlights)
+    feather: float = 0.012  # edge softness (Gaussian sigma) × face width
+    oval_shrink: float = 0.01  # pull the face oval in: its top point sits on the hairline
+
+
+def _p68(points68) -> np.ndarray:
+    p = np.asarray(points68, np.float64)
+    if p.shape != (68, 2) or not np.all(np.isfinite(p)):
+        raise BadInputError(f"expected finite (68, 2) landmarks, got shape {p.shape}")
+    return p
+
+
+def _shape(shape) -> tuple[int, int]:
+    h, w = int(shape[0]), int(shape[1])
+    if h < 1 or w < 1:
+        raise BadInputError(f"mask shape must be positive, got {tuple(shape)[:2]}")
+    return h, w
+
+
+def _poly(canvas: np.ndarray, pts: np.ndarray, closed: bool = True, thickness: int = -1) -> None:
+    q = np.round(np.asarray(pts) * 16).astype(np.int32)
+    if thickness < 0:
+        cv2.fillPoly(canvas, [q], 1, cv2.LINE_8, 4)
+    else:
+        cv2.polylines(canvas, [q], closed, 1, max(1, thickness), cv2.LINE_8, 4)
+
+
+def _dilate(mask: np.ndarray, radius: float) -> np.ndarray:
+    r = int(round(radius))
+    if r < 1:
+        return mask
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    return cv2.dilate(mask, k)
+
+
+def protected_mask(points68, shape) -> np.ndarray:
+    """bool (H, W): the meso-structures themselves — eye polygons, brows (a line through
+    their points, 0.06 × face width wide) and the outer lip polygon, without margins. The
+    region in which FaceTex must not change anything (``protected_change`` is measured here)."""
+    p, (h, w) = _p68(points68), _shape(shape)
+    fw = face_width(p)
+    m = np.zeros((h, w), np.uint8)
+    for eye in _EYES:
+        _poly(m, p[list(eye)])
+    for brow in _BROWS:
+        _poly(m, p[list(brow)], closed=False, thickness=int(round(0.06 * fw)))
+    _poly(m, p[list(_LIPS)])
+    return m.astype(bool)
+
+
+def feature_mask(points68, shape, params: SkinParams = SkinParams()) -> np.ndarray:
+    """bool (H, W): eyes, brows, lips and nostrils grown by their margins (never skin)."""
+    p, (h, w) = _p68(points68), _shape(shape)
+    fw = face_width(p)
+    out = np.zeros((h, w), np.uint8)
+    for eye in _EYES:
+        e = np.zeros_like(out)
+        _poly(e, p[list(eye)])
+        out |= _dilate(e, params.eye_margin * fw)
+    for brow in _BROWS:
+        b = np.zeros_like(out)
+        _poly(b, p[list(brow)], closed=False, thickness=int(round(params.brow_width * fw)))
+        out |= _dilate(b, params.brow_margin * fw)
+    lips = np.zeros_like(out)
+    _poly(lips, p[list(_LIPS)])
+    out |= _dilate(lips, params.lip_margin * fw)
+    # nostrils: the nose base (31–35) and a band above it up to the alae
+    nose = np.zeros_like(out)
+    base = p[list(_NOSTRILS)]
+    up = (p[33] - p[30]) * 0.2
+    _poly(nose, np.vstack([base, base[::-1] - up]))
+    out |= _dilate(nose, params.nostril_margin * fw)
+    return out.astype(bool)
+
+
+def face_region_mask(points68, shape, *, mesh=None, shrink: float = SkinParams.oval_shrink) -> np.ndarray:
+    """bool (H, W): inside the face oval of the 468-point ``mesh`` if given, else inside the
+    jaw + forehead-arc outline of the 68 points; pulled in by ``shrink`` × face width."""
+    p, (h, w) = _p68(points68), _shape(shape)
+    out = np.zeros((h, w), np.uint8)
+    poly = np.asarray(mesh, np.float64)[list(FACE_OVAL_468), :2] if mesh is not None else face_outline(p)
+    _poly(out, poly)
+    r = int(round(shrink * face_width(p)))
+    if r >= 1:
+        out = cv2.erode(out, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    return out.astype(bool)
+
+
+def _sample_regions(p: np.ndarray, shape) -> np.ndarray:
+    """bool (H, W): cheek discs and the nose bridge — skin on nearly every face."""
+    h, w = shape
+    fw = face_width(p)
+    m = np.zeros((h, w), np.uint8)
+    r = max(2, int(round(0.07 * fw)))
+    for idx in ((2, 31, 41, 48), (14, 35, 46, 54)):
+        c = p[list(idx)].mean(0)
+        cv2.circle(m, (int(round(c[0])), int(round(c[1]))), r, 1, -1)
+    cv2.line(m, tuple(np.round(p[28]).astype(int)), tuple(np.round(p[30]).astype(int)), 1,
+             max(1, int(round(0.05 * fw))))
+    return m.astype(bool)
+
+
+def _rgb01(image) -> np.ndarray:
+    img = np.asarray(image)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise BadInputError(f"expected an (H, W, 3) RGB image, got shape {img.shape}")
+    return img.astype(np.float32) / (255.0 if img.dtype == np.uint8 else 1.0)
+
+
+def _colour_features(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """rg chromaticity (H, W, 2) — nearly invariant to shading under a white light — and
+    log intensity (H, W)."""
+    s = rgb.sum(-1) + 1e-3
+    chrom = rgb[..., :2] / s[..., None]
+    return chrom.astype(np.float32), np.log(s / 3.0 + 1e-3).astype(np.float32)
+
+
+def skin_colour_distance(image, points68, *, region=None) -> tuple[np.ndarray, np.ndarray]:
+    """(chromaticity distance, log-intensity z-score), float32 (H, W), of every pixel from
+    the face's skin colour. The model is fitted robustly to ``region`` (bool, default the
+    cheeks and nose bridge): median start, then three rounds of a trimmed Gaussian on the
+    rg chromaticity (covariance floored at 0.006² so a very even skin does not reject its
+    own shading) and median / MAD of the log intensity (floored at 0.06). A fit to the
+    whole face region minus features tolerates hair on < ~40 % of it."""
+    p = _p68(points68)
+    rgb = _rgb01(image)
+    h, w = rgb.shape[:2]
+    chrom, logi = _colour_features(rgb)
+    sample = _sample_regions(p, (h, w)) if region is None else np.asarray(region, bool)
+    c, li = chrom[sample].astype(np.float64), logi[sample].astype(np.float64)
+    if len(c) < 20:
+        raise BadInputError(f"too few skin pixels ({len(c)}) to fit a skin colour: is the face inside the image?")
+    mu = np.median(c, 0)
+    cov = np.eye(2) * 0.01**2
+    keep = np.ones(len(c), bool)
+    for _ in range(3):
+        d = c - mu
+        md = np.sqrt(np.einsum("ni,ij,nj->n", d, np.linalg.inv(cov), d))
+        keep = md < 3.0 if _ else np.linalg.norm(d, axis=1) < 0.04
+        if keep.sum() < 20:
+            keep = np.ones(len(c), bool)
+        mu = c[keep].mean(0)
+        cov = np.cov(c[keep].T) + np.eye(2) * 0.006**2
+    med = float(np.median(li[keep]))
+    mad = max(1.4826 * float(np.median(np.abs(li[keep] - med))), 0.06)
+    icov = np.linalg.inv(cov).astype(np.float32)
+    d = chrom - mu.astype(np.float32)
+    dist = np.sqrt(np.maximum(np.einsum("hwi,ij,hwj->hw", d, icov, d), 0)).astype(np.float32)
+    z = ((logi - np.float32(med)) / np.float32(mad)).astype(np.float32)
+    return dist, z
+
+
+def _fill_small_holes(mask: np.ndarray, max_area: float) -> np.ndarray:
+    inv = (~mask).astype(np.uint8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(inv, connectivity=4)
+    out = mask.copy()
+    for i in range(1, n):
+        if stats[i, cv2.CC_STAT_AREA] <= max_area:
+            x, y, ww, hh = stats[i, :4]
+            touches = x == 0 or y == 0 or x + ww == mask.shape[1] or y + hh == mask.shape[0]
+            if not touches:
+                out[lab == i] = True
+    return out
+
+
+def skin_mask(image, points68, *, mesh=None, colour: bool = True, params: SkinParams = SkinParams(),
+              soft: bool = True, return_parts: bool = False):
+    """Skin of the face: float32 (H, W) in [0, 1] (``soft``) or bool.
+
+    Face region (mesh oval, or landmark outline without ``mesh``) ∩ skin colour (if
+    ``colour``) minus the grown features; the largest connected piece around the cheeks is
+    kept, small holes (highlights) filled, and the edge feathered *inwards*, so the mask is
+    exactly 0 on every feature and outside the face. ``return_parts`` adds a dict of the
+    bool parts (region, colour, features) for inspection.
+    """
+    p = _p68(points68)
+    img = np.asarray(image)
+    h, w = img.shape[:2]
+    fw = face_width(p)
+    region = face_region_mask(p, (h, w), mesh=mesh, shrink=params.oval_shrink)
+    feats = feature_mask(p, (h, w), params)
+    skin = region & ~feats
+    colour_ok = np.ones((h, w), bool)
+    if colour:
+        chroma, light = skin_colour_distance(img, p, region=skin)
+        # bright low-chroma pixels are specular highlights on skin, not hair
+        colour_ok = ((chroma < params.chroma_sigmas) | (light > params.highlight_sigmas)) & (light > -params.dark_sigmas)
+        colour_ok = cv2.medianBlur(colour_ok.astype(np.uint8), 5).astype(bool)
+        skin &= colour_ok
+    skin = _fill_small_holes(skin, (params.hole_fill * fw) ** 2) & region & ~feats
+    # keep the piece(s) connected to the cheeks / nose bridge
+    n, lab = cv2.connectedComponents(skin.astype(np.uint8), connectivity=8)
+    if n > 2:
+        seeds = np.unique(lab[_sample_regions(p, (h, w)) & skin])
+        skin = np.isin(lab, seeds[seeds > 0])
+    out = skin
+    if soft:
+        s = params.feather * fw
+        if s > 0.3:
+            r = int(np.ceil(2 * s))
+            core = cv2.erode(skin.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+            out = cv2.GaussianBlur(core.astype(np.float32), (0, 0), s)
+            out = np.where(skin, np.clip(out, 0, 1), 0).astype(np.float32)
+        else:
+            out = skin.astype(np.float32)
+    if return_parts:
+        return out, {"region": region, "colour": colour_ok, "features": feats}
+    return out
