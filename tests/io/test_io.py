@@ -255,7 +255,7 @@ def test_decompression_bomb_fails_fast(tmp_path):
     with pytest.raises(BadImageError) as e:
         fio.read_image(tmp_path / "bomb.png")
     assert time.perf_counter() - t < 1.0
-    assert "bomb.png" in str(e.value) and "20000x20000" in str(e.value) and "150000000" in str(e.value)
+    assert "bomb.png" in str(e.value) and "20000x20000" in str(e.value) and str(fio.MAX_IMAGE_PIXELS) in str(e.value)
 
 
 def test_bad_background_value():
