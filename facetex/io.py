@@ -680,7 +680,7 @@ def write_json(path, obj, *, overwrite: bool = True, inputs=()) -> Path:
 
 
 # ------------------------------------------------------------------------------- npz
-def npz_members(path, error: type = BadInputError) -> dict[str, dict]:
+def npz_members(path, error: type = BadInputError, *, what: str = "file") -> dict[str, dict]:
     """What every member of an ``.npz`` (zip) declares, read from the zip directory and the
     first bytes of each ``.npy`` member (nothing else is decompressed): name (without
     ``.npy``) -> {"dtype", "shape", "fortran", "file_size" (uncompressed bytes the zip declares),
@@ -705,7 +705,8 @@ def npz_members(path, error: type = BadInputError) -> dict[str, dict]:
                                 else np.lib.format.read_array_header_2_0)
                         shape, fortran, dtype = read(fh, max_header_size=10_000)
                     if dtype.hasobject:
-                        raise error(f"corrupt file: member {name!r} holds Python objects (never loaded)", path=path)
+                        raise error(f"corrupt {what}: member {name!r} holds Python objects (never loaded)",
+                                    path=path)
                     rec.update(dtype=dtype, shape=tuple(int(s) for s in shape), fortran=bool(fortran))
                 out[name] = rec
     except FacetexError:
@@ -713,7 +714,7 @@ def npz_members(path, error: type = BadInputError) -> dict[str, dict]:
     except (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, OSError, EOFError, KeyError, UnicodeDecodeError,
             SyntaxError, tokenize.TokenError, zlib_error, struct_error, RecursionError, OverflowError,
             NotImplementedError, TypeError) as e:
-        raise error(f"corrupt file ({type(e).__name__}: {_cause(e)})", path=path) from None
+        raise error(f"corrupt {what} ({type(e).__name__}: {_cause(e)})", path=path) from None
     return out
 
 

@@ -24,7 +24,8 @@ class _Parser(argparse.ArgumentParser):
     """argparse whose errors are one ``facetex: error:`` line (exit 2), like every other error."""
 
     def error(self, message):
-        raise UsageError(f"{self.prog}: {message} (see `{self.prog} --help`)")
+        where = self.prog.partition(" ")[2]  # "transfer", "persona texture"; "" for the root parser
+        raise UsageError(f"{where + ': ' if where else ''}{message} (see `{self.prog} --help`)")
 
 
 class Terminated(KeyboardInterrupt):

@@ -53,6 +53,7 @@ def run(args) -> int:
     unknown = [m for m in methods if m not in METHODS]
     if unknown or not methods:
         raise BadInputError(f"--methods {args.methods!r}: use a comma-separated subset of {','.join(METHODS)}")
+    check_device(args.device)
     out = Path(args.out)
     try:  # the demo writes its fixed file names into this folder (replacing an earlier demo's)
         out.mkdir(parents=True, exist_ok=True)
@@ -62,7 +63,6 @@ def run(args) -> int:
         raise OutputError(f"cannot create the output folder ({e.strerror}): run the demo from a writable "
                           "folder or pass --out", path=out) from None
     check_output_path(out / "summary.json", overwrite=True)  # writable, not deleted: before the work
-    check_device(args.device)
     content = read_image(sample_path(CONTENT))
     style = read_image(sample_path(STYLE))
     smiling = read_image(sample_path("frl_004_smiling.jpg"))

@@ -293,7 +293,7 @@ def _check_members(path: Path, header: dict, params: PersonaParams, photos: list
     want = {k: (np.dtype(dtype), shape(n, H, W, r)) for k, (dtype, shape) in _ARRAYS.items()}
     if header["version"] >= 2 and header.get("depth_photos") is not None:
         want["depth"] = (np.dtype(np.float32), (H, W))
-    members = npz_members(path, BadPersonaError)
+    members = npz_members(path, BadPersonaError, what="persona file")
     total = 0
     for name, m in members.items():
         if name == "header":
@@ -303,7 +303,7 @@ def _check_members(path: Path, header: dict, params: PersonaParams, photos: list
             if m["dtype"] != dtype or m["shape"] != shape:
                 raise _bad(path, f"array {name!r} has {m['dtype']} {m['shape']}, expected {dtype} {shape}")
             nbytes = int(np.prod(shape)) * dtype.itemsize
-            if m["file_size"] > nbytes + 65536:
+            if not nbytes <= m["file_size"] <= nbytes + 65536:  # + the .npy header
                 raise _bad(path, f"corrupt persona file (member {name!r} declares {m['file_size']} bytes "
                                  f"for a {nbytes}-byte array)")
             total += nbytes

@@ -350,3 +350,34 @@ def big_png(path: Path, side: int, face_side: int) -> Path:
         fh.write(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", side, side, 8, 2, 0, 0, 0))
                  + chunk(b"IDAT", b"".join(parts)) + chunk(b"IEND", b""))
     return path
+
+
+@pytest.fixture(autouse=True)
+def _no_orphans_inputs_intact(request):
+    """Around every robustness test: the shared inputs stay byte-identical and no process or
+    facetex thread it started is left running (multiprocessing's forkserver / resource tracker,
+    which live as long as the test process, excepted)."""
+    import threading
+    import time
+
+    from _robust import alive, child_pids, helper_daemon, sha1s
+
+    files = []
+    for name in ("bad", "videos", "special", "audio_videos"):
+        if name in request.fixturenames:
+            files += [p for p in request.getfixturevalue(name).values()
+                      if p.is_file() and not p.is_symlink() and p.stat().st_size < 50 * 2**20
+                      and __import__("stat").S_ISREG(p.stat().st_mode)]
+    before = sha1s(*files)
+    kids = child_pids()
+    yield
+    assert sha1s(*files) == before, "an input file was modified"
+    deadline = time.monotonic() + 5
+    while True:
+        new = [p for p in child_pids() - kids if alive(p) and not helper_daemon(p)]
+        threads = [t.name for t in threading.enumerate() if t.name.startswith("facetex")]
+        if not new and not threads or time.monotonic() > deadline:
+            break
+        time.sleep(0.1)
+    assert not new, f"child processes left running: {new}"
+    assert not threads, f"threads left running: {threads}"
