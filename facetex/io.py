@@ -562,6 +562,7 @@ def _commit(pairs, *, overwrite: bool, inputs=()) -> None:
                 os.unlink(backup)
     with _COMMITTED_LOCK:
         _COMMITTED.extend(f for f, _ in done)
+        _SEEN_ABSENT.difference_update(os.path.abspath(f) for f, _ in done)  # ours now: "exists" next time
 
 
 def write_files(items, *, overwrite: bool = False, inputs=()) -> list[Path]:

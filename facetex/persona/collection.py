@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import multiprocessing
+import os
 import struct
 import tokenize
 import zipfile
@@ -329,6 +330,7 @@ def _init_worker() -> None:
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the parent stops us
+    os.environ.setdefault("OMP_NUM_THREADS", "1")  # torch (identity descriptor) is imported after this
     cv2.setNumThreads(1)
 
 

@@ -450,7 +450,7 @@ def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool
     counted; a video without any face raises NoFaceError naming it (nothing is written).
     ``on_frame(record)`` receives each frame record of :func:`render_frames`.
     Returns a report dict (frames, lost frames, timings, shape/collection sources)."""
-    from ..io import check_output_path, write_video
+    from ..io import check_output_path, video_info, write_video
 
     if background not in BACKGROUNDS:
         raise BadInputError(f"unknown background {background!r}: use one of {', '.join(BACKGROUNDS)}")
@@ -481,7 +481,7 @@ def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool
         "lost_frames": tr.n_lost,
         "lost_indices": [int(i) for i in np.flatnonzero(~tr.found)],
         "fps": tr.fps,
-        "audio": tr.has_audio,
+        "audio": tr.has_audio and video_info(out)["has_audio"],  # False when the driver's audio was damaged
         "puppet_shape": session.puppeteer.shape_source,
         "driver_collection": session.collection.source,
         "timings": {k: round(v, 3) for k, v in tm.items()},
