@@ -52,3 +52,7 @@ class BadPersonaError(FacetexError):
 
 class BadInputError(FacetexError):
     """Any other invalid argument (empty folder, bad landmark file, bad option value)."""
+
+
+class UsageError(FacetexError):
+    """A command line that does not parse (unknown option, missing or malformed value)."""

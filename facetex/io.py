@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import itertools
 import json
+import math
 import os
+import stat
 import tempfile
 import threading
 import warnings
@@ -24,13 +27,17 @@ import av
 import cv2
 import numpy as np
 from PIL import Image, ImageCms, ImageOps, UnidentifiedImageError
+from struct import error as struct_error
+from zlib import error as zlib_error
 
-from .errors import BadImageError, BadInputError, BadVideoError, OutputError
+from .errors import BadImageError, BadInputError, BadVideoError, FacetexError, OutputError
 
 __all__ = [
-    "read_image", "read_image_uint8", "to_uint8", "to_float32",
-    "atomic_path", "check_output_path", "write_image", "write_json",
-    "video_info", "iter_video_frames", "read_video", "write_video",
+    "read_image", "read_image_reduced", "read_image_uint8", "to_uint8", "to_float32",
+    "check_input_file", "check_input_dir", "atomic_path", "check_output_path", "check_outputs",
+    "write_files", "encode_image", "encode_json", "write_image", "write_json", "committed_outputs",
+    "video_info", "iter_video_frames", "read_video", "write_video", "npz_members",
+    "MAX_IMAGE_PIXELS", "DETECT_MAX_PIXELS", "IMAGE_MEMORY_BUDGET", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS",
 ]
 
 _BACKGROUNDS = {"white": 1.0, "black": 0.0}
@@ -65,13 +72,65 @@ def _cause(e: BaseException) -> str:
     return str(e).splitlines()[0] if str(e).strip() else type(e).__name__
 
 
-def _check_file(path: Path, error: type) -> None:
-    if not path.exists():
-        raise error("file not found: check the path", path=path)
-    if path.is_dir():
-        raise error("is a directory, not a file: give a file path", path=path)
-    if path.stat().st_size == 0:
+_FILE_KINDS = ((stat.S_ISFIFO, "a FIFO / named pipe"), (stat.S_ISCHR, "a character device"),
+               (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
+
+def _kind(mode: int) -> str:
+    return next((name for test, name in _FILE_KINDS if test(mode)), "not a regular file")
+
+
+def _stat_error(path: Path, e: OSError, error: type, what: str):
+    if e.errno == errno.ELOOP:
+        return error("symlink loop: the path points back to itself; fix the link", path=path)
+    if e.errno in (errno.ENOENT, errno.ENOTDIR):
+        if os.path.islink(path):
+            return error(f"broken symlink: its target does not exist ({os.readlink(path)})", path=path)
+        return error(f"{what} not found: check the path", path=path)
+    if e.errno == errno.EACCES:
+        return error(f"permission denied: cannot read this {what}", path=path)
+    if e.errno == errno.ENAMETOOLONG:
+        return error("file name too long", path=path)
+    return error(f"cannot access this {what} ({e.strerror})", path=path)
+
+
+def check_input_file(path, error: type = BadInputError, *, what: str = "file") -> Path:
+    """Raise ``error`` (naming ``path``) unless it is a non-empty regular file (symlinks
+    followed). FIFOs and devices are refused before anything opens them: reading a FIFO
+    blocks and /dev/zero never ends."""
+    path = Path(path)
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        raise _stat_error(path, e, error, what) from None
+    except ValueError as e:  # NUL byte in the name
+        raise error(f"invalid file name ({e})", path=path) from None
+    if stat.S_ISDIR(st.st_mode):
+        raise error(f"is a directory, not a file: give a {what} path", path=path)
+    if not stat.S_ISREG(st.st_mode):
+        raise error(f"not a regular file ({_kind(st.st_mode)}): give a {what}", path=path)
+    if st.st_size == 0:
         raise error("empty file (0 bytes): re-export or replace it", path=path)
+    return path
+
+
+def check_input_dir(path, error: type = BadInputError, *, what: str = "folder") -> Path:
+    """Raise ``error`` (naming ``path``) unless it is a readable directory (symlinks followed)."""
+    path = Path(path)
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        raise _stat_error(path, e, error, what) from None
+    if not stat.S_ISDIR(st.st_mode):
+        raise error(f"not a folder ({'a file' if stat.S_ISREG(st.st_mode) else _kind(st.st_mode)}): "
+                    f"give a {what}", path=path)
+    if not os.access(path, os.R_OK | os.X_OK):
+        raise error(f"permission denied: cannot list this {what}", path=path)
+    return path
+
+
+def _check_file(path: Path, error: type) -> None:
+    check_input_file(path, error)
 
 
 def _apply_orientation(arr: np.ndarray, orientation: int) -> np.ndarray:
@@ -95,21 +154,28 @@ def _composite(rgb: np.ndarray, alpha: np.ndarray | None, bg: float) -> np.ndarr
     return rgb * a + np.float32(bg) * (1.0 - a)
 
 
-def _decode_16bit(path: Path, im: Image.Image) -> tuple[np.ndarray, np.ndarray | None]:
+def _decode_16bit(path: Path, im: Image.Image, out_size: tuple[int, int] | None
+                  ) -> tuple[np.ndarray, np.ndarray | None]:
     # Pillow truncates 16-bit RGB(A)/LA to 8 bits, so OpenCV decodes these losslessly.
     arr = cv2.imdecode(np.fromfile(path, np.uint8), cv2.IMREAD_UNCHANGED)  # any path encoding
     if arr is None:
         raise BadImageError("corrupt or truncated 16-bit image: re-export or replace it", path=path)
+    if out_size is not None:  # out_size is in stored axes; OpenCV may have turned a TIFF already
+        turned = arr.shape[:2] == (im.size[0], im.size[1]) and im.size[0] != im.size[1]
+        arr = cv2.resize(arr, out_size[::-1] if turned else out_size, interpolation=cv2.INTER_AREA)
     orientation = int(im.getexif().get(0x0112, 1) or 1)
     if im.format == "TIFF":
         # OpenCV 5 orients TIFF itself (all 8 values, even with IMREAD_IGNORE_ORIENTATION);
         # the stored-size check catches builds that do not, for the axis-swapping ones.
         stored = (im.tag_v2.get(257), im.tag_v2.get(256))
+        if out_size is not None:
+            stored = (out_size[1], out_size[0])
         if orientation >= 5 and stored[0] != stored[1] and arr.shape[:2] == stored:
             arr = _apply_orientation(arr, orientation)
     else:  # IMREAD_UNCHANGED ignores a PNG's eXIf orientation
         arr = _apply_orientation(arr, orientation)
     f = to_float32(arr)
+    del arr
     if f.ndim == 2:
         return np.repeat(f[..., None], 3, axis=2), None
     if f.shape[2] == 2:
@@ -131,33 +197,89 @@ def _cmyk_to_rgb(im: Image.Image) -> Image.Image:
     return im.convert("RGB")
 
 
-def _decode_pil(im: Image.Image) -> tuple[np.ndarray, np.ndarray | None]:
+def _as_float(im: Image.Image) -> np.ndarray:
+    a = np.asarray(im, np.float32)
+    a /= 255.0  # in place: a 40 MP image must not hold two float copies
+    return a
+
+
+#: Pillow modes that ``Image.reduce`` handles without a full-size conversion first
+_REDUCIBLE = {"L", "RGB", "I", "F", "CMYK", "RGBX"}
+
+
+def _decode_pil(im: Image.Image, out_size: tuple[int, int] | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """``out_size``: (w, h) in stored (not displayed) axes to reduce to, or None."""
     im.load()
+    icc = im.info.get("icc_profile")
+    if out_size is not None and im.size != out_size:
+        if im.mode not in _REDUCIBLE:
+            im = im.convert("RGBA" if im.mode in _ALPHA_MODES or "transparency" in im.info else "RGB")
+        factor = max(1, min(im.size[0] // out_size[0], im.size[1] // out_size[1]))
+        small = im.reduce(factor) if factor > 1 else im
+        small = small.resize(out_size, Image.Resampling.BOX) if small.size != out_size else small
+        if small is not im:
+            im.close()  # frees the full-size pixels now (the caller still holds the object)
+        im = small
+        if icc:
+            im.info["icc_profile"] = icc
     im = ImageOps.exif_transpose(im)
     if im.mode == "CMYK":
-        return np.asarray(_cmyk_to_rgb(im), np.float32) / 255.0, None
+        return _as_float(_cmyk_to_rgb(im)), None
     if im.mode in ("I", "F"):  # 32-bit gray: assume 16-bit range for integers
         g = np.asarray(im, np.float32) / (65535.0 if im.mode == "I" else 1.0)
         return np.repeat(np.clip(g, 0, 1)[..., None], 3, axis=2), None
     if im.mode in _ALPHA_MODES or "transparency" in im.info:
-        rgba = np.asarray(im.convert("RGBA"), np.float32) / 255.0
+        rgba = _as_float(im.convert("RGBA"))
         return rgba[..., :3], rgba[..., 3]
-    return np.asarray(im.convert("RGB"), np.float32) / 255.0, None
+    return _as_float(im if im.mode == "RGB" else im.convert("RGB")), None
 
 
-def read_image(path, *, background: str = "white", max_pixels: int = 150_000_000,
-               min_size: int = 16) -> np.ndarray:
+#: Largest image read at full resolution (transfer content/style, metrics): 40 MP, e.g.
+#: 7746 x 5164. Decoding it costs at most 16-20 bytes per pixel (Pillow's pixels plus float32 RGB).
+MAX_IMAGE_PIXELS = 40_000_000
+#: Images read only to find a face (landmarks, identity, persona photos and references) are
+#: reduced on load to at most this many pixels (Pillow's JPEG draft mode decodes them smaller).
+DETECT_MAX_PIXELS = 8_000_000
+#: Memory one image may take while being decoded and converted; larger declared sizes are
+#: refused from the header, before any pixel is decoded (decompression bombs).
+IMAGE_MEMORY_BUDGET = 768 * 2**20
+
+
+def _bytes_per_pixel(im: Image.Image, sixteen: bool) -> int:
+    """Bytes per pixel of the decoded image: OpenCV's for 16-bit files; Pillow keeps any
+    image of several bands in 4 bytes per pixel (RGB as RGBX)."""
+    bands = len(im.getbands())
+    if sixteen:
+        return 2 * bands
+    return 4 if bands > 1 or im.mode in ("I", "F") else 1
+
+
+def read_image(path, *, background: str = "white", max_pixels: int = MAX_IMAGE_PIXELS,
+               min_size: int = 16, reduce_to: int | None = None) -> np.ndarray:
     """Read any common image as float32 RGB (H, W, 3) in [0, 1].
 
     EXIF orientation is applied; alpha / palette transparency is composited on
     ``background`` ("white" or "black"); 16-bit PNG/TIFF keep their precision;
-    CMYK uses the embedded ICC profile when there is one. The declared size is
-    checked against ``max_pixels`` from the header, before any pixel is decoded.
+    CMYK uses the embedded ICC profile when there is one; an animated or multi-page
+    image gives its first frame (with a warning). The declared size is checked from
+    the header, before any pixel is decoded: above ``max_pixels`` (default
+    :data:`MAX_IMAGE_PIXELS`) it is refused, unless ``reduce_to`` is given, in which case
+    the image is reduced on load to at most ``reduce_to`` pixels (for face detection). Any
+    image whose decoding would take more than :data:`IMAGE_MEMORY_BUDGET` is refused.
     """
+    return read_image_reduced(path, reduce_to, background=background, max_pixels=max_pixels,
+                              min_size=min_size)[0]
+
+
+def read_image_reduced(path, reduce_to: int | None = DETECT_MAX_PIXELS, *, background: str = "white",
+                       max_pixels: int = MAX_IMAGE_PIXELS, min_size: int = 16
+                       ) -> tuple[np.ndarray, tuple[float, float]]:
+    """:func:`read_image` reduced on load to at most ``reduce_to`` pixels, and the scale
+    (sx, sy) = returned size / the image's displayed size (1.0 when not reduced). A point
+    (x, y) of the returned image is ((x + 0.5) / sx - 0.5, (y + 0.5) / sy - 0.5) in the original."""
     if background not in _BACKGROUNDS:
         raise BadInputError(f"background must be 'white' or 'black', not {background!r}")
-    path = Path(path)
-    _check_file(path, BadImageError)
+    path = check_input_file(path, BadImageError, what="image file")
     try:
         with _PIL_LIMIT_LOCK:  # our own limit below replaces Pillow's bomb check
             old, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
@@ -172,25 +294,59 @@ def read_image(path, *, background: str = "white", max_pixels: int = 150_000_000
         raise BadImageError(f"corrupt image header ({_cause(e)}): re-export or replace it", path=path) from None
     with im:
         w, h = im.size
-        if w * h > max_pixels:
+        if reduce_to is None and w * h > max_pixels:
             raise BadImageError(f"declared size {w}x{h} = {w * h} pixels exceeds the limit of "
-                                f"{max_pixels} (decompression bomb?): downscale it or raise max_pixels",
-                                path=path)
+                                f"{max_pixels} (decompression bomb?): downscale it", path=path)
         if min(w, h) < min_size:
             raise BadImageError(f"image is {w}x{h} px, smaller than {min_size} px on a side: "
                                 "use a larger image", path=path)
         try:
-            if ";16" in _rawmode(im) or im.mode.startswith("I;16"):
-                rgb, alpha = _decode_16bit(path, im)
+            frames = int(getattr(im, "n_frames", 1) or 1)
+        except (OSError, SyntaxError, ValueError, EOFError, struct_error):
+            frames = 1
+        if frames > 1 and im.format != "MPO":  # MPO: a camera JPEG with previews; frame 0 is the photo
+            warnings.warn(f"{path}: animated or multi-page image ({frames} frames): the first frame is used",
+                          stacklevel=2)
+        sixteen = ";16" in _rawmode(im) or im.mode.startswith("I;16")
+        out_size = None
+        if reduce_to is not None and w * h > reduce_to:
+            k = math.sqrt(w * h / reduce_to)
+            out_size = (max(1, int(w / k)), max(1, int(h / k)))
+            if im.format == "JPEG" and not sixteen:
+                with contextlib.suppress(Exception):
+                    im.draft(None, out_size)  # DCT scaling: decodes at 1/2, 1/4 or 1/8 size
+        dw, dh = im.size  # after draft
+        out_px = (out_size[0] * out_size[1]) if out_size else dw * dh
+        need = dw * dh * _bytes_per_pixel(im, sixteen) + out_px * (16 if im.mode in _ALPHA_MODES else 12)
+        if sixteen:
+            need += path.stat().st_size  # OpenCV decodes from the file's bytes
+        if out_size is not None and (sixteen or im.mode not in _REDUCIBLE):
+            need += dw * dh * 4  # full-size conversion before the reduction
+        if need > IMAGE_MEMORY_BUDGET:
+            raise BadImageError(f"declared size {w}x{h} = {w * h} pixels needs about {need / 2**30:.1f} GiB "
+                                f"to decode, over the limit of {IMAGE_MEMORY_BUDGET / 2**30:.2f} GiB per image "
+                                "(decompression bomb?): downscale it", path=path)
+        try:
+            if sixteen:
+                rgb, alpha = _decode_16bit(path, im, out_size)
             else:
-                rgb, alpha = _decode_pil(im)
+                rgb, alpha = _decode_pil(im, out_size)
         except BadImageError:
             raise
-        except (OSError, SyntaxError, ValueError, EOFError, IndexError) as e:
+        except (OSError, SyntaxError, ValueError, EOFError, IndexError, struct_error, zlib_error) as e:
             raise BadImageError(f"corrupt or truncated image ({_cause(e)}): re-export or replace it",
                                 path=path) from None
+        except MemoryError:
+            raise BadImageError(f"out of memory decoding this {w}x{h} image: downscale it", path=path) from None
     out = _composite(rgb, alpha, _BACKGROUNDS[background])
-    return np.ascontiguousarray(np.clip(out, 0.0, 1.0), dtype=np.float32)
+    del rgb, alpha
+    out = np.ascontiguousarray(out, dtype=np.float32)
+    np.clip(out, 0.0, 1.0, out=out)
+    oh, ow = out.shape[:2]
+    turned = abs(ow / oh - h / w) < abs(ow / oh - w / h)  # EXIF orientations 5-8 swap the axes
+    disp = (h, w) if turned else (w, h)
+    scale = (ow / disp[0], oh / disp[1])
+    return out, scale
 
 
 def read_image_uint8(path, **kwargs) -> np.ndarray:
@@ -199,58 +355,269 @@ def read_image_uint8(path, **kwargs) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- writing
-@contextlib.contextmanager
-def atomic_path(path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path`` (same extension); rename it over ``path``
-    with os.replace on success, delete it on any exception (KeyboardInterrupt too)."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent or ".")
-    os.close(fd)
-    tmp = Path(tmp)
+# Every output is written to a temporary file beside its final name and then committed:
+# without overwrite by a hard link to the final name, which fails if anything appeared
+# there meanwhile (an exclusive create: nothing the user did not ask to replace is ever
+# replaced); with overwrite by os.replace. Files written together (an image and its
+# sidecar, an .obj with its .mtl and .png) are all written first and committed together,
+# the committed ones rolled back if a later one fails.
+
+IMAGE_EXTENSIONS = {".png": "png", ".jpg": "jpeg", ".jpeg": "jpeg", ".tif": "tiff", ".tiff": "tiff",
+                    ".webp": "webp"}
+_IMAGE_EXTS = IMAGE_EXTENSIONS  # old name
+#: containers write_video produces (H.264, AAC audio)
+VIDEO_EXTENSIONS = (".mp4", ".mov", ".m4v", ".mkv")
+
+_COMMITTED: list[Path] = []
+_SEEN_ABSENT: set[str] = set()  # outputs found absent by an earlier check of this command
+_APPEARED = ("output file appeared during the run (another process?): it was not replaced; "
+             "pass --overwrite to replace it")
+_COMMITTED_LOCK = threading.Lock()
+_NO_HARD_LINKS = {errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EMLINK, errno.EXDEV, errno.ENOSYS}
+
+
+def committed_outputs(*, reset: bool = False) -> list[Path]:
+    """Files committed by this process since the last reset (the CLI resets it per command
+    and names them when it is interrupted: an interrupted run never claims "no output" while
+    it has left intermediate files)."""
+    with _COMMITTED_LOCK:
+        out = list(_COMMITTED)
+        if reset:
+            _COMMITTED.clear()
+            _SEEN_ABSENT.clear()
+    return out
+
+
+def _write_error(path: Path, e: OSError) -> OutputError:
+    code = getattr(e, "errno", None)
+    why = e.strerror or _cause(e)
+    if code in (errno.ENOSPC, errno.EDQUOT):
+        return OutputError(f"disk full ({why}): nothing was written; free some space or write elsewhere", path=path)
+    if code == errno.EROFS:
+        return OutputError("read-only file system: choose another output folder", path=path)
+    if code in (errno.EACCES, errno.EPERM):
+        return OutputError(f"permission denied ({why}): choose another output folder", path=path)
+    if code == errno.ENOENT:
+        return OutputError("the output folder disappeared during the run (deleted?): create it again or "
+                           "choose another", path=path)
+    if code == errno.EFBIG:
+        return OutputError("file too large for this file system: choose another output folder", path=path)
+    return OutputError(f"cannot write the output ({why})", path=path)
+
+
+def _same_file(a, b) -> bool:
     try:
-        yield tmp
-        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600 files
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):
+        return False
 
 
-def check_output_path(path, *, overwrite: bool = False) -> Path:
-    """Raise OutputError unless ``path`` can be written (folder exists and is writable,
-    the file is absent or ``overwrite``)."""
+def _check_existing(path: Path, st: os.stat_result, inputs) -> None:
+    """Refusals whatever ``overwrite`` says: a directory, a device / FIFO, an input."""
+    if stat.S_ISDIR(st.st_mode):
+        raise OutputError("output path is a directory: give a file name", path=path)
+    if not stat.S_ISREG(st.st_mode):
+        raise OutputError(f"output path is {_kind(st.st_mode)}, not a regular file: it is never replaced; "
+                          "give a file name", path=path)
+    for i in inputs or ():
+        if i is not None and _same_file(path, i):
+            raise OutputError(f"output is the same file as the input {i}: it would be destroyed; "
+                              "choose another output name", path=path)
+
+
+def check_output_path(path, *, overwrite: bool = False, inputs=(), extensions=None,
+                      what: str = "output") -> Path:
+    """Raise OutputError unless ``path`` can be written: its folder exists, is a folder and is
+    writable; the path is not a directory, device or FIFO, not the same file as any of
+    ``inputs`` (whatever ``overwrite`` says) and absent unless ``overwrite``; its extension
+    (lower case) is one of ``extensions`` when given."""
     path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        if folder.exists():
-            raise OutputError(f"{folder} is a file, not a folder: choose another output path", path=path)
-        raise OutputError(f"output folder {folder} does not exist: create it first", path=path)
+
+    def check_extension():
+        if extensions is not None and path.suffix.lower() not in extensions:
+            raise OutputError(f"unknown {what} extension {path.suffix or '(none)'!r}: use one of "
+                              f"{', '.join(sorted(extensions))}", path=path)
+
+    folder = path.parent
+    try:
+        fst = os.stat(folder)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            raise OutputError(f"output folder {folder} is a symlink loop: fix the link", path=path) from None
+        if e.errno == errno.ENOTDIR:
+            raise OutputError(f"{folder} is not a folder: choose another output path", path=path) from None
+        raise OutputError(f"output folder {folder} does not exist: create it first", path=path) from None
+    if not stat.S_ISDIR(fst.st_mode):
+        raise OutputError(f"{folder} is a file, not a folder: choose another output path", path=path)
+    if fst.st_nlink == 0:  # the (current) folder was deleted while we are in it
+        raise OutputError(f"output folder {os.path.abspath(folder) if str(folder) != '.' else '(the current folder)'}"
+                          " was deleted: create it again or change to an existing folder", path=path)
     if not os.access(folder, os.W_OK | os.X_OK):
         raise OutputError(f"output folder {folder} is not writable: choose another folder", path=path)
-    if path.is_dir():
-        raise OutputError("output path is a directory: give a file name", path=path)
-    if path.exists() and not overwrite:
+    try:
+        os.lstat(path)
+    except FileNotFoundError:
+        check_extension()
+        with _COMMITTED_LOCK:
+            _SEEN_ABSENT.add(os.path.abspath(path))
+        return path
+    except OSError as e:
+        raise OutputError(f"cannot use this output path ({e.strerror})", path=path) from None
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            raise OutputError("output path is a symlink loop: remove it or choose another name", path=path) from None
+        st = None  # a dangling symlink: the link itself is what would be replaced
+    if st is not None:
+        _check_existing(path, st, inputs)
+    check_extension()
+    if not overwrite:
+        if os.path.abspath(path) in _SEEN_ABSENT:
+            raise OutputError(_APPEARED, path=path)
         raise OutputError("output file exists: pass --overwrite to replace it", path=path)
     return path
 
 
-_IMAGE_EXTS = {".png": "png", ".jpg": "jpeg", ".jpeg": "jpeg", ".tif": "tiff", ".tiff": "tiff",
-               ".webp": "webp"}
+def check_outputs(paths, *, overwrite: bool = False, inputs=()) -> list[Path]:
+    """:func:`check_output_path` for every path, and no two of them the same."""
+    out = [check_output_path(p, overwrite=overwrite, inputs=inputs) for p in paths]
+    seen = set()
+    for p in out:
+        key = os.path.abspath(p)
+        if key in seen:
+            raise OutputError("the same output path is given twice: choose distinct names", path=p)
+        seen.add(key)
+    return out
 
 
-def write_image(path, image: np.ndarray, *, overwrite: bool = True, quality: int = 95,
-                bit_depth: int = 8) -> Path:
-    """Write float [0, 1] / uint8 / uint16 RGB (or gray 2-D, or RGBA) atomically.
+def _temp_beside(path: Path) -> Path:
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    except OSError as e:
+        raise _write_error(path, e) from None
+    os.close(fd)
+    return Path(tmp)
 
-    The format follows the extension (.png .jpg .jpeg .tif .tiff .webp);
-    ``bit_depth=16`` writes 16-bit PNG/TIFF. ``quality`` applies to JPEG and WebP.
-    """
-    path = check_output_path(path, overwrite=overwrite)
-    fmt = _IMAGE_EXTS.get(path.suffix.lower())
+
+def _write_bytes(path: Path, data: bytes) -> None:
+    with open(path, "wb") as fh:
+        fh.write(data)
+
+
+def _link_new(tmp: Path, final: Path) -> None:
+    """Give ``tmp`` the name ``final`` only if nothing has that name (FileExistsError otherwise)."""
+    try:
+        os.link(tmp, final)
+    except FileExistsError:
+        raise
+    except OSError as e:
+        if e.errno not in _NO_HARD_LINKS:
+            raise
+        # a file system without hard links (FAT, some FUSE): claim the name exclusively,
+        # then rename over our own claim
+        os.close(os.open(final, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666 & ~_UMASK))
+        os.replace(tmp, final)
+    else:
+        os.unlink(tmp)
+
+
+def _commit(pairs, *, overwrite: bool, inputs=()) -> None:
+    """Move every (tmp, final) pair into place, in order; all or none."""
+    done: list[tuple[Path, Path | None]] = []
+    final = None
+    try:
+        for tmp, final in pairs:
+            os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600 files
+            backup = None
+            if overwrite:
+                with contextlib.suppress(FileNotFoundError):
+                    st = os.stat(final)
+                    _check_existing(final, st, inputs)  # a FIFO or an input may have appeared
+                if os.path.lexists(final):
+                    backup = Path(tempfile.mktemp(prefix=f".{final.stem}.", suffix=".old", dir=final.parent))
+                    try:
+                        os.link(final, backup, follow_symlinks=False)
+                    except OSError:
+                        backup = None  # no hard links here: a failed commit cannot restore it
+                os.replace(tmp, final)
+            else:
+                _link_new(tmp, final)
+            done.append((final, backup))
+    except BaseException as e:
+        for f, backup in reversed(done):
+            with contextlib.suppress(OSError):
+                if backup is not None:
+                    os.replace(backup, f)
+                else:
+                    os.unlink(f)
+        if isinstance(e, FileExistsError):
+            raise OutputError(_APPEARED, path=final) from None
+        if isinstance(e, OSError):
+            raise _write_error(final, e) from None
+        raise
+    for f, backup in done:
+        if backup is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(backup)
+    with _COMMITTED_LOCK:
+        _COMMITTED.extend(f for f, _ in done)
+        _SEEN_ABSENT.difference_update(os.path.abspath(f) for f, _ in done)  # ours now: "exists" next time
+
+
+def write_files(items, *, overwrite: bool = False, inputs=()) -> list[Path]:
+    """Write several outputs as one: ``items`` maps each path to its content (bytes, str,
+    or a callable writing the given temporary path). All paths are checked
+    (:func:`check_output_path`), all contents written to temporary files beside them, then
+    all committed (exclusive create unless ``overwrite``); on any failure nothing new is
+    left and nothing replaced. Returns the paths."""
+    items = list(items.items()) if isinstance(items, dict) else list(items)
+    paths = check_outputs([p for p, _ in items], overwrite=overwrite, inputs=inputs)
+    temps: list[Path] = []
+    try:
+        for path, (_, content) in zip(paths, items):
+            tmp = _temp_beside(path)
+            temps.append(tmp)
+            try:
+                if callable(content):
+                    content(tmp)
+                else:
+                    _write_bytes(tmp, content.encode("utf-8") if isinstance(content, str) else bytes(content))
+            except OSError as e:
+                raise _write_error(path, e) from None
+        _commit(list(zip(temps, paths)), overwrite=overwrite, inputs=inputs)
+    finally:
+        for t in temps:
+            with contextlib.suppress(OSError):
+                t.unlink()
+    return paths
+
+
+@contextlib.contextmanager
+def atomic_path(path, *, overwrite: bool = True, inputs=()) -> Iterator[Path]:
+    """Yield a temporary path beside ``path`` (same extension); on success move it to
+    ``path`` (os.replace with ``overwrite``, else an exclusive create that fails if ``path``
+    exists); delete it on any exception (KeyboardInterrupt too). OSErrors become OutputError."""
+    path = Path(path)
+    tmp = _temp_beside(path)
+    try:
+        try:
+            yield tmp
+        except OSError as e:
+            raise _write_error(path, e) from None
+        _commit([(tmp, path)], overwrite=overwrite, inputs=inputs)
+    finally:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+
+
+def encode_image(path, image: np.ndarray, *, quality: int = 95, bit_depth: int = 8) -> bytes:
+    """The bytes of ``image`` encoded in the format of ``path``'s extension (see :func:`write_image`)."""
+    path = Path(path)
+    fmt = IMAGE_EXTENSIONS.get(path.suffix.lower())
     if fmt is None:
-        raise OutputError(f"unknown image extension {path.suffix!r}: use one of "
-                          f"{', '.join(sorted(_IMAGE_EXTS))}", path=path)
+        raise OutputError(f"unknown image extension {path.suffix or '(none)'!r}: use one of "
+                          f"{', '.join(sorted(IMAGE_EXTENSIONS))}", path=path)
     if bit_depth not in (8, 16) or (bit_depth == 16 and fmt not in ("png", "tiff")):
         raise BadInputError(f"bit_depth {bit_depth} not possible for {fmt}: use 8, or 16 with .png/.tif",
                             path=path)
@@ -267,12 +634,25 @@ def write_image(path, image: np.ndarray, *, overwrite: bool = True, quality: int
         img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR if img.shape[2] == 3 else cv2.COLOR_RGBA2BGRA)
     params = {"jpeg": [cv2.IMWRITE_JPEG_QUALITY, int(quality)],
               "webp": [cv2.IMWRITE_WEBP_QUALITY, int(quality)]}.get(fmt, [])
-    ok, buf = cv2.imencode(path.suffix, img, params)
+    ok, buf = cv2.imencode(path.suffix.lower(), img, params)
     if not ok:
         raise OutputError(f"OpenCV could not encode {fmt}", path=path)
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(buf.tobytes())
-    return path
+    return buf.tobytes()
+
+
+def write_image(path, image: np.ndarray, *, overwrite: bool = True, quality: int = 95,
+                bit_depth: int = 8, inputs=()) -> Path:
+    """Write float [0, 1] / uint8 / uint16 RGB (or gray 2-D, or RGBA) atomically.
+
+    The format follows the extension (.png .jpg .jpeg .tif .tiff .webp);
+    ``bit_depth=16`` writes 16-bit PNG/TIFF. ``quality`` applies to JPEG and WebP.
+    Without ``overwrite`` an existing file (also one that appears while encoding) is
+    never replaced; ``inputs``: files the output must not be (see :func:`check_output_path`).
+    """
+    path = check_output_path(path, overwrite=overwrite, inputs=inputs, extensions=IMAGE_EXTENSIONS,
+                             what="image")
+    return write_files({path: encode_image(path, image, quality=quality, bit_depth=bit_depth)},
+                       overwrite=overwrite, inputs=inputs)[0]
 
 
 def _json_default(o):
@@ -289,13 +669,54 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def write_json(path, obj, *, overwrite: bool = True) -> Path:
+def encode_json(obj) -> bytes:
+    """``obj`` as indented UTF-8 JSON (numpy scalars/arrays, paths, dataclasses converted)."""
+    return (json.dumps(obj, indent=2, default=_json_default) + "\n").encode("utf-8")
+
+
+def write_json(path, obj, *, overwrite: bool = True, inputs=()) -> Path:
     """Write ``obj`` as indented JSON atomically (numpy scalars/arrays, paths, dataclasses converted)."""
-    path = check_output_path(path, overwrite=overwrite)
-    text = json.dumps(obj, indent=2, default=_json_default) + "\n"
-    with atomic_path(path) as tmp:
-        tmp.write_text(text, encoding="utf-8")
-    return path
+    path = check_output_path(path, overwrite=overwrite, inputs=inputs)
+    return write_files({path: encode_json(obj)}, overwrite=overwrite, inputs=inputs)[0]
+
+
+# ------------------------------------------------------------------------------- npz
+def npz_members(path, error: type = BadInputError, *, what: str = "file") -> dict[str, dict]:
+    """What every member of an ``.npz`` (zip) declares, read from the zip directory and the
+    first bytes of each ``.npy`` member (nothing else is decompressed): name (without
+    ``.npy``) -> {"dtype", "shape", "fortran", "file_size" (uncompressed bytes the zip declares),
+    "compress_size"}; dtype/shape are None for a member that is not a .npy array. Raises
+    ``error`` naming ``path`` when the zip or a member header is corrupt, or a member holds
+    Python objects (pickles are never loaded)."""
+    import tokenize
+    import zipfile
+
+    path = Path(path)
+    out: dict[str, dict] = {}
+    try:
+        with zipfile.ZipFile(path) as zf:
+            for info in zf.infolist():
+                name = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
+                rec = {"dtype": None, "shape": None, "fortran": False, "file_size": int(info.file_size),
+                       "compress_size": int(info.compress_size)}
+                if info.filename.endswith(".npy"):
+                    with zf.open(info) as fh:
+                        version = np.lib.format.read_magic(fh)
+                        read = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                                else np.lib.format.read_array_header_2_0)
+                        shape, fortran, dtype = read(fh, max_header_size=10_000)
+                    if dtype.hasobject:
+                        raise error(f"corrupt {what}: member {name!r} holds Python objects (never loaded)",
+                                    path=path)
+                    rec.update(dtype=dtype, shape=tuple(int(s) for s in shape), fortran=bool(fortran))
+                out[name] = rec
+    except FacetexError:
+        raise
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, OSError, EOFError, KeyError, UnicodeDecodeError,
+            SyntaxError, tokenize.TokenError, zlib_error, struct_error, RecursionError, OverflowError,
+            NotImplementedError, TypeError) as e:
+        raise error(f"corrupt {what} ({type(e).__name__}: {_cause(e)})", path=path) from None
+    return out
 
 
 # ------------------------------------------------------------------------------ video
@@ -437,46 +858,91 @@ def _prep_frame(f, shape) -> np.ndarray:
     return np.pad(u, ((0, ph), (0, pw), (0, 0)), mode="edge") if ph or pw else u
 
 
+class _SourceError(Exception):
+    """An error while reading the audio source (not while encoding the output)."""
+
+
+def _audio_error(path: Path) -> str | None:
+    """None if the first audio stream of ``path`` decodes from start to end, else the cause."""
+    try:
+        with av.open(os.fspath(path)) as c:
+            a = c.streams.audio[0]
+            n = 0
+            for packet in c.demux(a):
+                for _ in a.decode(packet):
+                    n += 1
+            return None if n else "no decodable audio frame"
+    except _AV_ERRORS as e:
+        return _cause(e)
+
+
 def write_video(path, frames: Iterable[np.ndarray], fps: float, *, audio_from=None, crf: int = 18,
-                overwrite: bool = True, progress: Callable | None = None) -> Path:
-    """Write RGB frames (float [0,1] or uint8; an iterator is streamed) as H.264 MP4.
+                overwrite: bool = True, progress: Callable | None = None, inputs=()) -> Path:
+    """Write RGB frames (float [0,1] or uint8; an iterator is streamed) as H.264 video
+    (.mp4, .mov, .m4v or .mkv).
 
     Encoder: libx264 (yuv420p, ``crf``); if this PyAV build lacks it, FFmpeg's default
     H.264 encoder (codec id lookup, e.g. libopenh264; ``crf`` may be ignored). Odd
     widths/heights are padded to even by repeating the last row/column, so the file
     is up to 1 px larger. If ``audio_from`` has an audio stream, it is passed through
     (AAC remuxed, other codecs re-encoded to AAC), starting with the video and
-    trimmed to its length; a file without audio adds none. Written atomically.
+    trimmed to its length; a file without audio adds none, and one whose audio cannot
+    be decoded gives a video without audio and a warning naming it. Written atomically
+    (an exclusive create unless ``overwrite``); ``audio_from`` and ``inputs`` must not be
+    the output. Errors reading ``audio_from`` name it, encoding errors name the output.
     """
-    path = check_output_path(path, overwrite=overwrite)
-    if not fps or fps <= 0:
+    srcs = tuple(inputs or ()) + ((audio_from,) if audio_from is not None else ())
+    path = check_output_path(path, overwrite=overwrite, inputs=srcs, extensions=VIDEO_EXTENSIONS, what="video")
+    if not fps or not math.isfinite(fps) or fps <= 0:
         raise BadInputError(f"fps must be positive, not {fps}", path=path)
+    src = None
+    if audio_from is not None:
+        audio_from = Path(audio_from)
+        src = _open_input(audio_from)
+        if not src.streams.audio:
+            src.close()
+            src = None
+        else:
+            cause = _audio_error(audio_from)
+            if cause is not None:
+                src.close()
+                src = None
+                warnings.warn(f"{audio_from}: its audio cannot be decoded ({cause}): the output has no audio",
+                              stacklevel=2)
     it = iter(frames)
     try:
         first = next(it)
     except StopIteration:
+        if src is not None:
+            src.close()
         raise BadInputError("no frames to write", path=path) from None
     shape = to_uint8(first).shape
-    src = _open_input(Path(audio_from)) if audio_from is not None else None
     rate = Fraction(fps).limit_denominator(100_000)
     try:
-        with atomic_path(path) as tmp, av.open(os.fspath(tmp), "w",
-                                               options={"movflags": "+faststart"}) as out:
+        with atomic_path(path, overwrite=overwrite, inputs=srcs) as tmp, \
+                av.open(os.fspath(tmp), "w", options={"movflags": "+faststart"}) as out:
             codec = "libx264" if "libx264" in av.codecs_available else "h264"
             vs = out.add_stream(codec, rate=rate)
             vs.height, vs.width = shape[0] + shape[0] % 2, shape[1] + shape[1] % 2
             vs.pix_fmt = "yuv420p"
             vs.options = {"crf": str(int(crf))}
             audio = pending = None
-            if src is not None and src.streams.audio:
+
+            def next_audio():
+                try:
+                    return next(audio, None)
+                except _AV_ERRORS as e:
+                    raise _SourceError(_cause(e)) from None
+
+            if src is not None:
                 audio = _audio_packets(src, out)
-                pending = next(audio, None)  # creates the audio stream before encoding starts
+                pending = next_audio()  # creates the audio stream before encoding starts
 
             def mux_audio(until: float):
                 nonlocal pending
                 while pending is not None and pending[0] < until:
                     out.mux(pending[1])
-                    pending = next(audio, None)
+                    pending = next_audio()
 
             n = 0
             for f in itertools.chain([first], it):
@@ -492,7 +958,10 @@ def write_video(path, frames: Iterable[np.ndarray], fps: float, *, audio_from=No
             mux_audio(n / float(rate))  # audio is trimmed at the video's end
             if audio is not None:
                 audio.close()
-    except (av.FFmpegError, OSError) as e:
+    except _SourceError as e:
+        raise BadVideoError(f"damaged audio ({e}): re-export the video or strip its audio",
+                            path=audio_from) from None
+    except (av.FFmpegError, OSError, ValueError) as e:
         raise OutputError(f"video encoding failed ({_cause(e)})", path=path) from None
     finally:
         if src is not None:

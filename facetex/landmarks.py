@@ -255,8 +255,7 @@ def detect_face(
     faces = detect_faces(image, upsample=upsample, detector=detector)
     if not faces:
         raise NoFaceError(
-            "no face found; use a frontal photo with the face at least ~80 px wide"
-            " (or try --upsample 1 / --detector cnn)",
+            "no face found; use a frontal photo with the face at least ~80 px wide",
             path=source,
         )
     if not 0 <= face_index < len(faces):

@@ -195,14 +195,16 @@ def run_bench_persona(data=DEFAULT_DATA, *, holdout: int = 20, seed: int = 0, ou
 
 def register_bench(sub) -> None:
     """Add ``persona`` to the ``facetex bench`` sub-commands (wired by the bench parser)."""
+    from ..cli._common import bounded_int, finite_float, positive_int
+
     p = sub.add_parser("persona", help="leave-out evaluation of persona textures (Tom Hanks Fig. 5)")
     p.add_argument("--data", default=DEFAULT_DATA, help=f"folder of photos of one person (default {DEFAULT_DATA})")
-    p.add_argument("--holdout", type=int, default=20, help="photos held out as targets (default 20)")
+    p.add_argument("--holdout", type=positive_int, default=20, help="photos held out as targets (default 20)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the held-out choice (default 0)")
     p.add_argument("--out", default="bench_out/persona", help="output folder (default bench_out/persona)")
-    p.add_argument("--jobs", type=int, default=2, help="worker processes for the build (default 2)")
-    p.add_argument("--sigma", type=float, default=10.0, help="Eq. 3 sigma (default 10)")
-    p.add_argument("--exact", type=int, default=0, metavar="N",
+    p.add_argument("--jobs", type=bounded_int(1, 64), default=2, help="worker processes for the build (default 2)")
+    p.add_argument("--sigma", type=finite_float(0.0, open_lo=True), default=10.0, help="Eq. 3 sigma (default 10)")
+    p.add_argument("--exact", type=bounded_int(0), default=0, metavar="N",
                    help="also run the paper's per-target pipeline on N targets (slow)")
     p.set_defaults(func=_run_cli)
 

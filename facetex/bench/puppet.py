@@ -229,6 +229,8 @@ def run_bench_puppet(drivers=DEFAULT_DRIVERS, puppet=DEFAULT_PUPPET, out="bench-
         if drivers.is_dir() else [drivers]
     if not files:
         raise BadInputError("no driver videos (.mpg/.mp4/.mov/.avi/.mkv) found", path=drivers)
+    if clips is not None and clips < 1:
+        raise BadInputError(f"--clips must be at least 1, got {clips}")
     files = files[: clips or None]
     out = check_out_dir(out)
     persona, persona_file = _load_or_build_persona(puppet, out, progress)
@@ -269,6 +271,8 @@ def run_bench_puppet(drivers=DEFAULT_DRIVERS, puppet=DEFAULT_PUPPET, out="bench-
 # --------------------------------------------------------------------------- CLI
 def register_bench(bench_subparsers) -> argparse.ArgumentParser:
     """Add the ``puppet`` sub-parser to ``facetex bench``."""
+    from ..cli._common import bounded_int, positive_int
+
     p = bench_subparsers.add_parser(
         "puppet", help="puppetry: GRID clips drive a persona (mouth fidelity, identity, flicker)",
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -276,9 +280,9 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
     p.add_argument("--puppet", default=DEFAULT_PUPPET,
                    help=f"puppet .persona file or photo folder (default {DEFAULT_PUPPET})")
     p.add_argument("--out", default="bench-puppet", help="output folder (default ./bench-puppet)")
-    p.add_argument("--clips", type=int, help="use only the first N clips")
-    p.add_argument("--size", type=int, help="longer side of the rendered frames (default: the driver's)")
-    p.add_argument("--max-frames", type=int, help="use only the first N frames of each clip")
+    p.add_argument("--clips", type=positive_int, help="use only the first N clips")
+    p.add_argument("--size", type=bounded_int(32, 4096), help="longer side of the rendered frames (default: the driver's)")
+    p.add_argument("--max-frames", type=positive_int, help="use only the first N frames of each clip")
     p.add_argument("--shape", choices=("collection", "generic"), default="collection",
                    help="puppet average shape: photometric stereo (falls back to generic) or the generic face")
     p.set_defaults(func=_run)

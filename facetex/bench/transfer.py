@@ -300,7 +300,7 @@ def run_bench_transfer(data=DEFAULT_DATA, out="bench-transfer", *, pairs: int = 
 # --------------------------------------------------------------------------- CLI
 def register_bench(bench_subparsers) -> argparse.ArgumentParser:
     """Add ``transfer`` to the ``facetex bench`` sub-parsers."""
-    from ..cli._common import add_overwrite, add_seed_device
+    from ..cli._common import add_overwrite, add_seed_device, bounded_int, positive_int
 
     p = bench_subparsers.add_parser(
         "transfer", help="FaceTex §3.1 benchmark: Table 1, Figures 3 and 4",
@@ -308,11 +308,11 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
                     "and write table.md/.csv, grid.png, scatter.png and pairs.json. Resumable: finished "
                     "(pair, method) results in --out are reused.")
     p.add_argument("--data", default=DEFAULT_DATA, help=f"folder of NNN_neutral.jpg portraits (default {DEFAULT_DATA})")
-    p.add_argument("--pairs", type=int, default=5, help="number of content/style pairs (default 5)")
+    p.add_argument("--pairs", type=positive_int, default=5, help="number of content/style pairs (default 5)")
     p.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated subset of {','.join(METHODS)}")
     p.add_argument("--preset", choices=PRESETS, default="default", help="transfer parameters (default: default)")
     p.add_argument("--out", default="bench-transfer", help="output folder (created; default ./bench-transfer)")
-    p.add_argument("--size", type=int, default=None, help="working size in px passed to the transfer (optional)")
+    p.add_argument("--size", type=bounded_int(32, 4096), default=None, help="working size in px passed to the transfer (optional)")
     add_seed_device(p)
     add_overwrite(p)
     p.set_defaults(func=run)
@@ -320,9 +320,10 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    from ..cli._common import print_json, progress_bar
+    from ..cli._common import check_device, print_json, progress_bar
 
     methods = parse_methods(args.methods)
+    check_device(args.device)  # before the work
     total = max(1, int(args.pairs)) * len(methods)
     with progress_bar(total=total, desc="bench transfer", unit="run") as update:
         result = run_bench_transfer(args.data, args.out, pairs=args.pairs, methods=methods, preset=args.preset,

@@ -8,19 +8,63 @@ The CLI parses, calls the Python API and prints: it holds no algorithm.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import pkgutil
+import signal
 import sys
+import threading
 import traceback
 import warnings
 
-from ..errors import FacetexError
+from ..errors import FacetexError, UsageError
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse whose errors are one ``facetex: error:`` line (exit 2), like every other error."""
+
+    def error(self, message):
+        where = self.prog.partition(" ")[2]  # "transfer", "persona texture"; "" for the root parser
+        raise UsageError(f"{where + ': ' if where else ''}{message} (see `{self.prog} --help`)")
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM / SIGHUP, raised in the main thread so that they unwind like Ctrl-C: temporary
+    files removed, worker processes stopped and reaped."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def _signals_as_interrupts():
+    """Handle SIGTERM and SIGHUP like SIGINT while a command runs (main thread only); the
+    handlers fire once, a second signal during the clean-up is ignored."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    sigs = [s for s in (signal.SIGTERM, getattr(signal, "SIGHUP", None)) if s is not None]
+    old = {s: signal.getsignal(s) for s in sigs}
+
+    def handler(signum, frame):
+        for s in sigs:
+            signal.signal(s, signal.SIG_IGN)
+        raise Terminated(signum)
+
+    for s in sigs:
+        signal.signal(s, handler)
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
 
 
 def build_parser() -> argparse.ArgumentParser:
     from .. import __version__
 
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="facetex",
         description="Photo-realistic facial texture: FaceTex transfer and Persona textures.",
     )
@@ -55,13 +99,33 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     debug = "--debug" in argv
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), _signals_as_interrupts():
         if not debug:
             warnings.showwarning = _show_warning
         return _run(argv, debug)
 
 
+def _interrupted(exc: KeyboardInterrupt) -> int:
+    """One line saying what an interrupted command left behind; exit 128 + signal number."""
+    from ..io import committed_outputs
+
+    signum = getattr(exc, "signum", signal.SIGINT)
+    kept = committed_outputs()
+    what = "" if signum == signal.SIGINT else f" by {signal.Signals(signum).name}"
+    if kept:
+        names = ", ".join(str(p) for p in kept[:3]) + (f" and {len(kept) - 3} more" if len(kept) > 3 else "")
+        print(f"facetex: interrupted{what}; the run did not finish; kept {len(kept)} file(s) it had already "
+              f"written: {names}", file=sys.stderr)
+    else:
+        print(f"facetex: interrupted{what}; no partial output was written", file=sys.stderr)
+    return 128 + int(signum)
+
+
 def _run(argv: list[str], debug: bool) -> int:
+    from ..io import committed_outputs
+
+    committed_outputs(reset=True)
+    args = None
     try:
         args = build_parser().parse_args(argv)
         result = args.func(args)
@@ -71,14 +135,19 @@ def _run(argv: list[str], debug: bool) -> int:
             traceback.print_exc()
         print(f"facetex: error: {exc}", file=sys.stderr)
         return exc.exit_code
-    except KeyboardInterrupt:
-        print("facetex: interrupted; no partial output was written", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        return _interrupted(exc)
     except MemoryError:
         if debug:
             traceback.print_exc()
-        print("facetex: error: out of memory; try a smaller --size", file=sys.stderr)
+        hint = "; try a smaller --size" if hasattr(args, "size") else ""
+        print(f"facetex: error: out of memory{hint}", file=sys.stderr)
         return 3
+    except RecursionError as exc:
+        if debug:
+            traceback.print_exc()
+        print(f"facetex: error: input nested too deeply ({exc})", file=sys.stderr)
+        return 2
     except Exception as exc:  # noqa: BLE001 - last resort: one line, not a traceback
         if debug:
             traceback.print_exc()

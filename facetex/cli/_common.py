@@ -1,18 +1,95 @@
-"""Shared CLI pieces: common options, JSON printing, progress bars."""
+"""Shared CLI pieces: common options and their checks, JSON printing, progress bars.
+
+The checks here run at the start of a command, before any computation: a run that is
+going to fail fails in the first second, not after the work."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import re
 import sys
 from contextlib import contextmanager
 
 from tqdm import tqdm
 
+_DEVICE = re.compile(r"^(cpu|cuda|cuda:\d+|mps)$")
+
+
+def bounded_int(lo: int | None = None, hi: int | None = None, what: str = "an integer"):
+    """argparse type: an integer in [lo, hi] (either bound may be None)."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, not {text!r}") from None
+        if (lo is not None and v < lo) or (hi is not None and v > hi):
+            rng = (f"from {lo} to {hi}" if lo is not None and hi is not None
+                   else f"at least {lo}" if lo is not None else f"at most {hi}")
+            raise argparse.ArgumentTypeError(f"must be {rng}, not {v}")
+        return v
+
+    parse.__name__ = "integer"
+    return parse
+
+
+positive_int = bounded_int(1)
+nonnegative_int = bounded_int(0)
+
+
+def finite_float(lo: float | None = None, hi: float | None = None, *, open_lo: bool = False):
+    """argparse type: a finite float in [lo, hi] (``open_lo``: strictly above lo)."""
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, not {text!r}") from None
+        if not math.isfinite(v):
+            raise argparse.ArgumentTypeError(f"must be a finite number, not {text!r}")
+        if lo is not None and (v < lo or (open_lo and v == lo)):
+            raise argparse.ArgumentTypeError(f"must be {'above' if open_lo else 'at least'} {lo:g}, not {text}")
+        if hi is not None and v > hi:
+            raise argparse.ArgumentTypeError(f"must be at most {hi:g}, not {text}")
+        return v
+
+    parse.__name__ = "number"
+    return parse
+
+
+def device_name(text: str) -> str:
+    """argparse type of ``--device``: the syntax only (availability: :func:`check_device`)."""
+    t = text.strip().lower()
+    if not _DEVICE.match(t):
+        raise argparse.ArgumentTypeError(f"unknown device {text!r}: use cpu or cuda (cuda:N for a given GPU)")
+    return t
+
+
+def check_device(device: str) -> str:
+    """Raise BadInputError unless torch can run on ``device`` here (called at the start of a
+    command that computes with torch, before reading any input)."""
+    import torch
+
+    from ..errors import BadInputError
+
+    if device.startswith("cuda"):
+        if not torch.cuda.is_available():
+            raise BadInputError(f"--device {device}: CUDA is not available in this torch build "
+                                f"(torch {torch.__version__}); use --device cpu")
+        if ":" in device and int(device.split(":")[1]) >= torch.cuda.device_count():
+            raise BadInputError(f"--device {device}: only {torch.cuda.device_count()} CUDA device(s) found")
+    elif device == "mps":
+        mps = getattr(torch.backends, "mps", None)
+        if mps is None or not mps.is_available():
+            raise BadInputError(f"--device {device}: Apple MPS is not available here; use --device cpu")
+    return device
+
 
 def add_seed_device(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    parser.add_argument("--device", default="cpu", help="torch device: cpu or cuda (default cpu)")
+    parser.add_argument("--device", type=device_name, default="cpu", help="torch device: cpu or cuda (default cpu)")
 
 
 def add_overwrite(parser: argparse.ArgumentParser) -> None:
@@ -22,6 +99,29 @@ def add_overwrite(parser: argparse.ArgumentParser) -> None:
 def print_json(obj) -> None:
     json.dump(obj, sys.stdout, indent=2)
     sys.stdout.write("\n")
+
+
+def read_json_file(path, error=None, *, what: str = "JSON file"):
+    """The parsed JSON of a small input file; one-line errors naming it (missing, FIFO,
+    not UTF-8, not JSON, nested too deeply, larger than 64 MB)."""
+    from ..errors import BadInputError
+    from ..io import check_input_file
+
+    error = error or BadInputError
+    p = check_input_file(path, error, what=what)
+    if p.stat().st_size > 64 * 2**20:
+        raise error(f"{what} larger than 64 MB: give a small JSON file", path=p)
+    try:
+        text = p.read_text(encoding="utf-8")
+        return json.loads(text)
+    except UnicodeDecodeError:
+        raise error(f"not a UTF-8 text file: give a {what}", path=p) from None
+    except RecursionError:
+        raise error(f"unreadable {what}: nested too deeply", path=p) from None
+    except ValueError as e:
+        raise error(f"unreadable {what} ({e})", path=p) from None
+    except OSError as e:
+        raise error(f"cannot read it ({e.strerror})", path=p) from None
 
 
 @contextmanager

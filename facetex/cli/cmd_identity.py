@@ -14,13 +14,13 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..io import read_image
+    from ..io import DETECT_MAX_PIXELS, read_image
     from ..landmarks import detect_face
     from ..nets.dlib_resnet import SAME_PERSON_THRESHOLD, identity_distance
 
     images, points = [], []
     for path in (args.image_a, args.image_b):
-        image = read_image(path)
+        image = read_image(path, reduce_to=DETECT_MAX_PIXELS)  # only the face chip is used
         images.append(image)
         points.append(detect_face(image, source=path).points68)
     distance = identity_distance(images[0], images[1], points_a=points[0], points_b=points[1])

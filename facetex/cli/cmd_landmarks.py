@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ._common import add_overwrite, print_json
+from ._common import add_overwrite, nonnegative_int, print_json
 
 
 def register(sub) -> None:
@@ -12,12 +12,13 @@ def register(sub) -> None:
                    help='print {"image": ..., "faces": [{"box": [x0,y0,x1,y1], "points68": [[x,y],...]}]}')
     p.add_argument("-o", "--output", metavar="OVERLAY",
                    help="write the image with boxes and numbered points (e.g. overlay.png)")
-    p.add_argument("--upsample", type=int, default=None, metavar="N",
+    p.add_argument("--upsample", type=nonnegative_int, default=None, metavar="N",
                    help="double the image N times before detecting (default: automatic, "
-                        "2x only when nothing is found in an image of at most 1200 px)")
+                        "2x only when nothing is found in an image of at most 1200 px); the doubled "
+                        "image may have at most 16 megapixels")
     p.add_argument("--detector", choices=("hog", "cnn"), default="hog",
                    help="dlib HOG (fast, default) or MMOD CNN (slow, more pose-robust)")
-    p.add_argument("--face-index", type=int, default=0, metavar="K",
+    p.add_argument("--face-index", type=nonnegative_int, default=0, metavar="K",
                    help="face to number in the overlay and mark in the summary (0 = largest)")
     add_overwrite(p)
     p.set_defaults(func=run)
@@ -49,14 +50,39 @@ def _overlay(image, faces, chosen: int):
     return img
 
 
+def max_upsample(width: int, height: int, limit: int) -> int:
+    """Largest number of doublings that keeps a width x height image within ``limit`` pixels."""
+    n = 0
+    while width * height * 4 ** (n + 1) <= limit:
+        n += 1
+    return n
+
+
 def run(args) -> int:
+    import warnings
+
     from ..errors import BadInputError, NoFaceError
-    from ..io import check_output_path, read_image, write_image
+    from ..io import DETECT_MAX_PIXELS, IMAGE_EXTENSIONS, check_output_path, read_image_reduced, write_image
     from ..landmarks import detect_faces
 
     if args.output:  # fail before the work, not after it
-        check_output_path(args.output, overwrite=args.overwrite)
-    image = read_image(args.image)
+        check_output_path(args.output, overwrite=args.overwrite, inputs=[args.image], extensions=IMAGE_EXTENSIONS,
+                          what="image")
+    image, scale = read_image_reduced(args.image, DETECT_MAX_PIXELS)
+    h, w = image.shape[:2]
+    factor = 2.0 / (scale[0] + scale[1])  # returned image -> original pixels
+    if factor != 1.0:
+        W, H = round(w * factor), round(h * factor)
+        warnings.warn(f"{args.image}: {W}x{H} image reduced to {w}x{h} for detection (at most "
+                      f"{DETECT_MAX_PIXELS // 10**6} megapixels); landmarks are in the original's pixels"
+                      + ("; the overlay is written at the reduced size" if args.output else ""))
+    else:
+        W, H = w, h
+    if args.upsample is not None and w * h * 4 ** args.upsample > DETECT_MAX_PIXELS:
+        n = max_upsample(w, h, DETECT_MAX_PIXELS)
+        raise BadInputError(f"--upsample {args.upsample} would detect on a {w * 2 ** args.upsample}x"
+                            f"{h * 2 ** args.upsample} image, over the {DETECT_MAX_PIXELS // 10**6} megapixel limit: "
+                            f"use at most --upsample {n} for this {w}x{h} image", path=args.image)
     faces = detect_faces(image, upsample=args.upsample, detector=args.detector)
     if not faces:
         raise NoFaceError("no face found: try --upsample 1 or --detector cnn, or a larger frontal photo",
@@ -66,7 +92,9 @@ def run(args) -> int:
         raise BadInputError(f"--face-index {k} is out of range: {len(faces)} face(s) found "
                             f"(use 0..{len(faces) - 1})", path=args.image)
     if args.output:
-        write_image(args.output, _overlay(image, faces, k), overwrite=args.overwrite)
+        write_image(args.output, _overlay(image, faces, k), overwrite=args.overwrite, inputs=[args.image])
+    if factor != 1.0:
+        faces = [f.scaled(factor) for f in faces]
     if args.json:
         print_json({
             "image": str(args.image),
@@ -75,8 +103,7 @@ def run(args) -> int:
                       for f in faces],
         })
     else:
-        h, w = image.shape[:2]
-        print(f"{args.image}: {w}x{h}, {len(faces)} face(s) ({args.detector})")
+        print(f"{args.image}: {W}x{H}, {len(faces)} face(s) ({args.detector})")
         for i, f in enumerate(faces):
             x0, y0, x1, y1 = f.box
             p = f.points68

@@ -3,7 +3,7 @@ collection (Tom Hanks Sec. 4-5)."""
 
 from __future__ import annotations
 
-from ._common import add_overwrite, print_json, progress_bar
+from ._common import add_overwrite, bounded_int, finite_float, positive_int, print_json, progress_bar
 
 
 def register(sub) -> None:
@@ -14,9 +14,12 @@ def register(sub) -> None:
     b = ps.add_parser("build", help="detect, frontalize and align a folder of photos into a .persona file")
     b.add_argument("photo_dir", metavar="PHOTO_DIR", help="folder of photos of one person (>= 10 usable)")
     b.add_argument("-o", "--output", required=True, metavar="PERSON.persona", help="persona file to write")
-    b.add_argument("--jobs", type=int, default=2, metavar="N", help="worker processes (default 2)")
-    b.add_argument("--min-photos", type=int, default=10, metavar="N",
+    b.add_argument("--jobs", type=bounded_int(1, 64), default=2, metavar="N", help="worker processes (default 2)")
+    b.add_argument("--min-photos", type=bounded_int(3), default=10, metavar="N",
                    help="fewest usable photos accepted (default 10)")
+    b.add_argument("--allow-mixed", action="store_true",
+                   help="build even when the photos show several people (default: photos of other people are "
+                        "left out when one person has >= 80%% of them, else the build is refused)")
     add_overwrite(b)
     b.set_defaults(func=run_build)
 
@@ -30,7 +33,7 @@ def register(sub) -> None:
     t.add_argument("-o", "--output", required=True, metavar="OUT.png")
     t.add_argument("--method", choices=("ours", "static", "weighted", "prewarp"), default="ours",
                    help="ours (default) or a Fig. 5 baseline")
-    t.add_argument("--sigma", type=float, default=10.0,
+    t.add_argument("--sigma", type=finite_float(0.0, open_lo=True), default=10.0,
                    help="expression-similarity sigma of Eq. 3 (default 10, typically 6-12)")
     add_overwrite(t)
     t.set_defaults(func=run_texture)
@@ -47,7 +50,8 @@ def register(sub) -> None:
     m.add_argument("persona", metavar="PERSON.persona")
     m.add_argument("-o", "--output", required=True, metavar="FACE.obj",
                    help="mesh to write; FACE.mtl and FACE.png (stage-d average texture) go beside it")
-    m.add_argument("--step", type=int, default=1, metavar="N", help="grid step of the mesh in canonical px (default 1)")
+    m.add_argument("--step", type=positive_int, default=1, metavar="N",
+                   help="grid step of the mesh in canonical px (default 1; at most 1/8 of the frame width)")
     m.add_argument("--shape", choices=("collection", "generic"), default="collection",
                    help="collection: the persona's photometric-stereo average depth (default; the generic "
                         "face if it is missing or implausible); generic: the generic face")
@@ -55,35 +59,45 @@ def register(sub) -> None:
     m.set_defaults(func=run_mesh)
 
 
-def _sidecar(out, record: dict) -> None:
-    """OUT.png.json beside the image (replaced with it: the image itself was allowed)."""
-    from ..io import write_json
+def _outputs(args, inputs) -> tuple:
+    """OUT.png and its sidecar OUT.png.json, checked before the work (both or neither are written)."""
+    from ..io import IMAGE_EXTENSIONS, check_output_path
 
-    write_json(f"{out}.json", record, overwrite=True)
+    out = check_output_path(args.output, overwrite=args.overwrite, inputs=inputs, extensions=IMAGE_EXTENSIONS,
+                            what="image")
+    return out, check_output_path(f"{out}.json", overwrite=args.overwrite, inputs=inputs)
+
+
+def _write_with_sidecar(out, sidecar, image, record: dict, args, inputs) -> None:
+    from ..io import encode_image, encode_json, write_files
+
+    write_files({out: encode_image(out, image), sidecar: encode_json(record)}, overwrite=args.overwrite,
+                inputs=inputs)
 
 
 def run_build(args) -> int:
+    import sys
     import time
-    from pathlib import Path
 
     from ..errors import BadInputError
-    from ..io import check_output_path
+    from ..io import check_input_dir, check_output_path
     from ..persona import PersonaParams, build_persona
-
-    check_output_path(args.output, overwrite=args.overwrite)
-    if args.jobs < 1 or args.min_photos < 3:
-        raise BadInputError("--jobs must be >= 1 and --min-photos >= 3")
-    folder = Path(args.photo_dir)
     from ..persona.collection import _list_photos
+    from ..persona.identity import MixedCollectionError
 
-    n = len(_list_photos(folder))
+    folder = check_input_dir(args.photo_dir, BadInputError, what="photo folder")
+    photos = _list_photos(folder)
+    check_output_path(args.output, overwrite=args.overwrite, inputs=photos, extensions=(".persona",),
+                      what="persona file")
     t0 = time.perf_counter()
-    with progress_bar(total=2 * n, desc="persona", unit="photo") as update:
-        persona = build_persona(folder, jobs=args.jobs, progress=update,
-                                params=PersonaParams(min_photos=args.min_photos))
+    with progress_bar(total=2 * len(photos), desc="persona", unit="photo") as update:
+        try:
+            persona = build_persona(folder, jobs=args.jobs, progress=update, allow_mixed=args.allow_mixed,
+                                    params=PersonaParams(min_photos=args.min_photos))
+        except MixedCollectionError as e:
+            raise MixedCollectionError(f"{e.message}, or pass --allow-mixed to build from all of them",
+                                       path=e.path, main=e.main, others=e.others, people=e.people) from None
     persona.save(args.output, overwrite=args.overwrite)
-    import sys
-
     print(f"{args.output}: {len(persona)} photos used, {len(persona.skipped)} skipped "
           f"({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
     for s in persona.skipped:
@@ -91,69 +105,89 @@ def run_build(args) -> int:
     return 0
 
 
-def _read_fiducials(path):
-    import json
-
+def _read_fiducials(path, size=None):
+    """Target fiducials (49 or 68 [x, y]) from a JSON file; finite and, given the persona's
+    canonical ``size`` (W, H), inside that frame."""
     import numpy as np
 
     from ..errors import BadInputError
+    from ..landmarks import POINTS49_INDEX
+    from ._common import read_json_file
 
-    try:
-        obj = json.loads(open(path, encoding="utf-8").read())
-    except FileNotFoundError:
-        raise BadInputError("fiducials file not found", path=path) from None
-    except (OSError, ValueError) as e:
-        raise BadInputError(f"unreadable fiducials JSON ({e}): give a list of 49 [x, y] points", path=path) from None
+    obj = read_json_file(path, BadInputError, what="fiducials JSON file")
     if isinstance(obj, dict):
         obj = obj.get("fiducials", obj.get("points49", obj.get("points68")))
     try:
         a = np.asarray(obj, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError, RecursionError):
         a = np.empty(0)
-    if a.shape not in ((49, 2), (68, 2)) or not np.all(np.isfinite(a)):
+    if a.shape not in ((49, 2), (68, 2)):
         raise BadInputError(f"fiducials must be 49 (or 68) [x, y] points, got shape {a.shape}", path=path)
+    if not np.all(np.isfinite(a)):
+        bad = int(np.flatnonzero(~np.isfinite(a).all(axis=1))[0])
+        raise BadInputError(f"fiducials contain NaN or infinite values (point {bad}): give finite numbers",
+                            path=path)
+    if size is not None:
+        W, H = size
+        f = a[POINTS49_INDEX] if len(a) == 68 else a
+        out = np.flatnonzero((f[:, 0] < 0) | (f[:, 0] > W - 1) | (f[:, 1] < 0) | (f[:, 1] > H - 1))
+        if len(out):
+            k = int(out[0])
+            raise BadInputError(f"{len(out)} fiducials lie outside the persona's {W}x{H} canonical frame (point "
+                                f"{k} at ({f[k, 0]:.4g}, {f[k, 1]:.4g})): give points in canonical-frame pixels",
+                                path=path)
+        span = float(np.ptp(f, axis=0).min())
+        if span < 0.1 * min(W, H):
+            raise BadInputError(f"fiducials are degenerate (they span only {span:.3g} px): give a face's "
+                                "49 points in canonical-frame pixels", path=path)
     return a
 
 
 def run_texture(args) -> int:
     import time
 
-    from ..io import check_output_path, write_image
-    from ..persona import load_persona, synthesize_texture
+    from ..errors import BadImageError
+    from ..io import check_input_file
+    from ..persona import load_persona, read_persona_header, synthesize_texture
 
-    check_output_path(args.output, overwrite=args.overwrite)
+    inputs = [args.persona, args.like or args.fiducials]
+    out, sidecar = _outputs(args, inputs)
     t0 = time.perf_counter()
+    size = read_persona_header(args.persona)["size"]
+    if args.like:
+        check_input_file(args.like, BadImageError, what="image file")
+        kw = {"reference": args.like}
+    else:
+        kw = {"fiducials": _read_fiducials(args.fiducials, size)}
     persona = load_persona(args.persona)
     t1 = time.perf_counter()
-    kw = {"reference": args.like} if args.like else {"fiducials": _read_fiducials(args.fiducials)}
     with progress_bar(desc="texture", unit="step") as update:
         img = synthesize_texture(persona, method=args.method, sigma=args.sigma, progress=update, **kw)
     t2 = time.perf_counter()
-    write_image(args.output, img, overwrite=args.overwrite)
-    _sidecar(args.output, {
+    _write_with_sidecar(out, sidecar, img, {
         "command": "persona texture", "persona": args.persona, "photos": len(persona),
         "target": {"like": args.like} if args.like else {"fiducials": args.fiducials},
         "method": args.method, "sigma": args.sigma,
         "timings_s": {"load": t1 - t0, "synthesize_incl_precompute": t2 - t1},
-    })
+    }, args, inputs)
     return 0
 
 
 def run_average(args) -> int:
     import time
 
-    from ..io import check_output_path, write_image
     from ..persona import average_face, load_persona
 
-    check_output_path(args.output, overwrite=args.overwrite)
+    inputs = [args.persona]
+    out, sidecar = _outputs(args, inputs)
     t0 = time.perf_counter()
     persona = load_persona(args.persona)
     t1 = time.perf_counter()
     img = average_face(persona, args.stage)
     t2 = time.perf_counter()
-    write_image(args.output, img, overwrite=args.overwrite)
-    _sidecar(args.output, {"command": "persona average", "persona": args.persona, "photos": len(persona),
-                           "stage": args.stage, "timings_s": {"load": t1 - t0, "average": t2 - t1}})
+    _write_with_sidecar(out, sidecar, img, {
+        "command": "persona average", "persona": args.persona, "photos": len(persona), "stage": args.stage,
+        "timings_s": {"load": t1 - t0, "average": t2 - t1}}, args, inputs)
     return 0
 
 
@@ -168,14 +202,19 @@ def run_mesh(args) -> int:
     from ..persona.mesh_io import depth_to_mesh, write_obj
     from ..persona.shape import checked_depth, generic_depth_px
 
+    from ..persona import read_persona_header
+
     out = Path(args.output)
     if out.suffix.lower() != ".obj":
         raise OutputError("mesh file name must end in .obj", path=out)
-    if args.step < 1:
-        raise BadInputError(f"--step must be a positive integer, got {args.step}")
     paths = {"obj": out, "mtl": out.with_suffix(".mtl"), "texture": out.with_suffix(".png")}
     for p in paths.values():  # before any work: no partial output set
-        check_output_path(p, overwrite=args.overwrite)
+        check_output_path(p, overwrite=args.overwrite, inputs=[args.persona])
+    W, H = read_persona_header(args.persona)["size"]
+    max_step = max(1, min(W, H) // 8)
+    if not 1 <= args.step <= max_step:
+        raise BadInputError(f"--step {args.step} leaves too few grid points in the {W}x{H} canonical frame: "
+                            f"use 1..{max_step}", path=args.persona)
     t0 = time.perf_counter()
     persona = load_persona(args.persona)
     W, H = persona.size
@@ -193,9 +232,12 @@ def run_mesh(args) -> int:
         depth, source = checked_depth(raw, region, (W, H))
     t2 = time.perf_counter()
     vertices, faces, uv = depth_to_mesh(depth, region, step=args.step)
+    if len(faces) == 0:
+        raise BadInputError(f"--step {args.step} leaves no triangle on the face: use a smaller step",
+                            path=args.persona)
     texture = average_face(persona, "d")
     t3 = time.perf_counter()
-    write_obj(out, vertices, faces, uv, texture, overwrite=args.overwrite)
+    write_obj(out, vertices, faces, uv, texture, overwrite=args.overwrite, inputs=[args.persona])
     print_json({
         "command": "persona mesh", "persona": str(args.persona), "photos": len(persona),
         "paths": {k: str(v) for k, v in paths.items()},

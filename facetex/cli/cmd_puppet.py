@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import sys
 
-from ._common import add_overwrite, print_json, progress_bar
+from ._common import add_overwrite, bounded_int, positive_int, print_json, progress_bar
+
+MAX_SIZE = 4096  # longer side of an output panel (px)
 
 
 def register(sub) -> None:
@@ -15,23 +17,28 @@ def register(sub) -> None:
     p.add_argument("--driver-photos", help="folder of photos of the driver for its average shape "
                                            "(default: the video's frames)")
     p.add_argument("--side-by-side", action="store_true", help="put the driver frame left of the puppet")
-    p.add_argument("--size", type=int, help="longer side of the output frame (per panel) in px "
-                                            "(default: the driver's)")
+    p.add_argument("--size", type=bounded_int(32, MAX_SIZE),
+                   help=f"longer side of the output frame (per panel) in px, 32..{MAX_SIZE} (default: the driver's)")
     p.add_argument("--background", choices=("driver", "plain"), default="driver",
                    help="composite the puppet over the driver's frame (default) or a plain grey")
     p.add_argument("--texture", choices=("ours", "static"), default="ours",
                    help="expression-dependent texture (default) or the static average texture")
-    p.add_argument("--max-frames", type=int, help="use only the first N frames")
+    p.add_argument("--max-frames", type=positive_int, help="use only the first N frames")
     add_overwrite(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    from ..io import check_output_path, video_info
+    from ..errors import BadInputError
+    from ..io import VIDEO_EXTENSIONS, check_input_dir, check_output_path, video_info
     from ..persona import read_persona_header
     from ..persona.puppet import PuppetParams, puppeteer
 
-    check_output_path(args.output, overwrite=args.overwrite)
+    # everything checked before the work: output, inputs, the driver's size
+    check_output_path(args.output, overwrite=args.overwrite, inputs=[args.driver, args.puppet],
+                      extensions=VIDEO_EXTENSIONS, what="video")
+    if args.driver_photos:
+        check_input_dir(args.driver_photos, BadInputError, what="driver photo folder")
     read_persona_header(args.puppet)  # fail fast on a wrong file; the arrays load while the driver is tracked
     n = video_info(args.driver)["n_frames"]
     if args.max_frames is not None:

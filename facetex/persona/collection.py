@@ -23,7 +23,11 @@ from __future__ import annotations
 
 import json
 import multiprocessing
+import os
+import struct
+import tokenize
 import zipfile
+import zlib
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import asdict, dataclass, field
@@ -145,7 +149,7 @@ class Persona:
         arrays = {k: getattr(self, k) for k in _ARRAYS}
         if self.depth is not None:
             arrays["depth"] = np.asarray(self.depth, np.float32)
-        with atomic_path(path) as tmp:
+        with atomic_path(path, overwrite=overwrite) as tmp:
             with open(tmp, "wb") as fh, zipfile.ZipFile(fh, "w", allowZip64=True) as z:
                 for name, arr in {"header": head, **arrays}.items():
                     info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
@@ -172,24 +176,39 @@ _ARRAYS = {
 }
 
 
+#: what a damaged zip member can raise while being read (zlib, npy header parsing, zip checks)
+_CORRUPT = (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, OSError, EOFError, KeyError, UnicodeDecodeError,
+            SyntaxError, tokenize.TokenError, zlib.error, struct.error, OverflowError, NotImplementedError,
+            TypeError, IndexError)
+_MAX_HEADER_BYTES = 64 * 2**20
+
+
 def _bad(path, what: str) -> BadPersonaError:
     return BadPersonaError(f"{what}: rebuild it with `facetex persona build`", path=path)
 
 
 def _read_header(path: Path) -> tuple[dict, PersonaParams, list[str]]:
     """Parse and validate only the JSON header member (no array is decompressed)."""
-    if not path.is_file():
+    from ..io import check_input_file
+
+    if not path.exists() and not path.is_symlink():
         raise BadPersonaError("persona file not found: build one with `facetex persona build`", path=path)
+    check_input_file(path, BadPersonaError, what="persona file")  # FIFO, device, symlink loop, empty
     try:
         with zipfile.ZipFile(path) as zf:
             if "header.npy" not in zf.namelist():
                 raise _bad(path, "not a persona file (no header)")
+            if zf.getinfo("header.npy").file_size > _MAX_HEADER_BYTES:
+                raise _bad(path, f"corrupt persona file (header member of {zf.getinfo('header.npy').file_size} "
+                                 "bytes)")
             with zf.open("header.npy") as fh:
                 raw = np.lib.format.read_array(fh, allow_pickle=False)
         header = json.loads(raw.tobytes().decode("utf-8"))
     except BadPersonaError:
         raise
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError, UnicodeDecodeError) as e:
+    except RecursionError:
+        raise _bad(path, "corrupt persona header (JSON nested too deeply)") from None
+    except _CORRUPT as e:
         raise _bad(path, f"corrupt persona file ({type(e).__name__}: {e})") from None
     if not isinstance(header, dict) or header.get("format") != PERSONA_FORMAT:
         raise _bad(path, "not a persona file (unknown format)")
@@ -207,7 +226,7 @@ def _read_header(path: Path) -> tuple[dict, PersonaParams, list[str]]:
         dp = header.get("depth_photos") if version >= 2 else None
         if dp is not None and (not isinstance(dp, int) or dp < 0):
             raise ValueError(f"depth_photos {dp!r}")
-    except (KeyError, TypeError, ValueError) as e:
+    except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as e:
         raise _bad(path, f"corrupt persona header ({type(e).__name__}: {e})") from None
     return header, params, photos
 
@@ -227,6 +246,7 @@ def load_persona(path) -> Persona:
     header, params, photos = _read_header(path)
     depth_photos = header.get("depth_photos") if header["version"] >= 2 else None
     names = list(_ARRAYS) + (["depth"] if depth_photos is not None else [])
+    _check_members(path, header, params, photos)  # declared sizes and shapes, before decompressing
     try:
         with np.load(path, allow_pickle=False) as z:
             missing = [k for k in names if k not in z.files]
@@ -238,7 +258,7 @@ def load_persona(path) -> Persona:
             raise _bad(path, f"corrupt persona file (members {bad} are not arrays)")
     except BadPersonaError:
         raise
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError, UnicodeDecodeError) as e:
+    except _CORRUPT as e:
         raise _bad(path, f"corrupt persona file ({type(e).__name__}: {e})") from None
     try:
         skipped = list(header.get("skipped", []))
@@ -261,6 +281,39 @@ def load_persona(path) -> Persona:
                    depth_photos=int(depth_photos or 0), **arrays)
 
 
+def _check_members(path: Path, header: dict, params: PersonaParams, photos: list) -> None:
+    """Refuse a persona whose arrays are not what its header implies, from the zip directory and
+    the .npy member headers only: a crafted member (2 GiB of zeros in a 5 MB file) is refused
+    before a byte of it is decompressed; the arrays together must fit in the available memory."""
+    from .._memory import available_memory
+    from ..io import npz_members
+
+    n, (W, H), r = len(photos), params.size, params.subspace_rank
+    if not (0 < W <= 4096 and 0 < H <= 4096 and 0 <= r <= 64):
+        raise _bad(path, f"corrupt persona header (canonical size {W}x{H}, rank {r})")
+    want = {k: (np.dtype(dtype), shape(n, H, W, r)) for k, (dtype, shape) in _ARRAYS.items()}
+    if header["version"] >= 2 and header.get("depth_photos") is not None:
+        want["depth"] = (np.dtype(np.float32), (H, W))
+    members = npz_members(path, BadPersonaError, what="persona file")
+    total = 0
+    for name, m in members.items():
+        if name == "header":
+            continue
+        if name in want:
+            dtype, shape = want[name]
+            if m["dtype"] != dtype or m["shape"] != shape:
+                raise _bad(path, f"array {name!r} has {m['dtype']} {m['shape']}, expected {dtype} {shape}")
+            nbytes = int(np.prod(shape)) * dtype.itemsize
+            if not nbytes <= m["file_size"] <= nbytes + 65536:  # + the .npy header
+                raise _bad(path, f"corrupt persona file (member {name!r} declares {m['file_size']} bytes "
+                                 f"for a {nbytes}-byte array)")
+            total += nbytes
+    avail = available_memory()
+    if avail and total > 0.9 * avail:
+        raise _bad(path, f"its arrays need {total / 2**30:.1f} GiB, more than the {avail / 2**30:.1f} GiB "
+                         "of memory available")
+
+
 # ------------------------------------------------------------------------- building
 def _list_photos(folder: Path) -> list[Path]:
     if not folder.is_dir():
@@ -274,6 +327,10 @@ def _list_photos(folder: Path) -> list[Path]:
 
 
 def _init_worker() -> None:
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the parent stops us
+    os.environ.setdefault("OMP_NUM_THREADS", "1")  # torch (identity descriptor) is imported after this
     cv2.setNumThreads(1)
 
 
@@ -281,13 +338,13 @@ def process_photo(path, params: PersonaParams = PersonaParams()) -> dict:
     """Detect, check and frontalize one photo. Returns {"file", "image", "visibility",
     "fiducials", "points68", "pose"} or {"file", "reason"} when the photo is unusable."""
     from ..geometry.frontalize import frontalize
-    from ..io import read_image
+    from ..io import DETECT_MAX_PIXELS, read_image
     from ..landmarks import POINTS49_INDEX, detect_faces
 
     path = Path(path)
     name = path.name
     try:
-        img = read_image(path)
+        img = read_image(path, reduce_to=DETECT_MAX_PIXELS)  # a huge photo costs at most ~1 GB
     except BadImageError as e:
         return {"file": name, "reason": f"unreadable ({e.message})"}
     faces = detect_faces(img, upsample=None)
@@ -303,8 +360,15 @@ def process_photo(path, params: PersonaParams = PersonaParams()) -> dict:
     if abs(pose[0]) > params.max_yaw:
         return {"file": name, "reason": f"extreme pose (yaw {pose[0]:.0f} deg > {params.max_yaw:.0f})"}
     p68 = np.asarray(fr.points68, np.float64)
+    from .identity import photo_descriptor
+
+    try:
+        descriptor = photo_descriptor(img, faces[0].points68)  # who it is (a collection is one person)
+    except FacetexError:
+        descriptor = None
     return {
         "file": name,
+        "descriptor": descriptor,
         "image": np.clip(np.rint(fr.image * 255), 0, 255).astype(np.uint8),
         "visibility": np.clip(np.rint(fr.visibility * 255), 0, 255).astype(np.uint8),
         "fiducials": p68[POINTS49_INDEX].copy(),
@@ -314,7 +378,13 @@ def process_photo(path, params: PersonaParams = PersonaParams()) -> dict:
 
 
 def _process_star(args):
-    return process_photo(*args)
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:  # re-emitted by the parent (not a worker's stderr)
+        warnings.simplefilter("always")
+        r = process_photo(*args)
+    r["warnings"] = [str(w.message) for w in caught]
+    return r
 
 
 def _flow_star(args):
@@ -342,6 +412,10 @@ class _Pool:
 
     def __exit__(self, *exc):
         if self.pool is not None:
+            if exc[0] is not None:  # interrupted or failed: stop the workers now, then reap them
+                from .._parallel import terminate_workers
+
+                terminate_workers(self.pool)
             self.pool.shutdown(wait=True, cancel_futures=exc[0] is not None)
 
     def map(self, func, items, *, progress: Callable | None = None, **postfix) -> list:
@@ -471,7 +545,7 @@ def collection_flow(stack: np.ndarray, proj: np.ndarray, params: PersonaParams, 
 
 
 def build_persona(photo_dir, *, jobs: int = 2, progress: Callable | None = None,
-                  params: PersonaParams | None = None, files=None) -> Persona:
+                  params: PersonaParams | None = None, files=None, allow_mixed: bool = False) -> Persona:
     """Build a :class:`Persona` from a folder of photos of one person.
 
     Per photo (``jobs`` processes, results in file-name order): detect, frontalize,
@@ -482,7 +556,9 @@ def build_persona(photo_dir, *, jobs: int = 2, progress: Callable | None = None,
     (and with n=0, stage="shape" before the average depth).
     ``files`` restricts the build to these paths (e.g. leave-out evaluation).
     Raises BadInputError (naming the folder) when it holds no images or fewer than
-    ``params.min_photos`` usable photos.
+    ``params.min_photos`` usable photos. The photos must show one person
+    (:mod:`facetex.persona.identity`): photos of other people are left out when the main
+    identity holds >= 80 % of them, else MixedCollectionError, unless ``allow_mixed``.
     """
     params = params or PersonaParams()
     folder = Path(photo_dir)
@@ -490,14 +566,24 @@ def build_persona(photo_dir, *, jobs: int = 2, progress: Callable | None = None,
     if not paths:
         raise BadInputError("no photos given", path=folder)
     with _Pool(jobs) as pool:
-        persona = _build(folder, paths, params, pool, progress)
+        persona = _build(folder, paths, params, pool, progress, allow_mixed)
     return persona
 
 
-def _build(folder: Path, paths: list[Path], params: PersonaParams, pool: _Pool, progress) -> Persona:
+def _build(folder: Path, paths: list[Path], params: PersonaParams, pool: _Pool, progress,
+           allow_mixed: bool = False) -> Persona:
+    import warnings
+
+    from .identity import select_main_identity
+
     results = pool.map(_process_star, [(p, params) for p in paths], progress=progress, stage="frontalize")
+    for r in results:
+        for w in r.pop("warnings", ()):
+            warnings.warn(w, stacklevel=2)
     good = [r for r in results if "reason" not in r]
     skipped = [r for r in results if "reason" in r]
+    good, other_people = select_main_identity(good, allow_mixed=allow_mixed, path=folder)
+    skipped += other_people
     if len(good) < params.min_photos:
         reasons = {}
         for r in skipped:

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BadInputError, OutputError
-from ..io import atomic_path, check_output_path, write_image
+from ..io import check_output_path, encode_image, write_files
 
 __all__ = ["depth_to_mesh", "write_obj", "read_obj"]
 
@@ -72,16 +72,16 @@ def _table(fmt: str, arr: np.ndarray) -> str:
 
 
 def write_obj(path, vertices, faces, uv=None, texture=None, *, overwrite: bool = True,
-              to_gl_axes: bool = True) -> Path:
+              to_gl_axes: bool = True, inputs=()) -> Path:
     """Write a mesh as ``path`` (.obj), with ``<stem>.mtl`` and ``<stem>.png`` when ``texture``
-    (H, W, 3) float [0, 1] is given (it needs ``uv``). Each file is written atomically;
-    the .obj last. ``to_gl_axes`` turns OpenCV axes into the y-up axes viewers expect.
-    Returns the .obj path.
+    (H, W, 3) float [0, 1] is given (it needs ``uv``). The files are written together: all of
+    them or none (:func:`facetex.io.write_files`; exclusive creates unless ``overwrite``).
+    ``to_gl_axes`` turns OpenCV axes into the y-up axes viewers expect. Returns the .obj path.
     """
     path = Path(path)
     if path.suffix.lower() != ".obj":
         raise OutputError("mesh file name must end in .obj", path=path)
-    check_output_path(path, overwrite=overwrite)
+    check_output_path(path, overwrite=overwrite, inputs=inputs)
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
@@ -97,13 +97,11 @@ def write_obj(path, vertices, faces, uv=None, texture=None, *, overwrite: bool =
     if to_gl_axes:
         v = v * _TO_GL
     header = [f"# facetex mesh: {len(v)} vertices, {len(f)} faces"]
+    files = {}
     if texture is not None:
         mtl, png = path.with_suffix(".mtl"), path.with_suffix(".png")
-        write_image(png, texture, overwrite=overwrite)
-        check_output_path(mtl, overwrite=overwrite)
-        with atomic_path(mtl) as tmp:
-            tmp.write_text(f"newmtl face\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\nmap_Kd {png.name}\n",
-                           encoding="utf-8")
+        files[png] = encode_image(png, texture)
+        files[mtl] = f"newmtl face\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\nmap_Kd {png.name}\n"
         header += [f"mtllib {mtl.name}", "usemtl face"]
     parts = ["\n".join(header) + "\n", _table("v %.6f %.6f %.6f", v)]
     if uv is not None:
@@ -112,8 +110,8 @@ def write_obj(path, vertices, faces, uv=None, texture=None, *, overwrite: bool =
         parts.append(_table("f %d/%d %d/%d %d/%d", np.repeat(f + 1, 2, axis=1)))
     else:
         parts.append(_table("f %d %d %d", f + 1))
-    with atomic_path(path) as tmp:
-        tmp.write_text("".join(parts), encoding="utf-8")
+    files[path] = "".join(parts)
+    write_files(files, overwrite=overwrite, inputs=inputs)
     return path
 
 

@@ -361,6 +361,10 @@ def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | N
     return PuppetSession(track, motion, coll, pup, timings)
 
 
+#: longest side of an output panel (a 4K frame); larger sizes are refused before any work
+MAX_OUTPUT_SIDE = 4096
+
+
 def _even(v: float) -> int:
     return max(2, int(round(v / 2.0)) * 2)
 
@@ -370,8 +374,8 @@ def output_size(frame_size, size: int | None) -> tuple[int, int, float]:
     w, h = frame_size
     if size is None:
         return _even(w), _even(h), 1.0
-    if int(size) < 32:
-        raise BadInputError(f"--size must be at least 32 px, got {size}")
+    if not 32 <= int(size) <= MAX_OUTPUT_SIDE:
+        raise BadInputError(f"--size must be 32..{MAX_OUTPUT_SIDE} px, got {size}")
     s = float(size) / max(w, h)
     return _even(w * s), _even(h * s), s
 
@@ -446,11 +450,13 @@ def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool
     counted; a video without any face raises NoFaceError naming it (nothing is written).
     ``on_frame(record)`` receives each frame record of :func:`render_frames`.
     Returns a report dict (frames, lost frames, timings, shape/collection sources)."""
-    from ..io import check_output_path, write_video
+    from ..io import check_output_path, video_info, write_video
 
     if background not in BACKGROUNDS:
         raise BadInputError(f"unknown background {background!r}: use one of {', '.join(BACKGROUNDS)}")
-    out = check_output_path(output, overwrite=overwrite)
+    inputs = [driver] + ([] if hasattr(persona, "images") else [persona])
+    out = check_output_path(output, overwrite=overwrite, inputs=inputs)
+    output_size((1, 1), size)  # a bad size fails before the work
     t_start = time.perf_counter()
     session = prepare_puppetry(driver, persona, driver_photos=driver_photos, max_frames=max_frames, params=params,
                                progress=progress)
@@ -464,7 +470,7 @@ def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool
 
     t0 = time.perf_counter()
     write_video(out, frames(), session.track.fps, audio_from=driver if session.track.has_audio else None,
-                overwrite=overwrite)
+                overwrite=overwrite, inputs=inputs)
     tm = session.timings
     tm["render_pass_s"] = time.perf_counter() - t0
     tm["total_s"] = time.perf_counter() - t_start
@@ -475,7 +481,7 @@ def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool
         "lost_frames": tr.n_lost,
         "lost_indices": [int(i) for i in np.flatnonzero(~tr.found)],
         "fps": tr.fps,
-        "audio": tr.has_audio,
+        "audio": tr.has_audio and video_info(out)["has_audio"],  # False when the driver's audio was damaged
         "puppet_shape": session.puppeteer.shape_source,
         "driver_collection": session.collection.source,
         "timings": {k: round(v, 3) for k, v in tm.items()},

@@ -338,13 +338,13 @@ def frontalize_reference(reference, size) -> tuple[np.ndarray, np.ndarray]:
     """(frontal image float32 (H, W, 3), pose-corrected fiducials (49, 2)) of a reference
     photo (a path or an RGB image)."""
     from ..geometry.frontalize import frontalize
-    from ..io import read_image
+    from ..io import DETECT_MAX_PIXELS, read_image
     from ..landmarks import POINTS49_INDEX, detect_face
 
     src = None
     if isinstance(reference, (str, bytes)) or hasattr(reference, "__fspath__"):
         src = reference
-        reference = read_image(reference)
+        reference = read_image(reference, reduce_to=DETECT_MAX_PIXELS)  # only its face is used
     face = detect_face(reference, source=src)
     fr = frontalize(reference, face.points68, size=size)
     return fr.image, np.asarray(fr.points68, np.float64)[POINTS49_INDEX]

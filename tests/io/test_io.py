@@ -255,7 +255,7 @@ def test_decompression_bomb_fails_fast(tmp_path):
     with pytest.raises(BadImageError) as e:
         fio.read_image(tmp_path / "bomb.png")
     assert time.perf_counter() - t < 1.0
-    assert "bomb.png" in str(e.value) and "20000x20000" in str(e.value) and "150000000" in str(e.value)
+    assert "bomb.png" in str(e.value) and "20000x20000" in str(e.value) and str(fio.MAX_IMAGE_PIXELS) in str(e.value)
 
 
 def test_bad_background_value():
@@ -441,3 +441,111 @@ def test_write_video_bad_frames_leave_nothing(tmp_path):
     with pytest.raises(BadInputError):
         fio.write_video(tmp_path / "m.mp4", frames, 25)
     assert os.listdir(tmp_path) == []
+
+
+# ------------------------------------------------------------ issue 13: reduced reading, commits
+@pytest.mark.parametrize("ext, mode", [(".jpg", "RGB"), (".png", "RGB"), (".png", "RGBA"), (".png", "P"),
+                                       (".tif", "RGB16")])
+def test_read_image_reduced_matches_a_resize(tmp_path, ext, mode):
+    base = cv2.resize(fio.read_image(SAMPLE), (1200, 900), interpolation=cv2.INTER_CUBIC)
+    path = tmp_path / f"big{ext}"
+    if mode == "RGB16":
+        cv2.imwrite(str(path), (np.clip(base, 0, 1) * 65535).astype(np.uint16)[..., ::-1])
+    else:
+        im = Image.fromarray(fio.to_uint8(base))
+        im = im.convert(mode) if mode != "P" else im.convert("P", palette=Image.Palette.ADAPTIVE)
+        im.save(path, quality=95)
+    img, (sx, sy) = fio.read_image_reduced(path, 200_000)
+    h, w = img.shape[:2]
+    assert h * w <= 200_000 and abs(w / h - 4 / 3) < 0.02
+    assert abs(sx - w / 1200) < 1e-9 and abs(sy - h / 900) < 1e-9
+    ref = cv2.resize(base, (w, h), interpolation=cv2.INTER_AREA)
+    assert np.abs(img - ref).mean() < 0.03  # the same picture, smaller
+    full = fio.read_image(path)
+    assert full.shape == (900, 1200, 3)  # without reduce_to: full resolution
+
+
+def test_read_image_reduced_exif_rotation_scale(tmp_path):
+    base = Image.open(SAMPLE).convert("RGB").resize((800, 600))
+    exif = Image.Exif()
+    exif[0x0112] = 6  # stored turned to 600 x 800; displayed 800 x 600 again
+    base.transpose(Image.Transpose.ROTATE_90).save(tmp_path / "r.jpg", exif=exif.tobytes(), quality=95)
+    img, (sx, sy) = fio.read_image_reduced(tmp_path / "r.jpg", 60_000)
+    h, w = img.shape[:2]
+    assert w > h  # displayed orientation, not the stored one
+    assert abs(sx - w / 800) < 1e-9 and abs(sy - h / 600) < 1e-9
+    ref = cv2.resize(np.asarray(base, np.float32) / 255, (w, h), interpolation=cv2.INTER_AREA)
+    assert np.abs(img - ref).mean() < 0.03
+
+
+def test_small_image_not_reduced(tmp_path):
+    img, scale = fio.read_image_reduced(SAMPLE, fio.DETECT_MAX_PIXELS)
+    assert img.shape == (400, 400, 3) and scale == (1.0, 1.0)
+
+
+def test_memory_budget_refuses_from_header(tmp_path):
+    ihdr = struct.pack(">IIBBBBB", 30000, 30000, 8, 2, 0, 0, 0)
+    (tmp_path / "b.png").write_bytes(b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", ihdr)
+                                     + _png_chunk(b"IDAT", zlib.compress(b"\0" * 10)) + _png_chunk(b"IEND", b""))
+    with pytest.raises(BadImageError, match=r"30000x30000.*GiB to decode.*limit"):
+        fio.read_image(tmp_path / "b.png", reduce_to=1_000_000)
+
+
+def test_check_input_file_kinds(tmp_path):
+    os.mkfifo(tmp_path / "fifo")
+    (tmp_path / "loop").symlink_to(tmp_path / "loop")
+    (tmp_path / "dangling").symlink_to(tmp_path / "nothing")
+    (tmp_path / "zero").symlink_to("/dev/zero")
+    for name, cause in {"fifo": "FIFO", "loop": "symlink loop", "dangling": "broken symlink",
+                        "zero": "character device", "missing": "not found"}.items():
+        with pytest.raises(BadInputError, match=cause) as e:
+            fio.check_input_file(tmp_path / name)
+        assert e.value.path == str(tmp_path / name)
+
+
+def test_write_files_exclusive_and_rollback(tmp_path):
+    a, b = tmp_path / "a.png", tmp_path / "a.png.json"
+    fio.write_files({a: b"one", b: "two"}, overwrite=False)
+    assert a.read_bytes() == b"one" and b.read_text() == "two"
+    with pytest.raises(OutputError, match="exists"):
+        fio.write_files({a: b"x", b: "y"}, overwrite=False)
+    fio.write_files({a: b"three", b: "four"}, overwrite=True)
+    assert a.read_bytes() == b"three" and b.read_text() == "four"
+    # a failure while committing the second file restores the first (overwrite: from its backup)
+    real = fio._link_new
+    b.unlink()
+    fio._link_new = lambda tmp, final: (_ for _ in ()).throw(OSError(28, "No space left on device"))
+    try:
+        with pytest.raises(OutputError, match="disk full"):
+            fio.write_files({tmp_path / "new.png": b"n"}, overwrite=False)
+    finally:
+        fio._link_new = real
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png"]
+
+
+def test_output_checks_whatever_overwrite(tmp_path):
+    src = tmp_path / "in.png"
+    src.write_bytes(b"input")
+    os.mkfifo(tmp_path / "f.png")
+    with pytest.raises(OutputError, match="same file as the input"):
+        fio.check_output_path(src, overwrite=True, inputs=[src])
+    with pytest.raises(OutputError, match="FIFO"):
+        fio.check_output_path(tmp_path / "f.png", overwrite=True)
+    with pytest.raises(OutputError, match="same file as the input"):
+        fio.write_image(src, np.zeros((20, 20, 3)), overwrite=True, inputs=[src])
+    assert src.read_bytes() == b"input"
+    with pytest.raises(OutputError, match=r"extension '\.xyz'"):
+        fio.write_image(tmp_path / "o.xyz", np.zeros((20, 20, 3)))
+
+
+def test_npz_members_reads_headers_only(tmp_path):
+    np.savez_compressed(tmp_path / "a.npz", x=np.zeros((3, 4), np.float32), y=np.arange(5))
+    m = fio.npz_members(tmp_path / "a.npz")
+    assert m["x"]["shape"] == (3, 4) and m["x"]["dtype"] == np.float32 and m["y"]["shape"] == (5,)
+    np.save(tmp_path / "o.npy", np.array([object()], dtype=object), allow_pickle=True)
+    import zipfile
+
+    with zipfile.ZipFile(tmp_path / "b.npz", "w") as z:
+        z.write(tmp_path / "o.npy", "o.npy")
+    with pytest.raises(BadInputError, match="Python objects"):
+        fio.npz_members(tmp_path / "b.npz")

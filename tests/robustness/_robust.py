@@ -24,6 +24,7 @@ class Run:
     code: int
     out: str
     err: str
+    argv: tuple = ()
 
     @property
     def lines(self) -> list[str]:
@@ -34,9 +35,32 @@ class Run:
 
 def run_cli(capsys, *argv) -> Run:
     capsys.readouterr()
-    code = main([str(a) for a in argv])
+    argv = [str(a) for a in argv]
+    code = main(argv)
     out, err = capsys.readouterr()
-    return Run(code, out, err)
+    return Run(code, out, err, tuple(argv))
+
+
+def command_options(argv) -> set[str] | None:
+    """Option strings (``--size`` …) of the (sub)command that ``argv`` runs, or None if unknown."""
+    import argparse
+
+    from facetex.cli import build_parser
+
+    parser = build_parser()
+    opts = set()
+    for a in argv:
+        opts |= {s for act in parser._actions for s in act.option_strings}
+        subs = [act for act in parser._actions if isinstance(act, argparse._SubParsersAction)]
+        if not subs or a not in subs[0].choices:
+            if a.startswith("-"):
+                continue
+            if subs:
+                break
+            continue
+        parser = subs[0].choices[a]
+    opts |= {s for act in parser._actions for s in act.option_strings}
+    return opts
 
 
 def snapshot(folder: Path) -> dict[str, str]:
@@ -57,6 +81,61 @@ def assert_one_error(run: Run, *, names=(), cause: str = "", code: int = 2, pref
     for n in names:
         assert Path(n).name in line, (n, line)
     assert re.search(cause, line, re.I), (cause, line)
+    if run.argv:  # advice names only options this command has
+        opts = command_options(run.argv)
+        named = set(re.findall(r"(?<![\w/.-])--[a-z][a-z0-9-]*", line))
+        typed = {a.split("=")[0] for a in run.argv if a.startswith("--")}  # echoed back: fine
+        assert named <= opts | typed, (sorted(named - opts - typed), line)
     return line
+
+
+def sha1s(*paths) -> dict[str, str]:
+    """path -> sha1 of the given files (for "inputs byte-identical")."""
+    return {str(p): hashlib.sha1(Path(p).read_bytes()).hexdigest() for p in paths}
+
+
+def child_pids(pid: int | None = None) -> set[int]:
+    """Live (not zombie) direct children of ``pid`` (default: this process), from /proc."""
+    import os
+
+    pid = os.getpid() if pid is None else pid
+    out = set()
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            stat = (d / "stat").read_text()
+        except OSError:
+            continue
+        fields = stat[stat.rindex(")") + 2:].split()
+        if int(fields[1]) == pid and fields[0] != "Z":
+            out.add(int(d.name))
+    return out
+
+
+def descendants(pid: int) -> set[int]:
+    out, todo = set(), [pid]
+    while todo:
+        kids = child_pids(todo.pop())
+        out |= kids
+        todo.extend(kids)
+    return out
+
+
+def alive(pid: int) -> bool:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat[stat.rindex(")") + 2:].split()[0] != "Z"
+
+
+def helper_daemon(pid: int) -> bool:
+    """multiprocessing's forkserver / resource tracker: one per process, they end with it."""
+    try:
+        cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return True
+    return b"forkserver" in cmd or b"resource_tracker" in cmd
 
 

@@ -125,7 +125,7 @@ def photo_dir(tmp_path_factory) -> Path:
     return d
 
 
-BUILD_OPTS = ["--jobs", "1", "--min-photos", "3"]
+BUILD_OPTS = ["--jobs", "1", "--min-photos", "3", "--allow-mixed"]  # six people: not one persona
 
 
 @pytest.fixture(scope="session")
@@ -164,3 +164,220 @@ def videos(tmp_path_factory) -> dict[str, Path]:
     (d / "empty.mp4").write_bytes(b"")
     (d / "text.mp4").write_text("not a video\n")
     return {p.name: p for p in d.iterdir()}
+
+
+# ---------------------------------------------------------------- second wave (issue 13)
+def _variants(img: np.ndarray, n: int, seed: int) -> list[np.ndarray]:
+    """n distinct photos of one face: small rotations, scales, shifts, gains and light ramps."""
+    rng = np.random.default_rng(seed)
+    h, w = img.shape[:2]
+    out = []
+    for k in range(n):
+        m = cv2.getRotationMatrix2D((w / 2, h / 2), rng.uniform(-5, 5), rng.uniform(0.93, 1.05))
+        m[:, 2] += rng.uniform(-8, 8, 2)
+        j = cv2.warpAffine(img, m, (w, h), borderMode=cv2.BORDER_REPLICATE)
+        ramp = np.linspace(-1, 1, w, dtype=np.float32)[None, :, None] * rng.uniform(-0.2, 0.2)
+        out.append(np.clip(j * rng.uniform(0.85, 1.1) * (1 + ramp), 0, 1))
+    return out
+
+
+def _person(name: str, n: int, seed: int) -> list[np.ndarray]:
+    from facetex.io import read_image
+
+    imgs = []
+    for k, expr in enumerate(("neutral", "smiling")):
+        img = cv2.resize(read_image(FACE.parent / f"{name}_{expr}.jpg"), (240, 240), interpolation=cv2.INTER_AREA)
+        imgs += _variants(img, (n + 1 - k) // 2, seed + k)
+    return imgs[:n]
+
+
+@pytest.fixture(scope="session")
+def two_people(tmp_path_factory) -> dict[str, Path]:
+    """Photo folders: "half" = 5 photos of frl_004 + 5 of frl_005; "mostly" = 8 of frl_004 + 1 of frl_005."""
+    from facetex.io import write_image
+
+    a, b = _person("frl_004", 8, 0), _person("frl_005", 5, 10)
+    out = {}
+    for name, (na, nb) in {"half": (5, 5), "mostly": (8, 1)}.items():
+        d = tmp_path_factory.mktemp(name)
+        for i in range(na):
+            write_image(d / f"a{i}.jpg", a[i])
+        for i in range(nb):
+            write_image(d / f"b{i}.jpg", b[i])
+        out[name] = d
+    return out
+
+
+@pytest.fixture(scope="session")
+def special(tmp_path_factory) -> dict[str, Path]:
+    """FIFOs, a link to /dev/zero, a symlink loop, a dangling link, animated images."""
+    import os
+
+    from PIL import Image
+
+    d = tmp_path_factory.mktemp("special")
+    f = {}
+    for name in ("fifo.jpg", "fifo.persona", "fifo.json", "fifo.mp4", "fifo_out.png"):
+        os.mkfifo(d / name)
+        f[name] = d / name
+    for name, target in (("zero.jpg", "/dev/zero"), ("zero.persona", "/dev/zero"), ("null.png", "/dev/null"),
+                         ("loop.jpg", "loop.jpg"), ("loop.persona", "loop.persona"), ("dangling.jpg", "gone.jpg")):
+        (d / name).symlink_to(target)
+        f[name] = d / name
+    frames = [Image.open(FACE).convert("RGB"), Image.open(FACE_SMILING).convert("RGB"), Image.open(OTHER).convert("RGB")]
+    frames[0].save(d / "animated.gif", save_all=True, append_images=frames[1:], duration=100, loop=0)
+    frames[0].save(d / "animated.png", save_all=True, append_images=frames[1:], duration=100)  # APNG
+    f["animated.gif"], f["animated.png"] = d / "animated.gif", d / "animated.png"
+    return f
+
+
+def _mount_tmpfs(path: Path, options: str) -> bool:
+    import os
+    import subprocess
+
+    if not hasattr(os, "geteuid") or os.geteuid() != 0:
+        return False
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(path)], capture_output=True)
+    return r.returncode == 0
+
+
+@pytest.fixture
+def readonly_dir(tmp_path):
+    """A folder nobody may write: chmod 0500 (non-root) or a read-only tmpfs (root)."""
+    import os
+    import subprocess
+
+    d = tmp_path / "ro"
+    d.mkdir()
+    if hasattr(os, "geteuid") and os.geteuid() != 0:
+        d.chmod(0o500)
+        yield d
+        d.chmod(0o700)
+        return
+    if not _mount_tmpfs(d, "ro,size=64k"):
+        pytest.skip("root cannot make a read-only folder here (no tmpfs mount)")
+    try:
+        yield d
+    finally:
+        subprocess.run(["umount", str(d)], capture_output=True)
+
+
+@pytest.fixture
+def tiny_fs(tmp_path):
+    """A 64 KiB tmpfs (a full disk after 64 KiB); root only."""
+    import subprocess
+
+    d = tmp_path / "tiny"
+    d.mkdir()
+    if not _mount_tmpfs(d, "size=64k"):
+        pytest.skip("needs root and tmpfs to make a tiny file system")
+    try:
+        yield d
+    finally:
+        subprocess.run(["umount", str(d)], capture_output=True)
+
+
+def _video_with_audio(path: Path, frames, fps: int = 10) -> Path:
+    """H.264 + AAC (a 440 Hz tone) MP4."""
+    import av
+
+    with av.open(str(path), "w") as out:
+        vs = out.add_stream("libx264" if "libx264" in av.codecs_available else "h264", rate=fps)
+        h, w = frames[0].shape[:2]
+        vs.width, vs.height, vs.pix_fmt = w, h, "yuv420p"
+        a = out.add_stream("aac", rate=16000)
+        a.layout = "mono"
+        for i, fr in enumerate(frames):
+            vf = av.VideoFrame.from_ndarray((np.clip(fr, 0, 1) * 255).astype(np.uint8), format="rgb24")
+            vf.pts = i
+            out.mux(vs.encode(vf))
+        out.mux(vs.encode(None))
+        n = int(16000 * len(frames) / fps)
+        pcm = (0.3 * np.sin(2 * np.pi * 440 * np.arange(n) / 16000)).astype(np.float32)
+        for k in range(0, n, 1024):
+            af = av.AudioFrame.from_ndarray(np.ascontiguousarray(pcm[None, k:k + 1024]), format="flt", layout="mono")
+            af.sample_rate, af.pts = 16000, k
+            out.mux(a.encode(af))
+        out.mux(a.encode(None))
+    return path
+
+
+@pytest.fixture(scope="session")
+def audio_videos(tmp_path_factory) -> dict[str, Path]:
+    """A talking-face stand-in with good AAC audio, and the same with every audio packet scrambled."""
+    import av
+
+    from facetex.io import read_image
+
+    d = tmp_path_factory.mktemp("audio")
+    a = cv2.resize(read_image(FACE), (200, 200), interpolation=cv2.INTER_AREA)
+    b = cv2.resize(read_image(FACE_SMILING), (200, 200), interpolation=cv2.INTER_AREA)
+    good = _video_with_audio(d / "good_audio.mp4", [a if i % 4 < 2 else b for i in range(6)])
+    raw = bytearray(good.read_bytes())
+    with av.open(str(good)) as c:
+        packets = [(p.pos, p.size) for p in c.demux(c.streams.audio[0]) if p.size]
+    rng = np.random.default_rng(3)
+    for pos, size in packets:
+        raw[pos:pos + size] = rng.integers(0, 256, size, dtype=np.uint8).tobytes()
+    (d / "bad_audio.mp4").write_bytes(bytes(raw))
+    return {"good_audio.mp4": good, "bad_audio.mp4": d / "bad_audio.mp4"}
+
+
+def big_png(path: Path, side: int, face_side: int) -> Path:
+    """A side x side RGB PNG (grey, the sample face of face_side px in the middle), streamed row
+    by row: a few MB on disk, side² x 3 bytes once decoded."""
+    import struct
+    import zlib
+
+    from facetex.io import read_image_uint8
+
+    face = cv2.resize(read_image_uint8(FACE), (face_side, face_side), interpolation=cv2.INTER_LINEAR)
+    comp = zlib.compressobj(1)
+    row = np.full((side, 3), 200, np.uint8)
+    plain = b"\x00" + row.tobytes()
+    y0 = (side - face_side) // 2
+    parts = []
+    for y in range(side):
+        if y0 <= y < y0 + face_side:
+            row[y0:y0 + face_side] = face[y - y0]
+            parts.append(comp.compress(b"\x00" + row.tobytes()))
+            row[y0:y0 + face_side] = 200
+        else:
+            parts.append(comp.compress(plain))
+    parts.append(comp.flush())
+    chunk = lambda t, d: struct.pack(">I", len(d)) + t + d + struct.pack(">I", zlib.crc32(t + d))  # noqa: E731
+    with open(path, "wb") as fh:
+        fh.write(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", side, side, 8, 2, 0, 0, 0))
+                 + chunk(b"IDAT", b"".join(parts)) + chunk(b"IEND", b""))
+    return path
+
+
+@pytest.fixture(autouse=True)
+def _no_orphans_inputs_intact(request):
+    """Around every robustness test: the shared inputs stay byte-identical and no process or
+    facetex thread it started is left running (multiprocessing's forkserver / resource tracker,
+    which live as long as the test process, excepted)."""
+    import threading
+    import time
+
+    from _robust import alive, child_pids, helper_daemon, sha1s
+
+    files = []
+    for name in ("bad", "videos", "special", "audio_videos"):
+        if name in request.fixturenames:
+            files += [p for p in request.getfixturevalue(name).values()
+                      if p.is_file() and not p.is_symlink() and p.stat().st_size < 50 * 2**20
+                      and __import__("stat").S_ISREG(p.stat().st_mode)]
+    before = sha1s(*files)
+    kids = child_pids()
+    yield
+    assert sha1s(*files) == before, "an input file was modified"
+    deadline = time.monotonic() + 5
+    while True:
+        new = [p for p in child_pids() - kids if alive(p) and not helper_daemon(p)]
+        threads = [t.name for t in threading.enumerate() if t.name.startswith("facetex")]
+        if not new and not threads or time.monotonic() > deadline:
+            break
+        time.sleep(0.1)
+    assert not new, f"child processes left running: {new}"
+    assert not threads, f"threads left running: {threads}"

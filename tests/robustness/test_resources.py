@@ -1,0 +1,215 @@
+"""Issue 13, bounded resources: a huge image, a crafted .persona and absurd options cost
+at most ~1 GB and a few seconds, or are refused from their headers / values."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from _robust import assert_one_error, run_cli, sha1s, snapshot
+from conftest import big_png
+
+GiB = 2**30
+
+
+def _peak_rss_of(cmd: list[str], timeout: float = 300) -> tuple[int, int, str, str]:
+    """(exit code, peak RSS in bytes, stdout, stderr) of a child process (wait4's ru_maxrss)."""
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    out, err = p.communicate(timeout=timeout)  # closes the pipes; the child is waited for below
+    _, status, usage = os.wait4(p.pid, 0) if p.returncode is None else (p.pid, 0, None)
+    if usage is None:  # already reaped by communicate: fall back to the children's maximum
+        import resource
+
+        usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+        code = p.returncode
+    else:
+        code = os.waitstatus_to_exitcode(status)
+    return code, usage.ru_maxrss * 1024, out, err
+
+
+_MEASURED = ("import sys; from facetex.cli import main; rc = main(sys.argv[1:]); "
+             "from facetex._memory import peak_rss; sys.stderr.write(f'\\nPEAK_RSS {peak_rss()}\\n'); sys.exit(rc)")
+
+
+def _run_measured(args: list[str], prog: str = _MEASURED) -> tuple[int, int, str, str]:
+    """Run the CLI with ARGS in a child process; (exit code, its peak RSS (VmHWM, which unlike
+    ru_maxrss does not include the forking test process), stdout, stderr without the reading)."""
+    r = subprocess.run([sys.executable, "-c", prog, *args], capture_output=True, text=True, timeout=300)
+    lines = r.stderr.rstrip().splitlines()
+    peak = int(lines[-1].split()[1]) if lines and lines[-1].startswith("PEAK_RSS") else 0
+    return r.returncode, peak, r.stdout, "\n".join(lines[:-1])
+
+
+@pytest.fixture(scope="module")
+def huge(tmp_path_factory) -> Path:
+    """A 9000 x 9000 PNG of ~3 MB (243 MB of pixels, 972 MB as float32): over the full-resolution
+    limit, within the reduced-decoding budget."""
+    return big_png(tmp_path_factory.mktemp("huge") / "huge.png", 9000, 1800)
+
+
+def test_huge_png_landmarks_reduced_under_1gb(huge, tmp_path):
+    code, peak, out, err = _run_measured(["landmarks", str(huge), "--json", "-o", str(tmp_path / "o.png")])
+    assert code == 0, err
+    assert "Traceback" not in err
+    assert "reduced to" in err and "huge.png" in err  # says so
+    faces = json.loads(out)["faces"]
+    assert len(faces) == 1
+    x0, y0, x1, y1 = faces[0]["box"]
+    assert 3600 < (x0 + x1) / 2 < 5400 and 3600 < (y0 + y1) / 2 < 5400  # original pixels, not reduced ones
+    assert 0 < peak < 1 * GiB, peak / GiB
+
+
+@pytest.mark.slow
+def test_12000px_png_every_reader_under_1gb(tmp_path):
+    """The issue's case: a 12000 x 12000 PNG in landmarks, persona texture --like and a build worker."""
+    big = big_png(tmp_path / "big.png", 12000, 2400)
+    code, peak, out, err = _run_measured(["landmarks", str(big)])
+    assert code == 0 and 0 < peak < 1 * GiB, (code, peak / GiB, err)
+    prog = ("import sys; from facetex.persona.collection import process_photo; r = process_photo(sys.argv[1]); "
+            "assert 'reason' not in r, r; from facetex._memory import peak_rss; "
+            "sys.stderr.write(f'\\nPEAK_RSS {peak_rss()}\\n')")
+    code, peak, out, err = _run_measured([str(big)], prog)
+    assert code == 0 and 0 < peak < 1.2 * GiB, (code, peak / GiB, err)  # + torch for the identity descriptor
+
+
+def test_huge_png_refused_at_full_resolution(capsys, huge, bad, outdir):
+    t0 = time.perf_counter()
+    run = run_cli(capsys, "transfer", huge, bad["face.jpg"], "-o", outdir / "t.png", "--size", "64", "--iters", "1")
+    assert time.perf_counter() - t0 < 10
+    assert_one_error(run, names=[huge], cause=r"9000x9000 = 81000000 pixels exceeds the limit of 40000000")
+    assert snapshot(outdir) == {}
+
+
+def test_identity_reads_huge_png_reduced(capsys, huge, bad):
+    run = run_cli(capsys, "identity", huge, bad["face_smiling.jpg"], "--json")
+    assert run.code == 0, run.err
+    assert json.loads(run.out)["same_person"] is True
+
+
+def test_decoding_budget_refuses_from_header(capsys, tmp_path):
+    """A 20000 x 20000 RGBA PNG header: 1.6 GB of pixels even reduced: refused in milliseconds."""
+    import struct
+    import zlib
+
+    chunk = lambda t, d: struct.pack(">I", len(d)) + t + d + struct.pack(">I", zlib.crc32(t + d))  # noqa: E731
+    path = tmp_path / "rgba_bomb.png"
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 20000, 20000, 8, 6, 0, 0, 0))
+                     + chunk(b"IDAT", zlib.compress(b"\0" * 100)) + chunk(b"IEND", b""))
+    t0 = time.perf_counter()
+    run = run_cli(capsys, "landmarks", path)
+    assert time.perf_counter() - t0 < 1
+    assert_one_error(run, names=[path], cause=r"20000x20000.*GiB to decode.*limit")
+
+
+@pytest.mark.parametrize("n, cause", [(10, r"--upsample 10 would detect on a 409600x409600 image.*at most "
+                                            r"--upsample 2"), (3, r"at most --upsample 2")])
+def test_upsample_bounded(capsys, bad, outdir, n, cause):
+    t0 = time.perf_counter()
+    run = run_cli(capsys, "landmarks", bad["face.jpg"], "--upsample", n, "-o", outdir / "o.png")
+    assert time.perf_counter() - t0 < 5
+    assert_one_error(run, names=[bad["face.jpg"]], cause=cause)
+    assert snapshot(outdir) == {}
+
+
+def test_puppet_size_bounded_in_api(tmp_path, videos, persona_file):
+    from facetex.errors import BadInputError
+    from facetex.persona.puppet import puppeteer
+
+    with pytest.raises(BadInputError, match="32..4096"):
+        puppeteer(videos["face.mp4"], persona_file, tmp_path / "o.mp4", size=99999)
+    assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------ crafted .persona members
+def _rewrite(src: Path, dst: Path, replace: dict) -> Path:
+    """Copy the zip ``src`` to ``dst``, member by member; ``replace[name](zf_out, info)`` writes its own."""
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dst, "w", allowZip64=True) as zout:
+        for info in zin.infolist():
+            if info.filename in replace:
+                replace[info.filename](zout, info)
+            else:
+                zout.writestr(info, zin.read(info.filename))
+    return dst
+
+
+def _npy_header(dtype, shape) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    np.lib.format.write_array_header_2_0(buf, {"descr": np.lib.format.dtype_to_descr(np.dtype(dtype)),
+                                               "fortran_order": False, "shape": tuple(shape)})
+    return buf.getvalue()
+
+
+def _crafted(tmp_path_factory, persona_file, member_gib: float):
+    from facetex.persona import load_persona
+
+    p = load_persona(persona_file)
+    n, (W, H) = len(p), p.size
+    d = tmp_path_factory.mktemp("crafted")
+    out = {}
+
+    def huge_member(zout, info):  # the right header, then member_gib GiB of zeros (a few MB deflated)
+        i = zipfile.ZipInfo(info.filename, date_time=(1980, 1, 1, 0, 0, 0))
+        i.compress_type = zipfile.ZIP_DEFLATED
+        i._compresslevel = 1  # fastest; still ~4.5 MB per GiB
+        with zout.open(i, "w", force_zip64=True) as fh:
+            fh.write(_npy_header(np.uint8, (n, H, W, 3)))
+            block = bytes(64 * 2**20)
+            for _ in range(int(member_gib * 16)):
+                fh.write(block)
+
+    out["huge-member"] = (_rewrite(persona_file, d / "huge.persona", {"images.npy": huge_member}),
+                          r"member 'images' declares \d+ bytes for a \d+-byte array")
+
+    def lying_shape(zout, info):  # declares 20000 x 20000 frames in 2 KB
+        zout.writestr(info.filename, _npy_header(np.uint8, (n, 20000, 20000, 3)) + bytes(1024),
+                      compress_type=zipfile.ZIP_DEFLATED)
+
+    out["lying-shape"] = (_rewrite(persona_file, d / "shape.persona", {"images.npy": lying_shape}),
+                          r"array 'images' has uint8 \(\d+, 20000, 20000, 3\)")
+
+    def objects(zout, info):
+        zout.writestr(info.filename, _npy_header(object, (n, 49, 2)) + bytes(64))
+
+    out["object-member"] = (_rewrite(persona_file, d / "objects.persona", {"fiducials.npy": objects}),
+                            r"Python objects")
+    return out
+
+
+@pytest.fixture(scope="module")
+def crafted(tmp_path_factory, persona_file):
+    return _crafted(tmp_path_factory, persona_file, 0.5)
+
+
+@pytest.mark.slow
+def test_2gib_member_refused_before_decompressing(capsys, tmp_path_factory, persona_file, outdir):
+    """The issue's case: a small .persona whose images member inflates to 2 GiB."""
+    _check_refused(capsys, *_crafted(tmp_path_factory, persona_file, 2.0)["huge-member"], outdir)
+
+
+@pytest.mark.parametrize("name", ["huge-member", "lying-shape", "object-member"])
+def test_crafted_persona_refused_before_decompressing(capsys, crafted, outdir, name):
+    _check_refused(capsys, *crafted[name], outdir)
+
+
+def _check_refused(capsys, path, cause, outdir):
+    from facetex._memory import peak_rss, reset_peak_rss
+
+    assert path.stat().st_size < 20 * 2**20
+    base = reset_peak_rss()
+    t0 = time.perf_counter()
+    run = run_cli(capsys, "persona", "average", path, "-o", outdir / "a.png")
+    took = time.perf_counter() - t0
+    assert_one_error(run, names=[path], cause=cause)
+    assert took < 5, took
+    assert peak_rss() - base < 200 * 2**20  # nothing near the 0.5 / 2 GiB member was allocated
+    assert snapshot(outdir) == {}
