@@ -283,7 +283,7 @@ def _crop_map_energies(style, style_map, face_width_style, dparams):
 def transfer_with_info(content, style, *, method: str = "facetex", preset: str = "default", seed: int = 0, device: str = "cpu", progress=None,
                        callback=None, save_every: int | None = None, content_points=None, style_points=None,
                        content_source=None, style_source=None, max_memory: int | None = None,
-                       **options) -> tuple[np.ndarray, dict]:
+                       init="content", **options) -> tuple[np.ndarray, dict]:
     """Transfer the skin texture of ``style`` onto ``content`` (FaceTex, or a baseline).
 
     ``content``/``style``: (H, W, 3) RGB, float in [0, 1] or uint8. ``method``: "facetex"
@@ -295,6 +295,9 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
     resolution, skin masks, the optimiser's output). ``progress(n=1, level=, loss=)`` is
     called per loss evaluation; ``callback(image=, level=, evaluation=)`` every
     ``save_every`` evaluations and after each level (images of the working region).
+    ``init``: where the optimisation starts — "content" (FaceTex §2.3), "random" (uniform
+    noise in [0, 1], seeded, in the pixels that may change), or an (H, W, 3) image of the
+    content's size.
     Raises NoFaceError (naming ``*_source``), MemoryBudgetError above ``max_memory`` bytes.
     """
     from ..landmarks import detect_face
@@ -389,11 +392,23 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
     # optimisation (Eq. 5 / 6 / 7), multi-resolution L-BFGS
     torch.manual_seed(seed)
     np.random.seed(seed % 2**32)
+    start = None
+    if isinstance(init, str) and init == "random":
+        start = np.random.default_rng(seed).uniform(0.0, 1.0, content_w.shape).astype(np.float32)
+    elif not (isinstance(init, str) and init == "content"):
+        if isinstance(init, str):
+            raise BadInputError(f"init must be 'content', 'random' or an image array, not {init!r}")
+        ini = _check_rgb(init, "init image")
+        if ini.shape != content.shape:
+            raise BadImageError(f"init image is {ini.shape[1]}x{ini.shape[0]} px, the content "
+                                f"{content.shape[1]}x{content.shape[0]}: it must have the content's size")
+        start = _resize(ini[box[1]:box[3], box[0]:box[2]], (wh[1], wh[0]))
     builder = _LossBuilder(params, content_w, style_w, prior, style_mask, target_mask, cpw, device)
     out_w, info = optimize_image(content_w, builder, levels=params.levels, iters=params.iters,
                                  lbfgs_history=params.lbfgs_history, line_search=params.line_search,
                                  seed=seed, device=device, progress=progress, callback=callback,
-                                 save_every=save_every, level_init=params.level_init, change_mask=change_mask)
+                                 save_every=save_every, level_init=params.level_init, change_mask=change_mask,
+                                 start=start)
     timings["optimize_s"] = info["seconds"]
 
     # back to the region's full resolution: paste the *change*, so the content's own detail
@@ -424,7 +439,8 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
     timings["total_s"] = time.perf_counter() - t_start
     info = {
         "method": params.method, "preset": params.preset, "params": _jsonable(asdict(params)),
-        "seed": seed, "device": str(device), "timings": timings, "levels": info["levels"],
+        "seed": seed, "device": str(device), "init": init if isinstance(init, str) else "image",
+        "timings": timings, "levels": info["levels"],
         "optimizer": {k: info[k] for k in ("optimizer", "line_search", "lbfgs_history", "clamp")},
         "region_box": list(map(int, box)), "working_shape": list(wh), "warnings": warn,
         "prewarp_folds": int(folds), "detail": detail_info,

@@ -86,7 +86,7 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
                    progress: Callable[..., None] | None = None, callback: Callable[..., None] | None = None,
                    save_every: int | None = None, level_init: str = "upsample",
                    change_mask: Callable[[tuple[int, int]], torch.Tensor] | None = None,
-                   tolerance_grad: float = 1e-7) -> tuple[np.ndarray, dict]:
+                   tolerance_grad: float = 1e-7, start: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
     """Minimise Σ of the loss terms over the image pixels, coarse to fine (FaceTex Eq. 5).
 
     ``loss_builder(level, scale, (h, w))`` prepares that level's targets and returns a callable
@@ -99,7 +99,9 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
     "residual" from the init image at the new size plus the upsampled *change* of the
     previous level, which keeps the init's fine detail (our default for transfers).
     ``change_mask(shape) -> (1, 1, h, w)`` tensor: optimise a masked change (see the module
-    docstring); the level init is then always "residual".
+    docstring); the level init is then always "residual". ``start``: the image the first
+    level starts from (default ``init``; ``init`` stays the anchor of the residual init and
+    of the masked change, so only the mask's pixels start from ``start``).
 
     Returns the final image (H, W, 3) float32 and ``info``: per-level scale, shape, seconds,
     evaluations, iterations and final value of every term; the total-loss history; settings.
@@ -127,6 +129,11 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
     t_all = time.perf_counter()
     try:
         source = to_tensor(init, device)
+        if start is not None:
+            start = np.asarray(start, np.float32)
+            if start.shape != init.shape:
+                raise BadInputError(f"start image has shape {start.shape}, expected {init.shape}")
+        start_t = None if start is None else to_tensor(start, device)
         x_prev = None
         z_prev = None
         for level, ((scale, shape), n_iter) in enumerate(zip(plan, iters)):
@@ -135,11 +142,14 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
             if change_mask is not None:
                 mask = change_mask(tuple(shape)).to(device=source.device, dtype=source.dtype)
                 base = _resize(source, shape)
-                z0 = torch.zeros_like(base) if z_prev is None else _resize(z_prev, shape)
+                if z_prev is not None:
+                    z0 = _resize(z_prev, shape)
+                else:
+                    z0 = torch.zeros_like(base) if start_t is None else _resize(start_t, shape) - base
                 var = z0.detach().clone(memory_format=torch.contiguous_format).requires_grad_(True)
             else:
                 if x_prev is None:
-                    start = _resize(source, shape)
+                    start = _resize(source if start_t is None else start_t, shape)
                 elif level_init == "residual":
                     # upsample only the change made so far: the init's detail at this resolution
                     # survives instead of the previous level's blur (CNNMRF upsamples the image)
