@@ -20,6 +20,15 @@ frame. Then:
 4. **Fiducials.** The 68 dlib points of a frame are lifted onto that frame's mesh
    (barycentric in its 2D projection) and un-posed: expression fiducials in the
    canonical frame, pose removed.
+5. **Mouth correction.** MediaPipe's mesh hardly opens its mouth on small faces: on
+   GRID clips the inner-lip gap of its vertices 13/14 follows only ~0.2x the opening of
+   dlib's inner-lip landmarks (regression slope; dlib's own tracked opening follows the
+   opening measured on 720 px upscaled frames with slope 1.0). The lips and the jaw of the
+   translation field therefore follow dlib's points: the difference between the lifted
+   dlib lip/jaw motion and the mesh's motion at those points is interpolated by two thin-plate
+   splines (:class:`MouthCorrection`), one for the upper lip (zero at the eyes, brows and
+   nose) and one for the lower lip and jaw, joined along the mean mouth line so that the lips
+   can part (a single smooth field would drag both lips to their average).
 
 Lost frames (no face, or the mesh network's face score < 0.5) are filled by linear
 interpolation between the nearest tracked frames (held at the ends) and counted.
@@ -66,7 +75,9 @@ class DriverParams:
     deformation field; smooth_window / smooth_order: Savitzky-Golay filter over frames (a
     window of 1 disables it); subspace_frames: frontalized frames kept for the driver's 2D
     average and appearance subspace; min_mesh_score: mesh face score below which a frame is lost;
-    redetect_every: frames between face detections (landmarks are tracked in between)."""
+    redetect_every: frames between face detections (landmarks are tracked in between);
+    mouth_correction: lips and jaw of the translation field follow the tracked landmarks
+    (module doc, 5; False: the face mesh alone)."""
 
     size: tuple[int, int] = (192, 240)
     grid_step: int = 2
@@ -76,6 +87,7 @@ class DriverParams:
     min_mesh_score: float = 0.5
     procrustes_iters: int = 3
     redetect_every: int = 10
+    mouth_correction: bool = True
 
 
 # ---------------------------------------------------------------------------------- maths
@@ -360,18 +372,78 @@ class DriverMotion:
     opening: np.ndarray
     points68: np.ndarray
     anchors: np.ndarray = field(repr=False, default=None)
+    mouth: "MouthCorrection | None" = field(repr=False, default=None)
+    fiducials68: np.ndarray | None = field(repr=False, default=None)
 
     def __len__(self) -> int:
         return len(self.found)
 
     def delta_field(self, i: int) -> np.ndarray:
-        """Δ_i (h, w, 3): M_D^i − M̄_D on the driver's depth-map grid (Tom Hanks §4)."""
-        return self.grid(self.deltas[i])
+        """Δ_i (h, w, 3): M_D^i − M̄_D on the driver's depth-map grid (Tom Hanks §4), the
+        lips and jaw following the tracked landmarks (:class:`MouthCorrection`)."""
+        d = self.grid(self.deltas[i])
+        if self.mouth is not None:
+            d[..., :2] += self.mouth(i) * self.grid.mask[..., None]
+        return d
 
     @property
     def iod(self) -> float:
         """Eye-centre distance of the mean fiducials (canonical px)."""
         return _iod49(self.mean_fiducials)
+
+
+#: iBUG-68 points whose motion the mouth correction follows (outer/inner lips; jaw 5-11 move with the
+#: lower lip) and points held still by it (brows, nose, eyes; the upper jaw near the ears).
+_UPPER_LIP = (48, 49, 50, 51, 52, 53, 54, 60, 61, 62, 63, 64)
+_LOWER_LIP = (48, 54, 55, 56, 57, 58, 59, 60, 64, 65, 66, 67, 5, 6, 7, 8, 9, 10, 11)
+_UPPER_STILL = tuple(range(17, 48))
+_LOWER_STILL = (0, 1, 2, 14, 15, 16, 31, 32, 33, 34, 35)
+
+
+class MouthCorrection:
+    """Lip and jaw correction of the translation field from the tracked landmarks (module doc, 5).
+
+    ``fid68`` (N, 68, 2) un-posed canonical landmarks per frame, ``mesh_at`` (N, 68, 2) the
+    mesh's translation field at their mean positions, ``grid_xy`` (h, w, 2) canonical grid
+    positions. Per frame the residual r = (F_i − F̄) − Δ_mesh,i(F̄) at the moving points (0 at
+    the still ones) is interpolated by a thin-plate spline (scipy RBFInterpolator; the
+    spline's linear operator from residuals to grid values is computed once), the upper lip's
+    above the mean mouth line and the lower lip's below it. Between the mouth corners the two
+    fields meet with a step (the lips part); beyond the corners they blend smoothly.
+    """
+
+    def __init__(self, fid68: np.ndarray, mesh_at: np.ndarray, found: np.ndarray, grid_xy: np.ndarray,
+                 smoothing: float = 1.0):
+        from scipy.interpolate import RBFInterpolator
+
+        mean = fid68[found].mean(axis=0)
+        self.shape = grid_xy.shape[:2]
+        g = grid_xy.reshape(-1, 2)
+        self.residual = (fid68 - mean) - mesh_at  # (N, 68, 2)
+        ops = []
+        for moving, still in ((_UPPER_LIP, _UPPER_STILL), (_LOWER_LIP, _LOWER_STILL)):
+            idx = list(moving) + list(still)
+            k = len(idx)
+            rbf = RBFInterpolator(mean[idx], np.eye(k), kernel="thin_plate_spline", smoothing=smoothing)
+            op = rbf(g)[:, : len(moving)]  # still points have zero residual: their columns drop out
+            ops.append((np.asarray(moving), op.astype(np.float32)))
+        self.upper, self.lower = ops
+        # lower-field weight: a step across the mean mouth line between the corners, widening outside
+        p = mean
+        line_x = np.r_[p[48, 0], (p[[61, 62, 63], 0] + p[[67, 66, 65], 0]) / 2, p[54, 0]]
+        line_y = np.r_[p[48, 1], (p[[61, 62, 63], 1] + p[[67, 66, 65], 1]) / 2, p[54, 1]]
+        d = g[:, 1] - np.interp(g[:, 0], line_x, line_y)
+        outside = np.maximum(0.0, np.maximum(line_x[0] - g[:, 0], g[:, 0] - line_x[-1]))
+        width = 0.3 + 0.5 * outside
+        self.side = (1.0 / (1.0 + np.exp(-np.clip(d / width, -50, 50)))).astype(np.float32)
+
+    def __call__(self, i: int) -> np.ndarray:
+        """(h, w, 2) correction of frame i's translation field (canonical px, x and y)."""
+        (mu, ou), (ml, ol) = self.upper, self.lower
+        r = self.residual[i].astype(np.float32)
+        up, lo = ou @ r[mu], ol @ r[ml]
+        out = up + self.side[:, None] * (lo - up)
+        return out.reshape(self.shape + (2,))
 
 
 def _iod49(f49: np.ndarray) -> float:
@@ -452,11 +524,12 @@ def driver_motion(track: DriverTrack, params: DriverParams = DriverParams(), *, 
     from scipy.spatial import Delaunay
 
     triangles = Delaunay(mean[:, :2]).simplices
-    fid = np.zeros((n, 49, 2))
+    fid68 = np.zeros((n, 68, 2))
     for i in np.flatnonzero(found):
-        x3 = _lift_points(p68[i][POINTS49_INDEX], mesh[i], triangles)
-        fid[i] = (np.linalg.solve(A[i], (x3 - b[i]).T).T)[:, :2]
-    fid = smooth_series(fill_lost(fid, found), w, o)
+        x3 = _lift_points(p68[i], mesh[i], triangles)
+        fid68[i] = (np.linalg.solve(A[i], (x3 - b[i]).T).T)[:, :2]
+    fid68 = smooth_series(fill_lost(fid68, found), w, o)
+    fid = fid68[:, POINTS49_INDEX]
     # depth-map grid
     W, H = params.size
     st = int(params.grid_step)
@@ -466,6 +539,12 @@ def driver_motion(track: DriverTrack, params: DriverParams = DriverParams(), *, 
         grid.mask &= np.asarray(shape_mask, bool)[::st, ::st]
     z = grid(mean_c[:, 2])
     gm = np.stack([gx, gy, np.where(grid.mask, z, np.nan)], axis=-1)
+    mouth = None
+    if params.mouth_correction:
+        at = GridInterpolator(mean_c[:, :2], fid68[found].mean(axis=0))  # the mesh's motion at the mean landmarks
+        mouth = MouthCorrection(fid68, at(deltas.transpose(1, 0, 2)).transpose(1, 0, 2)[..., :2], found,
+                                np.stack([gx, gy], axis=-1))
     return DriverMotion(pose_A=A, pose_b=b, mean_mesh=mean_c, deltas=deltas, fiducials=fid,
                         mean_fiducials=fid[found].mean(axis=0), grid=grid, grid_mesh=gm, grid_step=st,
-                        found=found.copy(), opening=mouth_opening(p68), points68=p68, anchors=anchors)
+                        found=found.copy(), opening=mouth_opening(p68), points68=p68, anchors=anchors,
+                        mouth=mouth, fiducials68=fid68)
