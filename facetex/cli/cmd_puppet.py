@@ -17,8 +17,9 @@ def register(sub) -> None:
     p.add_argument("--side-by-side", action="store_true", help="put the driver frame left of the puppet")
     p.add_argument("--size", type=int, help="longer side of the output frame (per panel) in px "
                                             "(default: the driver's)")
-    p.add_argument("--background", choices=("driver", "plain"), default="driver",
-                   help="composite the puppet over the driver's frame (default) or a plain grey")
+    p.add_argument("--mode", choices=("composite", "face"), default="composite",
+                   help="composite: the puppet put into the driver's frame (its lighting, colour and face "
+                        "outline; default); face: the puppet face alone on plain grey, as in the paper's figures")
     p.add_argument("--texture", choices=("ours", "static"), default="ours",
                    help="expression-dependent texture (default) or the static average texture")
     p.add_argument("--max-frames", type=int, help="use only the first N frames")
@@ -38,11 +39,11 @@ def run(args) -> int:
         n = min(n, max(0, args.max_frames))
     with progress_bar(2 * n, desc="puppet", unit="frame") as bar:
         report = puppeteer(args.driver, args.puppet, args.output, driver_photos=args.driver_photos,
-                           side_by_side=args.side_by_side, size=args.size, background=args.background,
+                           side_by_side=args.side_by_side, size=args.size, mode=args.mode,
                            overwrite=args.overwrite, max_frames=args.max_frames,
                            params=PuppetParams(texture=args.texture), progress=bar)
     if report["lost_frames"]:
         print(f"{args.driver}: face lost in {report['lost_frames']} of {report['frames']} frames "
-              "(filled from the neighbouring frames)", file=sys.stderr)
+              "(not found, partly outside the frame or implausible; those frames show the driver)", file=sys.stderr)
     print_json(report)
     return 0
