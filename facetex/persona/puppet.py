@@ -487,7 +487,7 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
     _check_mode(mode)
     pup = session.puppeteer
     W, H, scale = output_size(session.track.frame_size, size)
-    n = session.track.n_frames
+    n = session.track.n_frames if max_frames is None else min(session.track.n_frames, max(0, int(max_frames)))
     tm = session.timings
     for key in ("mesh_s", "texture_s", "render_s"):
         tm.setdefault(key, 0.0)
