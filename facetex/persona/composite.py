@@ -265,7 +265,8 @@ def _mouth_frame(lips: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float
     return c, R, width, gap
 
 
-def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float = 0.85) -> tuple[np.ndarray, np.ndarray]:
+def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float = 0.85,
+                   closed: float = 0.04) -> tuple[np.ndarray, np.ndarray]:
     """The driver's mouth interior moved into the puppet's mouth: (image (H, W, 3), alpha (H, W)).
 
     ``driver_lips``, ``puppet_lips`` (8, 2): iBUG inner-lip points 60-67 in ``frame`` px (driver)
@@ -273,7 +274,8 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     mouth axes onto the driver's: rotation and translation of the corner line, its length ratio
     along it and the ratio of the lip openings across it (a least-squares affine map is
     unstable when the lips nearly close), both times ``inset`` (< 1: the polygon's edge samples
-    the driver's interior, not its lips). Alpha: the anti-aliased puppet polygon."""
+    the driver's interior, not its lips). Alpha: the anti-aliased puppet polygon, faded out as the
+    driver's lip gap falls from 2 x ``closed`` to ``closed`` times its mouth width."""
     f = np.asarray(frame, np.float32)
     h, w = _shape2(f.shape if shape is None else shape)
     dp = np.asarray(driver_lips, np.float64)
@@ -282,9 +284,13 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
         raise BadInputError(f"inner lips must be (8, 2) points 60-67, got {dp.shape} and {pp.shape}")
     if not (np.isfinite(dp).all() and np.isfinite(pp).all()):
         return np.zeros((h, w, 3), np.float32), np.zeros((h, w), np.float32)
-    alpha = polygon_mask(pp, (h, w))
     cd, Rd, wd, gd = _mouth_frame(dp)
     cp, Rp, wp, gp = _mouth_frame(pp)
+    # closed driver lips have no interior to show (their sliver would draw a red line): fade out
+    t = float(np.clip((gd / max(wd, 1e-6) - closed) / closed, 0.0, 1.0))
+    alpha = polygon_mask(pp, (h, w)) * (t * t * (3 - 2 * t))
+    if alpha.max() <= 0:
+        return np.zeros((h, w, 3), np.float32), alpha
     floor = 0.05 * max(wp, 1.0)
     # the puppet's polygon is mapped onto a slightly smaller one inside the driver's lips, so
     # that its anti-aliased edge samples the interior, not the driver's lip colour

@@ -74,7 +74,8 @@ class PuppetParams:
     driver's frame; supersample / supersample_composite: rasterization samples per pixel and
     axis in face / composite mode (anti-aliased silhouette; in composite mode the feathered
     driver outline is the edge, and the texture is low-passed to the pixel spacing either way);
-    mouth_rest: the puppet's mean lip gap set to the driver's (module doc); max_depth_error: a reconstructed average depth whose RMS
+    mouth_rest: the puppet's mean lip gap set to the driver's (module doc); lip_sync: the puppet's
+    lip and jaw landmarks follow the driver's (:meth:`Puppeteer.grid`); max_depth_error: a reconstructed average depth whose RMS
     difference to the generic face exceeds this fraction of the frame width is replaced by
     the generic depth (too few or too uniformly lit photos); shape "generic" skips the
     photometric-stereo reconstruction of the puppet and uses the generic face's depth;
@@ -94,6 +95,7 @@ class PuppetParams:
     supersample: int = 2
     supersample_composite: int = 1
     mouth_rest: bool = True
+    lip_sync: bool = True
     max_depth_error: float = 0.08
     shape: str = "collection"
     shape_photos: int = 128
@@ -268,19 +270,21 @@ class Puppeteer:
         depth_for_mesh = np.where(pmask, self.puppet_grid[..., 2], np.nan)
         _, self.faces, self.uv = depth_to_mesh(depth_for_mesh, pmask)
         self.mean68 = persona.points68.mean(axis=0)  # the texture's frame (its 49 points: the mean fiducials)
-        self.rest = self._rest_offset() if params.mouth_rest else None
+        self.lip_fields = None
+        if self.motion.fiducials68 is not None and (params.mouth_rest or params.lip_sync):
+            from .driver import LipFields, _iod49
 
-    def _rest_offset(self) -> np.ndarray | None:
-        """(h, w, 3) constant lip motion on the puppet grid that makes the puppet's mean inner-lip
-        gap the driver's mean gap (scaled by the ratio of eye distances); None without tracked lips."""
-        from .driver import LipFields, _iod49
+            self.lip_fields = LipFields(self.mean68, self.puppet_grid[..., :2])
+            self.lip_scale = _iod49(persona.mean_fiducials) / max(motion.iod, 1e-9)
+        self.rest_move = self._rest_motion() if params.mouth_rest and self.lip_fields is not None else None
 
+    def _rest_motion(self) -> np.ndarray:
+        """(68, 2) constant motion of the puppet's lip landmarks that makes its mean inner-lip gap
+        the driver's mean gap (scaled by the ratio of eye distances)."""
         m = self.motion
-        if m.fiducials68 is None:
-            return None
         P = self.mean68
         D = m.fiducials68[m.found].mean(axis=0)
-        k = _iod49(self.persona.mean_fiducials) / max(m.iod, 1e-9)
+        k = self.lip_scale
         move = np.zeros((68, 2))
         for up, lo in ((61, 67), (62, 66), (63, 65)):
             change = k * (D[lo] - D[up]) - (P[lo] - P[up])  # > 0: open the puppet's lips
@@ -290,16 +294,37 @@ class Puppeteer:
         move[[49, 50, 51, 52, 53]] = upper
         move[[55, 56, 57, 58, 59, 7, 8, 9]] = lower
         move[[5, 6, 10, 11]] = lower / 2
+        return move
+
+    def _sample_grid(self, grid: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Bilinear samples (P, 3) of a (h, w, 3) grid at canonical (x, y) ``points`` (P, 2)."""
         st = self.motion.grid_step
-        fields = LipFields(P, self.puppet_grid[..., :2])
-        off = np.zeros(self.puppet_grid.shape, np.float64)
-        off[..., :2] = fields(move) * self.puppet_mask[..., None]
-        return off
+        q = np.asarray(points, np.float32) / st
+        g = np.nan_to_num(grid).astype(np.float32)
+        return cv2.remap(g, q[:, 0][None], q[:, 1][None], cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_REPLICATE)[0].astype(np.float64)
 
     def grid(self, i: int) -> np.ndarray:
-        """Puppet mesh (h, w, 3) on its depth-map grid for frame i (M_P^i, Tom Hanks §4)."""
+        """Puppet mesh (h, w, 3) on its depth-map grid for frame i (M_P^i, Tom Hanks §4).
+
+        Beyond the paper: its lip and jaw landmarks then move exactly as the driver's
+        (scaled by the ratio of eye distances; :class:`facetex.persona.driver.LipFields`), on top of
+        the constant rest motion (module doc): the deformation transfer's magnitude adjustment and
+        Huber-ROF smoothing shrink the thin, fast lip motion by 10-25 % on GRID clips."""
         g = self.transfer(self.motion.delta_field(i))
-        return g + self.rest if self.rest is not None else g
+        if self.lip_fields is None:
+            return g
+        move = np.zeros((68, 2))
+        if self.params.lip_sync:
+            m = self.motion
+            want = self.lip_scale * (m.fiducials68[i] - m.fiducials68[m.found].mean(axis=0))
+            have = self._sample_grid(g - self.puppet_grid, self.mean68)[:, :2]
+            move += want - have
+        if self.rest_move is not None:
+            move += self.rest_move
+        g = g.copy()
+        g[..., :2] += self.lip_fields(move) * self.puppet_mask[..., None]
+        return g
 
     def mesh(self, i: int) -> np.ndarray:
         """Puppet vertices (V, 3) in its canonical frame for frame i (the grid's mask vertices)."""
@@ -325,11 +350,7 @@ class Puppeteer:
     def lips(self, i: int, grid: np.ndarray, scale: float) -> np.ndarray:
         """The puppet's inner lips (8, 2) (iBUG 60-67) in output-panel px for frame i: its
         texture-frame inner lips carried by the deformed ``grid`` and projected."""
-        st = self.motion.grid_step
-        q = self.mean68[list(INNER_LIPS)] / st
-        g = np.nan_to_num(grid).astype(np.float32)
-        X = cv2.remap(g, q[:, 0].astype(np.float32)[None], q[:, 1].astype(np.float32)[None], cv2.INTER_LINEAR,
-                      borderMode=cv2.BORDER_REPLICATE)[0].astype(np.float64)
+        X = self._sample_grid(grid, self.mean68[list(INNER_LIPS)])
         A, b = self.pose(i, scale)
         return X @ A[:2].T + b[:2]
 

@@ -178,11 +178,14 @@ def test_mouth_interior_moves_the_drivers_mouth_into_the_puppets_lips():
     assert core.sum() > 50
     np.testing.assert_allclose(img[core], np.broadcast_to([0.1, 0.0, 0.2], img[core].shape), atol=0.02)
     assert alpha[:40].max() == 0  # nothing where the puppet's mouth is not
-    # closed lips: no interior
+    # the puppet's lips closed: no interior
     closed = p_lips.copy()
     closed[5:, 1] = closed[[3, 2, 1], 1]
-    closed[[1, 2, 3], 1] = closed[[1, 2, 3], 1]
     assert mouth_interior(frame, d_lips, closed)[1].sum() < 0.05 * core.sum()
+    # the driver's lips closed: nothing to show either (its lip sliver would draw a red line)
+    shut = d_lips.copy()
+    shut[5:, 1] = shut[[3, 2, 1], 1] + 0.5
+    assert mouth_interior(frame, shut, p_lips)[1].max() == 0
 
 
 # ----------------------------------------------------------------------------- the whole composite

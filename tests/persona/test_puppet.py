@@ -260,3 +260,27 @@ def test_texture_precomputation_does_not_depend_on_threads(tiny_persona, monkeyp
         results.append((prep.aligned, prep.pyr[0], prep.pyr[-1], prep._stage["b"]))
     for a, b in zip(*results):
         np.testing.assert_array_equal(a, b)
+
+
+def test_puppet_lips_open_and_close_with_the_drivers(driver_video, tiny_persona):
+    """The puppet's inner-lip gap (its mesh, canonical px) follows the driver's landmark gap scaled
+    by the ratio of eye distances, around the same mean (rest motion): slope ~1, not ~0.4.
+    (The half-size test persona's lips are ~2 px apart: a 1 px grid resolves them as the default
+    2 px grid resolves a full-size persona's.)"""
+    from facetex.persona.driver import DriverParams
+    from facetex.persona.puppet import PuppetParams, prepare_puppetry
+
+    session = prepare_puppetry(driver_video, tiny_persona, params=PuppetParams(driver=DriverParams(grid_step=1)))
+    pup, m = session.puppeteer, session.motion
+    k = pup.lip_scale
+    pairs = ((61, 67), (62, 66), (63, 65))
+
+    def gap(points):
+        return np.mean([np.linalg.norm(points[b] - points[a]) for a, b in pairs])
+
+    frames = np.flatnonzero(m.found)
+    drv = np.array([k * gap(m.fiducials68[i]) for i in frames])
+    pp = np.array([gap(pup._sample_grid(pup.grid(i), pup.mean68)[:, :2]) for i in frames])
+    assert drv.std() > 0.5  # the driver does open its mouth
+    assert np.polyfit(drv, pp, 1)[0] == pytest.approx(1.0, abs=0.1)
+    assert pp.mean() == pytest.approx(drv.mean(), abs=0.15 * drv.std() + 0.3)
