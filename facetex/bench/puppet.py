@@ -11,7 +11,9 @@ is extremely hard"); we measure what a viewer of the composited videos sees:
 * **boundary colour step**: CIE76 ΔE between bands just inside and just outside the edge of
   the composite mask (alpha 0.5), per angular sector, averaged; divided by the driver's own
   step at the same place in its original frame (target <= 2: the edge is not more visible
-  than the skin, hair and background edges the driver's own face has there);
+  than the skin, hair and background edges the driver's own face has there). The same ratio
+  for the puppet pasted with the same mask but without colour/lighting transfer and Poisson
+  blending ("pasted", every 5th frame) shows what the measure does when the colour is off;
 * **expression texture**: mean |texture − static average texture| (0-255) in the mouth region
   of the texture, on the frames where the driver's mouth is open (top quarter of the opening);
 * **identity**: dlib FaceRecognitionNet distance of every rendered frame to the mean
@@ -63,6 +65,7 @@ COLUMNS = (
     Column("step_ratio", "edge ΔE ratio", ".2f"),
     Column("step_puppet", "edge ΔE", ".1f"),
     Column("step_driver", "driver's ΔE", ".1f"),
+    Column("step_ratio_paste", "edge ratio, pasted", ".2f"),
     Column("tex_open", "tex-static open (0-255)", ".1f"),
     Column("id_puppet", "id dist puppet", ".3f"),
     Column("id_frac", "frames < 0.6", ".0%"),
@@ -233,6 +236,26 @@ def _evaluate_clip(clip: Path, persona, ref_desc, out: Path, *, size, max_frames
             step_d[i] = boundary_color_step(r["driver"], mask, band=band)[0]
         if progress:
             progress(n=1, clip=clip.stem)
+    # "doing nothing": the same mask and feather, no lighting/colour transfer, no Poisson blending
+    from dataclasses import replace
+
+    saved = pup.params
+    pasted = replace(saved, composite=replace(saved.composite, lighting="none", poisson=False))
+    paste_c, paste_d = [], []
+    try:
+        pup.params = pasted
+        for r in ours[::5]:
+            if r["lost"]:
+                continue
+            i = r["index"]
+            img, alpha = pup.render(i, r["grid"], r["texture"], r["driver"], scale)
+            mask = alpha > 0.5
+            if mask.sum() > 16:
+                band = max(2.0, 0.05 * iod[i])
+                paste_c.append(boundary_color_step(img, mask, band=band)[0])
+                paste_d.append(boundary_color_step(r["driver"], mask, band=band)[0])
+    finally:
+        pup.params = saved
     # expression texture against the static average, mouth region, open-mouth frames
     static = neutral_texture(persona, persona.mean_fiducials, method="static")
     mouth = _face_region_mask(persona)
@@ -251,6 +274,7 @@ def _evaluate_clip(clip: Path, persona, ref_desc, out: Path, *, size, max_frames
         "step_ratio": float(np.nanmean(step_c) / np.nanmean(step_d)) if np.isfinite(step_d).any() else float("nan"),
         "step_puppet": float(np.nanmean(step_c)) if np.isfinite(step_c).any() else float("nan"),
         "step_driver": float(np.nanmean(step_d)) if np.isfinite(step_d).any() else float("nan"),
+        "step_ratio_paste": float(np.nanmean(paste_c) / np.nanmean(paste_d)) if paste_d else float("nan"),
         "tex_open": tex_open,
         "id_puppet": float(np.nanmean(d_pup)) if np.isfinite(d_pup).any() else float("nan"),
         "id_frac": float(np.mean(np.nan_to_num(d_pup[found], nan=9.0) < ID_THRESHOLD)) if found.any() else 0.0,

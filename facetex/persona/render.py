@@ -100,17 +100,20 @@ def rasterize(vertices, faces, *, rotation=None, translation=None, focal: float,
         raise BadInputError("faces index vertices that do not exist")
     tri_ids = np.arange(len(f))
     zt = z[f]
-    keep = (zt > _NEAR).all(axis=1) & np.isfinite(xy[f]).all(axis=(1, 2))
     p = xy[f]  # (T, 3, 2)
-    x0, y0 = p[:, 0, 0], p[:, 0, 1]
-    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    p0, p1, p2 = p[:, 0], p[:, 1], p[:, 2]
+    # reductions over the short axes written out: numpy's reduce over an axis of length 3 is slow
+    keep = (zt[:, 0] > _NEAR) & (zt[:, 1] > _NEAR) & (zt[:, 2] > _NEAR)
+    keep &= np.isfinite(p0).all(axis=1) & np.isfinite(p1).all(axis=1) & np.isfinite(p2).all(axis=1)
+    x0, y0 = p0[:, 0], p0[:, 1]
+    e1, e2 = p1 - p0, p2 - p0
     det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
     keep &= np.abs(det) > 1e-12
-    lo = np.ceil(p.min(axis=1) - 1e-9)
-    hi = np.floor(p.max(axis=1) + 1e-9)
+    lo = np.ceil(np.minimum(np.minimum(p0, p1), p2) - 1e-9)
+    hi = np.floor(np.maximum(np.maximum(p0, p1), p2) + 1e-9)
     lo = np.maximum(lo, 0)
     hi = np.minimum(hi, [w - 1, h - 1])
-    keep &= (hi >= lo).all(axis=1)
+    keep &= (hi[:, 0] >= lo[:, 0]) & (hi[:, 1] >= lo[:, 1])
     tri_ids, lo, hi = tri_ids[keep], lo[keep].astype(np.int64), hi[keep].astype(np.int64)
     det, e1, e2, x0, y0, zt = det[keep], e1[keep], e2[keep], x0[keep], y0[keep], zt[keep]
     # λ1, λ2 as affine functions of the pixel (x, y): λ = a x + b y + c
