@@ -20,6 +20,9 @@ def register(sub) -> None:
     p.add_argument("--mode", choices=("composite", "face"), default="composite",
                    help="composite: the puppet put into the driver's frame (its lighting, colour and face "
                         "outline; default); face: the puppet face alone on plain grey, as in the paper's figures")
+    p.add_argument("--lighting", choices=("stats", "sh", "none"), default="stats",
+                   help="composite mode: match the driver's skin colour statistics (default), also its "
+                        "first-order spherical-harmonics lighting (sh), or neither (none)")
     p.add_argument("--texture", choices=("ours", "static"), default="ours",
                    help="expression-dependent texture (default) or the static average texture")
     p.add_argument("--max-frames", type=int, help="use only the first N frames")
@@ -30,6 +33,7 @@ def register(sub) -> None:
 def run(args) -> int:
     from ..io import check_output_path, video_info
     from ..persona import read_persona_header
+    from ..persona.composite import CompositeParams
     from ..persona.puppet import PuppetParams, puppeteer
 
     check_output_path(args.output, overwrite=args.overwrite)
@@ -41,7 +45,8 @@ def run(args) -> int:
         report = puppeteer(args.driver, args.puppet, args.output, driver_photos=args.driver_photos,
                            side_by_side=args.side_by_side, size=args.size, mode=args.mode,
                            overwrite=args.overwrite, max_frames=args.max_frames,
-                           params=PuppetParams(texture=args.texture), progress=bar)
+                           params=PuppetParams(texture=args.texture, composite=CompositeParams(lighting=args.lighting)),
+                           progress=bar)
     if report["lost_frames"]:
         print(f"{args.driver}: face lost in {report['lost_frames']} of {report['frames']} frames "
               "(not found, partly outside the frame or implausible; those frames show the driver)", file=sys.stderr)

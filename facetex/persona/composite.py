@@ -6,19 +6,21 @@ looks pasted on unless its colour, lighting and outline come from the frame it s
 * **mask**: the driver's own face outline (MediaPipe's face-oval vertices of the frame's
   tracked mesh), intersected with the rendered puppet and feathered *inwards* only, so no
   puppet pixel lands on the driver's background or hair (no halo);
-* **lighting**: first-order spherical harmonics (Y = [1, n_x, n_y, n_z]; Basri & Jacobs 2003,
-  Ramamoorthi & Hanrahan 2001) fitted per colour channel, in linear RGB, on the driver's skin
-  and on the rendered puppet with the *puppet's* normals (both faces occupy the same pixels);
-  the puppet is multiplied by the ratio of the two shadings, which moves the driver's light
-  direction and skin colour onto the puppet's albedo;
-* **colour statistics**: the mean (optionally the spread) of the relit puppet's skin in CIELAB
-  set to the driver's (Reinhard et al. 2001);
+* **lighting** (optional, ``lighting="sh"``): first-order spherical harmonics
+  (Y = [1, n_x, n_y, n_z]; Basri & Jacobs 2003, Ramamoorthi & Hanrahan 2001) fitted to the
+  linear-light luminance of the driver's skin (with the driver's own tracked mesh normals) and
+  of the rendered puppet (with the normals of the puppet's average shape); the puppet is
+  multiplied by the ratio of the two shadings. Not the default: on GRID's frontally lit clips
+  the ratio mostly turned the albedo baked into the persona's average texture (stubble, lips,
+  the collection's top light) into a beard-like darkening around the mouth;
+* **colour statistics** (default): the mean (optionally the spread) of the puppet's skin in
+  CIELAB set to the driver's (Reinhard et al. 2001);
 * **gradient-domain blending**: the puppet's gradients with the driver's values on the mask
   border (Pérez et al. 2003, OpenCV's ``seamlessClone``), so the colour is continuous across
   the border;
-* **mouth interior**: the driver's own mouth interior (teeth, tongue, dark cavity), warped by a
-  least-squares affine map from the driver's inner-lip polygon onto the puppet's, drawn inside
-  the puppet's inner lips.
+* **mouth interior**: the driver's own mouth interior (teeth, tongue, dark cavity), warped by
+  the map between the two mouths' axes (corner line and lip opening), drawn inside the
+  puppet's inner lips while the driver's lips are apart.
 
 Plus the measure of the result: :func:`boundary_color_step` (ΔE between bands just inside and
 just outside the mask edge).
@@ -60,6 +62,7 @@ FACE_OVAL = (10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365
 INNER_LIPS = (60, 61, 62, 63, 64, 65, 66, 67)
 
 _SHIFT = 4  # sub-pixel bits of cv2 polygon filling
+_LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)  # linear-light luminance (Rec. 709)
 
 
 def _shape2(shape) -> tuple[int, int]:
@@ -337,17 +340,24 @@ def boundary_color_step(image, mask, *, band: float = 3.0, gap: float = 1.0, sec
 
 
 # ----------------------------------------------------------------------------- pipeline
+LIGHTINGS = ("stats", "sh", "none")
+
+
 @dataclass(frozen=True)
 class CompositeParams:
-    """lighting: transfer the driver's SH lighting and colour ("sh"), only the colour statistics
-    ("stats") or nothing ("none"); std: also match the CIELAB spread; poisson: gradient-domain
+    """lighting: the colour statistics ("stats", default), also the driver's first-order SH
+    lighting ("sh"; ``sh_strength`` the exponent of the shading ratio) or nothing ("none").
+    On GRID's frontally lit clips the SH ratio mostly moved the albedo of the persona's average
+    (stubble, lips, the collection's top light) into the shading: a beard-like darkening
+    around the mouth (bench contact sheets), so it is not the default; std: also match the CIELAB spread; poisson: gradient-domain
     blending at the border; normal_smoothing: Gaussian sigma of the normals before the SH fit
     and relighting, as a fraction of the eye-corner distance; feather: width of the inward feather as a fraction of the
     face's eye-corner distance; erode: the driver's outline is shrunk by this fraction (the
     face-oval vertices sit on the silhouette, where skin meets hair or background);
     mouth: draw the driver's mouth interior inside the puppet's lips."""
 
-    lighting: str = "sh"
+    lighting: str = "stats"
+    sh_strength: float = 1.0
     normal_smoothing: float = 0.05
     std: bool = False
     poisson: bool = True
@@ -357,14 +367,18 @@ class CompositeParams:
 
 
 def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_points68, puppet_lips=None,
-                   params: CompositeParams = CompositeParams()) -> tuple[np.ndarray, np.ndarray]:
+                   driver_normals=None, params: CompositeParams = CompositeParams()) -> tuple[np.ndarray, np.ndarray]:
     """The puppet composited into the driver's frame: (image (H, W, 3), alpha (H, W)).
 
     ``frame`` (H, W, 3) the driver's frame; ``puppet`` (H, W, 3) the rendered puppet,
     ``coverage`` (H, W) its anti-aliased coverage, ``normals`` (H, W, 3) its unit camera-space
     normals; ``driver_oval`` (K, 2) the driver's face outline and ``driver_points68`` its
-    landmarks (frame px); ``puppet_lips`` (8, 2) the puppet's inner lips (output px) or None.
+    landmarks (frame px); ``puppet_lips`` (8, 2) the puppet's inner lips (output px) or None;
+    ``driver_normals`` (H, W, 3) the driver's own face normals (its lighting is fitted with them;
+    default: the puppet's normals).
     All work happens in the face's bounding box."""
+    if params.lighting not in LIGHTINGS:
+        raise BadInputError(f"unknown lighting {params.lighting!r}: use one of {', '.join(LIGHTINGS)}")
     frame = np.asarray(frame, np.float32)
     H, W = frame.shape[:2]
     p68 = np.asarray(driver_points68, np.float64)
@@ -391,13 +405,29 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         # low-frequency lighting: normals smoothed over ~5 % of the eye distance (the grid mesh's
         # creases at nostrils and lip corners would otherwise print as bright lines)
         sig = max(1.0, params.normal_smoothing * iod)
-        wgt = cv2.GaussianBlur(rg.astype(np.float32), (0, 0), sig)[..., None]
-        nr = cv2.GaussianBlur(nr * rg[..., None], (0, 0), sig) / np.maximum(wgt, 1e-3)
-        nr /= np.maximum(np.linalg.norm(nr, axis=2, keepdims=True), 1e-6)
+
+        def smooth(n, valid):
+            # a visible surface faces the camera (n_z < 0): folds of a deformed mesh must not flip it
+            n = np.where(n[..., 2:3] > 0, -n, n) * valid[..., None]
+            wgt = cv2.GaussianBlur(valid.astype(np.float32), (0, 0), sig)[..., None]
+            n = cv2.GaussianBlur(n, (0, 0), sig) / np.maximum(wgt, 1e-3)
+            return n / np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-6)
+
+        nr = smooth(nr, rg)
+        nd = nr
+        if driver_normals is not None:
+            dn = np.asarray(driver_normals, np.float32)[box]
+            valid = np.linalg.norm(dn, axis=2) > 0.5
+            if (valid & skin).sum() > 0.5 * skin.sum():
+                nd = smooth(dn, valid)
+        # lighting from luminance only (colour comes from the statistics below): per-channel fits
+        # turn red lips and stubble under the mouth into a colour cast of the downward normals
         lin_p, lin_d = srgb_to_linear(pu), srgb_to_linear(fr)
-        lp = fit_sh_lighting(lin_p, nr, skin)
-        ld = fit_sh_lighting(lin_d, nr, skin)
-        out = linear_to_srgb(relight(lin_p, nr, lp, ld))
+        lum_p, lum_d = (lin_p @ _LUMA)[..., None], (lin_d @ _LUMA)[..., None]
+        lp = fit_sh_lighting(lum_p, nr, skin)
+        ld = fit_sh_lighting(lum_d, nd, skin)
+        ratio = relight(np.ones_like(lum_p), nr, lp, ld) ** params.sh_strength
+        out = linear_to_srgb(lin_p * ratio)
     if params.lighting in ("sh", "stats"):
         out = match_color_statistics(out, fr, skin, std=params.std)
     if params.poisson:

@@ -95,7 +95,7 @@ class DriverParams:
     min_mesh_score: float = 0.5
     procrustes_iters: int = 3
     redetect_every: int = 10
-    mouth_correction: bool = True
+    mouth_correction: bool = False
 
 
 # ---------------------------------------------------------------------------------- maths
@@ -462,6 +462,7 @@ class DriverMotion:
     anchors: np.ndarray = field(repr=False, default=None)
     mouth: "MouthCorrection | None" = field(repr=False, default=None)
     fiducials68: np.ndarray | None = field(repr=False, default=None)
+    triangles: np.ndarray | None = field(repr=False, default=None)
 
     def __len__(self) -> int:
         return len(self.found)
@@ -488,16 +489,26 @@ _UPPER_STILL = tuple(range(17, 48))
 _LOWER_STILL = (0, 1, 2, 14, 15, 16, 31, 32, 33, 34, 35)
 
 
+def _increasing(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) sorted by x with repeated x merged (for np.interp)."""
+    order = np.argsort(x, kind="stable")
+    xs, ys = x[order], y[order]
+    keep = np.r_[True, np.diff(xs) > 1e-9]
+    return xs[keep], ys[keep]
+
+
 class LipFields:
-    """Thin-plate-spline fields of lip and jaw motion on a grid, split at the mouth line.
+    """Thin-plate-spline fields of lip and jaw motion on a grid, split at the mouth.
 
     ``mean68`` (68, 2) the face's mean landmarks, ``grid_xy`` (h, w, 2) grid positions (same
     frame). :meth:`__call__` takes motions (68, 2) of the landmarks (only the lip and jaw ones
     are read; brows, eyes, nose and the upper jaw are held still) and returns the (h, w, 2)
-    field: the upper lip's spline above the mean mouth line, the lower lip's (with the jaw)
-    below it; between the mouth corners the two meet with a step (the lips can part), beyond
-    the corners they blend smoothly. The splines' linear operators (scipy RBFInterpolator on
-    an identity) are computed once; a call is two small matrix products.
+    field: the upper lip's spline down to the upper inner-lip contour, the lower lip's (with
+    the jaw) from the lower inner-lip contour down, and between the two contours (the mouth
+    opening of the mean face) a linear blend across the opening, so the lips part or close
+    without the opening folding over them. Beyond the mouth corners the two blend smoothly.
+    The splines' linear operators (scipy RBFInterpolator on an identity) are computed once; a
+    call is two small matrix products.
     """
 
     def __init__(self, mean68: np.ndarray, grid_xy: np.ndarray, smoothing: float = 1.0):
@@ -513,12 +524,22 @@ class LipFields:
             op = rbf(g)[:, : len(moving)]  # still points move by 0: their columns drop out
             ops.append((np.asarray(moving), op.astype(np.float32)))
         self.upper, self.lower = ops
-        line_x = np.r_[p[48, 0], (p[[61, 62, 63], 0] + p[[67, 66, 65], 0]) / 2, p[54, 0]]
-        line_y = np.r_[p[48, 1], (p[[61, 62, 63], 1] + p[[67, 66, 65], 1]) / 2, p[54, 1]]
-        d = g[:, 1] - np.interp(g[:, 0], line_x, line_y)
-        outside = np.maximum(0.0, np.maximum(line_x[0] - g[:, 0], g[:, 0] - line_x[-1]))
+        # weight of the lower field: 0 above the upper inner lip, 1 below the lower one, linear across
+        # the opening between them; beyond the outer mouth corners a sigmoid about the mid line
+        # that widens with the distance from the corner
+        up, lo = (48, 60, 61, 62, 63, 64, 54), (48, 60, 67, 66, 65, 64, 54)
+        ux, uy = p[list(up), 0], p[list(up), 1]
+        lx, ly = p[list(lo), 0], p[list(lo), 1]
+        x, y = g[:, 0], g[:, 1]
+        y_up = np.interp(x, *_increasing(ux, uy))
+        y_lo = np.interp(x, *_increasing(lx, ly))
+        band = np.maximum(y_lo - y_up, 0.5)
+        inside = np.clip((y - y_up) / band, 0.0, 1.0)
+        mid = (y_up + y_lo) / 2
+        outside = np.maximum(0.0, np.maximum(p[48, 0] - x, x - p[54, 0]))
         width = 0.3 + 0.5 * outside
-        self.side = (1.0 / (1.0 + np.exp(-np.clip(d / width, -50, 50)))).astype(np.float32)
+        sig = 1.0 / (1.0 + np.exp(-np.clip((y - mid) / width, -50, 50)))
+        self.side = np.where(outside > 0, sig, inside).astype(np.float32)
 
     def __call__(self, motion68) -> np.ndarray:
         (mu, ou), (ml, ol) = self.upper, self.lower
@@ -649,4 +670,4 @@ def driver_motion(track: DriverTrack, params: DriverParams = DriverParams(), *, 
     return DriverMotion(pose_A=A, pose_b=b, mean_mesh=mean_c, deltas=deltas, fiducials=fid,
                         mean_fiducials=fid[found].mean(axis=0), grid=grid, grid_mesh=gm, grid_step=st,
                         found=found.copy(), opening=mouth_opening(p68), points68=p68, anchors=anchors,
-                        mouth=mouth, fiducials68=fid68)
+                        mouth=mouth, fiducials68=fid68, triangles=triangles)

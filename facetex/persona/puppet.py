@@ -269,6 +269,9 @@ class Puppeteer:
         self.timings["transfer_setup_s"] = time.perf_counter() - t0
         depth_for_mesh = np.where(pmask, self.puppet_grid[..., 2], np.nan)
         _, self.faces, self.uv = depth_to_mesh(depth_for_mesh, pmask)
+        # lighting sees the average shape's normals: the expression's folds at the lips and the
+        # grid's creases would print as shading artifacts, and low-frequency lighting hardly changes
+        self.rest_normals = grid_normals(self.puppet_grid)[pmask]
         self.mean68 = persona.points68.mean(axis=0)  # the texture's frame (its 49 points: the mean fiducials)
         self.lip_fields = None
         if self.motion.fiducials68 is not None and (params.mouth_rest or params.lip_sync):
@@ -360,7 +363,7 @@ class Puppeteer:
 
         A, b = self.pose(i, scale)
         return render_layers(grid[self.puppet_mask], self.faces, self.uv, texture, rotation=A, translation=b,
-                             size=size, supersample=supersample, normals=grid_normals(grid)[self.puppet_mask])
+                             size=size, supersample=supersample, normals=self.rest_normals)
 
     def render(self, i: int, grid: np.ndarray, texture: np.ndarray, frame: np.ndarray, scale: float,
                mode: str = "composite") -> tuple[np.ndarray, np.ndarray]:
@@ -384,7 +387,24 @@ class Puppeteer:
             return img.astype(np.float32), lay.coverage
         oval = (tr.mesh[i][list(FACE_OVAL), :2] + 0.5) * scale - 0.5
         return composite_face(frame, lay.image, lay.coverage, lay.normals, driver_oval=oval, driver_points68=drv68,
-                              puppet_lips=lips, params=self.params.composite)
+                              puppet_lips=lips, driver_normals=self.driver_normals(i, (w, h), scale),
+                              params=self.params.composite)
+
+    def driver_normals(self, i: int, size, scale: float) -> np.ndarray | None:
+        """(H, W, 3) unit normals of the driver's own tracked face mesh in frame i (output panel
+        px), for estimating the lighting of the driver's frame with the driver's shape."""
+        from .render import render_layers
+
+        tri = self.motion.triangles
+        mesh = self.track.mesh[i]
+        if tri is None or not np.isfinite(mesh).all():
+            return None
+        v = mesh.copy()
+        v[:, :2] = (v[:, :2] + 0.5) * scale - 0.5
+        v[:, 2] *= scale
+        lay = render_layers(v, tri, np.zeros((len(v), 2)), np.ones((1, 1, 3), np.float32), rotation=np.eye(3),
+                            translation=np.zeros(3), size=size, supersample=1, prefilter=False)
+        return lay.normals
 
 
 @dataclass(eq=False)

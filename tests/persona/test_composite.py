@@ -189,7 +189,8 @@ def test_mouth_interior_moves_the_drivers_mouth_into_the_puppets_lips():
 
 
 # ----------------------------------------------------------------------------- the whole composite
-def test_composite_sits_in_the_frame_and_never_leaves_the_drivers_outline():
+@pytest.mark.parametrize("lighting", ["stats", "sh"])
+def test_composite_sits_in_the_frame_and_never_leaves_the_drivers_outline(lighting):
     h, w = 96, 96
     yy, xx = np.mgrid[0:h, 0:w]
     frame = np.zeros((h, w, 3), np.float32)
@@ -206,7 +207,7 @@ def test_composite_sits_in_the_frame_and_never_leaves_the_drivers_outline():
     p68[:, 0], p68[:, 1] = 48, 50
     p68[36], p68[45] = (36, 42), (60, 42)  # eye corners: the face's scale
     out, alpha = composite_face(frame, puppet, coverage, n, driver_oval=oval, driver_points68=p68,
-                                params=CompositeParams(mouth=False))
+                                params=CompositeParams(lighting=lighting, mouth=False))
     assert alpha[~face].max() == 0.0  # no halo: nothing outside the driver's face outline
     np.testing.assert_array_equal(out[~face], frame[~face])
     inner = ((xx - 48) / 18.0) ** 2 + ((yy - 50) / 24.0) ** 2 <= 1
@@ -221,3 +222,10 @@ def test_composite_sits_in_the_frame_and_never_leaves_the_drivers_outline():
     edge = alpha > 0.5
     own = boundary_color_step(frame, edge)[0]
     assert boundary_color_step(out, edge)[0] < 1.2 * own
+
+
+def test_composite_rejects_an_unknown_lighting():
+    with pytest.raises(BadInputError, match="lighting"):
+        composite_face(np.zeros((8, 8, 3)), np.zeros((8, 8, 3)), np.ones((8, 8)), np.zeros((8, 8, 3)),
+                       driver_oval=np.zeros((3, 2)), driver_points68=np.zeros((68, 2)),
+                       params=CompositeParams(lighting="studio"))

@@ -180,8 +180,8 @@ def test_lip_fields_let_the_lips_part():
 
 def test_mouth_correction_follows_the_landmarks(tracked):
     tr, n_morph, _ = tracked
-    plain = driver_motion(tr, DriverParams(mouth_correction=False))
-    fixed = driver_motion(tr)
+    plain = driver_motion(tr)  # the default: the puppet side follows the landmarks (Puppeteer.grid)
+    fixed = driver_motion(tr, DriverParams(mouth_correction=True))
     i = n_morph - 1
     st = fixed.grid_step
     f68 = fixed.fiducials68
