@@ -156,7 +156,7 @@ def _crop_box(points68: np.ndarray, shape, pad: float = 0.35):
 def _zoom_regions(p68: np.ndarray, shape) -> dict:
     """Named (y0, y1, x0, x1) boxes around the mouth, the jaw edge, the hairline and a cheek."""
     iod = float(np.linalg.norm(p68[36] - p68[45]))
-    r = max(6, int(round(0.3 * iod)))
+    r = max(8, int(round(0.4 * iod)))
 
     def box(c):
         y, x = int(round(c[1])), int(round(c[0]))

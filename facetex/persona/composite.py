@@ -372,7 +372,7 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
 
     ``frame`` (H, W, 3) the driver's frame; ``puppet`` (H, W, 3) the rendered puppet,
     ``coverage`` (H, W) its anti-aliased coverage, ``normals`` (H, W, 3) its unit camera-space
-    normals; ``driver_oval`` (K, 2) the driver's face outline and ``driver_points68`` its
+    normals (needed for ``lighting="sh"`` only, else may be None); ``driver_oval`` (K, 2) the driver's face outline and ``driver_points68`` its
     landmarks (frame px); ``puppet_lips`` (8, 2) the puppet's inner lips (output px) or None;
     ``driver_normals`` (H, W, 3) the driver's own face normals (its lighting is fitted with them;
     default: the puppet's normals).
@@ -395,13 +395,16 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     y0, y1 = max(0, ys.min() - pad), min(H, ys.max() + pad + 1)
     x0, x1 = max(0, xs.min() - pad), min(W, xs.max() + pad + 1)
     box = (slice(y0, y1), slice(x0, x1))
-    fr, pu, nr, rg = frame[box], np.asarray(puppet, np.float32)[box], np.asarray(normals, np.float32)[box], region[box]
+    fr, pu, rg = frame[box], np.asarray(puppet, np.float32)[box], region[box]
+    nr = None if normals is None else np.asarray(normals, np.float32)[box]
     skin = rg & ~feature_mask(p68 - [x0, y0], rg.shape)
     skin = cv2.erode(skin.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
     if skin.sum() < 16:
         skin = rg
     out = pu
     if params.lighting == "sh":
+        if nr is None:
+            raise BadInputError("lighting='sh' needs the puppet's normals")
         # low-frequency lighting: normals smoothed over ~5 % of the eye distance (the grid mesh's
         # creases at nostrils and lip corners would otherwise print as bright lines)
         sig = max(1.0, params.normal_smoothing * iod)

@@ -357,13 +357,14 @@ class Puppeteer:
         A, b = self.pose(i, scale)
         return X @ A[:2].T + b[:2]
 
-    def layers(self, i: int, grid: np.ndarray, texture: np.ndarray, size, scale: float, supersample: int = 1):
+    def layers(self, i: int, grid: np.ndarray, texture: np.ndarray, size, scale: float, supersample: int = 1,
+               normals: bool = True):
         """:class:`facetex.persona.render.Layers` of the puppet in frame i (output panel ``size`` (W, H))."""
         from .render import render_layers
 
         A, b = self.pose(i, scale)
         return render_layers(grid[self.puppet_mask], self.faces, self.uv, texture, rotation=A, translation=b,
-                             size=size, supersample=supersample, normals=self.rest_normals)
+                             size=size, supersample=supersample, normals=self.rest_normals if normals else False)
 
     def render(self, i: int, grid: np.ndarray, texture: np.ndarray, frame: np.ndarray, scale: float,
                mode: str = "composite") -> tuple[np.ndarray, np.ndarray]:
@@ -372,7 +373,8 @@ class Puppeteer:
         ``mode="face"``, alone on the plain background."""
         h, w = frame.shape[:2]
         ss = self.params.supersample if mode == "face" else self.params.supersample_composite
-        lay = self.layers(i, grid, texture, (w, h), scale, ss)
+        sh = mode == "composite" and self.params.composite.lighting == "sh"
+        lay = self.layers(i, grid, texture, (w, h), scale, ss, normals=sh)
         tr = self.track
         lips = self.lips(i, grid, scale)
         drv68 = (tr.points68[i] + 0.5) * scale - 0.5
@@ -387,7 +389,7 @@ class Puppeteer:
             return img.astype(np.float32), lay.coverage
         oval = (tr.mesh[i][list(FACE_OVAL), :2] + 0.5) * scale - 0.5
         return composite_face(frame, lay.image, lay.coverage, lay.normals, driver_oval=oval, driver_points68=drv68,
-                              puppet_lips=lips, driver_normals=self.driver_normals(i, (w, h), scale),
+                              puppet_lips=lips, driver_normals=self.driver_normals(i, (w, h), scale) if sh else None,
                               params=self.params.composite)
 
     def driver_normals(self, i: int, size, scale: float) -> np.ndarray | None:

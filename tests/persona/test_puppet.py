@@ -213,6 +213,10 @@ def test_cli_puppet(tmp_path, driver_video, tiny_persona, capsys):
     assert code == 0 and out.is_file()
     assert video_info(out)["n_frames"] == 3
     assert '"lost_frames": 0' in capsys.readouterr().out
+    sh = tmp_path / "sh.mp4"  # composite with the spherical-harmonics lighting transfer
+    assert main(["puppet", "--driver", str(driver_video), "--puppet", str(persona_file), "-o", str(sh),
+                 "--max-frames", "2", "--size", "96", "--lighting", "sh"]) == 0
+    assert video_info(sh)["n_frames"] == 2
     # existing output without --overwrite, and a video without faces: one-line errors, non-zero exit
     assert main(["puppet", "--driver", str(driver_video), "--puppet", str(persona_file), "-o", str(out)]) != 0
     blank = tmp_path / "blank.mp4"
