@@ -471,7 +471,8 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench-puppet", *, data=None
     if lost:
         tail += "\nLost frames by cause: " + "; ".join(f"{c}: {v}" for c, v in lost.items()) + "\n"
     if part is not None:
-        ok["partial"] = part["partial_rejected"] == part["partial_frames"] and part["whole_kept"] == part["whole_frames"]
+        ok["partial"] = (part["partial_rejected"] == part["partial_frames"]
+                         and part["whole_kept"] == part["whole_frames"])
         tail += (f"\nPartial faces (`{part['clip']}`, the first clip slid out of its frame): "
                  f"{part['partial_rejected']}/{part['partial_frames']} frames with >= {PARTIAL_OUTSIDE:.0%} of the "
                  f"face outside rejected, {part['whole_kept']}/{part['whole_frames']} whole-face frames kept "
@@ -495,7 +496,8 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
     p = bench_subparsers.add_parser(
         "puppet", help="puppetry: talking-face clips drive a persona (mouth, boundary colour, identity, lost faces)",
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--data", help="data folder with grid/ (driver clips) and lfw/George_W_Bush/ (default: $FACETEX_DATA)")
+    p.add_argument("--data", help="data folder with grid/ (driver clips) and lfw/George_W_Bush/ "
+                                  "(default: $FACETEX_DATA)")
     p.add_argument("--drivers", help="folder of driver videos (default DATA/grid)")
     p.add_argument("--puppet", help="puppet .persona file or photo folder (default DATA/lfw/George_W_Bush)")
     p.add_argument("--out", default="bench-puppet", help="output folder (default ./bench-puppet)")

@@ -345,16 +345,20 @@ LIGHTINGS = ("stats", "sh", "none")
 
 @dataclass(frozen=True)
 class CompositeParams:
-    """lighting: the colour statistics ("stats", default), also the driver's first-order SH
+    """How the puppet is put into the driver's frame.
+
+    lighting: the colour statistics ("stats", default), also the driver's first-order SH
     lighting ("sh"; ``sh_strength`` the exponent of the shading ratio) or nothing ("none").
     On GRID's frontally lit clips the SH ratio mostly moved the albedo of the persona's average
     (stubble, lips, the collection's top light) into the shading: a beard-like darkening
-    around the mouth (bench contact sheets), so it is not the default; std: also match the CIELAB spread; poisson: gradient-domain
-    blending at the border; normal_smoothing: Gaussian sigma of the normals before the SH fit
-    and relighting, as a fraction of the eye-corner distance; feather: width of the inward feather as a fraction of the
-    face's eye-corner distance; erode: the driver's outline is shrunk by this fraction (the
-    face-oval vertices sit on the silhouette, where skin meets hair or background);
-    mouth: draw the driver's mouth interior inside the puppet's lips."""
+    around the mouth (bench contact sheets), so it is not the default. normal_smoothing:
+    Gaussian sigma of the normals before the SH fit and relighting, as a fraction of the
+    eye-corner distance; std: also match the CIELAB spread; poisson: gradient-domain blending at
+    the border; feather: width of the inward feather as a fraction of the eye-corner distance;
+    erode: the driver's outline is shrunk by this fraction (the face-oval vertices sit on the
+    silhouette, where skin meets hair or background); mouth: draw the driver's mouth interior
+    inside the puppet's lips.
+    """
 
     lighting: str = "stats"
     sh_strength: float = 1.0
@@ -372,7 +376,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
 
     ``frame`` (H, W, 3) the driver's frame; ``puppet`` (H, W, 3) the rendered puppet,
     ``coverage`` (H, W) its anti-aliased coverage, ``normals`` (H, W, 3) its unit camera-space
-    normals (needed for ``lighting="sh"`` only, else may be None); ``driver_oval`` (K, 2) the driver's face outline and ``driver_points68`` its
+    normals (needed for ``lighting="sh"`` only, else may be None); ``driver_oval`` (K, 2) the
+    driver's face outline and ``driver_points68`` its
     landmarks (frame px); ``puppet_lips`` (8, 2) the puppet's inner lips (output px) or None;
     ``driver_normals`` (H, W, 3) the driver's own face normals (its lighting is fitted with them;
     default: the puppet's normals).
@@ -386,7 +391,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     outline = polygon_mask(driver_oval, (H, W)) > 0.5
     k = int(round(params.erode * iod))
     if k > 0:
-        outline = cv2.erode(outline.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1,) * 2)) > 0
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1,) * 2)
+        outline = cv2.erode(outline.astype(np.uint8), disc) > 0
     region = outline & (np.asarray(coverage) > 0.5)
     if region.sum() < 16:
         return frame.copy(), np.zeros((H, W), np.float32)

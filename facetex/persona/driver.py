@@ -20,15 +20,16 @@ frame. Then:
 4. **Fiducials.** The 68 dlib points of a frame are lifted onto that frame's mesh
    (barycentric in its 2D projection) and un-posed: expression fiducials in the
    canonical frame, pose removed.
-5. **Mouth correction.** MediaPipe's mesh hardly opens its mouth on small faces: on
-   GRID clips the inner-lip gap of its vertices 13/14 follows only ~0.2x the opening of
-   dlib's inner-lip landmarks (regression slope; dlib's own tracked opening follows the
-   opening measured on 720 px upscaled frames with slope 1.0). The lips and the jaw of the
-   translation field therefore follow dlib's points: the difference between the lifted
-   dlib lip/jaw motion and the mesh's motion at those points is interpolated by two thin-plate
-   splines (:class:`MouthCorrection`), one for the upper lip (zero at the eyes, brows and
-   nose) and one for the lower lip and jaw, joined along the mean mouth line so that the lips
-   can part (a single smooth field would drag both lips to their average).
+5. **Mouth.** MediaPipe's mesh hardly opens its mouth on small faces: on GRID clips the
+   inner-lip gap of its vertices 13/14 follows only ~0.2x the opening of dlib's inner-lip
+   landmarks (regression slope; dlib's own tracked opening follows the opening measured on
+   720 px upscaled frames with slope 1.0). The un-posed dlib landmarks of every frame
+   (``fiducials68``) are therefore kept: the puppet's lips and jaw follow them
+   (:meth:`facetex.persona.puppet.Puppeteer.grid`, with :class:`LipFields`: two thin-plate
+   splines, the upper lip's and the lower lip's with the jaw, joined across the mean mouth
+   opening). ``mouth_correction=True`` also corrects the driver's own translation field
+   (:class:`MouthCorrection`); off by default: carried through the collection flow onto a
+   puppet whose mouth sits elsewhere, its sharp change across the lips tore the puppet's lips.
 
 Lost frames (no face, the mesh network's face score < 0.5, the face partly outside the
 frame, dlib's landmarks and the mesh disagreeing, or a squashed/torn landmark shape; see
@@ -84,8 +85,9 @@ class DriverParams:
     window of 1 disables it); subspace_frames: frontalized frames kept for the driver's 2D
     average and appearance subspace; min_mesh_score: mesh face score below which a frame is lost;
     redetect_every: frames between face detections (landmarks are tracked in between);
-    mouth_correction: lips and jaw of the translation field follow the tracked landmarks
-    (module doc, 5; False: the face mesh alone)."""
+    mouth_correction: lips and jaw of the driver's translation field follow the tracked
+    landmarks (module doc, 5; default False: the face mesh alone, the puppet side follows the
+    landmarks)."""
 
     size: tuple[int, int] = (192, 240)
     grid_step: int = 2

@@ -74,8 +74,9 @@ class PuppetParams:
     driver's frame; supersample / supersample_composite: rasterization samples per pixel and
     axis in face / composite mode (anti-aliased silhouette; in composite mode the feathered
     driver outline is the edge, and the texture is low-passed to the pixel spacing either way);
-    mouth_rest: the puppet's mean lip gap set to the driver's (module doc); lip_sync: the puppet's
-    lip and jaw landmarks follow the driver's (:meth:`Puppeteer.grid`); max_depth_error: a reconstructed average depth whose RMS
+    mouth_rest: the puppet's mean lip gap set to the driver's (module doc); lip_sync: the
+    puppet's lip and jaw landmarks follow the driver's (:meth:`Puppeteer.grid`);
+    max_depth_error: a reconstructed average depth whose RMS
     difference to the generic face exceeds this fraction of the frame width is replaced by
     the generic depth (too few or too uniformly lit photos); shape "generic" skips the
     photometric-stereo reconstruction of the puppet and uses the generic face's depth;
