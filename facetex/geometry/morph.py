@@ -584,13 +584,17 @@ class AlignParams:
     3.20 / 0.662 [3.72 / 0.651]; 0.03, 0.05: 3.08 / 0.571 [3.11 / 0.570]; 0.08, 0.05:
     2.91 / 0.523 [2.54 / 0.533]; 0.03, 0.02: 2.60 / 0.569 [2.72 / 0.566]; 0.03, 1.0:
     3.11 / 0.565 [3.62 / 0.570]. Unconstrained flow aligns contours best but drags the
-    features; the defaults (0.03, 0.02) improve both measures.
+    features; the defaults (0.03, 0.02) improve both measures. The flow is then smoothed
+    (``flow_smooth``): only its contour-scale trend is kept, which is what the refinement
+    is for ("to further align the face contour"), and the style's pores are carried by a
+    locally near-similar map.
     """
 
     landmark_radius: float = 0.03
     max_shift: float = 0.02
     crop_margin: float = 0.1
-    flow_smooth: float = 0.015  # Gaussian sigma of the flow × face width (folds without it)
+    flow_smooth: float = 0.05  # Gaussian sigma of the flow × face width: the flow between two
+    # people follows their pores too, and at 0.015 it swirled the style's texture (FRL 083←005 chin)
     beier_neely: BeierNeelyParams = field(default_factory=BeierNeelyParams)
 
 
@@ -713,7 +717,7 @@ def align_style_to_content(
         mag = np.linalg.norm(f, axis=2, keepdims=True)
         f *= np.minimum(1.0, cap / np.maximum(mag, 1e-9))
         if prm.flow_smooth > 0:  # flow between two people is noisy at pixel scale; only its trend helps
-            f = cv2.GaussianBlur(f, (0, 0), prm.flow_smooth * face_width(cp))
+            f = cv2.GaussianBlur(f, (0, 0), prm.flow_smooth * face_width(cp)) * wgt[..., None]
         base = m
         m = unfold_map(lambda alpha: compose_maps(base, _flow.map_from_flow((f * alpha[..., None]).astype(np.float32))),
                        shape, mask=near_face)

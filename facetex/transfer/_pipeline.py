@@ -418,6 +418,7 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
     if params.constraint == "skin":
         delta *= (skin_c > 0)[..., None]  # exactly nothing outside the skin (cubic rings 1–2 px)
     out_region = np.clip(region + delta, 0.0, 1.0)
+    optimised_region = out_region
     detail_info = None
     if params.detail:
         from .detail import DetailParams, transfer_skin_detail
@@ -447,7 +448,7 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
         "memory_estimate_bytes": need, "versions": _versions(__version__),
         "images": {"content_w": content_w, "style_w": style_w, "output_w": out_w, "prior": prior, "face": face,
                    "region": region, "style_native": style_native, "skin_content": skin_c, "skin_style": skin_s,
-                   "output_region": out_region},
+                   "optimised_region": optimised_region, "output_region": out_region},
     }
     return out.astype(np.float32), info
 

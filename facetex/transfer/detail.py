@@ -17,7 +17,8 @@ the *style's own* fine detail into the content's skin at the output's resolution
    the resampling lost, clipped to ``gain_range``); where the content shows skin but the
    aligned style does not (its hair, eyes or a warp's edge land there), the output keeps
    its own band scaled to the style's median skin energy (Shih's gain with a global target),
-   so no hair or feature of the style is copied and the roughness still matches.
+   so no hair or feature of the style is copied (that gain is capped at 1.25: more turns the
+   optimiser's faint swirls into visible worms).
 
 Everything outside the content's skin is returned untouched. Hand-written (no library
 does band-energy transfer between two aligned images).
@@ -45,7 +46,9 @@ class DetailParams:
 
     sigmas: tuple[float, ...] = (1.0, 2.0, 4.0)  # band edges: [0,1], [1,2], [2,4]
     energy_scale: float = 2.0  # energy blur = energy_scale × the band's outer sigma
-    gain_range: tuple[float, float] = (0.5, 3.0)
+    gain_range: tuple[float, float] = (0.5, 3.0)  # of the style's bands (restores resampling losses)
+    own_gain_range: tuple[float, float] = (0.5, 1.25)  # of the output's own bands where the style is not skin:
+    # more amplifies the optimiser's faint swirl pattern into visible worms (seen on FRL 083←005)
     eps: float = 1e-6  # energy floor (values in [0, 1]²)
     strength: float = 1.0  # 0 = output unchanged, 1 = full style detail
 
@@ -124,7 +127,7 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
         # the style's typical skin energy in this band, for places its warped image is not skin
         ref = float(np.median(e_target[skin])) if skin.any() else float(np.median(e_target))
         e_out = band_energy(b_out[k], es)
-        g_own = np.clip(np.sqrt((ref + params.eps) / (e_out + params.eps)), lo, hi)
+        g_own = np.clip(np.sqrt((ref + params.eps) / (e_out + params.eps)), *params.own_gain_range)
         new = both * (g_style[..., None] * b_sty[k]) + only_content * (g_own[..., None] * b_out[k]) \
             + (1.0 - mc[..., None]) * b_out[k]
         result += params.strength * (new - b_out[k])

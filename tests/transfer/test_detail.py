@@ -68,9 +68,9 @@ def test_where_the_style_is_not_skin_the_output_keeps_its_own_detail_rescaled():
     ro, _ = band_stack(res, (1.0,))
     oo, _ = band_stack(out, (1.0,))
     c = (slice(10, -10), slice(10, -10))
-    # same pattern as the output (correlation ~1), amplitude moved towards the style's (x~3 clipped)
+    # same pattern as the output (correlation ~1), amplitude moved towards the style's (x1.25 cap)
     corr = np.corrcoef(ro[0][c][..., 0].ravel(), oo[0][c][..., 0].ravel())[0, 1]
-    assert corr > 0.95 and ro[0][c].std() > 1.8 * oo[0][c].std()
+    assert corr > 0.95 and ro[0][c].std() > 1.2 * oo[0][c].std()
 
 
 def test_strength_zero_is_identity_and_bad_shapes_raise():
