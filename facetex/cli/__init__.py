@@ -68,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="facetex",
         description="Photo-realistic facial texture: FaceTex transfer and Persona textures.",
     )
-    parser.add_argument("--version", action="version", version=f"facetex {__version__}")
+    parser.add_argument("-V", "--version", action="version", version=f"facetex {__version__}")
     parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
