@@ -709,15 +709,18 @@ class Mesh:
     depth_origin: str | None
     depth_photos: int
 
-    def save(self, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
-        """Write ``path`` (.obj) with its ``.mtl`` and ``.png`` texture beside it."""
+    def save(self, path: str | os.PathLike, *, overwrite: bool = False, inputs=(),
+             extra_files: dict | None = None) -> Path:
+        """Write ``path`` (.obj) with its ``.mtl`` and ``.png`` texture beside it (and
+        ``extra_files``, {path: bytes}), all or none."""
         from .errors import OutputError
         from .persona.mesh_io import write_obj
 
         path = Path(path)
         if path.suffix.lower() != ".obj":
             raise OutputError("mesh file name must end in .obj", path=path)
-        write_obj(path, self.vertices, self.faces, self.uv, self.texture, overwrite=overwrite)
+        write_obj(path, self.vertices, self.faces, self.uv, self.texture, overwrite=overwrite, inputs=inputs,
+                  extra_files=extra_files)
         return path
 
 

@@ -102,7 +102,29 @@ def main(argv: list[str] | None = None) -> int:
     with warnings.catch_warnings(), _signals_as_interrupts():
         if not debug:
             warnings.showwarning = _show_warning
-        return _run(argv, debug)
+        code = _run(argv, debug)
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        return _stdout_closed()
+    except (OSError, ValueError):
+        pass
+    return code
+
+
+def _stdout_closed() -> int:
+    """The reader of our stdout went away (``facetex landmarks --json | head``): stop quietly,
+    as a command killed by SIGPIPE does (exit 141), and keep Python from complaining about the
+    unflushed buffer at exit."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):
+        pass
+    return 128 + 13
 
 
 def _interrupted(exc: KeyboardInterrupt) -> int:
@@ -137,6 +159,8 @@ def _run(argv: list[str], debug: bool) -> int:
         return exc.exit_code
     except KeyboardInterrupt as exc:
         return _interrupted(exc)
+    except BrokenPipeError:
+        return _stdout_closed()
     except MemoryError:
         if debug:
             traceback.print_exc()
