@@ -30,8 +30,9 @@ from ._common import Column, check_out_dir, csv_table, image_grid, json_safe, ma
 
 __all__ = ["register_bench", "run_bench_puppet", "DEFAULT_DRIVERS", "DEFAULT_PUPPET"]
 
-DEFAULT_DRIVERS = "/work/shared/data/grid"
-DEFAULT_PUPPET = "/work/shared/data/lfw/George_W_Bush"
+# inside --data / $FACETEX_DATA; --drivers and --puppet override them (paths, or relative to --data)
+DEFAULT_DRIVERS = "grid"
+DEFAULT_PUPPET = "lfw/George_W_Bush"
 ID_THRESHOLD = 0.6
 FIDELITY_TARGET = 0.8
 ID_FRACTION_TARGET = 0.9
@@ -214,7 +215,7 @@ def _load_or_build_persona(puppet, out: Path, progress):
     return persona, str(cached)
 
 
-def run_bench_puppet(drivers=DEFAULT_DRIVERS, puppet=DEFAULT_PUPPET, out="bench-puppet", *,
+def run_bench_puppet(drivers, puppet, out="bench_out/puppet", *,
                      clips: int | None = None, size: int | None = None, max_frames: int | None = None,
                      texture_shape: str = "collection", progress: Callable | None = None) -> dict:
     """Run the puppetry benchmark: every ``*.mpg`` / ``*.mp4`` in ``drivers`` (the first ``clips``)
@@ -272,14 +273,20 @@ def run_bench_puppet(drivers=DEFAULT_DRIVERS, puppet=DEFAULT_PUPPET, out="bench-
 def register_bench(bench_subparsers) -> argparse.ArgumentParser:
     """Add the ``puppet`` sub-parser to ``facetex bench``."""
     from ..cli._common import bounded_int, positive_int
+    from ._common import add_bench_options
 
     p = bench_subparsers.add_parser(
         "puppet", help="puppetry: GRID clips drive a persona (mouth fidelity, identity, flicker)",
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--drivers", default=DEFAULT_DRIVERS, help=f"folder of driver videos (default {DEFAULT_DRIVERS})")
-    p.add_argument("--puppet", default=DEFAULT_PUPPET,
-                   help=f"puppet .persona file or photo folder (default {DEFAULT_PUPPET})")
-    p.add_argument("--out", default="bench-puppet", help="output folder (default ./bench-puppet)")
+        description="Driver clips drive a persona (Tom Hanks §4, §6). Measured per clip: expression fidelity "
+                    "(correlation of the driver's and the puppet's mouth opening, target >= 0.8), identity "
+                    "(distance of the rendered frames to the puppet's photos < 0.6 on >= 90 %% of frames, and "
+                    "larger to the driver) and flicker on still frames (expression-dependent vs static texture). "
+                    "Writes table.md/.csv, results.json and, for the first clip, an MP4 and a contact sheet.")
+    add_bench_options(p, "puppet", f"data root holding {DEFAULT_DRIVERS}/ and {DEFAULT_PUPPET}/")
+    p.add_argument("--drivers", default=DEFAULT_DRIVERS, metavar="DIR",
+                   help=f"folder of driver videos, a path or relative to --data (default {DEFAULT_DRIVERS})")
+    p.add_argument("--puppet", default=DEFAULT_PUPPET, metavar="PATH",
+                   help=f"puppet .persona file or photo folder, a path or relative to --data (default {DEFAULT_PUPPET})")
     p.add_argument("--clips", type=positive_int, help="use only the first N clips")
     p.add_argument("--size", type=bounded_int(32, 4096), help="longer side of the rendered frames (default: the driver's)")
     p.add_argument("--max-frames", type=positive_int, help="use only the first N frames of each clip")
@@ -289,14 +296,38 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def _run(args) -> int:
-    from ..cli._common import print_json, progress_bar
+def _resolve(root: Path, value: str) -> Path:
+    p = Path(value)
+    if p.is_absolute() or p.exists():
+        return p
+    return root / p
 
-    with progress_bar(desc="bench puppet", unit="frame") as bar:
-        res = run_bench_puppet(args.drivers, args.puppet, args.out, clips=args.clips, size=args.size,
+
+def _run(args) -> int:
+    from ..cli._common import progress_bar
+    from ..io import video_info
+    from ._common import data_root, finish_bench
+
+    root = data_root(args.data) if (args.data or not (Path(args.drivers).exists() and Path(args.puppet).exists())) \
+        else Path(".")
+    drivers, puppet = _resolve(root, args.drivers), _resolve(root, args.puppet)
+    clips = sorted(f for f in drivers.iterdir() if f.suffix.lower() in (".mpg", ".mp4", ".mov", ".avi", ".mkv")) \
+        if drivers.is_dir() else [drivers]
+    clips = clips[: args.clips or None]
+    total = 0
+    for c in clips:  # the bar counts evaluated frames
+        try:
+            n = video_info(c)["n_frames"]
+        except Exception:  # noqa: BLE001 - the run itself reports a bad clip
+            n = 0
+        total += min(n, args.max_frames) if args.max_frames else n
+    with progress_bar(total=total or None, desc="bench puppet", unit="frame", disable=args.quiet) as bar:
+        res = run_bench_puppet(drivers, puppet, args.out, clips=args.clips, size=args.size,
                                max_frames=args.max_frames, texture_shape=args.shape, progress=bar)
-    print_json(json_safe({"out": str(res["out"]), "files": {k: str(v) for k, v in res["files"].items()},
-                          "summary": res["summary"], "targets_met": res["targets_met"]}))
+    table = Path(res["files"]["table_md"]).read_text(encoding="utf-8")
+    finish_bench(args, "puppet", res["out"], res["files"], inputs={"drivers": drivers, "puppet": puppet},
+                 settings={"drivers": str(drivers), "puppet": str(puppet)},
+                 summary={"summary": res["summary"], "targets_met": res["targets_met"]}, table=table)
     return 0
 
 
