@@ -156,10 +156,15 @@ def _progress(progress: Progress, total: int | None, desc: str, unit: str) -> It
                      if isinstance(v, (int, float, str))}
             if shown:
                 bar.set_postfix(shown, refresh=False)
+            if bar.total is not None and bar.n + n > bar.total:  # the total is an estimate
+                bar.total = bar.n + n
             bar.update(n)
 
         try:
             yield update
+            if bar.total is not None and bar.n < bar.total:  # finished early: end at 100 %
+                bar.total = bar.n
+                bar.refresh()
         finally:
             bar.close()
     elif progress is None or progress is False:

@@ -89,7 +89,8 @@ def check_device(device: str) -> str:
 
 def add_seed_device(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    parser.add_argument("--device", type=device_name, default="cpu", help="torch device: cpu or cuda (default cpu)")
+    parser.add_argument("--device", type=device_name, default="cpu", metavar="{cpu,cuda,cuda:N,mps}",
+                        help="torch device (default cpu; cuda needs a CUDA build of torch)")
 
 
 def add_overwrite(parser: argparse.ArgumentParser) -> None:
@@ -157,6 +158,8 @@ def progress_bar(total: int | None = None, desc: str = "", unit: str = "it", *, 
     def update(n: int = 1, **postfix):
         if postfix:
             bar.set_postfix(postfix, refresh=False)
+        if bar.total is not None and bar.n + n > bar.total:  # an estimated total: grow it, never overflow
+            bar.total = bar.n + n
         bar.update(n)
 
     try:
