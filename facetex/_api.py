@@ -102,6 +102,16 @@ def as_image(image: ImageLike, name: str = "image") -> np.ndarray:
 def parse_iters(iters: int | str | Sequence[int] | None) -> tuple[int, ...] | None:
     """L-BFGS iterations per level from ``100``, ``"100,100,100"`` or ``(100, 100, 100)``.
 
+    Parameters
+    ----------
+    iters : int, str, sequence of int or None
+        One count (one level), comma-separated counts, or a sequence of counts.
+
+    Returns
+    -------
+    tuple of int or None
+        One count per resolution level (None when ``iters`` is None: the preset's).
+
     Raises
     ------
     ValueError
@@ -525,10 +535,8 @@ PersonaLike = Union[str, os.PathLike, "Persona"]
 
 
 def _persona(persona: PersonaLike) -> "Persona":
-    from .persona import load_persona as _load
-
     if isinstance(persona, (str, os.PathLike)):
-        return _load(persona)
+        return load_persona(persona)
     if hasattr(persona, "images") and hasattr(persona, "fiducials"):
         return persona
     raise BadInputError(f"persona must be a .persona path or a Persona, not {type(persona).__name__}")
@@ -614,12 +622,16 @@ def load_persona(path: str | os.PathLike) -> "Persona":
     >>> len(p)  # usable photos  # doctest: +SKIP
     519
     """
+    from .errors import PersonaNotFoundError
     from .persona import load_persona as _load
 
+    if not os.path.lexists(path):
+        raise PersonaNotFoundError("persona file not found: build one with `facetex persona build`", path=path)
     return _load(path)
 
 
-def persona_texture(persona: PersonaLike, *, like: ImageLike | None = None, fiducials=None,
+def persona_texture(persona: PersonaLike, *, like: ImageLike | None = None,
+                    fiducials: np.ndarray | Sequence[Sequence[float]] | None = None,
                     method: Literal["ours", "static", "weighted", "prewarp"] = "ours", sigma: float = 10.0,
                     progress: Progress = False) -> np.ndarray:
     """The persona's face texture for a target expression (Suwajanakorn et al. 2015, Eq. 3).

@@ -40,6 +40,13 @@ LIBRARIES = {
 }
 
 _CHUNK = 1 << 20
+_ARGV: list[str] | None = None  # the running CLI command's argv (set by facetex.cli.main)
+
+
+def set_command(argv: Iterable[str] | None) -> None:
+    """Record the command line of the CLI command now running (None: use ``sys.argv``)."""
+    global _ARGV
+    _ARGV = None if argv is None else ["facetex", *[str(a) for a in argv]]
 _HASH_CACHE: dict[tuple[str, int, int], str] = {}
 
 
@@ -78,7 +85,7 @@ def library_versions() -> dict[str, str | None]:
 def command_line(argv: Iterable[str] | None = None) -> str:
     """The command as a user would type it again (``facetex ...`` for the CLI)."""
     if argv is None:
-        argv = sys.argv
+        argv = _ARGV if _ARGV is not None else sys.argv
     argv = [str(a) for a in argv]
     if argv and Path(argv[0]).name in ("facetex", "__main__.py", "-m"):
         argv = ["facetex", *argv[1:]]

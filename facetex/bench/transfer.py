@@ -331,8 +331,8 @@ def run(args) -> int:
     from ._common import data_folder, data_root, finish_bench
 
     methods = parse_methods(args.methods)
-    data = data_folder(data_root(args.data), DATA_SUBFOLDER)
     check_device(args.device)  # before the work
+    data = data_folder(data_root(args.data), DATA_SUBFOLDER)
     n_people = len(list_portraits(data, tag="neutral"))
     total = max(1, min(int(args.pairs), n_people * (n_people - 1))) * len(methods)
     with progress_bar(total=total, desc="bench transfer", unit="run", disable=args.quiet) as update:

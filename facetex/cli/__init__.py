@@ -146,11 +146,17 @@ def _interrupted(exc: KeyboardInterrupt) -> int:
 def _run(argv: list[str], debug: bool) -> int:
     from ..io import committed_outputs
 
+    from .._provenance import set_command
+
     committed_outputs(reset=True)
+    set_command(argv)
     args = None
     try:
         args = build_parser().parse_args(argv)
-        result = args.func(args)
+        try:
+            result = args.func(args)
+        finally:
+            set_command(None)
         return int(result or 0)
     except FacetexError as exc:
         if debug:

@@ -100,6 +100,8 @@ def run(args) -> int:
                             f"(use 0..{len(faces) - 1})", path=args.image)
     full = [f.scaled(factor) for f in faces] if factor != 1.0 else faces
     if args.output:
+        import numpy as np
+
         from .._provenance import provenance
         from ..io import encode_image, encode_json, write_files
 
@@ -108,7 +110,7 @@ def run(args) -> int:
             params={"upsample": args.upsample, "detector": args.detector, "face_index": k,
                     "overlay_scale": 1.0 / factor},
             outputs=[args.output],
-            faces=[{"box": list(f.box), "points68": f.points68} for f in full])
+            faces=[{"box": [float(v) for v in f.box], "points68": np.asarray(f.points68).tolist()} for f in full])
         write_files({args.output: encode_image(args.output, _overlay(image, faces, k)),
                      sidecar: encode_json(record)}, overwrite=args.overwrite, inputs=[args.image])
     faces = full

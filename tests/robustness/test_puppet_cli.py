@@ -77,5 +77,5 @@ def test_partly_decodable_driver_warns_and_works(capsys, videos, outdir, persona
     assert "Traceback" not in run.err and run.lines == [], run.lines
     warnings = [l for l in run.err.replace("\r", "\n").splitlines() if l.startswith("facetex: warning:")]
     assert warnings and all(path.name in w and "damaged" in w for w in warnings)
-    assert [p.name for p in outdir.iterdir()] == ["o.mp4"]  # no temp file
+    assert sorted(p.name for p in outdir.iterdir()) == ["o.mp4", "o.mp4.json"]  # no temp file; the sidecar
     assert video_info(outdir / "o.mp4")["n_frames"] == 2
