@@ -99,13 +99,16 @@ def as_image(image: ImageLike, name: str = "image") -> np.ndarray:
     return np.ascontiguousarray(f, dtype=np.float32)
 
 
-def parse_iters(iters: int | str | Sequence[int] | None) -> tuple[int, ...] | None:
+def parse_iters(iters: int | str | Sequence[int] | None, *, minimum: int = 1) -> tuple[int, ...] | None:
     """L-BFGS iterations per level from ``100``, ``"100,100,100"`` or ``(100, 100, 100)``.
 
     Parameters
     ----------
     iters : int, str, sequence of int or None
         One count (one level), comma-separated counts, or a sequence of counts.
+    minimum : int
+        Fewest iterations a level may have (the transfer functions accept 0: no L-BFGS step
+        on that level, e.g. to look at the pre-warp alone).
 
     Returns
     -------
@@ -143,8 +146,9 @@ def parse_iters(iters: int | str | Sequence[int] | None) -> tuple[int, ...] | No
         if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in vals):
             raise BadInputError(f"iters must hold integers, not {iters!r}")
         vals = tuple(int(v) for v in vals)
-    if not vals or any(v < 1 for v in vals):
-        raise BadInputError(f"every level needs at least 1 iteration, not {iters!r}")
+    if not vals or any(v < minimum for v in vals):
+        raise BadInputError(f"every level needs at least {minimum} iteration{'s' if minimum != 1 else ''}, "
+                            f"not {iters!r}")
     if len(vals) > _MAX_LEVELS or any(v > _MAX_ITERS for v in vals):
         raise BadInputError(f"at most {_MAX_LEVELS} levels of at most {_MAX_ITERS} iterations, not {iters!r}")
     return vals
@@ -194,7 +198,7 @@ def _transfer_options(size, iters, texture_net, weights: dict, crop, detail, det
     out = dict(options)
     if size is not None:
         out["size"] = int(size)
-    it = parse_iters(iters)
+    it = parse_iters(iters, minimum=0)
     if it is not None:
         out["iters"] = it
     if texture_net is not None:
@@ -283,7 +287,8 @@ def transfer_with_info(
     size : int, optional
         Long edge of the working region in px (32..4096); default the preset's.
     iters : int, str or sequence of int, optional
-        L-BFGS iterations per resolution level: ``(100, 100, 100)`` or ``"100,100,100"``.
+        L-BFGS iterations per resolution level: ``(100, 100, 100)`` or ``"100,100,100"``
+        (0 on a level: no optimisation there).
     texture_net : {"effnet-lite0", "vgg19", "face-resnet"}, optional
         Texture feature network (default EfficientNet-Lite0, shipped weights).
     mrf_weight, structure_weight, content_weight, style_weight, tv_weight : float, optional

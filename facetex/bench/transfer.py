@@ -28,7 +28,7 @@ import numpy as np
 from ..errors import BadInputError, NoFaceError, OutputError
 from ..io import read_image, to_uint8, write_image, write_json
 from ._common import (Column, ResultStore, check_out_dir, csv_table, list_portraits, markdown_table,
-                      json_safe, mean_finite, no_image_data, select_pairs, versions, write_figure, write_grid,
+                      json_safe, mean_finite, no_image_data, select_pairs, versions, write_figure_formats, write_grid,
                       write_text)
 
 __all__ = ["METHODS", "METHOD_TITLES", "METHOD_COLOURS", "PAPER_TABLE1", "PRESETS",
@@ -178,7 +178,7 @@ def _write_scatter(path, records, pairs, methods) -> Path:
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
     fig.suptitle("FaceTex Figure 4: per-pair metrics (dots), paper means (crosses)")
-    return write_figure(path, fig)
+    return write_figure_formats(Path(path).with_suffix(""), fig)[0]  # .png, and .svg + .pdf for papers
 
 
 def _write_grid(path, out, pairs, paths, methods, records) -> Path:

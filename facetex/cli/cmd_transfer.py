@@ -193,8 +193,8 @@ def run(args) -> int:
     record = provenance(
         command="transfer", seed=args.seed,
         inputs={"content": args.content, "style": args.style, "init": init_path, "vgg19_weights": args.vgg19_weights},
-        params={"method": args.method, "preset": args.preset, "init": args.init, "device": args.device,
-                "options": options, "transfer_params": info.get("params")},
+        params={**(info.get("params") or {}), "method": args.method, "preset": args.preset, "init": args.init,
+                "device": args.device, "command_line_options": options},
         outputs=[out], steps=steps, result=info)
     # the image and its sidecar are committed together: never one without the other
     write_files({out: encode_image(out, image), sidecar: encode_json(record)}, overwrite=args.overwrite,

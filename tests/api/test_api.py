@@ -98,6 +98,7 @@ def test_bad_arrays_are_refused_with_a_clear_message(bad, match):
 def test_iters_strings_parse_or_fail_clearly():
     assert facetex.parse_iters("2,2,2") == (2, 2, 2)
     assert facetex.parse_iters(5) == (5,) and facetex.parse_iters([3, 4]) == (3, 4)
+    assert facetex.parse_iters("0,1", minimum=0) == (0, 1)
     for bad in ("2,x,2", "0,1", "1.5", [1, "a"], True):
         with pytest.raises(ValueError, match="iter"):
             facetex.parse_iters(bad)
@@ -171,8 +172,8 @@ def test_cli_sidecar_holds_the_provenance(tmp_path, capsys):
     assert "--mrf-weight 1.5" in side["command_line"] and side["created_utc"].endswith("+00:00")
     for name, path in (("content", FACE), ("style", OTHER)):
         assert side["inputs"][name]["sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
-    assert side["params"]["options"]["mrf_weight"] == 1.5 and side["params"]["init"] == "random"
-    assert side["params"]["transfer_params"]["mrf_weight"] == 1.5
+    assert side["params"]["command_line_options"]["mrf_weight"] == 1.5 and side["params"]["init"] == "random"
+    assert side["params"]["mrf_weight"] == 1.5 and side["params"]["iters"] == [2, 2]
     for lib in ("facetex", "torch", "numpy", "opencv", "dlib", "scipy", "scikit-image", "pyav"):
         assert side["versions"][lib], lib
     assert '"images"' not in (tmp_path / "out.png.json").read_text()
