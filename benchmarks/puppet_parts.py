@@ -8,7 +8,9 @@ Times, with one thread (OMP/MKL/OpenBLAS = 1, cv2.setNumThreads(1)):
   * DeformationTransfer per frame incl. Huber-ROF, driver = that mesh, puppet = the generic
     mesh stretched 1.15x wide, for a local expression (surface-following bumps at mouth and
     eyes: most vertices still) and a worst case (every vertex moves);
-  * render_mesh per frame at 256 x 256, ~22k triangles, 20 degree yaw, pinhole camera.
+  * render_mesh per frame at 256 x 256, ~22k triangles, 20 degree yaw, pinhole camera;
+  * render_layers (the puppet's anti-aliased rendering with normals) at 1x and 2x supersampling,
+    and composite_face (colour statistics, Poisson blending, mouth interior) on a synthetic frame.
 Prints wall-clock and CPU (process) time: the CPU time is what one free core would take
 when the machine is shared.
 """
@@ -34,7 +36,7 @@ from facetex.geometry._generic_face import canonical_surface  # noqa: E402
 from facetex.geometry.frontalize import rotation_from_angles  # noqa: E402
 from facetex.persona.deform import DeformationTransfer  # noqa: E402
 from facetex.persona.mesh_io import depth_to_mesh  # noqa: E402
-from facetex.persona.render import render_mesh  # noqa: E402
+from facetex.persona.render import render_layers, render_mesh  # noqa: E402
 from facetex.persona.shape import generic_depth_px, normals_from_depth, reconstruct_average_shape  # noqa: E402
 
 cv2.setNumThreads(1)
@@ -131,6 +133,30 @@ def main(argv=None):
     (img, m), wall, cpu = timed(lambda: render_mesh(v, f, uv, tex, rotation=rot, translation=(0, 0, 400),
                                                     focal=560, size=(256, 256)), args.renders)
     rows.append((f"render_mesh 256x256, {len(f)} triangles", wall, cpu, f"{int(m.sum())} px covered"))
+    # the puppet's anti-aliased layers (weak perspective, as the puppet is drawn) and its composite
+    A = 0.9 * rot
+    t = np.array([128.0, 128.0, 0.0])
+    for ss in (1, 2):
+        lay, wall, cpu = timed(lambda: render_layers(v, f, uv, tex, rotation=A, translation=t, size=(256, 256),
+                                                     supersample=ss), args.renders)
+        rows.append((f"render_layers 256x256, supersample {ss} (+ normals)", wall, cpu,
+                     f"{lay.coverage.sum():.0f} px covered"))
+    from facetex.persona.composite import composite_face
+
+    lay = render_layers(v, f, uv, tex, rotation=A, translation=t, size=(256, 256), supersample=1)
+    frame = np.clip(np.full((256, 256, 3), (0.55, 0.4, 0.3), np.float32)
+                    + 0.02 * rng.standard_normal((256, 256, 3)).astype(np.float32), 0, 1)
+    ang = np.linspace(0, 2 * np.pi, 36, endpoint=False)
+    oval = np.c_[128 + 55 * np.cos(ang), 128 + 70 * np.sin(ang)]
+    p68 = np.tile([128.0, 128.0], (68, 1))
+    p68[36], p68[45] = (98, 110), (158, 110)
+    p68[60:68] = np.c_[128 + 18 * np.cos(np.linspace(np.pi, -np.pi, 8, endpoint=False)),
+                       165 + 5 * np.sin(np.linspace(np.pi, -np.pi, 8, endpoint=False))]
+    (_, alpha), wall, cpu = timed(lambda: composite_face(frame, lay.image, lay.coverage, lay.normals, driver_oval=oval,
+                                                         driver_points68=p68, puppet_lips=p68[60:68] + [0, 2]),
+                                  args.renders)
+    rows.append(("composite_face 256x256 (colour, Poisson, mouth interior)", wall, cpu,
+                 f"{(alpha > 0.5).sum()} px composited"))
 
     print(f"{'step':58s} {'wall ms':>9s} {'cpu ms':>9s}  note")
     for name, wall, cpu, note in rows:

@@ -807,7 +807,8 @@ def persona_mesh(persona: PersonaLike, *, step: int = 1,
 
 def puppeteer(driver: str | os.PathLike, puppet: PersonaLike, output: str | os.PathLike, *,
               side_by_side: bool = False, size: int | None = None,
-              background: Literal["driver", "plain"] = "driver", texture: Literal["ours", "static"] = "ours",
+              mode: Literal["composite", "face"] = "composite", lighting: Literal["stats", "sh", "none"] = "stats",
+              texture: Literal["ours", "static"] = "ours",
               max_frames: int | None = None, driver_photos: str | os.PathLike | None = None,
               overwrite: bool = False, progress: Progress = False) -> dict:
     """Drive a persona's 3D face with another person's video (Suwajanakorn et al. 2015, §6).
@@ -824,8 +825,12 @@ def puppeteer(driver: str | os.PathLike, puppet: PersonaLike, output: str | os.P
         Put the driver frame left of the puppet.
     size : int, optional
         Longer side of an output panel in px (default: the driver's).
-    background : {"driver", "plain"}
-        Composite over the driver's frame or a plain grey.
+    mode : {"composite", "face"}
+        The puppet put into the driver's frame (its lighting, colour and face outline), or
+        the puppet face alone on plain grey, as in the paper's figures.
+    lighting : {"stats", "sh", "none"}
+        Composite mode: match the driver's skin colour statistics, also its first-order
+        spherical-harmonics lighting, or neither.
     texture : {"ours", "static"}
         Expression-dependent texture or the static average.
     max_frames : int, optional
@@ -859,6 +864,7 @@ def puppeteer(driver: str | os.PathLike, puppet: PersonaLike, output: str | os.P
     ...                   side_by_side=True, progress=True)  # doctest: +SKIP
     """
     from .io import video_info
+    from .persona.composite import CompositeParams
     from .persona.puppet import PuppetParams
     from .persona.puppet import puppeteer as _puppeteer
 
@@ -869,5 +875,6 @@ def puppeteer(driver: str | os.PathLike, puppet: PersonaLike, output: str | os.P
         n = min(n, max(0, int(max_frames)))
     with _progress(progress, None if n is None else 2 * n, "puppet", "frame") as bar:
         return _puppeteer(driver, puppet, output, driver_photos=driver_photos, side_by_side=side_by_side,
-                          size=size, background=background, overwrite=overwrite, max_frames=max_frames,
-                          params=PuppetParams(texture=texture), progress=bar)
+                          size=size, mode=mode, overwrite=overwrite, max_frames=max_frames,
+                          params=PuppetParams(texture=texture, composite=CompositeParams(lighting=lighting)),
+                          progress=bar)

@@ -9,7 +9,13 @@ pair, each output is scored against its content and style images with
   wall time; the paper's own values as a reference block in the Markdown);
 - ``grid.png`` — Figure 3 (style, content, MRF-CNN, FaceTex, Neural Style per pair);
 - ``scatter.png`` — Figure 4 ((a) landmark errors, (b) texture similarities per pair);
-- ``pairs.json`` — every number per pair and method, and the settings.
+- ``pairs.json`` — every number per pair and method, and the settings;
+- ``zoom.png`` (and ``zoom/<content>__<style>.png``) — forehead, cheek and chin crops at
+  native resolution of the content, the pre-warped style and every output;
+- ``images/<content>__<style>__prewarp.png`` — the pre-warped style the optimiser got.
+
+Besides the methods, a "no transfer" row scores the content itself as the output: a
+metric that moves less than its distance from that row has shown nothing.
 
 Each (pair, method) is stored as ``images/<content>__<style>__<method>.png`` (+ ``.json``
 info) and ``results/<content>__<style>__<method>.json``; the result file is written last
@@ -36,9 +42,10 @@ __all__ = ["METHODS", "METHOD_TITLES", "METHOD_COLOURS", "PAPER_TABLE1", "PRESET
 
 DATA_SUBFOLDER = "frl-london"  # inside --data / $FACETEX_DATA (or --data is this folder itself)
 METHODS = ("gatys", "mrf", "facetex")
+NONE = "none"  # the content scored as the output ("doing nothing")
 PRESETS = ("default", "paper")
-METHOD_TITLES = {"gatys": "Neural Style", "mrf": "MRF-CNN", "facetex": "FaceTex"}
-METHOD_COLOURS = {"gatys": "tab:red", "mrf": "tab:green", "facetex": "tab:blue"}  # as in Figure 4
+METHOD_TITLES = {"gatys": "Neural Style", "mrf": "MRF-CNN", "facetex": "FaceTex", NONE: "no transfer"}
+METHOD_COLOURS = {"gatys": "tab:red", "mrf": "tab:green", "facetex": "tab:blue", NONE: "tab:gray"}  # Figure 4
 GRID_ORDER = ("mrf", "facetex", "gatys")  # Figure 3: style, content, MRF-CNN, FaceTex, Neural Style
 SAME_PERSON = 0.6  # dlib's same-person threshold for the identity distance
 
@@ -49,7 +56,8 @@ PAPER_TABLE1 = {
     "facetex": {"E_content": 37.93, "E_style": 295.93, "S_content": 0.76, "S_style": 0.55},
 }
 METRIC_KEYS = ("E_content", "E_style", "E_content_rms_px", "E_style_rms_px", "S_content", "S_style",
-               "identity_content", "identity_style")
+               "identity_content", "identity_style", "S_style_none", "S_style_gain", "detail_output",
+               "detail_content", "detail_style", "detail_ratio", "protected_change", "background_change")
 
 TABLE_COLUMNS = (
     Column("method", "method"),
@@ -60,9 +68,15 @@ TABLE_COLUMNS = (
     Column("E_style_rms_px", "RMS(xt,xs) px", ".2f"),
     Column("S_content", "S(xt,xc)", ".3f"),
     Column("S_style", "S(xt,xs)", ".3f"),
+    Column("S_style_gain", "S gain", "+.3f"),
     Column("identity_content", "id(xt,xc)", ".3f"),
     Column("identity_style", "id(xt,xs)", ".3f"),
     Column("same_identity", f"id(xt,xc)<{SAME_PERSON}", "d"),
+    Column("detail_output", "detail", ".2f"),
+    Column("detail_ratio", "detail ratio", ".2f"),
+    Column("protected_change", "protected Δ", ".2f"),
+    Column("background_change", "background Δ", ".2f"),
+    Column("prewarp_folds", "folds", "d"),
     Column("time_s", "s / image", ".1f"),
 )
 PAPER_COLUMNS = (Column("method", "method"), Column("E_content", "E(xt,xc)", ".2f"),
@@ -115,11 +129,11 @@ def _item_config(method, content_path, style_path, preset, seed, options) -> dic
             "preset": preset, "seed": int(seed), "options": dict(options)}
 
 
-def _score(output, content, style, points_c, points_s, metrics_fn) -> tuple[dict, str | None]:
+def _score(output, content, style, points_c, points_s, metrics_fn, extra=None) -> tuple[dict, str | None]:
     """Metrics of one output; NaN with the reason when no face is found in the output."""
     try:
-        m = metrics_fn(output, content, style, points=(None, points_c, points_s))
-        return {k: float(m[k]) for k in METRIC_KEYS}, None
+        m = metrics_fn(output, content, style, points=(None, points_c, points_s), **(extra or {}))
+        return {k: float(m.get(k, float("nan"))) for k in METRIC_KEYS}, None
     except NoFaceError as e:
         return {k: float("nan") for k in METRIC_KEYS}, f"no face in output: {e.message}"
 
@@ -133,6 +147,7 @@ def _summary_rows(records: dict, pairs, methods) -> list[dict]:
             row[k] = mean_finite(r["metrics"][k] for r in recs)
         row["same_identity"] = sum(1 for r in recs if r["metrics"]["identity_content"] < SAME_PERSON)
         row["time_s"] = mean_finite(r["wall_s"] for r in recs)
+        row["prewarp_folds"] = int(sum(int(r.get("prewarp_folds") or 0) for r in recs))
         rows.append(row)
     return rows
 
@@ -146,7 +161,12 @@ def _table_markdown(rows, settings) -> str:
         f"(seed {settings['seed']}, preset `{settings['preset']}`). Means over the pairs. "
         "E = mean squared landmark distance on the 66 FaceTex landmarks at 1000 px (px²; RMS in px "
         "beside it), S = Eq. 8 correlation of forehead and cheek patches, id = dlib face-descriptor "
-        f"distance (< {SAME_PERSON}: same person), time = wall-clock seconds per output image.",
+        f"distance (< {SAME_PERSON}: same person), time = wall-clock seconds per output image. "
+        "S gain = S(xt,xs) − S(xc,xs); detail = std (0–255) of luminance minus its σ = 2 px blur in the "
+        "three skin patches at native resolution, detail ratio = detail(output) / detail(style aligned onto "
+        "the content); protected Δ = mean |Δ| (0–255) over eyes, brows and lips; background Δ = mean |Δ| "
+        "outside the face; folds = pre-warp pixels of the face where the map folds (all pairs). "
+        "\"no transfer\" scores the content itself as the output.",
         "",
         markdown_table(TABLE_COLUMNS, rows),
         "## Paper (Kaur, Zhang & Dana 2017, Table 1; head portraits of Shih et al., 5 pairs)",
@@ -179,6 +199,44 @@ def _write_scatter(path, records, pairs, methods) -> Path:
     axes[0].legend(fontsize=8)
     fig.suptitle("FaceTex Figure 4: per-pair metrics (dots), paper means (crosses)")
     return write_figure_formats(Path(path).with_suffix(""), fig)[0]  # .png, and .svg + .pdf for papers
+
+
+def _default_metrics(output, content, style, **kw):
+    import inspect
+
+    from .. import metrics
+
+    fn = metrics.transfer_metrics
+    accepted = inspect.signature(fn).parameters
+    return fn(output, content, style, **{k: v for k, v in kw.items() if k in accepted})
+
+
+def _write_pair_zoom(out: Path, c: str, s: str, paths, methods, records, load) -> Path | None:
+    """``zoom/<c>__<s>.png``: forehead, cheek and chin crops at native resolution."""
+    from ._zoom import zoom_sheet
+
+    target = out / "zoom" / f"{ResultStore.key(c, s)}.png"
+    d = load()
+    cols = [("content", d["content"])]
+    pre = out / "images" / f"{ResultStore.key(c, s, 'prewarp')}.png"
+    cols.append(("pre-warped style", read_image(pre) if pre.is_file() else d["aligned"]))
+    for m in methods:
+        img = out / "images" / f"{ResultStore.key(c, s, m)}.png"
+        if (c, s, m) in records and img.is_file():
+            cols.append((METHOD_TITLES[m], read_image(img)))
+    sheet = zoom_sheet(cols, d["points_c"], title=f"content {c}, style {s} (2x, nearest)")
+    target.parent.mkdir(exist_ok=True)
+    return write_image(target, sheet, overwrite=True)
+
+
+def _write_zoom(path: Path, out: Path, pairs) -> Path | None:
+    """All pairs' zoom sheets stacked into one image."""
+    sheets = [read_image(p) for c, s in pairs if (p := out / "zoom" / f"{ResultStore.key(c, s)}.png").is_file()]
+    if not sheets:
+        return None
+    w = max(x.shape[1] for x in sheets)
+    sheets = [np.pad(x, ((0, 8), (0, w - x.shape[1]), (0, 0)), constant_values=1.0) for x in sheets]
+    return write_image(path, np.concatenate(sheets, 0), overwrite=True)
 
 
 def _write_grid(path, out, pairs, paths, methods, records) -> Path:
@@ -228,7 +286,7 @@ def run_bench_transfer(data, out="bench_out/transfer", *, pairs: int = 5,
         options["iters"] = list(iters)
     transfer_fn = transfer_fn or _default_transfer_fn()
     if metrics_fn is None:
-        from ..metrics import transfer_metrics as metrics_fn
+        metrics_fn = _default_metrics
     settings = {"data": str(data.resolve()), "seed": int(seed), "preset": preset, "methods": list(methods),
                 "n_pairs": len(chosen), "pairs_requested": int(pairs), "size": size, "device": device,
                 "versions": versions()}
@@ -236,51 +294,80 @@ def run_bench_transfer(data, out="bench_out/transfer", *, pairs: int = 5,
     records: dict[tuple[str, str, str], dict] = {}
     n_run = n_reused = 0
     for c, s in chosen:
-        content = style = points_c = points_s = None
-        for method in methods:
+        loaded: dict = {}
+
+        def load():
+            if not loaded:
+                from ..geometry.morph import align_style_to_content
+                from ..landmarks import detect_face
+
+                loaded["content"], loaded["style"] = read_image(portraits[c]), read_image(portraits[s])
+                loaded["points_c"] = detect_face(loaded["content"], source=portraits[c]).points68
+                loaded["points_s"] = detect_face(loaded["style"], source=portraits[s]).points68
+                # one aligned style per pair for every method's detail ratio (same for all)
+                loaded["aligned"] = align_style_to_content(
+                    loaded["style"], loaded["content"], style_points=loaded["points_s"],
+                    content_points=loaded["points_c"], refine=None, interpolation="lanczos").image
+            return loaded
+
+        for method in (NONE,) + tuple(methods):
             key = store.key(c, s, method)
-            config = _item_config(method, portraits[c], portraits[s], preset, seed, options)
+            config = _item_config(method, portraits[c], portraits[s], preset, seed,
+                                  {} if method == NONE else options)
             image_path = out / "images" / f"{key}.png"
             rec = None if overwrite else store.get(key)
-            if rec is not None and image_path.is_file():
+            if rec is not None and (method == NONE or image_path.is_file()):
                 if rec.get("config") != config:
                     raise OutputError(f"holds a result made with other settings ({rec.get('config')}): "
                                       "pass --overwrite to recompute or choose another --out",
                                       path=store.path(key))
                 records[(c, s, method)] = rec
-                n_reused += 1
-                if progress:
+                n_reused += method != NONE
+                if progress and method != NONE:
                     progress(n=1, pair=f"{c}/{s}", method=method, done="reused")
                 continue
-            if content is None:
-                from ..landmarks import detect_face
-
-                content, style = read_image(portraits[c]), read_image(portraits[s])
-                points_c = detect_face(content, source=portraits[c]).points68
-                points_s = detect_face(style, source=portraits[s]).points68
+            d = load()
+            extra = {"aligned_style": d["aligned"]} if metrics_fn is _default_metrics else {}
+            if method == NONE:
+                metrics, error = _score(d["content"], d["content"], d["style"], d["points_c"], d["points_s"],
+                                        metrics_fn, extra)
+                rec = {"content": c, "style": s, "method": NONE, "config": config, "metrics": metrics,
+                       "metrics_error": error, "wall_s": 0.0, "timings": {}, "image": None}
+                store.put(key, rec)
+                records[(c, s, method)] = rec
+                continue
             t0 = time.perf_counter()
-            output, info = transfer_fn(content, style, method=method, preset=preset, seed=seed,
+            output, info = transfer_fn(d["content"], d["style"], method=method, preset=preset, seed=seed,
                                        device=device, progress=_inner_progress(progress, method), **options)
             wall = time.perf_counter() - t0
+            info = dict(info or {})
+            images = info.pop("images", None) or {}
             # score what is saved (8-bit), so re-measuring the PNG gives the same numbers
             output = to_uint8(np.asarray(output, dtype=np.float32)).astype(np.float32) / 255.0
-            metrics, error = _score(output, content, style, points_c, points_s, metrics_fn)
+            metrics, error = _score(output, d["content"], d["style"], d["points_c"], d["points_s"], metrics_fn, extra)
             write_image(image_path, output, overwrite=True)
-            write_json(image_path.with_suffix(".json"), {
+            if method == "facetex" and images.get("style_native") is not None and info.get("region_box"):
+                # the pre-warped style the optimiser got, in the content's frame
+                x0, y0, x1, y1 = info["region_box"]
+                pre = d["content"].copy()
+                pre[y0:y1, x0:x1] = images["style_native"]
+                write_image(out / "images" / f"{store.key(c, s, 'prewarp')}.png", pre, overwrite=True)
+            write_json(image_path.with_suffix(".json"), json_safe({
                 "content": str(portraits[c]), "style": str(portraits[s]), "method": method,
                 "preset": preset, "seed": int(seed), "device": device, "options": options,
-                "wall_s": wall, **no_image_data(dict(info or {})), "versions": settings["versions"]}, overwrite=True)
+                "wall_s": wall, **no_image_data(dict(info or {})), "versions": settings["versions"]}), overwrite=True)
             rec = {"content": c, "style": s, "method": method, "config": config, "metrics": metrics,
-                   "metrics_error": error, "wall_s": wall,
-                   "timings": dict((info or {}).get("timings", {})),
+                   "metrics_error": error, "wall_s": wall, "prewarp_folds": info.get("prewarp_folds"),
+                   "timings": dict(info.get("timings", {})),
                    "image": str(image_path.relative_to(out))}
             store.put(key, rec)  # last: its presence marks the item done
             records[(c, s, method)] = rec
             n_run += 1
             if progress:
                 progress(n=1, pair=f"{c}/{s}", method=method, done="run")
+        _write_pair_zoom(out, c, s, portraits, methods, records, load)
 
-    rows = _summary_rows(records, chosen, methods)
+    rows = _summary_rows(records, chosen, (NONE,) + tuple(methods))
     files = {"table_md": out / "table.md", "table_csv": out / "table.csv", "grid": out / "grid.png",
              "scatter": out / "scatter.png", "pairs": out / "pairs.json"}
     write_json(files["pairs"], json_safe({
@@ -288,13 +375,14 @@ def run_bench_transfer(data, out="bench_out/transfer", *, pairs: int = 5,
         "pairs": [{"content": c, "style": s, "content_path": str(portraits[c]), "style_path": str(portraits[s]),
                    "results": {m: {k: records[(c, s, m)][k] for k in
                                    ("metrics", "metrics_error", "wall_s", "timings", "image")}
-                               for m in methods}}
+                               for m in (NONE,) + tuple(methods)}}
                   for c, s in chosen],
         "table": rows,
         "paper_table1": PAPER_TABLE1,
     }), overwrite=True)
     write_text(files["table_md"], _table_markdown(rows, settings))
     write_text(files["table_csv"], csv_table((Column("method_id", ""),) + TABLE_COLUMNS, rows))
+    files["zoom"] = _write_zoom(out / "zoom.png", out, chosen)
     _write_grid(files["grid"], out, chosen, portraits, methods, records)
     _write_scatter(files["scatter"], records, chosen, methods)
     return {"out": out, "files": files, "pairs": chosen, "table": rows, "n_run": n_run, "n_reused": n_reused}

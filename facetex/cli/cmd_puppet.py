@@ -19,8 +19,12 @@ def register(sub) -> None:
     p.add_argument("--side-by-side", action="store_true", help="put the driver frame left of the puppet")
     p.add_argument("--size", type=bounded_int(32, MAX_SIZE),
                    help=f"longer side of the output frame (per panel) in px, 32..{MAX_SIZE} (default: the driver's)")
-    p.add_argument("--background", choices=("driver", "plain"), default="driver",
-                   help="composite the puppet over the driver's frame (default) or a plain grey")
+    p.add_argument("--mode", choices=("composite", "face"), default="composite",
+                   help="composite: the puppet put into the driver's frame (its lighting, colour and face "
+                        "outline; default); face: the puppet face alone on plain grey, as in the paper's figures")
+    p.add_argument("--lighting", choices=("stats", "sh", "none"), default="stats",
+                   help="composite mode: match the driver's skin colour statistics (default), also its "
+                        "first-order spherical-harmonics lighting (sh), or neither (none)")
     p.add_argument("--texture", choices=("ours", "static"), default="ours",
                    help="expression-dependent texture (default) or the static average texture")
     p.add_argument("--max-frames", type=positive_int, help="use only the first N frames")
@@ -34,6 +38,7 @@ def run(args) -> int:
     from ..errors import BadInputError
     from ..io import VIDEO_EXTENSIONS, check_input_dir, check_output_path, video_info
     from ..persona import read_persona_header
+    from ..persona.composite import CompositeParams
     from ..persona.puppet import PuppetParams, puppeteer
 
     # everything checked before the work: output, inputs, the driver's size
@@ -52,17 +57,19 @@ def run(args) -> int:
         n = min(n, max(0, args.max_frames))
     with progress_bar(2 * n, desc="puppet", unit="frame", disable=args.quiet) as bar:
         report = puppeteer(args.driver, args.puppet, args.output, driver_photos=args.driver_photos,
-                           side_by_side=args.side_by_side, size=args.size, background=args.background,
+                           side_by_side=args.side_by_side, size=args.size, mode=args.mode,
                            overwrite=args.overwrite, max_frames=args.max_frames,
-                           params=PuppetParams(texture=args.texture), progress=bar)
+                           params=PuppetParams(texture=args.texture, composite=CompositeParams(lighting=args.lighting)),
+                           progress=bar)
     write_json(sidecar, provenance(
         command="puppet", inputs={"driver": args.driver, "puppet": args.puppet, "driver_photos": args.driver_photos},
-        params={"side_by_side": args.side_by_side, "size": args.size, "background": args.background,
-                "texture": args.texture, "max_frames": args.max_frames, "puppet_params": PuppetParams(texture=args.texture)},
+        params={"side_by_side": args.side_by_side, "size": args.size, "mode": args.mode, "texture": args.texture,
+                "lighting": args.lighting, "max_frames": args.max_frames,
+                "puppet_params": PuppetParams(texture=args.texture, composite=CompositeParams(lighting=args.lighting))},
         outputs=[out], result=report), overwrite=args.overwrite, inputs=inputs)
     if report["lost_frames"] and not args.quiet:
         print(f"{args.driver}: face lost in {report['lost_frames']} of {report['frames']} frames "
-              "(filled from the neighbouring frames)", file=sys.stderr)
+              "(not found, partly outside the frame or implausible; those frames show the driver)", file=sys.stderr)
     if args.json:
         print_json(report)
     wrote(args, out, sidecar)

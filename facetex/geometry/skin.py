@@ -4,9 +4,9 @@ where style patches may come from; Persona: what belongs to the face).
 
 Three parts, combined by :func:`skin_mask`:
 
-1. the **face region**: MediaPipe's face-oval polygon (468-point mesh), which reaches
-   the hairline, or the jaw + extrapolated forehead arc of :func:`.masks.face_outline`
-   when no mesh is given;
+1. the **face region**: the jaw + extrapolated forehead arc of
+   :func:`.masks.face_outline`, below the brows replaced by MediaPipe's face oval
+   (468-point mesh) when given, which follows the cheeks and jaw more closely;
 2. the **features** (:func:`feature_mask`): eyes, brows, lips and nostrils from the 68
    landmarks, each grown by a margin relative to the face width (lids, lashes, lip line
    and brow hairs lie outside the landmark polygons);
@@ -67,6 +67,7 @@ class SkinParams:
     highlight_sigmas: float = 2.0  # brighter than median + this × MAD(log I): a highlight, skin
     hole_fill: float = 0.04  # holes smaller than this (× face width)² are skin (highlights)
     feather: float = 0.012  # edge softness (Gaussian sigma) × face width
+    min_piece: float = 0.02  # pieces not touching the cheeks are kept above this area × face width²
     oval_shrink: float = 0.01  # pull the face oval in: its top point sits on the hairline
 
 
@@ -141,12 +142,20 @@ def feature_mask(points68, shape, params: SkinParams = SkinParams()) -> np.ndarr
 
 
 def face_region_mask(points68, shape, *, mesh=None, shrink: float = SkinParams.oval_shrink) -> np.ndarray:
-    """bool (H, W): inside the face oval of the 468-point ``mesh`` if given, else inside the
-    jaw + forehead-arc outline of the 68 points; pulled in by ``shrink`` × face width."""
+    """bool (H, W): inside the jaw + forehead-arc outline of the 68 points, united with the
+    face oval of the 468-point ``mesh`` if given (the oval follows the jaw and cheeks more
+    closely, the arc reaches higher on tall foreheads); pulled in by ``shrink`` × face width."""
     p, (h, w) = _p68(points68), _shape(shape)
     out = np.zeros((h, w), np.uint8)
-    poly = np.asarray(mesh, np.float64)[list(FACE_OVAL_468), :2] if mesh is not None else face_outline(p)
-    _poly(out, poly)
+    _poly(out, face_outline(p))
+    if mesh is not None:
+        oval = np.zeros_like(out)
+        _poly(oval, np.asarray(mesh, np.float64)[list(FACE_OVAL_468), :2])
+        # the oval bounds the sides and chin; above the brows either may reach higher
+        above = np.zeros_like(out)
+        top = int(np.clip(np.floor(p[17:27, 1].min()), 0, h))
+        above[:top] = 1
+        out = np.where(above > 0, out | oval, oval).astype(np.uint8)
     r = int(round(shrink * face_width(p)))
     if r >= 1:
         out = cv2.erode(out, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
@@ -255,11 +264,13 @@ def skin_mask(image, points68, *, mesh=None, colour: bool = True, params: SkinPa
         colour_ok = cv2.medianBlur(colour_ok.astype(np.uint8), 5).astype(bool)
         skin &= colour_ok
     skin = _fill_small_holes(skin, (params.hole_fill * fw) ** 2) & region & ~feats
-    # keep the piece(s) connected to the cheeks / nose bridge
-    n, lab = cv2.connectedComponents(skin.astype(np.uint8), connectivity=8)
+    # keep the pieces connected to the cheeks / nose bridge and every large piece (the
+    # forehead is cut off where the grown brows meet); drop small islands (stray hair)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(skin.astype(np.uint8), connectivity=8)
     if n > 2:
-        seeds = np.unique(lab[_sample_regions(p, (h, w)) & skin])
-        skin = np.isin(lab, seeds[seeds > 0])
+        seeds = set(np.unique(lab[_sample_regions(p, (h, w)) & skin]).tolist())
+        big = {i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= params.min_piece * fw * fw}
+        skin = np.isin(lab, sorted((seeds | big) - {0}))
     out = skin
     if soft:
         s = params.feather * fw

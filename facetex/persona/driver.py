@@ -20,9 +20,22 @@ frame. Then:
 4. **Fiducials.** The 68 dlib points of a frame are lifted onto that frame's mesh
    (barycentric in its 2D projection) and un-posed: expression fiducials in the
    canonical frame, pose removed.
+5. **Mouth.** MediaPipe's mesh hardly opens its mouth on small faces: on GRID clips the
+   inner-lip gap of its vertices 13/14 follows only ~0.2x the opening of dlib's inner-lip
+   landmarks (regression slope; dlib's own tracked opening follows the opening measured on
+   720 px upscaled frames with slope 1.0). The un-posed dlib landmarks of every frame
+   (``fiducials68``) are therefore kept: the puppet's lips and jaw follow them
+   (:meth:`facetex.persona.puppet.Puppeteer.grid`, with :class:`LipFields`: two thin-plate
+   splines, the upper lip's and the lower lip's with the jaw, joined across the mean mouth
+   opening). ``mouth_correction=True`` also corrects the driver's own translation field
+   (:class:`MouthCorrection`); off by default: carried through the collection flow onto a
+   puppet whose mouth sits elsewhere, its sharp change across the lips tore the puppet's lips.
 
-Lost frames (no face, or the mesh network's face score < 0.5) are filled by linear
-interpolation between the nearest tracked frames (held at the ends) and counted.
+Lost frames (no face, the mesh network's face score < 0.5, the face partly outside the
+frame, dlib's landmarks and the mesh disagreeing, or a squashed/torn landmark shape; see
+:data:`LOST_REASONS`) are counted with their reason; their motion is filled by linear
+interpolation between the nearest tracked frames (held at the ends) so the series stays
+smooth, but the puppet is not drawn on them.
 Temporal smoothing: the whole video is available offline, so a zero-lag, zero-phase
 Savitzky-Golay filter (window 5 frames, order 2) is run
 forwards over the series of aligned meshes, poses and fiducials: it removes
@@ -46,12 +59,17 @@ __all__ = [
     "DriverMotion",
     "track_driver",
     "driver_motion",
+    "face_rejection",
+    "implausible_shapes",
+    "LOST_REASONS",
     "similarity_procrustes",
     "generalized_procrustes",
     "fill_lost",
     "smooth_series",
     "mouth_opening",
     "GridInterpolator",
+    "LipFields",
+    "MouthCorrection",
 ]
 
 #: iBUG-68 indices of the inner lips (upper 61, 62, 63 over lower 67, 66, 65) and outer eye corners.
@@ -66,7 +84,10 @@ class DriverParams:
     deformation field; smooth_window / smooth_order: Savitzky-Golay filter over frames (a
     window of 1 disables it); subspace_frames: frontalized frames kept for the driver's 2D
     average and appearance subspace; min_mesh_score: mesh face score below which a frame is lost;
-    redetect_every: frames between face detections (landmarks are tracked in between)."""
+    redetect_every: frames between face detections (landmarks are tracked in between);
+    mouth_correction: lips and jaw of the driver's translation field follow the tracked
+    landmarks (module doc, 5; default False: the face mesh alone, the puppet side follows the
+    landmarks)."""
 
     size: tuple[int, int] = (192, 240)
     grid_step: int = 2
@@ -76,6 +97,7 @@ class DriverParams:
     min_mesh_score: float = 0.5
     procrustes_iters: int = 3
     redetect_every: int = 10
+    mouth_correction: bool = False
 
 
 # ---------------------------------------------------------------------------------- maths
@@ -210,7 +232,8 @@ class DriverTrack:
     points68 (N, 68, 2) and mesh (N, 468, 3) in image pixels (NaN where lost); found (N,)
     bool; score (N,) mesh face score; frontal (K, H, W, 3) float32 frontalized frames and
     frontal_points68 (K, 68, 2) their pose-corrected landmarks (every ``stride``-th tracked
-    frame, K <= subspace_frames); frame_size (W, H); fps; path."""
+    frame, K <= subspace_frames); frame_size (W, H); fps; path; lost_reason (N,) why each
+    lost frame was rejected ("" where found; see :data:`LOST_REASONS`)."""
 
     points68: np.ndarray
     mesh: np.ndarray
@@ -222,14 +245,77 @@ class DriverTrack:
     fps: float
     path: str
     has_audio: bool = False
+    lost_reason: list | None = None
 
     @property
     def n_frames(self) -> int:
         return len(self.found)
 
     @property
+    def lost_causes(self) -> dict:
+        """{reason: number of frames} of the lost frames."""
+        out: dict = {}
+        for i in np.flatnonzero(~self.found):
+            r = (self.lost_reason[i] if self.lost_reason else "") or "no face"
+            out[r] = out.get(r, 0) + 1
+        return out
+
+    @property
     def n_lost(self) -> int:
         return int((~self.found).sum())
+
+
+#: Why a tracked face is rejected (the frame then counts as lost).
+LOST_REASONS = {
+    "no face": "no face found (or the face mesh's face score < min_mesh_score)",
+    "partly outside the frame": "more than 3 % of the face mesh or an inner landmark lies outside the frame",
+    "landmarks disagree": "dlib's eye/mouth corners and the face mesh's differ by > 12 % of the eye distance",
+    "implausible shape": "the 68 points differ from the clip's mean shape (similarity-aligned) by > "
+                         "max(8 %, 4 x the median) of the eye distance (squashed or torn landmarks)",
+}
+#: corresponding dlib and MediaPipe points: outer eye corners and mouth corners
+_DLIB_CORNERS, _MESH_CORNERS = (36, 45, 48, 54), (33, 263, 61, 291)
+
+
+def face_rejection(points68: np.ndarray, mesh: np.ndarray, frame_size, *, min_inside: float = 0.97,
+                   max_disagreement: float = 0.12) -> str:
+    """Why a tracked face is not usable ("" if it is): part of it outside the frame, or dlib's
+    landmarks and the face mesh telling different stories (both networks guess when the face
+    is cut off: the landmarks get squashed against the border). See :data:`LOST_REASONS`."""
+    p = np.asarray(points68, np.float64)
+    m = np.asarray(mesh, np.float64)
+    w, h = frame_size
+
+    def inside(q):
+        return (q[:, 0] >= -0.5) & (q[:, 0] <= w - 0.5) & (q[:, 1] >= -0.5) & (q[:, 1] <= h - 0.5)
+
+    if inside(m[:, :2]).mean() < min_inside or not inside(p[17:]).all():
+        return "partly outside the frame"
+    iod = float(np.linalg.norm(p[36] - p[45]))
+    d = np.linalg.norm(m[list(_MESH_CORNERS), :2] - p[list(_DLIB_CORNERS)], axis=1).mean()
+    if not iod > 0 or d > max_disagreement * iod:
+        return "landmarks disagree"
+    return ""
+
+
+def implausible_shapes(points68: np.ndarray, found: np.ndarray, *, floor: float = 0.08,
+                       factor: float = 4.0) -> np.ndarray:
+    """bool (N,): found frames whose 68 points, similarity-aligned to the clip's mean shape,
+    differ from it by more than max(``floor``, ``factor`` x the median) of the mean eye-corner
+    distance (mean point distance)."""
+    bad = np.zeros(len(found), bool)
+    idx = np.flatnonzero(found)
+    if len(idx) < 3:
+        return bad
+    P = np.asarray(points68, np.float64)
+    mean = P[idx].mean(axis=0)
+    iod = float(np.linalg.norm(mean[36] - mean[45]))
+    res = np.empty(len(idx))
+    for k, i in enumerate(idx):
+        sc, R, t = similarity_procrustes(P[i], mean)
+        res[k] = np.linalg.norm(sc * P[i] @ R.T + t - mean, axis=1).mean() / max(iod, 1e-9)
+    bad[idx] = res > max(floor, factor * float(np.median(res)))
+    return bad
 
 
 def _box_of(points68: np.ndarray, ref_box, ref_points: np.ndarray):
@@ -288,7 +374,7 @@ def track_driver(path, *, max_frames: int | None = None, params: DriverParams = 
     info = video_info(path)
     n_est = info["n_frames"] if max_frames is None else min(info["n_frames"], int(max_frames))
     stride = max(1, int(math.ceil(max(n_est, 1) / params.subspace_frames)))
-    p68s, meshes, found, scores, frontal, frontal_p = [], [], [], [], [], []
+    p68s, meshes, found, scores, frontal, frontal_p, frontal_i, reasons = [], [], [], [], [], [], [], []
     prev = None
     size = None
     last_detect = -(10**9)
@@ -297,11 +383,13 @@ def track_driver(path, *, max_frames: int | None = None, params: DriverParams = 
         detect = prev is None or i - last_detect >= params.redetect_every
         last_detect = i if detect else last_detect
         r = _track_frame(frame, prev, params, detect)
-        if r is None:
+        why = "no face" if r is None else face_rejection(r[0], r[1], size)
+        if why:
             p68s.append(np.full((68, 2), np.nan))
             meshes.append(np.full((468, 3), np.nan))
             found.append(False)
-            scores.append(0.0)
+            scores.append(0.0 if r is None else r[2])
+            reasons.append(why)
             prev = None
         else:
             p68, mesh, score, anchor = r
@@ -310,28 +398,42 @@ def track_driver(path, *, max_frames: int | None = None, params: DriverParams = 
             meshes.append(mesh)
             found.append(True)
             scores.append(score)
+            reasons.append("")
             if i % stride == 0 and len(frontal) < params.subspace_frames:
                 try:
                     fr = frontalize(frame, p68, size=params.size)
                     frontal.append(fr.image)
                     frontal_p.append(fr.points68)
+                    frontal_i.append(i)
                 except FacetexError:
                     pass
         if progress:
             progress(n=1, stage="track", lost=len(found) - int(sum(found)))
-    if not found or not any(found):
-        raise NoFaceError("no face found in any frame of the driver video: use a video showing one face "
-                          "frontally, at least ~80 px wide", path=path)
+    found_a = np.array(found, bool)
+    p68a, mesha = np.array(p68s).reshape(-1, 68, 2), np.array(meshes).reshape(-1, 468, 3)
+    if found_a.any():  # whole-clip check: torn or squashed landmarks
+        bad = implausible_shapes(p68a, found_a)
+        for i in np.flatnonzero(bad):
+            found_a[i], reasons[i] = False, "implausible shape"
+            p68a[i], mesha[i] = np.nan, np.nan
+        keep = [k for k, i in enumerate(frontal_i) if found_a[i]]
+        frontal, frontal_p = [frontal[k] for k in keep], [frontal_p[k] for k in keep]
+    if not found_a.any():
+        why = max(set(reasons), key=reasons.count) if reasons else "no face"
+        hint = {"partly outside the frame": "the face is never whole inside the frame"}.get(why, why)
+        raise NoFaceError(f"no usable face in any frame of the driver video ({hint}): use a video showing one "
+                          "face frontally, at least ~80 px wide", path=path)
     if not frontal:  # every sampled frame failed to frontalize: take any tracked one
-        j = int(np.flatnonzero(found)[0])
+        j = int(np.flatnonzero(found_a)[0])
         frame = next(f for k, f in enumerate(iter_video_frames(path, max_frames=j + 1)) if k == j)
-        fr = frontalize(frame, p68s[j], size=params.size)
+        fr = frontalize(frame, p68a[j], size=params.size)
         frontal, frontal_p = [fr.image], [fr.points68]
     W, H = params.size
     return DriverTrack(
-        points68=np.array(p68s), mesh=np.array(meshes), found=np.array(found), score=np.array(scores),
+        points68=p68a, mesh=mesha, found=found_a, score=np.array(scores),
         frontal=np.array(frontal, np.float32).reshape(-1, H, W, 3), frontal_points68=np.array(frontal_p),
-        frame_size=size, fps=float(info["fps"]) or 25.0, path=str(path), has_audio=bool(info["has_audio"]))
+        frame_size=size, fps=float(info["fps"]) or 25.0, path=str(path), has_audio=bool(info["has_audio"]),
+        lost_reason=reasons)
 
 
 # ------------------------------------------------------------------------------- motion
@@ -360,18 +462,112 @@ class DriverMotion:
     opening: np.ndarray
     points68: np.ndarray
     anchors: np.ndarray = field(repr=False, default=None)
+    mouth: "MouthCorrection | None" = field(repr=False, default=None)
+    fiducials68: np.ndarray | None = field(repr=False, default=None)
+    triangles: np.ndarray | None = field(repr=False, default=None)
 
     def __len__(self) -> int:
         return len(self.found)
 
     def delta_field(self, i: int) -> np.ndarray:
-        """Δ_i (h, w, 3): M_D^i − M̄_D on the driver's depth-map grid (Tom Hanks §4)."""
-        return self.grid(self.deltas[i])
+        """Δ_i (h, w, 3): M_D^i − M̄_D on the driver's depth-map grid (Tom Hanks §4), the
+        lips and jaw following the tracked landmarks (:class:`MouthCorrection`)."""
+        d = self.grid(self.deltas[i])
+        if self.mouth is not None:
+            d[..., :2] += self.mouth(i) * self.grid.mask[..., None]
+        return d
 
     @property
     def iod(self) -> float:
         """Eye-centre distance of the mean fiducials (canonical px)."""
         return _iod49(self.mean_fiducials)
+
+
+#: iBUG-68 points whose motion the mouth correction follows (outer/inner lips; jaw 5-11 move with the
+#: lower lip) and points held still by it (brows, nose, eyes; the upper jaw near the ears).
+_UPPER_LIP = (48, 49, 50, 51, 52, 53, 54, 60, 61, 62, 63, 64)
+_LOWER_LIP = (48, 54, 55, 56, 57, 58, 59, 60, 64, 65, 66, 67, 5, 6, 7, 8, 9, 10, 11)
+_UPPER_STILL = tuple(range(17, 48))
+_LOWER_STILL = (0, 1, 2, 14, 15, 16, 31, 32, 33, 34, 35)
+
+
+def _increasing(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) sorted by x with repeated x merged (for np.interp)."""
+    order = np.argsort(x, kind="stable")
+    xs, ys = x[order], y[order]
+    keep = np.r_[True, np.diff(xs) > 1e-9]
+    return xs[keep], ys[keep]
+
+
+class LipFields:
+    """Thin-plate-spline fields of lip and jaw motion on a grid, split at the mouth.
+
+    ``mean68`` (68, 2) the face's mean landmarks, ``grid_xy`` (h, w, 2) grid positions (same
+    frame). :meth:`__call__` takes motions (68, 2) of the landmarks (only the lip and jaw ones
+    are read; brows, eyes, nose and the upper jaw are held still) and returns the (h, w, 2)
+    field: the upper lip's spline down to the upper inner-lip contour, the lower lip's (with
+    the jaw) from the lower inner-lip contour down, and between the two contours (the mouth
+    opening of the mean face) a linear blend across the opening, so the lips part or close
+    without the opening folding over them. Beyond the mouth corners the two blend smoothly.
+    The splines' linear operators (scipy RBFInterpolator on an identity) are computed once; a
+    call is two small matrix products.
+    """
+
+    def __init__(self, mean68: np.ndarray, grid_xy: np.ndarray, smoothing: float = 1.0):
+        from scipy.interpolate import RBFInterpolator
+
+        p = np.asarray(mean68, np.float64)
+        self.shape = grid_xy.shape[:2]
+        g = np.asarray(grid_xy, np.float64).reshape(-1, 2)
+        ops = []
+        for moving, still in ((_UPPER_LIP, _UPPER_STILL), (_LOWER_LIP, _LOWER_STILL)):
+            idx = list(moving) + list(still)
+            rbf = RBFInterpolator(p[idx], np.eye(len(idx)), kernel="thin_plate_spline", smoothing=smoothing)
+            op = rbf(g)[:, : len(moving)]  # still points move by 0: their columns drop out
+            ops.append((np.asarray(moving), op.astype(np.float32)))
+        self.upper, self.lower = ops
+        # weight of the lower field: 0 above the upper inner lip, 1 below the lower one, linear across
+        # the opening between them; beyond the outer mouth corners a sigmoid about the mid line
+        # that widens with the distance from the corner
+        up, lo = (48, 60, 61, 62, 63, 64, 54), (48, 60, 67, 66, 65, 64, 54)
+        ux, uy = p[list(up), 0], p[list(up), 1]
+        lx, ly = p[list(lo), 0], p[list(lo), 1]
+        x, y = g[:, 0], g[:, 1]
+        y_up = np.interp(x, *_increasing(ux, uy))
+        y_lo = np.interp(x, *_increasing(lx, ly))
+        band = np.maximum(y_lo - y_up, 0.5)
+        inside = np.clip((y - y_up) / band, 0.0, 1.0)
+        mid = (y_up + y_lo) / 2
+        outside = np.maximum(0.0, np.maximum(p[48, 0] - x, x - p[54, 0]))
+        width = 0.3 + 0.5 * outside
+        sig = 1.0 / (1.0 + np.exp(-np.clip((y - mid) / width, -50, 50)))
+        self.side = np.where(outside > 0, sig, inside).astype(np.float32)
+
+    def __call__(self, motion68) -> np.ndarray:
+        (mu, ou), (ml, ol) = self.upper, self.lower
+        r = np.asarray(motion68, np.float32)
+        up, lo = ou @ r[mu], ol @ r[ml]
+        return (up + self.side[:, None] * (lo - up)).reshape(self.shape + (2,))
+
+
+class MouthCorrection:
+    """Lip and jaw correction of the translation field from the tracked landmarks (module doc, 5).
+
+    ``fid68`` (N, 68, 2) un-posed canonical landmarks per frame, ``mesh_at`` (N, 68, 2) the
+    mesh's translation field at their mean positions, ``grid_xy`` (h, w, 2) canonical grid
+    positions. Frame i's correction is the :class:`LipFields` field of the residual
+    r = (F_i − F̄) − Δ_mesh,i(F̄).
+    """
+
+    def __init__(self, fid68: np.ndarray, mesh_at: np.ndarray, found: np.ndarray, grid_xy: np.ndarray,
+                 smoothing: float = 1.0):
+        mean = fid68[found].mean(axis=0)
+        self.fields = LipFields(mean, grid_xy, smoothing)
+        self.residual = (fid68 - mean) - mesh_at  # (N, 68, 2)
+
+    def __call__(self, i: int) -> np.ndarray:
+        """(h, w, 2) correction of frame i's translation field (canonical px, x and y)."""
+        return self.fields(self.residual[i])
 
 
 def _iod49(f49: np.ndarray) -> float:
@@ -399,9 +595,10 @@ def _lift_points(points: np.ndarray, mesh: np.ndarray, triangles: np.ndarray) ->
     d = points[:, None, :] - a[None, :, :2]
     l1 = (d[..., 0] * e2[:, 1] - d[..., 1] * e2[:, 0]) / det
     l2 = (e1[:, 0] * d[..., 1] - e1[:, 1] * d[..., 0]) / det
-    lam = np.stack([1.0 - l1 - l2, l1, l2], axis=-1)  # (P, T, 3)
-    best = lam.min(axis=-1).argmax(axis=1)
-    w = np.clip(lam[np.arange(len(points)), best], 0, None)
+    l0 = 1.0 - l1 - l2
+    best = np.minimum(np.minimum(l0, l1), l2).argmax(axis=1)  # (P, T) -> the triangle containing the point
+    r = np.arange(len(points))
+    w = np.clip(np.stack([l0[r, best], l1[r, best], l2[r, best]], axis=1), 0, None)
     w /= w.sum(axis=1, keepdims=True)
     tri = triangles[best]
     out = np.einsum("pk,pkc->pc", w, mesh[tri])
@@ -452,11 +649,12 @@ def driver_motion(track: DriverTrack, params: DriverParams = DriverParams(), *, 
     from scipy.spatial import Delaunay
 
     triangles = Delaunay(mean[:, :2]).simplices
-    fid = np.zeros((n, 49, 2))
+    fid68 = np.zeros((n, 68, 2))
     for i in np.flatnonzero(found):
-        x3 = _lift_points(p68[i][POINTS49_INDEX], mesh[i], triangles)
-        fid[i] = (np.linalg.solve(A[i], (x3 - b[i]).T).T)[:, :2]
-    fid = smooth_series(fill_lost(fid, found), w, o)
+        x3 = _lift_points(p68[i], mesh[i], triangles)
+        fid68[i] = (np.linalg.solve(A[i], (x3 - b[i]).T).T)[:, :2]
+    fid68 = smooth_series(fill_lost(fid68, found), w, o)
+    fid = fid68[:, POINTS49_INDEX]
     # depth-map grid
     W, H = params.size
     st = int(params.grid_step)
@@ -466,6 +664,12 @@ def driver_motion(track: DriverTrack, params: DriverParams = DriverParams(), *, 
         grid.mask &= np.asarray(shape_mask, bool)[::st, ::st]
     z = grid(mean_c[:, 2])
     gm = np.stack([gx, gy, np.where(grid.mask, z, np.nan)], axis=-1)
+    mouth = None
+    if params.mouth_correction:
+        at = GridInterpolator(mean_c[:, :2], fid68[found].mean(axis=0))  # the mesh's motion at the mean landmarks
+        mouth = MouthCorrection(fid68, at(deltas.transpose(1, 0, 2)).transpose(1, 0, 2)[..., :2], found,
+                                np.stack([gx, gy], axis=-1))
     return DriverMotion(pose_A=A, pose_b=b, mean_mesh=mean_c, deltas=deltas, fiducials=fid,
                         mean_fiducials=fid[found].mean(axis=0), grid=grid, grid_mesh=gm, grid_step=st,
-                        found=found.copy(), opening=mouth_opening(p68), points68=p68, anchors=anchors)
+                        found=found.copy(), opening=mouth_opening(p68), points68=p68, anchors=anchors,
+                        mouth=mouth, fiducials68=fid68, triangles=triangles)

@@ -17,8 +17,18 @@ Per driver video (see :mod:`facetex.persona.driver` for the motion):
 4. **Texture** per frame (§6, Figs. 8-9): synthesized *in the neutral frame* of the
    average model — the mesh carries the expression — with the Eq. 3 blending weights of
    the target fiducials F^T = M_P + k (F_D^i − M̄_D) (k: ratio of the eye distances).
-5. **Rendering** with the driver's head pose (orthographic, z-buffered), composited over a
-   plain background or the driver's frame with a feathered mask.
+5. **Rendering** with the driver's head pose (orthographic, z-buffered, 2x supersampled).
+   ``mode="composite"``: put into the driver's frame (:mod:`facetex.persona.composite`:
+   the driver's face outline as mask, SH lighting and colour transfer, Poisson blending, the
+   driver's mouth interior); ``mode="face"``: the puppet alone on a plain background, as in
+   the paper's figures. Frames where the driver's face is lost, partly outside the frame or
+   implausible (:func:`facetex.persona.driver.track_driver`) show the driver's own frame
+   (a plain frame in face mode) and are reported.
+
+Beyond the paper, the puppet's lips start closed when the driver's are: the persona's average
+texture often has parted lips (its photos talk and smile), so a constant lip motion sets the
+puppet's mean lip gap to the driver's mean gap (scaled by the eye distances); the per-frame
+motion then opens and closes it like the driver's.
 """
 
 from __future__ import annotations
@@ -31,6 +41,7 @@ import cv2
 import numpy as np
 
 from ..errors import BadInputError
+from .composite import FACE_OVAL, INNER_LIPS, CompositeParams, composite_face, mouth_interior
 from .deform import DeformationTransfer, DeformParams
 from .driver import DriverMotion, DriverParams, DriverTrack, driver_motion, track_driver
 
@@ -47,11 +58,11 @@ __all__ = [
     "prepare_puppetry",
     "render_frames",
     "puppeteer",
-    "BACKGROUNDS",
+    "MODES",
     "TEXTURES",
 ]
 
-BACKGROUNDS = ("driver", "plain")
+MODES = ("composite", "face")
 TEXTURES = ("ours", "static")
 
 
@@ -59,8 +70,13 @@ TEXTURES = ("ours", "static")
 class PuppetParams:
     """Driver-puppet flow (Tom Hanks §6): alpha, ratio, minWidth, outer, inner, SOR iterations;
     sigma of Eq. 3; texture "ours" (expression-dependent) or "static" (the average texture);
-    feather: sigma of the compositing mask edge as a fraction of the rendered face width;
-    plain: background colour; max_depth_error: a reconstructed average depth whose RMS
+    plain: background colour of ``mode="face"``; composite: how the puppet is put into the
+    driver's frame; supersample / supersample_composite: rasterization samples per pixel and
+    axis in face / composite mode (anti-aliased silhouette; in composite mode the feathered
+    driver outline is the edge, and the texture is low-passed to the pixel spacing either way);
+    mouth_rest: the puppet's mean lip gap set to the driver's (module doc); lip_sync: the
+    puppet's lip and jaw landmarks follow the driver's (:meth:`Puppeteer.grid`);
+    max_depth_error: a reconstructed average depth whose RMS
     difference to the generic face exceeds this fraction of the frame width is replaced by
     the generic depth (too few or too uniformly lit photos); shape "generic" skips the
     photometric-stereo reconstruction of the puppet and uses the generic face's depth;
@@ -75,8 +91,12 @@ class PuppetParams:
     flow_sor: int = 40
     sigma: float = 10.0
     texture: str = "ours"
-    feather: float = 0.04
     plain: tuple[float, float, float] = (0.5, 0.5, 0.5)
+    composite: CompositeParams = field(default_factory=CompositeParams)
+    supersample: int = 2
+    supersample_composite: int = 1
+    mouth_rest: bool = True
+    lip_sync: bool = True
     max_depth_error: float = 0.08
     shape: str = "collection"
     shape_photos: int = 128
@@ -198,6 +218,15 @@ def neutral_textures(persona, fiducials, *, method: str = "ours", sigma: float =
 
 
 # ----------------------------------------------------------------------------- puppeteer
+def grid_normals(grid: np.ndarray) -> np.ndarray:
+    """Unit normals (h, w, 3) of a depth-map grid mesh (h, w, 3): cross product of its
+    row and column tangents (central differences; NaN vertices give NaN neighbours' normals)."""
+    g = np.asarray(grid, np.float64)
+    dy, dx = np.gradient(g, axis=(0, 1))
+    n = np.cross(dx, dy)
+    nn = np.linalg.norm(n, axis=2, keepdims=True)
+    return np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-12)
+
 class Puppeteer:
     """Puppet mesh, texture and rendering for each frame of a driver motion.
 
@@ -205,11 +234,11 @@ class Puppeteer:
     their correspondence and the :class:`DeformationTransfer`, the puppet's triangulation."""
 
     def __init__(self, persona, motion: DriverMotion, collection: DriverCollection,
-                 params: PuppetParams = PuppetParams()):
+                 params: PuppetParams = PuppetParams(), track: DriverTrack | None = None):
         from .mesh_io import depth_to_mesh
         from .texture import average_face
 
-        self.persona, self.motion, self.params = persona, motion, params
+        self.persona, self.motion, self.params, self.track = persona, motion, params, track
         st = motion.grid_step
         W, H = persona.size
         if (W, H) != tuple(params.driver.size):
@@ -241,10 +270,69 @@ class Puppeteer:
         self.timings["transfer_setup_s"] = time.perf_counter() - t0
         depth_for_mesh = np.where(pmask, self.puppet_grid[..., 2], np.nan)
         _, self.faces, self.uv = depth_to_mesh(depth_for_mesh, pmask)
+        # lighting sees the average shape's normals: the expression's folds at the lips and the
+        # grid's creases would print as shading artifacts, and low-frequency lighting hardly changes
+        self.rest_normals = grid_normals(self.puppet_grid)[pmask]
+        self.mean68 = persona.points68.mean(axis=0)  # the texture's frame (its 49 points: the mean fiducials)
+        self.lip_fields = None
+        if self.motion.fiducials68 is not None and (params.mouth_rest or params.lip_sync):
+            from .driver import LipFields, _iod49
+
+            self.lip_fields = LipFields(self.mean68, self.puppet_grid[..., :2])
+            self.lip_scale = _iod49(persona.mean_fiducials) / max(motion.iod, 1e-9)
+        self.rest_move = self._rest_motion() if params.mouth_rest and self.lip_fields is not None else None
+
+    def _rest_motion(self) -> np.ndarray:
+        """(68, 2) constant motion of the puppet's lip landmarks that makes its mean inner-lip gap
+        the driver's mean gap (scaled by the ratio of eye distances)."""
+        m = self.motion
+        P = self.mean68
+        D = m.fiducials68[m.found].mean(axis=0)
+        k = self.lip_scale
+        move = np.zeros((68, 2))
+        for up, lo in ((61, 67), (62, 66), (63, 65)):
+            change = k * (D[lo] - D[up]) - (P[lo] - P[up])  # > 0: open the puppet's lips
+            move[up] -= change / 2
+            move[lo] += change / 2
+        upper, lower = move[[61, 62, 63]].mean(axis=0), move[[65, 66, 67]].mean(axis=0)
+        move[[49, 50, 51, 52, 53]] = upper
+        move[[55, 56, 57, 58, 59, 7, 8, 9]] = lower
+        move[[5, 6, 10, 11]] = lower / 2
+        return move
+
+    def _sample_grid(self, grid: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Bilinear samples (P, 3) of a (h, w, 3) grid at canonical (x, y) ``points`` (P, 2)."""
+        st = self.motion.grid_step
+        q = np.asarray(points, np.float32) / st
+        g = np.nan_to_num(grid).astype(np.float32)
+        return cv2.remap(g, q[:, 0][None], q[:, 1][None], cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_REPLICATE)[0].astype(np.float64)
+
+    def grid(self, i: int) -> np.ndarray:
+        """Puppet mesh (h, w, 3) on its depth-map grid for frame i (M_P^i, Tom Hanks §4).
+
+        Beyond the paper: its lip and jaw landmarks then move exactly as the driver's
+        (scaled by the ratio of eye distances; :class:`facetex.persona.driver.LipFields`), on top of
+        the constant rest motion (module doc): the deformation transfer's magnitude adjustment and
+        Huber-ROF smoothing shrink the thin, fast lip motion by 10-25 % on GRID clips."""
+        g = self.transfer(self.motion.delta_field(i))
+        if self.lip_fields is None:
+            return g
+        move = np.zeros((68, 2))
+        if self.params.lip_sync:
+            m = self.motion
+            want = self.lip_scale * (m.fiducials68[i] - m.fiducials68[m.found].mean(axis=0))
+            have = self._sample_grid(g - self.puppet_grid, self.mean68)[:, :2]
+            move += want - have
+        if self.rest_move is not None:
+            move += self.rest_move
+        g = g.copy()
+        g[..., :2] += self.lip_fields(move) * self.puppet_mask[..., None]
+        return g
 
     def mesh(self, i: int) -> np.ndarray:
-        """Puppet vertices (V, 3) in its canonical frame for frame i (M_P^i, Tom Hanks §4)."""
-        return self.transfer(self.motion.delta_field(i))[self.puppet_mask]
+        """Puppet vertices (V, 3) in its canonical frame for frame i (the grid's mask vertices)."""
+        return self.grid(i)[self.puppet_mask]
 
     def texture(self, i: int, method: str | None = None) -> np.ndarray:
         """Texture (H, W, 3) of frame i in the puppet's neutral frame."""
@@ -255,28 +343,71 @@ class Puppeteer:
         f = [target_fiducials(self.persona, self.motion, i) for i in frames]
         return neutral_textures(self.persona, f, method=method or self.params.texture, sigma=self.params.sigma)
 
-    def render(self, i: int, vertices: np.ndarray, texture: np.ndarray, background: np.ndarray,
-               scale: float) -> tuple[np.ndarray, np.ndarray]:
-        """(image, soft alpha) of the puppet in frame i composited over ``background``
-        (H, W, 3) of the output panel; ``scale`` output px per driver px."""
-        from .render import render_mesh
-
-        h, w = background.shape[:2]
+    def pose(self, i: int, scale: float) -> tuple[np.ndarray, np.ndarray]:
+        """(A, b): output-panel pixel = A X + b of a canonical point X in frame i (driver pixels
+        scaled by ``scale``, pixel centres at integers)."""
         A = self.motion.pose_A[i] * scale
         b = self.motion.pose_b[i] * scale
-        far = 1e5
-        c = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
-        img, mask = render_mesh(vertices, self.faces, self.uv, texture, rotation=A,
-                                translation=np.r_[b[:2] - c, b[2] + far], focal=far, size=(w, h),
-                                weak_perspective=True)
-        width = float(np.linalg.norm(A[:, 0])) * self.persona.size[0] * 0.6
-        sig = max(0.8, self.params.feather * width)
-        m = mask.astype(np.float32)
-        k = int(round(sig)) * 2 + 1
-        m = cv2.erode(m, np.ones((k, k), np.uint8))
-        alpha = cv2.GaussianBlur(m, (0, 0), sig) * mask
-        out = alpha[..., None] * img + (1 - alpha[..., None]) * background
-        return out.astype(np.float32), alpha
+        b[:2] += 0.5 * scale - 0.5
+        return A, b
+
+    def lips(self, i: int, grid: np.ndarray, scale: float) -> np.ndarray:
+        """The puppet's inner lips (8, 2) (iBUG 60-67) in output-panel px for frame i: its
+        texture-frame inner lips carried by the deformed ``grid`` and projected."""
+        X = self._sample_grid(grid, self.mean68[list(INNER_LIPS)])
+        A, b = self.pose(i, scale)
+        return X @ A[:2].T + b[:2]
+
+    def layers(self, i: int, grid: np.ndarray, texture: np.ndarray, size, scale: float, supersample: int = 1,
+               normals: bool = True):
+        """:class:`facetex.persona.render.Layers` of the puppet in frame i (output panel ``size`` (W, H))."""
+        from .render import render_layers
+
+        A, b = self.pose(i, scale)
+        return render_layers(grid[self.puppet_mask], self.faces, self.uv, texture, rotation=A, translation=b,
+                             size=size, supersample=supersample, normals=self.rest_normals if normals else False)
+
+    def render(self, i: int, grid: np.ndarray, texture: np.ndarray, frame: np.ndarray, scale: float,
+               mode: str = "composite") -> tuple[np.ndarray, np.ndarray]:
+        """(image, alpha) of the puppet in frame i: composited into ``frame`` (the driver's
+        frame as an output panel (H, W, 3), ``scale`` panel px per driver px) or, with
+        ``mode="face"``, alone on the plain background."""
+        h, w = frame.shape[:2]
+        ss = self.params.supersample if mode == "face" else self.params.supersample_composite
+        sh = mode == "composite" and self.params.composite.lighting == "sh"
+        lay = self.layers(i, grid, texture, (w, h), scale, ss, normals=sh)
+        tr = self.track
+        lips = self.lips(i, grid, scale)
+        drv68 = (tr.points68[i] + 0.5) * scale - 0.5
+        if mode == "face":
+            bg = np.broadcast_to(np.asarray(self.params.plain, np.float32), (h, w, 3))
+            cov = lay.coverage[..., None]
+            img = cov * lay.image + (1 - cov) * bg
+            if self.params.composite.mouth and np.isfinite(drv68).all():
+                mi, ma = mouth_interior(frame, drv68[list(INNER_LIPS)], lips, (h, w))
+                ma = (ma * lay.coverage)[..., None]
+                img = ma * mi + (1 - ma) * img
+            return img.astype(np.float32), lay.coverage
+        oval = (tr.mesh[i][list(FACE_OVAL), :2] + 0.5) * scale - 0.5
+        return composite_face(frame, lay.image, lay.coverage, lay.normals, driver_oval=oval, driver_points68=drv68,
+                              puppet_lips=lips, driver_normals=self.driver_normals(i, (w, h), scale) if sh else None,
+                              params=self.params.composite)
+
+    def driver_normals(self, i: int, size, scale: float) -> np.ndarray | None:
+        """(H, W, 3) unit normals of the driver's own tracked face mesh in frame i (output panel
+        px), for estimating the lighting of the driver's frame with the driver's shape."""
+        from .render import render_layers
+
+        tri = self.motion.triangles
+        mesh = self.track.mesh[i]
+        if tri is None or not np.isfinite(mesh).all():
+            return None
+        v = mesh.copy()
+        v[:, :2] = (v[:, :2] + 0.5) * scale - 0.5
+        v[:, 2] *= scale
+        lay = render_layers(v, tri, np.zeros((len(v), 2)), np.ones((1, 1, 3), np.float32), rotation=np.eye(3),
+                            translation=np.zeros(3), size=size, supersample=1, prefilter=False)
+        return lay.normals
 
 
 @dataclass(eq=False)
@@ -356,7 +487,7 @@ def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | N
         persona = puppet_side.result()
         timings["puppet_wait_s"] = time.perf_counter() - t0
     timings.update(puppet_timings)
-    pup = Puppeteer(persona, motion, coll, params)
+    pup = Puppeteer(persona, motion, coll, params, track)
     timings.update({k: v for k, v in pup.timings.items() if k not in timings})  # not the cached look-ups
     return PuppetSession(track, motion, coll, pup, timings)
 
@@ -384,21 +515,27 @@ def output_size(frame_size, size: int | None) -> tuple[int, int, float]:
 TEXTURE_BATCH = 32
 
 
-def render_frames(session: PuppetSession, *, size: int | None = None, background: str = "driver",
+def _check_mode(mode: str) -> None:
+    if mode not in MODES:
+        raise BadInputError(f"unknown puppet mode {mode!r}: use one of {', '.join(MODES)}")
+
+
+def render_frames(session: PuppetSession, *, size: int | None = None, mode: str = "composite",
                   side_by_side: bool = False, texture: str | None = None, max_frames: int | None = None,
-                  progress: Callable | None = None) -> Iterator[dict]:
+                  keep: bool = False, progress: Callable | None = None) -> Iterator[dict]:
     """Yield per frame {"index", "driver" (panel), "puppet" (panel), "frame" (output), "alpha",
-    "lost"}: the second pass over the driver video. Per-stage times accumulate in
-    ``session.timings`` (mesh_s, texture_s, render_s; mesh and texture overlap rendering)."""
+    "lost"} (with ``keep`` also "grid" and "texture", the frame's mesh and texture): the second
+    pass over the driver video. Lost frames show the driver's panel (a plain panel in face
+    mode) and alpha 0. Per-stage times accumulate in ``session.timings`` (mesh_s, texture_s,
+    render_s; mesh and texture overlap rendering)."""
     from concurrent.futures import ThreadPoolExecutor
 
     from ..io import iter_video_frames
 
-    if background not in BACKGROUNDS:
-        raise BadInputError(f"unknown background {background!r}: use one of {', '.join(BACKGROUNDS)}")
+    _check_mode(mode)
     pup = session.puppeteer
     W, H, scale = output_size(session.track.frame_size, size)
-    n = session.track.n_frames
+    n = session.track.n_frames if max_frames is None else min(session.track.n_frames, max(0, int(max_frames)))
     tm = session.timings
     for key in ("mesh_s", "texture_s", "render_s"):
         tm.setdefault(key, 0.0)
@@ -406,7 +543,7 @@ def render_frames(session: PuppetSession, *, size: int | None = None, background
     def meshes_and_textures(i0: int) -> list:
         frames = range(i0, min(i0 + TEXTURE_BATCH, n))
         t0 = time.perf_counter()
-        verts = [pup.mesh(i) for i in frames]
+        verts = [pup.grid(i) for i in frames]
         t1 = time.perf_counter()
         tex = pup.textures(frames, texture)
         tm["mesh_s"] += t1 - t0
@@ -422,38 +559,44 @@ def render_frames(session: PuppetSession, *, size: int | None = None, background
             if i >= n:
                 break
             drv = cv2.resize(frame, (W, H), interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
-            bg = drv if background == "driver" else np.broadcast_to(
-                np.asarray(pup.params.plain, np.float32), drv.shape).copy()
             if i % TEXTURE_BATCH == 0:
                 batch = ahead.result()
                 if i + TEXTURE_BATCH < n:
                     ahead = pool.submit(meshes_and_textures, i + TEXTURE_BATCH)
-            verts, tex = batch[i % TEXTURE_BATCH]
+            grid, tex = batch[i % TEXTURE_BATCH]
+            lost = not bool(session.track.found[i])
             t2 = time.perf_counter()
-            img, alpha = pup.render(i, verts, tex, bg, scale)
+            if lost:  # no puppet where the driver's face is not seen whole
+                img = drv.copy() if mode == "composite" else np.broadcast_to(
+                    np.asarray(pup.params.plain, np.float32), drv.shape).copy()
+                alpha = np.zeros((H, W), np.float32)
+            else:
+                img, alpha = pup.render(i, grid, tex, drv, scale, mode)
             tm["render_s"] += time.perf_counter() - t2
             out = np.concatenate([drv, img], axis=1) if side_by_side else img
-            lost = not bool(session.track.found[i])
             if progress:
                 progress(n=1, stage="render", lost=session.track.n_lost)
-            yield {"index": i, "driver": drv, "puppet": img, "frame": out, "alpha": alpha, "lost": lost}
+            rec = {"index": i, "driver": drv, "puppet": img, "frame": out, "alpha": alpha, "lost": lost}
+            if keep:
+                rec.update(grid=grid, texture=tex)
+            yield rec
 
 
 def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool = False, size: int | None = None,
-              background: str = "driver", overwrite: bool = False, max_frames: int | None = None,
+              mode: str = "composite", overwrite: bool = False, max_frames: int | None = None,
               params: PuppetParams = PuppetParams(), progress: Callable | None = None,
               on_frame: Callable | None = None) -> dict:
     """Render ``driver`` (a video) performed by ``persona`` (a Persona or .persona path) to
     ``output`` (H.264 MP4, written atomically, the driver's audio passed through).
 
-    Frames where the driver's face is lost are filled from the neighbouring motion and
-    counted; a video without any face raises NoFaceError naming it (nothing is written).
+    Frames where the driver's face is lost (not found, partly outside the frame, implausible)
+    show the driver's frame and are counted and reported with their causes; a video without
+    any face raises NoFaceError naming it (nothing is written).
     ``on_frame(record)`` receives each frame record of :func:`render_frames`.
     Returns a report dict (frames, lost frames, timings, shape/collection sources)."""
     from ..io import check_output_path, video_info, write_video
 
-    if background not in BACKGROUNDS:
-        raise BadInputError(f"unknown background {background!r}: use one of {', '.join(BACKGROUNDS)}")
+    _check_mode(mode)
     inputs = [driver] + ([] if hasattr(persona, "images") else [persona])
     out = check_output_path(output, overwrite=overwrite, inputs=inputs)
     output_size((1, 1), size)  # a bad size fails before the work
@@ -462,7 +605,7 @@ def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool
                                progress=progress)
 
     def frames():
-        for rec in render_frames(session, size=size, background=background, side_by_side=side_by_side,
+        for rec in render_frames(session, size=size, mode=mode, side_by_side=side_by_side,
                                  progress=progress):
             if on_frame:
                 on_frame(rec)
@@ -480,6 +623,7 @@ def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool
         "frames": tr.n_frames,
         "lost_frames": tr.n_lost,
         "lost_indices": [int(i) for i in np.flatnonzero(~tr.found)],
+        "lost_causes": tr.lost_causes,
         "fps": tr.fps,
         "audio": tr.has_audio and video_info(out)["has_audio"],  # False when the driver's audio was damaged
         "puppet_shape": session.puppeteer.shape_source,

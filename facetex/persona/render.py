@@ -17,6 +17,7 @@ centres at integer coordinates. Texture coordinates follow
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -24,7 +25,8 @@ import numpy as np
 
 from ..errors import BadInputError
 
-__all__ = ["Raster", "project_vertices", "rasterize", "render_mesh"]
+__all__ = ["Raster", "Layers", "project_vertices", "rasterize", "render_mesh", "render_layers", "vertex_normals",
+           "interpolate_attributes"]
 
 #: Candidate pixels per chunk of triangles (bounds the temporary memory to ~0.5 GB).
 _CHUNK = 4_000_000
@@ -98,17 +100,20 @@ def rasterize(vertices, faces, *, rotation=None, translation=None, focal: float,
         raise BadInputError("faces index vertices that do not exist")
     tri_ids = np.arange(len(f))
     zt = z[f]
-    keep = (zt > _NEAR).all(axis=1) & np.isfinite(xy[f]).all(axis=(1, 2))
     p = xy[f]  # (T, 3, 2)
-    x0, y0 = p[:, 0, 0], p[:, 0, 1]
-    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    p0, p1, p2 = p[:, 0], p[:, 1], p[:, 2]
+    # reductions over the short axes written out: numpy's reduce over an axis of length 3 is slow
+    keep = (zt[:, 0] > _NEAR) & (zt[:, 1] > _NEAR) & (zt[:, 2] > _NEAR)
+    keep &= np.isfinite(p0).all(axis=1) & np.isfinite(p1).all(axis=1) & np.isfinite(p2).all(axis=1)
+    x0, y0 = p0[:, 0], p0[:, 1]
+    e1, e2 = p1 - p0, p2 - p0
     det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
     keep &= np.abs(det) > 1e-12
-    lo = np.ceil(p.min(axis=1) - 1e-9)
-    hi = np.floor(p.max(axis=1) + 1e-9)
+    lo = np.ceil(np.minimum(np.minimum(p0, p1), p2) - 1e-9)
+    hi = np.floor(np.maximum(np.maximum(p0, p1), p2) + 1e-9)
     lo = np.maximum(lo, 0)
     hi = np.minimum(hi, [w - 1, h - 1])
-    keep &= (hi >= lo).all(axis=1)
+    keep &= (hi[:, 0] >= lo[:, 0]) & (hi[:, 1] >= lo[:, 1])
     tri_ids, lo, hi = tri_ids[keep], lo[keep].astype(np.int64), hi[keep].astype(np.int64)
     det, e1, e2, x0, y0, zt = det[keep], e1[keep], e2[keep], x0[keep], y0[keep], zt[keep]
     # λ1, λ2 as affine functions of the pixel (x, y): λ = a x + b y + c
@@ -211,3 +216,124 @@ def render_mesh(vertices, faces, uv, texture, *, rotation=None, translation=None
         puv = np.einsum("nk,nkc->nc", lam, corner_uv)
         image.reshape(-1, 3)[flat] = _sample_texture(tex, puv)
     return image, mask
+
+
+def vertex_normals(vertices, faces) -> np.ndarray:
+    """Unit normals (V, 3) of a triangle mesh: the area-weighted sum of the adjacent faces'
+    normals (cross product of the edges in the faces' winding order); 0 for unused vertices."""
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    n = np.zeros_like(v)
+    for c in range(3):  # bincount: a scatter-add much faster than np.add.at
+        n[:, c] = sum(np.bincount(f[:, k], weights=fn[:, c], minlength=len(v)) for k in range(3))
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
+
+
+def interpolate_attributes(raster: Raster, faces, values) -> np.ndarray:
+    """Per-pixel barycentric interpolation (H, W, C) of per-vertex ``values`` (V, C); 0 off the mesh."""
+    f = np.asarray(faces, np.int64)
+    vals = np.asarray(values, np.float32)
+    h, w = raster.triangle.shape
+    out = np.zeros((h * w, vals.shape[1]), np.float32)
+    flat = np.flatnonzero(raster.triangle.ravel() >= 0)
+    if flat.size:
+        t = raster.triangle.ravel()[flat]
+        lam = raster.bary.reshape(-1, 3)[flat]
+        out[flat] = np.einsum("nk,nkc->nc", lam, vals[f[t]])
+    return out.reshape(h, w, -1)
+
+
+@dataclass(frozen=True, eq=False)
+class Layers:
+    """What :func:`render_layers` returns for an (H, W) image: image (H, W, 3) float32 (0 off the
+    mesh), coverage (H, W) float32 in [0, 1] (fraction of sub-pixel samples on the mesh),
+    normals (H, W, 3) float32 unit camera-space normals (0 off the mesh), box (y0, y1, x0, x1)
+    the rows/columns that were rendered (everything outside is empty)."""
+
+    image: np.ndarray
+    coverage: np.ndarray
+    normals: np.ndarray | None
+    box: tuple[int, int, int, int]
+
+
+def render_layers(vertices, faces, uv, texture, *, rotation, translation, size, supersample: int = 2,
+                  normals: bool | np.ndarray = True, prefilter: bool = True) -> Layers:
+    """Anti-aliased weak-perspective rendering of a textured mesh (the puppet's camera):
+    pixel = rotation @ X + translation (x, y; z orders depth, smaller is nearer).
+
+    Rasterized at ``supersample`` x the resolution inside the projected bounding box only and
+    averaged down (box filter): edges get fractional coverage instead of stair steps. The
+    texture is low-passed to the sample spacing first when it is minified (``prefilter``; a
+    one-level mip map), so fine texture lines (lips, eyelids) do not alias either.
+    ``normals``: True (per-vertex normals of the mesh, :func:`vertex_normals`), given
+    per-vertex model-space normals (V, 3), or False (none).
+    """
+    w, h = _size(size)
+    ss = max(1, int(supersample))
+    v = np.asarray(vertices, np.float64)
+    A = np.asarray(rotation, np.float64).reshape(3, 3)
+    t = np.asarray(translation, np.float64).reshape(3)
+    xy = v @ A[:2].T + t[:2]
+    ok = np.isfinite(xy).all(axis=1)
+    empty = Layers(np.zeros((h, w, 3), np.float32), np.zeros((h, w), np.float32),
+                   None if normals is False else np.zeros((h, w, 3), np.float32), (0, 0, 0, 0))
+    if not ok.any():
+        return empty
+    lo = np.floor(xy[ok].min(axis=0)).astype(int) - 1
+    hi = np.ceil(xy[ok].max(axis=0)).astype(int) + 2
+    x0, y0 = max(0, lo[0]), max(0, lo[1])
+    x1, y1 = min(w, hi[0]), min(h, hi[1])
+    if x1 <= x0 or y1 <= y0:
+        return empty
+    bw, bh = x1 - x0, y1 - y0
+    # sample (j, i) of the fine grid sits at box pixel ((j + 0.5) / ss - 0.5, ...)
+    As = A * ss
+    ts = np.r_[(t[:2] - [x0, y0] + 0.5) * ss - 0.5, t[2]]
+    far = 1e6 + abs(float(ts[2]))  # camera far in front: every depth positive, projection scale exactly 1
+    c = np.array([(bw * ss - 1) / 2.0, (bh * ss - 1) / 2.0])
+    ras = rasterize(v, faces, rotation=As, translation=np.r_[ts[:2] - c, ts[2] + far], focal=ts[2] + far,
+                    size=(bw * ss, bh * ss), weak_perspective=True)
+    tex = np.asarray(texture, np.float32)
+    if tex.ndim != 3 or tex.shape[2] != 3:
+        raise BadInputError(f"texture must be an (H, W, 3) image, got shape {tex.shape}")
+    uvv = np.asarray(uv, np.float64)
+    if prefilter:
+        # texels per fine sample along the texture's x axis (the canonical frame's pixels)
+        texel_px = tex.shape[1] * float(np.ptp(uvv[:, 0]) or 1.0) / max(float(np.ptp(xy[ok, 0])) * ss, 1e-6)
+        if texel_px > 1.0:
+            tex = cv2.GaussianBlur(tex, (0, 0), 0.5 * math.sqrt(texel_px ** 2 - 1.0))
+    mask = ras.triangle >= 0
+    img = np.zeros((bh * ss, bw * ss, 3), np.float32)
+    flat = np.flatnonzero(mask)
+    f = np.asarray(faces, np.int64)
+    if flat.size:
+        tri = ras.triangle.ravel()[flat]
+        lam = ras.bary.reshape(-1, 3)[flat].astype(np.float64)
+        puv = np.einsum("nk,nkc->nc", lam, uvv[f[tri]])
+        img.reshape(-1, 3)[flat] = _sample_texture(tex, puv)
+    cov = mask.astype(np.float32)
+    nrm = None
+    if normals is not False:
+        vn = (vertex_normals(v, f) if normals is True else np.asarray(normals, np.float64)) @ A.T
+        nn = np.linalg.norm(vn, axis=1, keepdims=True)
+        vn = np.divide(vn, nn, out=np.zeros_like(vn), where=nn > 0)
+        nrm = interpolate_attributes(ras, f, vn)
+    if ss > 1:
+        down = (lambda a: cv2.resize(a, (bw, bh), interpolation=cv2.INTER_AREA))
+        img, cov = down(img), down(cov)
+        nrm = down(nrm) if nrm is not None else None
+    # colours are the average over the covered samples (premultiplied -> straight)
+    img = np.divide(img, cov[..., None], out=np.zeros_like(img), where=cov[..., None] > 1e-6)
+    if nrm is not None:
+        nn = np.linalg.norm(nrm, axis=2, keepdims=True)
+        nrm = np.divide(nrm, nn, out=np.zeros_like(nrm), where=nn > 1e-6)
+    out_img = np.zeros((h, w, 3), np.float32)
+    out_cov = np.zeros((h, w), np.float32)
+    out_img[y0:y1, x0:x1], out_cov[y0:y1, x0:x1] = img, cov
+    out_n = None
+    if nrm is not None:
+        out_n = np.zeros((h, w, 3), np.float32)
+        out_n[y0:y1, x0:x1] = nrm
+    return Layers(out_img, out_cov, out_n, (y0, y1, x0, x1))

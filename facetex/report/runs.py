@@ -23,7 +23,7 @@ from ..errors import BadInputError
 
 __all__ = ["Run", "Item", "load_run", "METHOD_ORDER"]
 
-METHOD_ORDER = ("gatys", "mrf", "facetex")
+METHOD_ORDER = ("none", "gatys", "mrf", "facetex")  # "none": the content itself (no transfer)
 _IMAGE_EXT = (".png", ".jpg", ".jpeg", ".webp", ".tif", ".tiff")
 
 
@@ -116,9 +116,8 @@ def _load_bench_transfer(folder: Path, run: Run) -> None:
         results = p.get("results", {})
         for m in sorted(results, key=lambda m: METHOD_ORDER.index(m) if m in METHOD_ORDER else 99):
             r = results[m]
-            img = folder / r.get("image", "")
-            if r.get("image") and img.is_file():
-                it.images[m] = img
+            if r.get("image") and (folder / r["image"]).is_file():
+                it.images[m] = folder / r["image"]
             it.metrics[m] = {k: v for k, v in (r.get("metrics") or {}).items()}
             if isinstance(r.get("wall_s"), (int, float)):
                 it.metrics[m]["time_s"] = float(r["wall_s"])

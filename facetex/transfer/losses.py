@@ -194,8 +194,10 @@ class _PatchSSD(torch.autograd.Function):
         return g, None, None, None, None
 
 
-def _match(feat: torch.Tensor, style: StylePatches, ys: torch.Tensor, xs: torch.Tensor, chunk: int):
-    """Eq. 1: index of the most correlated style patch for each target patch, and its NCC."""
+def _match(feat: torch.Tensor, style: StylePatches, ys: torch.Tensor, xs: torch.Tensor, chunk: int,
+           active: torch.Tensor | None = None):
+    """Eq. 1: index of the most correlated style patch for each target patch, and its NCC.
+    Patches where ``active`` (bool, n_t) is False are not matched (index 0, NCC NaN)."""
     n_t, n_s, dim = len(ys) * len(xs), len(style), style.unit.shape[1]
     block, chunk = _blocks(n_t, n_s, dim, chunk)
     rows_per_block = max(1, block // len(xs))
@@ -203,7 +205,16 @@ def _match(feat: torch.Tensor, style: StylePatches, ys: torch.Tensor, xs: torch.
     best_ncc = torch.empty(n_t, dtype=feat.dtype, device=feat.device)
     for r0 in range(0, len(ys), rows_per_block):
         r1 = min(r0 + rows_per_block, len(ys))
+        sl = slice(r0 * len(xs), r1 * len(xs))
         t = _gather_patches(feat, ys[r0:r1], xs, style.size)
+        rows = None
+        if active is not None:
+            rows = torch.nonzero(active[sl]).reshape(-1)
+            best_idx[sl] = 0
+            best_ncc[sl] = float("nan")
+            if len(rows) == 0:
+                continue
+            t = t[rows]
         best = torch.full((t.shape[0],), -torch.inf, dtype=feat.dtype, device=feat.device)
         idx = torch.zeros(t.shape[0], dtype=torch.long, device=feat.device)
         for s0 in range(0, n_s, chunk):
@@ -212,9 +223,13 @@ def _match(feat: torch.Tensor, style: StylePatches, ys: torch.Tensor, xs: torch.
             better = m > best  # strict: the earlier chunk keeps ties, like a single argmax
             best = torch.where(better, m, best)
             idx = torch.where(better, j + s0, idx)
-        sl = slice(r0 * len(xs), r1 * len(xs))
-        best_idx[sl] = idx
-        best_ncc[sl] = best / t.norm(dim=1)  # NaN for an all-zero target patch, as in mrf.lua
+        ncc = best / t.norm(dim=1)  # NaN for an all-zero target patch, as in mrf.lua
+        if rows is None:
+            best_idx[sl] = idx
+            best_ncc[sl] = ncc
+        else:
+            best_idx[sl][rows] = idx
+            best_ncc[sl][rows] = ncc
     return best_idx, best_ncc
 
 
@@ -269,10 +284,20 @@ def mrf_loss(target_feat: torch.Tensor, style_feat: torch.Tensor | StylePatches,
     feat, style = _prepare(target_feat, style_feat, patch_size, style_stride)
     k, (c, h, w) = style.size, feat.shape
     ys, xs = _grid(h, k, target_stride), _grid(w, k, target_stride)
+    tw = None
+    if target_weight is not None:
+        tw = torch.as_tensor(target_weight, dtype=feat.dtype, device=feat.device)
+        if tw.numel() != h * w:
+            raise BadInputError(f"target_weight must be ({h}, {w}), got {tuple(tw.shape)}")
+        tw = tw.reshape(1, h, w)
     with torch.no_grad():
         fd = feat.detach()
+        active = None
+        if tw is not None:  # patches with no weighted position contribute nothing: skip them
+            wmax = torch.nn.functional.max_pool2d(tw[None], k, stride=1)[0, 0]
+            active = (wmax[ys][:, xs] > 0).reshape(-1)
         if matches is None:
-            idx, ncc = _match(fd, style, ys, xs, chunk)
+            idx, ncc = _match(fd, style, ys, xs, chunk, active)
         else:
             idx = matches.reshape(-1).to(feat.device)
             if idx.numel() != len(ys) * len(xs):
@@ -282,6 +307,8 @@ def mrf_loss(target_feat: torch.Tensor, style_feat: torch.Tensor | StylePatches,
                 t = _gather_patches(fd, ys, xs, k)
                 ncc = (t * style.unit[idx]).sum(1) / t.norm(dim=1)
         keep = None if threshold is None else ncc >= threshold
+        if active is not None:
+            keep = active if keep is None else keep & active
         # Per-position coverage count, sum of matched values R and their squared norms Q.
         count = torch.zeros(1, h, w, dtype=feat.dtype, device=feat.device)
         r_map = torch.zeros(c, h, w, dtype=feat.dtype, device=feat.device)
@@ -301,10 +328,7 @@ def mrf_loss(target_feat: torch.Tensor, style_feat: torch.Tensor | StylePatches,
             _scatter_patches(q_map, sq, ys[r0:r1], xs, k)
         n_kept = len(ys) * len(xs) if keep is None else int(keep.sum())
         weight = torch.ones_like(count) if cfg["weighting"] == "sum" else 0.5 / (count + 1e-10)
-        if target_weight is not None:
-            tw = torch.as_tensor(target_weight, dtype=feat.dtype, device=feat.device).reshape(-1, h, w)
-            if tw.shape != (1, h, w):
-                raise BadInputError(f"target_weight must be ({h}, {w}), got {tuple(target_weight.shape)}")
+        if tw is not None:
             weight = weight * tw
     loss = _PatchSSD.apply(feat, count, r_map, q_map, weight)  # Eq. 2
     if reduction == "mean":

@@ -190,7 +190,7 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
                         opt = torch.optim.LBFGS([var], lr=1.0 if lr is None else lr, max_iter=n_iter - iterations,
                                                 max_eval=max(1, budget - evals), history_size=lbfgs_history,
                                                 tolerance_grad=tolerance_grad, line_search_fn=line_search)
-                        loss = float(opt.step(closure))
+                        opt.step(closure)
                         iterations += int(opt.state[var].get("n_iter", 0))
                         if iterations >= n_iter:
                             break

@@ -77,10 +77,13 @@ def test_outputs_have_table1_structure(done):
     for name in SUMMARY:
         assert (out / name).is_file()
     rows = list(csv.DictReader((out / "table.csv").open()))
-    assert [r["method_id"] for r in rows] == ["gatys", "facetex"]
+    assert [r["method_id"] for r in rows] == ["none", "gatys", "facetex"]  # "no transfer" first
     assert {"E_content", "E_style", "S_content", "S_style", "identity_content", "identity_style",
-            "same_identity", "time_s", "n_pairs"} <= set(rows[0])
-    assert [r["n_pairs"] for r in rows] == ["2", "2"]
+            "same_identity", "time_s", "n_pairs", "S_style_gain", "detail_ratio", "protected_change",
+            "background_change", "prewarp_folds"} <= set(rows[0])
+    assert [r["n_pairs"] for r in rows] == ["2", "2", "2"]
+    assert float(rows[0]["E_content"]) == 0.0  # the content scored as its own output
+    assert (out / "zoom.png").is_file() and len(list((out / "zoom").glob("*.png"))) == 2
     md = (out / "table.md").read_text()
     for v in ("22.61", "106.17", "37.93", "369.39", "191.47", "295.93", "0.89", "0.68", "0.55"):
         assert v in md
@@ -90,7 +93,13 @@ def test_outputs_have_table1_structure(done):
 def test_real_metrics_of_a_content_heavy_blend(data, tmp_path):
     out = tmp_path / "out"
     _run(data, out, FakeTransfer(), pairs=1, methods="facetex", metrics_fn=None)
-    (r,) = list(csv.DictReader((out / "table.csv").open()))
+    none, r = list(csv.DictReader((out / "table.csv").open()))
+    # doing nothing: no change anywhere, no move towards the style
+    assert float(none["S_style_gain"]) == 0.0 and float(none["protected_change"]) == 0.0
+    assert float(none["background_change"]) == 0.0 and float(none["E_content"]) == 0.0
+    # the 0.3 blend moves towards the style and changes the features and background too
+    assert float(r["S_style_gain"]) > 0.0
+    assert float(r["protected_change"]) > 1.0 and float(r["background_change"]) > 1.0
     # the output is mostly content: closer to it in structure, texture and identity
     assert float(r["E_content"]) < float(r["E_style"])
     assert float(r["S_content"]) > float(r["S_style"])
@@ -108,9 +117,12 @@ def test_pairs_json_and_images(done, data):
     assert len(pj["pairs"]) == 2
     for p in pj["pairs"]:
         assert p["content"] != p["style"]
-        assert set(p["results"]) == {"gatys", "facetex"}
+        assert set(p["results"]) == {"none", "gatys", "facetex"}
         for m, r in p["results"].items():
             assert set(r["metrics"]) == set(bench.METRIC_KEYS)
+            if m == "none":
+                assert r["image"] is None
+                continue
             img = out / r["image"]
             assert img.name == f"{p['content']}__{p['style']}__{m}.png" and img.is_file()
             info = json.loads(img.with_suffix(".json").read_text())
@@ -195,7 +207,7 @@ def test_interrupted_run_leaves_no_partial_files_and_resumes(data, tmp_path):
     files = _files(out)
     assert not any(f.split("/")[-1].startswith(".") for f in files)  # no temporary files
     assert not any(name in files for name in SUMMARY)
-    assert len([f for f in files if f.startswith("results/")]) == 1
+    assert len([f for f in files if f.startswith("results/") and "__none" not in f]) == 1
     assert len([f for f in files if f.startswith("images/")]) == 2  # one png + its info json
     fake = FakeTransfer()
     r = _run(data, out, fake)
@@ -230,7 +242,8 @@ def test_cli_parser_and_run(data, tmp_path, monkeypatch, capsys):
                               "--methods", "mrf", "--seed", "2", "--preset", "paper", "--json"])
     assert args.func(args) == 0
     printed = json.loads(capsys.readouterr().out)
-    assert printed["summary"]["run"] == 1 and printed["summary"]["table"][0]["method_id"] == "mrf"
+    assert printed["summary"]["run"] == 1
+    assert [r["method_id"] for r in printed["summary"]["table"]] == ["none", "mrf"]
     assert fake.calls == [("mrf", {})]
     assert (tmp_path / "o" / "grid.png").is_file()
     run = json.loads((tmp_path / "o" / "run.json").read_text())

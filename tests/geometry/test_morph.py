@@ -124,7 +124,8 @@ def test_align_style_to_content(pair, method, refine):
     r = align_style_to_content(style, content, style_points=sp, content_points=cp, method=method, refine=refine)
     assert isinstance(r, AlignResult)
     assert r.image.shape == content.shape and r.map_xy.shape == content.shape[:2] + (2,)
-    assert np.linalg.norm(r.points - cp, axis=1).max() < 1.5
+    # the morph pins the landmarks; the (smoothed, capped) flow refinement may move them a little
+    assert np.linalg.norm(r.points - cp, axis=1).max() < (1.5 if refine is None else 2.0)
     redetected = detect_face(r.image).points68
     assert np.linalg.norm(redetected - cp, axis=1).mean() < 3.0
     # the map warps other data the same way
@@ -156,3 +157,71 @@ def test_bad_options(pair):
         align_style_to_content(style, content, style_points=sp, content_points=cp, refine="magic")
     with pytest.raises(BadInputError):
         beier_neely_map(sp[:10], cp, (100, 100))
+
+
+# --- crops, similarity frame, folds ---------------------------------------------
+
+from facetex.geometry.morph import jacobian_determinant, similarity_frame, similarity_transform, unfold_map  # noqa: E402
+
+
+def test_similarity_transform_recovers_a_known_similarity():
+    rng = np.random.default_rng(0)
+    a = rng.uniform(0, 100, (20, 2))
+    th, s, t = 0.3, 1.7, np.array([5.0, -3.0])
+    R = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    b = s * a @ R.T + t
+    T = similarity_transform(a, b)
+    assert np.allclose(T[:, :2], s * R, atol=1e-9) and np.allclose(T[:, 2], t, atol=1e-7)
+
+
+def test_jacobian_determinant_of_an_affine_map():
+    yy, xx = np.mgrid[0:20, 0:30].astype(np.float32)
+    m = np.stack([2.0 * xx + 0.5 * yy + 3, -0.5 * xx + 1.5 * yy], -1)  # det = 2*1.5 + 0.25 = 3.25
+    assert np.allclose(jacobian_determinant(m), 3.25, atol=1e-5)
+    flipped = np.stack([-xx, yy], -1)
+    assert (jacobian_determinant(flipped) < 0).all()
+
+
+def test_unfold_map_removes_a_fold_and_keeps_the_rest():
+    yy, xx = np.mgrid[0:80, 0:80].astype(np.float32)
+    ident = np.stack([xx, yy], -1)
+    bump = np.zeros_like(ident)
+    bump[..., 0] = 12.0 * np.exp(-((xx - 40) ** 2 + (yy - 40) ** 2) / (2 * 3.0**2))  # slope > 1: folds
+    assert (jacobian_determinant(ident + bump) <= 0).any()
+    out = unfold_map(lambda a: ident + a[..., None] * bump, (80, 80))
+    assert (jacobian_determinant(out) > 0).all()
+    far = (np.hypot(xx - 40, yy - 40) > 35)
+    assert np.allclose(out[far], (ident + bump)[far], atol=1e-3)
+
+
+def test_prewarp_on_a_crop_equals_the_full_image_prewarp_cropped(pair):
+    """The crop's frame must not be pinned to the style image's frame (issue 11, cause 1)."""
+    style, content, sp, cp = pair
+    full = align_style_to_content(style, content, style_points=sp, content_points=cp, refine=None)
+    x0, y0, x1, y1 = 90, 60, 320, 360
+    crop = align_style_to_content(style, content[y0:y1, x0:x1], style_points=sp, content_points=cp - [x0, y0],
+                                  refine=None)
+    inner = (slice(40, -40), slice(40, -40))  # away from the crop's own frame points
+    d = np.linalg.norm(crop.map_xy[inner] - full.map_xy[y0:y1, x0:x1][inner], axis=2)
+    assert np.median(d) < 1.0 and np.percentile(d, 95) < 3.0
+    # and the style keeps its scale: no squeezing of the whole photo into the crop
+    T = similarity_transform(cp, sp)
+    yy, xx = np.mgrid[y0:y1, x0:x1].astype(np.float64)
+    sim = np.stack([T[0, 0] * xx + T[0, 1] * yy + T[0, 2], T[1, 0] * xx + T[1, 1] * yy + T[1, 2]], -1)
+    assert np.median(np.linalg.norm(crop.map_xy - sim, axis=2)) < 0.05 * 130
+
+
+def test_prewarp_is_fold_free_on_the_face(pair):
+    style, content, sp, cp = pair
+    r = align_style_to_content(style, content, style_points=sp, content_points=cp, refine="optical-flow")
+    assert r.folds == 0
+    from facetex.geometry.masks import face_mask
+
+    assert (jacobian_determinant(r.map_xy)[face_mask(cp, content.shape[:2]) > 0.5] > 0).all()
+
+
+def test_similarity_frame_maps_the_crop_frame_through_the_landmark_similarity(pair):
+    style, content, sp, cp = pair
+    fr = similarity_frame(sp, cp, (100, 200))
+    T = similarity_transform(cp, sp)
+    assert np.allclose(fr[0], T[:, 2]) and np.allclose(fr[4], T @ [199.0, 99.0, 1.0])

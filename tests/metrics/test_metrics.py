@@ -94,7 +94,39 @@ def test_metrics_cli_json(capsys):
     assert main(["metrics", a, a, b, "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert set(out) == {"E_content", "E_style", "E_content_rms_px", "E_style_rms_px",
-                        "S_content", "S_style", "identity_content", "identity_style"}
+                        "S_content", "S_style", "identity_content", "identity_style", "S_style_none",
+                        "S_style_gain", "detail_output", "detail_content", "detail_style", "detail_style_own",
+                        "detail_ratio", "protected_change", "background_change"}
     assert out["E_content"] == 0.0 and out["S_content"] == pytest.approx(1.0)
+    # the content scored as its own output: no gain, no change, its own detail
+    assert out["S_style_gain"] == 0.0 and out["protected_change"] == 0.0 and out["background_change"] == 0.0
+    assert out["detail_output"] == out["detail_content"] > 0
     assert out["identity_content"] < 1e-4 and out["identity_style"] > 0.6
     assert out["E_style"] > 1.0
+
+
+def test_skin_detail_hand_computed(face):
+    """A flat image has no detail; a ±a checkerboard has high-pass std ≈ a (a σ = 2 px
+    Gaussian keeps almost nothing of a 2 px period)."""
+    _, p68 = face
+    img = np.full((400, 400, 3), 0.5, np.float32)
+    assert metrics.skin_detail(img, p68) == pytest.approx(0.0, abs=1e-4)
+    yy, xx = np.mgrid[0:400, 0:400]
+    board = img + (((yy + xx) % 2) * 2 - 1)[..., None].astype(np.float32) * (4 / 255.0)  # ±4 in 0–255 units
+    assert 3.8 < metrics.skin_detail(board, p68) < 4.05
+
+
+def test_protected_and_background_change_hand_computed(face):
+    img, p68 = face
+    from facetex.geometry.skin import protected_mask
+
+    out = img.copy()
+    m = protected_mask(p68, img.shape)
+    out[m] = np.clip(out[m] + 10 / 255.0, 0, 1)  # +10 on the features only
+    assert metrics.protected_change(out, img, points=p68) == pytest.approx(10.0, abs=0.6)
+    assert metrics.background_change(out, img, points=p68) == 0.0
+    bg = ~metrics.face_area_mask(img, p68)
+    out2 = img.copy()
+    out2[bg] = np.clip(out2[bg] - 5 / 255.0, 0, 1)
+    assert metrics.background_change(out2, img, points=p68) == pytest.approx(5.0, abs=0.6)
+    assert metrics.protected_change(out2, img, points=p68) == 0.0

@@ -8,6 +8,7 @@ import pytest
 from facetex.errors import NoFaceError
 from facetex.io import write_video
 from facetex.persona.driver import (
+    DriverParams,
     GridInterpolator,
     driver_motion,
     fill_lost,
@@ -140,3 +141,124 @@ def test_video_without_face_raises(tmp_path):
     with pytest.raises(NoFaceError) as e:
         track_driver(p)
     assert e.value.path == str(p)
+
+
+# ----------------------------------------------------------------------------- mouth correction
+def _generic68(scale=100.0):
+    from facetex.geometry._generic_face import load_generic_face
+
+    p = load_generic_face().points68[:, :2]
+    return p / np.linalg.norm(p[36] - p[45]) * scale + 200.0
+
+
+def test_lip_fields_let_the_lips_part():
+    from facetex.persona.driver import LipFields
+
+    p = _generic68()
+    gy, gx = np.mgrid[0:400:2, 0:400:2].astype(float)
+    f = LipFields(p, np.stack([gx, gy], axis=-1))
+    move = np.zeros((68, 2))
+    move[[61, 62, 63], 1] = -3.0  # upper lip up
+    move[[65, 66, 67], 1] = +3.0  # lower lip down
+    move[[50, 51, 52], 1] = -3.0
+    move[[56, 57, 58], 1] = +3.0
+    move[7:10, 1] = 3.0
+    field = f(move)
+
+    def at(pt):
+        return field[int(round(pt[1] / 2)), int(round(pt[0] / 2))]
+
+    gap = (p[66, 1] - p[62, 1]) / 2
+    mid = (p[62] + p[66]) / 2
+    assert at(mid - [0, gap * 0.8 + 1])[1] == pytest.approx(-3.0, abs=0.6)  # just above the mouth line
+    assert at(mid + [0, gap * 0.8 + 1])[1] == pytest.approx(3.0, abs=0.6)  # just below it
+    for still in (36, 45, 30, 19, 24):  # eyes, nose tip, brows stay where they are
+        assert np.abs(at(p[still])).max() < 0.3
+    # a single smooth field would have dragged both lips towards their average
+    assert at(mid - [0, gap * 0.8 + 1])[1] < -2.0
+
+
+def test_mouth_correction_follows_the_landmarks(tracked):
+    tr, n_morph, _ = tracked
+    plain = driver_motion(tr)  # the default: the puppet side follows the landmarks (Puppeteer.grid)
+    fixed = driver_motion(tr, DriverParams(mouth_correction=True))
+    i = n_morph - 1
+    st = fixed.grid_step
+    f68 = fixed.fiducials68
+    mean = f68[fixed.found].mean(axis=0)
+
+    def gap_motion(m):
+        d = m.delta_field(i)
+        up = d[int(round(mean[62, 1] / st)) - 1, int(round(mean[62, 0] / st))]
+        lo = d[int(round(mean[66, 1] / st)) + 1, int(round(mean[66, 0] / st))]
+        return lo[1] - up[1]
+
+    want = (f68[i, 66, 1] - mean[66, 1]) - (f68[i, 62, 1] - mean[62, 1])  # the landmarks' own opening
+    assert abs(gap_motion(fixed) - want) < 0.35 * abs(want) + 0.5
+    assert abs(gap_motion(fixed) - want) < abs(gap_motion(plain) - want)
+
+
+# ----------------------------------------------------------------------------- lost-face checks
+def _mesh_at(points68):
+    """A stand-in face mesh: 468 points spread over the landmarks' hull, with the MediaPipe corner
+    vertices on dlib's corners."""
+    from facetex.persona.driver import _DLIB_CORNERS, _MESH_CORNERS
+
+    rng = np.random.default_rng(0)
+    w = rng.dirichlet(np.ones(68), size=468)
+    m = np.c_[w @ points68, np.zeros(468)]
+    m[list(_MESH_CORNERS), :2] = points68[list(_DLIB_CORNERS)]
+    return m
+
+
+def test_face_rejection_of_partial_and_inconsistent_faces():
+    from facetex.persona.driver import face_rejection
+
+    p = _generic68(60.0)  # face around x, y = 200 in a 400 x 400 frame
+    assert face_rejection(p, _mesh_at(p), (400, 400)) == ""
+    shifted = p - [p[:, 0].mean(), 0]  # the face centre on the left border: half out
+    assert face_rejection(shifted, _mesh_at(shifted), (400, 400)) == "partly outside the frame"
+    assert face_rejection(p, _mesh_at(p), (230, 400)) == "partly outside the frame"
+    m = _mesh_at(p)
+    m[:, 0] += 0.25 * 60.0  # the mesh a quarter eye distance away from the landmarks
+    assert face_rejection(p, m, (400, 400)) == "landmarks disagree"
+
+
+def test_implausible_shapes_flags_a_squashed_face():
+    from facetex.persona.driver import implausible_shapes
+
+    rng = np.random.default_rng(1)
+    p = _generic68(60.0)
+    frames = np.array([p + rng.normal(scale=0.6, size=p.shape) for _ in range(12)])
+    frames[5, :, 1] = p[:, 1].mean() + 0.6 * (p[:, 1] - p[:, 1].mean())  # squashed vertically
+    found = np.ones(12, bool)
+    found[9] = False
+    bad = implausible_shapes(frames, found)
+    assert bad.tolist() == [i == 5 for i in range(12)]
+
+
+def test_track_rejects_a_face_slid_half_out_of_the_frame(tmp_path):
+    """A face sliding out of the frame sideways: whole ones kept; once a fifth of it is outside,
+    lost. Without the checks the trackers return squashed landmarks inside the frame there."""
+    import cv2
+
+    from facetex._resources import sample_path
+    from facetex.io import read_image
+
+    img = cv2.resize(read_image(sample_path("frl_004_neutral.jpg")), (240, 240), interpolation=cv2.INTER_AREA)
+    shifts = [0, 0, 0, -20, -40, -60, -80, -100, -120]
+    frames = [cv2.warpAffine(img, np.float32([[1, 0, dx], [0, 1, 0]]), (240, 240), borderMode=cv2.BORDER_REPLICATE)
+              for dx in shifts]
+    path = tmp_path / "sliding.mp4"
+    write_video(path, frames, fps=10)
+    tr = track_driver(path)
+    assert tr.found[:3].all()
+    width = np.ptp(tr.points68[0, :, 0])
+    left = tr.points68[0, :, 0].min()
+    for i, dx in enumerate(shifts):
+        if left + dx < -0.2 * width:  # a fifth of the face outside
+            assert not tr.found[i], i
+        if tr.found[i]:  # never a squashed face
+            assert abs(np.ptp(tr.points68[i, :, 0]) - width) < 0.12 * width, i
+    assert "partly outside the frame" in tr.lost_causes
+    assert sum(tr.lost_causes.values()) == tr.n_lost

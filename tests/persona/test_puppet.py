@@ -80,7 +80,8 @@ def puppet_run(driver_video, tiny_persona, tmp_path_factory):
     out = tmp_path_factory.mktemp("out") / "puppet.mp4"
     records = []
     report = puppeteer(driver_video, tiny_persona, out, size=160, side_by_side=True,
-                       on_frame=lambda r: records.append({k: r[k] for k in ("index", "puppet", "alpha", "lost")}))
+                       on_frame=lambda r: records.append({k: r[k] for k in ("index", "driver", "puppet", "alpha",
+                                                                            "lost")}))
     return out, report, records
 
 
@@ -92,13 +93,17 @@ def test_output_video_frames_and_size(puppet_run):
     assert (info["width"], info["height"]) == (2 * 160, 160)  # side by side, square driver
 
 
-def test_lost_frames_counted_and_filled(puppet_run):
+def test_lost_frames_counted_and_show_the_driver(puppet_run):
     _, report, records = puppet_run
     assert report["lost_frames"] == N_BLANK
     assert report["lost_indices"] == list(range(N_MORPH, N_MORPH + N_BLANK))
-    # filled frames still show a rendered puppet face
+    assert report["lost_causes"] == {"no face": N_BLANK}
     for r in records:
-        assert r["alpha"].max() > 0.9, r["index"]
+        if r["lost"]:  # the driver's own frame, no puppet
+            assert r["alpha"].max() == 0.0
+            np.testing.assert_array_equal(r["puppet"], r["driver"])
+        else:
+            assert r["alpha"].max() > 0.9, r["index"]
 
 
 def test_puppet_face_is_rendered_over_the_driver(puppet_run):
@@ -108,6 +113,67 @@ def test_puppet_face_is_rendered_over_the_driver(puppet_run):
     # the face covers a plausible part of the 160 px panel around its centre
     assert 0.05 < (alpha > 0.5).mean() < 0.6
     assert 40 < xs.mean() < 120 and 40 < ys.mean() < 130
+
+
+@pytest.fixture(scope="module")
+def session(driver_video, tiny_persona):
+    from facetex.persona.puppet import prepare_puppetry
+
+    return prepare_puppetry(driver_video, tiny_persona)
+
+
+def test_composite_never_leaves_the_drivers_face_outline(session):
+    """No halo: the puppet is drawn only inside the driver's own face outline."""
+    from facetex.persona.composite import FACE_OVAL, polygon_mask
+    from facetex.persona.puppet import render_frames
+
+    scale = 160 / session.track.frame_size[0]
+    for r in render_frames(session, size=160, max_frames=N_MORPH):
+        i = r["index"]
+        if r["lost"]:
+            continue
+        oval = (session.track.mesh[i][list(FACE_OVAL), :2] + 0.5) * scale - 0.5
+        outline = polygon_mask(oval, r["alpha"].shape) > 0
+        assert r["alpha"][~outline].max() == 0.0, i
+        np.testing.assert_array_equal(r["puppet"][~outline], r["driver"][~outline])
+
+
+def test_open_mouth_shows_the_drivers_mouth_interior(session):
+    from dataclasses import replace
+
+    from facetex.persona.composite import polygon_mask
+    from facetex.persona.puppet import render_frames
+
+    recs = {r["index"]: r for r in render_frames(session, size=160, keep=True)}
+    pup = session.puppeteer
+    scale = 160 / session.track.frame_size[0]
+    i = N_MORPH - 1  # smiling, lips apart
+    r = recs[i]
+    lips = pup.lips(i, r["grid"], scale)
+    inside = polygon_mask(lips, r["alpha"].shape) > 0.5
+    assert inside.sum() > 5  # the puppet's lips are open
+    saved = pup.params
+    try:
+        pup.params = replace(saved, composite=replace(saved.composite, mouth=False))
+        without = pup.render(i, r["grid"], r["texture"], r["driver"], scale)[0]
+    finally:
+        pup.params = saved
+    diff = np.abs(r["puppet"] - without).max(axis=2)
+    assert diff[inside].mean() > 0.02  # the interior replaced the stretched lip texture
+    ring = (polygon_mask(lips * 1.0, r["alpha"].shape, samples=1) == 0)
+    assert diff[ring].mean() < 0.1 * diff[inside].mean()  # and nothing else
+
+
+def test_face_mode_draws_the_puppet_alone(session):
+    from facetex.persona.puppet import render_frames
+
+    plain = np.asarray(session.puppeteer.params.plain, np.float32)
+    for r in render_frames(session, size=160, mode="face", max_frames=3):
+        bg = r["alpha"] == 0
+        assert 0.05 < (~bg).mean() < 0.6
+        np.testing.assert_allclose(r["puppet"][bg], np.broadcast_to(plain, r["puppet"][bg].shape))
+        edge = (r["alpha"] > 0) & (r["alpha"] < 1)
+        assert edge.sum() > 20  # anti-aliased silhouette
 
 
 def test_no_face_video_raises_and_writes_nothing(tmp_path, tiny_persona):
@@ -143,10 +209,14 @@ def test_cli_puppet(tmp_path, driver_video, tiny_persona, capsys):
     persona_file = tiny_persona.save(tmp_path / "tiny.persona")
     out = tmp_path / "cli.mp4"
     code = main(["puppet", "--driver", str(driver_video), "--puppet", str(persona_file), "-o", str(out),
-                 "--max-frames", "3", "--size", "96", "--background", "plain", "--json"])
+                 "--max-frames", "3", "--size", "96", "--mode", "face", "--json"])
     assert code == 0 and out.is_file()
     assert video_info(out)["n_frames"] == 3
     assert '"lost_frames": 0' in capsys.readouterr().out
+    sh = tmp_path / "sh.mp4"  # composite with the spherical-harmonics lighting transfer
+    assert main(["puppet", "--driver", str(driver_video), "--puppet", str(persona_file), "-o", str(sh),
+                 "--max-frames", "2", "--size", "96", "--lighting", "sh"]) == 0
+    assert video_info(sh)["n_frames"] == 2
     # existing output without --overwrite, and a video without faces: one-line errors, non-zero exit
     assert main(["puppet", "--driver", str(driver_video), "--puppet", str(persona_file), "-o", str(out)]) != 0
     blank = tmp_path / "blank.mp4"
@@ -194,3 +264,27 @@ def test_texture_precomputation_does_not_depend_on_threads(tiny_persona, monkeyp
         results.append((prep.aligned, prep.pyr[0], prep.pyr[-1], prep._stage["b"]))
     for a, b in zip(*results):
         np.testing.assert_array_equal(a, b)
+
+
+def test_puppet_lips_open_and_close_with_the_drivers(driver_video, tiny_persona):
+    """The puppet's inner-lip gap (its mesh, canonical px) follows the driver's landmark gap scaled
+    by the ratio of eye distances, around the same mean (rest motion): slope ~1, not ~0.4.
+    (The half-size test persona's lips are ~2 px apart: a 1 px grid resolves them as the default
+    2 px grid resolves a full-size persona's.)"""
+    from facetex.persona.driver import DriverParams
+    from facetex.persona.puppet import PuppetParams, prepare_puppetry
+
+    session = prepare_puppetry(driver_video, tiny_persona, params=PuppetParams(driver=DriverParams(grid_step=1)))
+    pup, m = session.puppeteer, session.motion
+    k = pup.lip_scale
+    pairs = ((61, 67), (62, 66), (63, 65))
+
+    def gap(points):
+        return np.mean([np.linalg.norm(points[b] - points[a]) for a, b in pairs])
+
+    frames = np.flatnonzero(m.found)
+    drv = np.array([k * gap(m.fiducials68[i]) for i in frames])
+    pp = np.array([gap(pup._sample_grid(pup.grid(i), pup.mean68)[:, :2]) for i in frames])
+    assert drv.std() > 0.5  # the driver does open its mouth
+    assert np.polyfit(drv, pp, 1)[0] == pytest.approx(1.0, abs=0.1)
+    assert pp.mean() == pytest.approx(drv.mean(), abs=0.15 * drv.std() + 0.3)

@@ -7,7 +7,7 @@ import pytest
 from facetex.errors import BadInputError
 from facetex.geometry._generic_face import canonical_frame, canonical_surface, load_generic_face
 from facetex.geometry.frontalize import rotation_from_angles
-from facetex.persona.render import rasterize, render_mesh
+from facetex.persona.render import rasterize, render_layers, render_mesh, vertex_normals
 
 W, H = 64, 48
 CX, CY = (W - 1) / 2, (H - 1) / 2
@@ -105,3 +105,58 @@ def test_rejects_bad_input():
                     translation=(0, 0, 1))
     with pytest.raises(BadInputError):
         render_mesh(np.zeros((3, 3)), [[0, 1, 2]], np.zeros((2, 2)), _solid([1, 1, 1]), focal=1, size=(8, 8))
+
+
+# ----------------------------------------------------------------------------- render_layers
+def _pixel_triangle(tri):
+    """Vertices whose render_layers projection (rotation I, translation 0) is ``tri`` in pixels."""
+    t = np.asarray(tri, float)
+    return np.c_[t, np.zeros(len(t))]
+
+
+def test_layers_coverage_is_antialiased_and_sums_to_the_area():
+    tri = np.array([[6.3, 4.1], [55.7, 12.2], [17.2, 42.9]])
+    e1, e2 = tri[1] - tri[0], tri[2] - tri[0]
+    area = 0.5 * abs(e1[0] * e2[1] - e1[1] * e2[0])
+    tex = _solid([0.2, 0.4, 0.8])
+    kw = dict(rotation=np.eye(3), translation=(0, 0, 0), size=(W, H), normals=False, prefilter=False)
+    hard = render_layers(_pixel_triangle(tri), [[0, 1, 2]], np.full((3, 2), 0.5), tex, supersample=1, **kw)
+    soft = render_layers(_pixel_triangle(tri), [[0, 1, 2]], np.full((3, 2), 0.5), tex, supersample=4, **kw)
+    assert set(np.unique(hard.coverage)) <= {0.0, 1.0}
+    edge = (soft.coverage > 0) & (soft.coverage < 1)
+    assert edge.sum() > 40  # fractional coverage along all three edges instead of stair steps
+    assert soft.coverage.sum() == pytest.approx(area, rel=0.02)
+    # straight colours where covered, even on the edge pixels
+    np.testing.assert_allclose(soft.image[soft.coverage > 0.05], [[0.2, 0.4, 0.8]] * int((soft.coverage > 0.05).sum()),
+                               atol=1e-5)
+    y0, y1, x0, x1 = soft.box
+    assert soft.coverage[:y0].sum() == soft.coverage[y1:].sum() == 0 and x0 <= 6 and x1 >= 56
+
+
+def test_layers_normals_of_a_tilted_plane():
+    corners = np.array([[-0.5, -0.5], [W - 0.5, -0.5], [W - 0.5, H - 0.5], [-0.5, H - 0.5]])
+    v = _pixel_triangle(corners)
+    v[:, 2] = 0.5 * v[:, 0]  # z grows to the right: the plane faces left-ish, towards the camera
+    faces = [[0, 3, 1], [1, 3, 2]]
+    lay = render_layers(v, faces, np.zeros((4, 2)), _solid([1, 1, 1]), rotation=np.eye(3), translation=(0, 0, 0),
+                        size=(W, H), supersample=2)
+    n = lay.normals[10:-10, 10:-10].reshape(-1, 3)
+    want = np.array([0.5, 0.0, -1.0]) / np.sqrt(1.25)
+    if n[0] @ want < 0:  # the sign follows the faces' winding
+        want = -want
+    np.testing.assert_allclose(n, np.broadcast_to(want, n.shape), atol=1e-5)
+    np.testing.assert_allclose(vertex_normals(v, faces), np.broadcast_to(want, (4, 3)), atol=1e-9)
+
+
+def test_layers_prefilter_removes_aliasing_of_a_minified_texture():
+    # a 1-texel checkerboard shown 4x smaller aliases into a coarse pattern unless low-passed first
+    tex = np.indices((128, 128)).sum(axis=0) % 2
+    tex = np.repeat(tex[..., None], 3, axis=2).astype(np.float32)
+    corners = np.array([[0, 0], [29.3, 0], [29.3, 29.3], [0, 29.3]], float)
+    uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
+    kw = dict(rotation=np.eye(3), translation=(8, 8, 0), size=(48, 48), supersample=1, normals=False)
+    sharp = render_layers(_pixel_triangle(corners), [[0, 3, 1], [1, 3, 2]], uv, tex, prefilter=False, **kw)
+    smooth = render_layers(_pixel_triangle(corners), [[0, 3, 1], [1, 3, 2]], uv, tex, prefilter=True, **kw)
+    inner = (slice(12, 34), slice(12, 34))
+    assert smooth.image[inner].std() < 0.05 < sharp.image[inner].std()
+    assert smooth.image[inner].mean() == pytest.approx(0.5, abs=0.03)

@@ -17,7 +17,7 @@ from facetex.report import compare_rows, load_run, metrics_figure, zoom_panel
 def test_load_bench_transfer_run(runs):
     run = load_run(runs[0])
     assert run.kind == "bench transfer" and len(run.items) == 3
-    assert run.methods == ["gatys", "mrf", "facetex"]
+    assert run.methods == ["none", "gatys", "mrf", "facetex"]  # "none": the content, a baseline
     it = run.items[0]
     assert list(it.images)[:2] == ["style", "content"] and set(it.images) >= {"gatys", "mrf", "facetex"}
     assert {"E_content", "S_style", "time_s"} <= set(run.metric_names)

@@ -79,3 +79,44 @@ def test_partly_decodable_driver_warns_and_works(capsys, videos, outdir, persona
     assert warnings and all(path.name in w and "damaged" in w for w in warnings)
     assert sorted(p.name for p in outdir.iterdir()) == ["o.mp4", "o.mp4.json"]  # no temp file; the sidecar
     assert video_info(outdir / "o.mp4")["n_frames"] == 2
+
+
+@pytest.fixture(scope="module")
+def sliding(tmp_path_factory):
+    """Driver videos whose face is half outside the frame: always, and in the last frames only."""
+    import cv2
+
+    from _robust import FACE
+
+    from facetex.io import read_image, write_video
+
+    img = cv2.resize(read_image(FACE), (240, 240), interpolation=cv2.INTER_AREA)
+
+    def shifted(dx):
+        return cv2.warpAffine(img, np.float32([[1, 0, dx], [0, 1, 0]]), (240, 240), borderMode=cv2.BORDER_REPLICATE)
+
+    d = tmp_path_factory.mktemp("sliding")
+    write_video(d / "half_out.mp4", [shifted(-120)] * 4, 10)
+    write_video(d / "leaves.mp4", [img] * 4 + [shifted(-120)] * 3, 10)
+    return d
+
+
+def test_face_always_half_outside_the_frame(capsys, sliding, outdir, persona_file):
+    path = sliding / "half_out.mp4"
+    run = run_cli(capsys, "puppet", "--driver", path, "--puppet", persona_file, "-o", outdir / "o.mp4", "--size", "96")
+    assert_one_error(run, names=[path], cause=r"no usable face|no face")
+    assert snapshot(outdir) == {}
+
+
+def test_face_leaving_the_frame_is_reported_lost(capsys, sliding, outdir, persona_file):
+    import json
+
+    path = sliding / "leaves.mp4"
+    run = run_cli(capsys, "puppet", "--driver", path, "--puppet", persona_file, "-o", outdir / "o.mp4", "--size", "96",
+                  "--json")
+    assert run.code == 0, run.err
+    report = json.loads(run.out)
+    assert report["lost_indices"] == [4, 5, 6]
+    assert sum(report["lost_causes"].values()) == 3
+    assert any("lost in 3 of 7 frames" in l and path.name in l for l in run.lines), run.lines
+    assert sorted(p.name for p in outdir.iterdir()) == ["o.mp4", "o.mp4.json"]

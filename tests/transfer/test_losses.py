@@ -132,6 +132,29 @@ def test_mrf_gradient_flows_only_to_target_and_equals_brute_force():
     assert mrf_loss(t, s, reduction="mean").item() == pytest.approx(loss.item() / (7 * 8))
 
 
+def test_mrf_target_weight_equals_brute_force_weighted_sum():
+    """Σ_i Σ_{p∈i} w(p)·‖x(p) − S_nn(i)(p)‖², and patches with no weight are not matched."""
+    g = torch.Generator().manual_seed(5)
+    t = torch.randn(4, 9, 11, generator=g, dtype=D64)
+    s = torch.randn(4, 10, 9, generator=g, dtype=D64)
+    w = torch.zeros(9, 11, dtype=D64)
+    w[2:6, 3:9] = torch.rand(4, 6, generator=g, dtype=D64) + 0.1
+    nn, _ = _brute_force(t, s)
+    c, k = 4, 3
+    sp = extract_patches(s, k, 2)
+    tp = extract_patches(t, k, 1)
+    wp = extract_patches(w[None], k, 1)[:, 0]  # (N_t, k, k) weights under each target patch
+    want = ((tp - sp[nn]).square().sum(1) * wp).sum()
+    assert mrf_loss(t, s, target_weight=w).item() == pytest.approx(want.item(), rel=1e-10)
+    assert mrf_loss(t, s, target_weight=torch.ones(9, 11, dtype=D64)).item() == pytest.approx(
+        mrf_loss(t, s).item(), rel=1e-12)
+    tt = t.clone().requires_grad_(True)
+    mrf_loss(tt, s, target_weight=w).backward()
+    assert tt.grad[:, w == 0].abs().max() == 0 and tt.grad[:, w > 0].abs().max() > 0
+    with pytest.raises(BadInputError):
+        mrf_loss(t, s, target_weight=torch.ones(5, 5, dtype=D64))
+
+
 def test_mrf_reference_is_coverage_weighted_half_sum():
     g = torch.Generator().manual_seed(3)
     t, s = torch.randn(3, 8, 9, generator=g, dtype=D64).relu(), torch.randn(3, 9, 9, generator=g, dtype=D64).relu()

@@ -1,0 +1,453 @@
+"""Putting a rendered puppet face into the driver's frame (Tom Hanks §6, beyond the paper).
+
+The paper shows its puppets alone (Figs. 8-9). A puppet composited over the driver's video
+looks pasted on unless its colour, lighting and outline come from the frame it sits in:
+
+* **mask**: the driver's own face outline (MediaPipe's face-oval vertices of the frame's
+  tracked mesh), intersected with the rendered puppet and feathered *inwards* only, so no
+  puppet pixel lands on the driver's background or hair (no halo);
+* **lighting** (optional, ``lighting="sh"``): first-order spherical harmonics
+  (Y = [1, n_x, n_y, n_z]; Basri & Jacobs 2003, Ramamoorthi & Hanrahan 2001) fitted to the
+  linear-light luminance of the driver's skin (with the driver's own tracked mesh normals) and
+  of the rendered puppet (with the normals of the puppet's average shape); the puppet is
+  multiplied by the ratio of the two shadings. Not the default: on GRID's frontally lit clips
+  the ratio mostly turned the albedo baked into the persona's average texture (stubble, lips,
+  the collection's top light) into a beard-like darkening around the mouth;
+* **colour statistics** (default): the mean (optionally the spread) of the puppet's skin in
+  CIELAB set to the driver's (Reinhard et al. 2001);
+* **gradient-domain blending**: the puppet's gradients with the driver's values on the mask
+  border (Pérez et al. 2003, OpenCV's ``seamlessClone``), so the colour is continuous across
+  the border;
+* **mouth interior**: the driver's own mouth interior (teeth, tongue, dark cavity), warped by
+  the map between the two mouths' axes (corner line and lip opening), drawn inside the
+  puppet's inner lips while the driver's lips are apart.
+
+Plus the measure of the result: :func:`boundary_color_step` (ΔE between bands just inside and
+just outside the mask edge).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..errors import BadInputError
+
+__all__ = [
+    "FACE_OVAL",
+    "polygon_mask",
+    "inner_feather",
+    "feature_mask",
+    "srgb_to_linear",
+    "linear_to_srgb",
+    "sh_basis",
+    "fit_sh_lighting",
+    "sh_shading",
+    "relight",
+    "match_color_statistics",
+    "poisson_blend",
+    "mouth_interior",
+    "boundary_color_step",
+    "CompositeParams",
+    "composite_face",
+]
+
+#: MediaPipe 468-mesh vertices on the face outline (forehead top, temples, jaw, chin), in order.
+FACE_OVAL = (10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365, 379, 378, 400, 377, 152,
+             148, 176, 149, 150, 136, 172, 58, 132, 93, 234, 127, 162, 21, 54, 103, 67, 109)
+#: iBUG-68 inner-lip contour, in order (left corner, upper lip, right corner, lower lip).
+INNER_LIPS = (60, 61, 62, 63, 64, 65, 66, 67)
+
+_SHIFT = 4  # sub-pixel bits of cv2 polygon filling
+_LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)  # linear-light luminance (Rec. 709)
+
+
+def _shape2(shape) -> tuple[int, int]:
+    h, w = (int(v) for v in shape[:2])
+    return h, w
+
+
+def polygon_mask(points, shape, *, samples: int = 8) -> np.ndarray:
+    """Anti-aliased coverage (H, W) float32 in [0, 1] of the polygon ``points`` (N, 2) x, y
+    (pixel centres at integers): the fraction of ``samples`` x ``samples`` sub-pixel sample
+    points it covers (cv2.fillPoly on the fine grid, which also counts samples its edges touch:
+    the polygon grows by ~0.5 / ``samples`` px; its own LINE_AA grows it by ~0.5 px)."""
+    h, w = _shape2(shape)
+    p = np.asarray(points, np.float64)
+    out = np.zeros((h, w), np.float32)
+    if len(p) < 3 or not np.isfinite(p).all():
+        return out
+    x0, y0 = max(0, int(np.floor(p[:, 0].min()))), max(0, int(np.floor(p[:, 1].min())))
+    x1, y1 = min(w, int(np.ceil(p[:, 0].max())) + 1), min(h, int(np.ceil(p[:, 1].max())) + 1)
+    if x1 <= x0 or y1 <= y0:
+        return out
+    k = max(1, int(samples))
+    # sample (j, i) of the fine grid sits at ((j + 0.5) / k - 0.5, ...) in box pixels
+    q = (p - [x0, y0] + 0.5) * k - 0.5
+    fine = np.zeros(((y1 - y0) * k, (x1 - x0) * k), np.uint8)
+    cv2.fillPoly(fine, [np.round(q * (1 << _SHIFT)).astype(np.int32)], 255, cv2.LINE_8, _SHIFT)
+    out[y0:y1, x0:x1] = cv2.resize(fine, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA).astype(np.float32) / 255
+    return out
+
+
+def inner_feather(mask, width: float) -> np.ndarray:
+    """Alpha (H, W) float32 rising from 0 at the border of the bool ``mask`` to 1 at ``width``
+    px inside it (smoothstep of the distance); 0 outside: the feather never leaves the mask."""
+    m = np.asarray(mask, bool)
+    if width <= 0:
+        return m.astype(np.float32)
+    d = cv2.distanceTransform(np.pad(m, 1).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
+    t = np.clip((d - 0.5) / float(width), 0.0, 1.0)
+    return (t * t * (3 - 2 * t)).astype(np.float32)
+
+
+def feature_mask(points68, shape, *, dilate: float = 0.06) -> np.ndarray:
+    """bool (H, W): eyes, brows and lips of the iBUG-68 ``points68`` (frame px), each polygon
+    dilated by ``dilate`` x the outer eye-corner distance: the pixels that are not skin."""
+    p = np.asarray(points68, np.float64)
+    h, w = _shape2(shape)
+    m = np.zeros((h, w), np.float32)
+    for idx in (range(36, 42), range(42, 48), range(48, 60)):
+        m = np.maximum(m, polygon_mask(p[list(idx)], (h, w)))
+    for idx in (range(17, 22), range(22, 27)):  # brows: a band from the brow to its mirrored lower edge
+        b = p[list(idx)]
+        m = np.maximum(m, polygon_mask(np.r_[b, b[::-1] + [0, 0.08 * np.ptp(p[:, 1])]], (h, w)))
+    iod = float(np.linalg.norm(p[36] - p[45]))
+    k = max(1, int(round(dilate * iod)))
+    return cv2.dilate((m > 0.5).astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1,) * 2)) > 0
+
+
+# ----------------------------------------------------------------------------- lighting
+def srgb_to_linear(x):
+    """sRGB-encoded [0, 1] -> linear light (IEC 61966-2-1)."""
+    x = np.asarray(x, np.float32)
+    return np.where(x <= 0.04045, x / 12.92, ((np.maximum(x, 0.04045) + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def linear_to_srgb(x):
+    """Linear light -> sRGB-encoded [0, 1] (clipped)."""
+    x = np.clip(np.asarray(x, np.float32), 0, 1)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.maximum(x, 0.0031308) ** (1 / 2.4) - 0.055).astype(np.float32)
+
+
+def sh_basis(normals) -> np.ndarray:
+    """First-order spherical-harmonics basis [1, n_x, n_y, n_z] (..., 4) of unit normals (..., 3)
+    (the constant factors of Y_00 and Y_1m are folded into the lighting coefficients)."""
+    n = np.asarray(normals, np.float32)
+    return np.concatenate([np.ones(n.shape[:-1] + (1,), np.float32), n], axis=-1)
+
+
+def fit_sh_lighting(image, normals, mask, *, iters: int = 4, ridge: float = 1e-3) -> np.ndarray:
+    """(4, C) first-order SH lighting of ``image`` (H, W, C) (linear light, constant albedo
+    folded in) from unit ``normals`` (H, W, 3) over the bool ``mask``: per channel
+    I ≈ Y(n) · l, fitted by iteratively reweighted least squares (Cauchy weights, scale
+    2.2 x the median absolute residual) so that eyebrows, stubble, highlights and cast shadows
+    count little. ``ridge`` damps the three directional terms (a frontal face's n_z is almost
+    constant)."""
+    img = np.asarray(image, np.float32)
+    m = np.asarray(mask, bool)
+    if img.ndim != 3 or normals.shape[:2] != img.shape[:2] or m.shape != img.shape[:2]:
+        raise BadInputError(f"image {img.shape}, normals {np.shape(normals)} and mask {m.shape} must share (H, W)")
+    C = img.shape[2]
+    if m.sum() < 8:
+        out = np.zeros((4, C), np.float32)
+        out[0] = img[m].mean(axis=0) if m.any() else 0.5
+        return out
+    Y = sh_basis(normals[m]).astype(np.float64)
+    v = img[m].astype(np.float64)
+    w = np.ones(len(Y))
+    reg = np.diag([0.0, ridge, ridge, ridge]) * len(Y)
+    coef = np.zeros((4, C))
+    for _ in range(max(1, iters)):
+        Yw = Y * w[:, None]
+        coef = np.linalg.solve(Yw.T @ Y + reg * w.mean(), Yw.T @ v)
+        r = np.abs(v - Y @ coef).mean(axis=1)
+        s = 2.2 * max(float(np.median(r)), 1e-4)
+        w = 1.0 / (1.0 + (r / s) ** 2)
+    return coef.astype(np.float32)
+
+
+def sh_shading(normals, coeffs) -> np.ndarray:
+    """Shading (..., C) = Y(n) · l of normals (..., 3) under SH lighting ``coeffs`` (4, C)."""
+    return sh_basis(normals) @ np.asarray(coeffs, np.float32)
+
+
+def relight(image, normals, src_light, dst_light, *, limits=(0.5, 2.0), floor: float = 0.25) -> np.ndarray:
+    """``image`` (linear light) lit by ``src_light`` re-lit by ``dst_light``: multiplied per
+    channel by the shading ratio Y(n)·l_dst / Y(n)·l_src (clipped to ``limits``; the source
+    shading is floored at ``floor`` x its lighting's constant term, where a normal facing away
+    from the light would make the ratio explode)."""
+    src = np.asarray(src_light, np.float32)
+    s0 = sh_shading(normals, src)
+    s1 = sh_shading(normals, dst_light)
+    ratio = np.clip(s1 / np.maximum(s0, floor * np.maximum(src[0], 1e-4)), *limits)
+    return (np.asarray(image, np.float32) * ratio).astype(np.float32)
+
+
+# ----------------------------------------------------------------------------- colour statistics
+def _lab(rgb):
+    return cv2.cvtColor(np.clip(np.asarray(rgb, np.float32), 0, 1), cv2.COLOR_RGB2Lab)
+
+
+def _rgb(lab):
+    return np.clip(cv2.cvtColor(np.asarray(lab, np.float32), cv2.COLOR_Lab2RGB), 0, 1)
+
+
+def match_color_statistics(src, ref, src_mask, ref_mask=None, *, std: bool = False,
+                           max_gain: float = 2.0) -> np.ndarray:
+    """``src`` (H, W, 3) sRGB with its CIELAB mean over ``src_mask`` moved to ``ref``'s mean over
+    ``ref_mask`` (default the same mask) and, with ``std``, its per-channel spread scaled to
+    ``ref``'s (gain clipped to [1/max_gain, max_gain]) (Reinhard et al. 2001, in CIELAB rather
+    than lαβ). Applied to the whole image; returns sRGB float32 (clipped to [0, 1])."""
+    sm = np.asarray(src_mask, bool)
+    rm = sm if ref_mask is None else np.asarray(ref_mask, bool)
+    if not sm.any() or not rm.any():
+        return np.asarray(src, np.float32).copy()
+    a, b = _lab(src), _lab(ref)
+    mu_a, mu_b = a[sm].mean(axis=0), b[rm].mean(axis=0)
+    if std:
+        g = np.clip(b[rm].std(axis=0) / np.maximum(a[sm].std(axis=0), 1e-6), 1 / max_gain, max_gain)
+    else:
+        g = np.ones(3, np.float32)
+    lab = (a - mu_a) * g + mu_b
+    out = _rgb(lab)
+    for _ in range(2):  # OpenCV's float Lab <-> RGB round trip is good to ~0.1 L: re-centre on it
+        lab = lab + (mu_b - _lab(out)[sm].mean(axis=0))
+        out = _rgb(lab)
+    return out
+
+
+# ----------------------------------------------------------------------------- blending
+def poisson_blend(src, dst, mask, *, pad: int = 4) -> np.ndarray:
+    """Gradient-domain composite (Pérez et al. 2003, "normal clone"): inside the bool ``mask``
+    the result has ``src``'s gradients and agrees with ``dst`` on the mask's border; outside it
+    is ``dst``. ``src``, ``dst`` (H, W, 3) float [0, 1] of the same size, aligned. OpenCV's
+    ``seamlessClone`` (8-bit) solves the Poisson equation; its correction is added to the float
+    ``src``, so only the smooth membrane is quantized."""
+    s = np.asarray(src, np.float32)
+    d = np.asarray(dst, np.float32)
+    m = np.asarray(mask, bool)
+    if s.shape != d.shape or m.shape != s.shape[:2]:
+        raise BadInputError(f"src {s.shape}, dst {d.shape} and mask {m.shape} must have the same size")
+    out = d.copy()
+    if m.sum() < 4:
+        return out
+    ys, xs = np.nonzero(m)
+    # work on the mask's bounding box plus a margin (seamlessClone needs the mask off the border)
+    y0, y1 = max(0, ys.min() - pad), min(m.shape[0], ys.max() + pad + 1)
+    x0, x1 = max(0, xs.min() - pad), min(m.shape[1], xs.max() + pad + 1)
+    sc, dc, mc = s[y0:y1, x0:x1], d[y0:y1, x0:x1], m[y0:y1, x0:x1]
+    sc, dc, mc = (np.pad(a, ((pad, pad), (pad, pad)) + ((0, 0),) * (a.ndim - 2), mode="edge") for a in (sc, dc, mc))
+    mc[:pad] = mc[-pad:] = False
+    mc[:, :pad] = mc[:, -pad:] = False
+    s8 = np.clip(np.round(sc * 255), 0, 255).astype(np.uint8)
+    d8 = np.clip(np.round(dc * 255), 0, 255).astype(np.uint8)
+    m8 = mc.astype(np.uint8) * 255
+    # seamlessClone centres the mask's bounding box on ``p``: the box's own centre keeps it in place
+    bx, by, bw, bh = cv2.boundingRect(m8)
+    clone = cv2.seamlessClone(s8, d8, m8, (bx + bw // 2, by + bh // 2), cv2.NORMAL_CLONE)
+    corr = (clone.astype(np.float32) - s8.astype(np.float32)) / 255.0
+    corr = cv2.GaussianBlur(corr, (0, 0), 1.0)  # the membrane is smooth: remove the 8-bit rounding
+    res = np.where(mc[..., None], np.clip(sc + corr, 0, 1), dc)[pad:-pad, pad:-pad]
+    out[y0:y1, x0:x1] = res
+    return out
+
+
+def _mouth_frame(lips: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """(centre, rotation (2, 2) whose rows are the mouth's u (corner to corner) and v axes,
+    width, opening) of an inner-lip contour 60-67 (8, 2)."""
+    c = lips.mean(axis=0)
+    u = lips[4] - lips[0]
+    width = float(np.linalg.norm(u))
+    u = u / max(width, 1e-9)
+    R = np.array([u, [-u[1], u[0]]])
+    gap = float(np.mean([np.linalg.norm(lips[a] - lips[b]) for a, b in ((1, 7), (2, 6), (3, 5))]))
+    return c, R, width, gap
+
+
+def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float = 0.85,
+                   closed: float = 0.04) -> tuple[np.ndarray, np.ndarray]:
+    """The driver's mouth interior moved into the puppet's mouth: (image (H, W, 3), alpha (H, W)).
+
+    ``driver_lips``, ``puppet_lips`` (8, 2): iBUG inner-lip points 60-67 in ``frame`` px (driver)
+    and output px (puppet). The driver's frame is warped by the map that takes the puppet's
+    mouth axes onto the driver's: rotation and translation of the corner line, its length ratio
+    along it and the ratio of the lip openings across it (a least-squares affine map is
+    unstable when the lips nearly close), both times ``inset`` (< 1: the polygon's edge samples
+    the driver's interior, not its lips). Alpha: the anti-aliased puppet polygon, faded out as the
+    driver's lip gap falls from 2 x ``closed`` to ``closed`` times its mouth width."""
+    f = np.asarray(frame, np.float32)
+    h, w = _shape2(f.shape if shape is None else shape)
+    dp = np.asarray(driver_lips, np.float64)
+    pp = np.asarray(puppet_lips, np.float64)
+    if dp.shape != (8, 2) or pp.shape != (8, 2):
+        raise BadInputError(f"inner lips must be (8, 2) points 60-67, got {dp.shape} and {pp.shape}")
+    if not (np.isfinite(dp).all() and np.isfinite(pp).all()):
+        return np.zeros((h, w, 3), np.float32), np.zeros((h, w), np.float32)
+    cd, Rd, wd, gd = _mouth_frame(dp)
+    cp, Rp, wp, gp = _mouth_frame(pp)
+    # closed driver lips have no interior to show (their sliver would draw a red line): fade out
+    t = float(np.clip((gd / max(wd, 1e-6) - closed) / closed, 0.0, 1.0))
+    alpha = polygon_mask(pp, (h, w)) * (t * t * (3 - 2 * t))
+    if alpha.max() <= 0:
+        return np.zeros((h, w, 3), np.float32), alpha
+    floor = 0.05 * max(wp, 1.0)
+    # the puppet's polygon is mapped onto a slightly smaller one inside the driver's lips, so
+    # that its anti-aliased edge samples the interior, not the driver's lip colour
+    su = inset * wd / max(wp, 1e-6)
+    sv = inset * float(np.clip(max(gd, 0.05 * max(wd, 1.0)) / max(gp, floor), 0.2, 5.0))
+    L = Rd.T @ np.diag([su, sv]) @ Rp  # puppet px -> driver px (linear part)
+    M = np.c_[L, cd - L @ cp]
+    img = cv2.warpAffine(f, M, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+    return img, alpha
+
+
+# ----------------------------------------------------------------------------- measure
+def boundary_color_step(image, mask, *, band: float = 3.0, gap: float = 1.0, sectors: int = 16,
+                        min_pixels: int = 3) -> tuple[float, np.ndarray]:
+    """Colour step across the edge of the bool ``mask`` on ``image`` (H, W, 3) sRGB [0, 1]:
+    the CIE76 ΔE (CIELAB) between the mean colours of the band just inside the edge
+    (``gap`` < distance <= ``gap + band`` px) and the band just outside, taken separately in
+    ``sectors`` angular sectors around the mask's centroid (a global mean would let a too-bright
+    forehead cancel a too-dark jaw). Returns (mean over the sectors where both bands have
+    >= ``min_pixels`` pixels, per-sector ΔE (NaN where not measured))."""
+    img = np.asarray(image, np.float32)
+    m = np.asarray(mask, bool)
+    if img.shape[:2] != m.shape:
+        raise BadInputError(f"image {img.shape} and mask {m.shape} must have the same size")
+    steps = np.full(sectors, np.nan)
+    if m.sum() < 4 or m.all():
+        return float("nan"), steps
+    din = cv2.distanceTransform(np.pad(m, 1).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
+    dout = cv2.distanceTransform(np.pad(~m, 1, constant_values=True).astype(np.uint8), cv2.DIST_L2,
+                                 cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
+    inner = m & (din > gap) & (din <= gap + band)
+    outer = ~m & (dout > gap) & (dout <= gap + band)
+    ys, xs = np.nonzero(m)
+    cy, cx = ys.mean(), xs.mean()
+    yy, xx = np.mgrid[0:m.shape[0], 0:m.shape[1]]
+    sec = (((np.arctan2(yy - cy, xx - cx) + math.pi) / (2 * math.pi)) * sectors).astype(int) % sectors
+    lab = _lab(img)
+    for k in range(sectors):
+        a, b = inner & (sec == k), outer & (sec == k)
+        if a.sum() >= min_pixels and b.sum() >= min_pixels:
+            steps[k] = float(np.linalg.norm(lab[a].mean(axis=0) - lab[b].mean(axis=0)))
+    ok = np.isfinite(steps)
+    return (float(steps[ok].mean()) if ok.any() else float("nan")), steps
+
+
+# ----------------------------------------------------------------------------- pipeline
+LIGHTINGS = ("stats", "sh", "none")
+
+
+@dataclass(frozen=True)
+class CompositeParams:
+    """How the puppet is put into the driver's frame.
+
+    lighting: the colour statistics ("stats", default), also the driver's first-order SH
+    lighting ("sh"; ``sh_strength`` the exponent of the shading ratio) or nothing ("none").
+    On GRID's frontally lit clips the SH ratio mostly moved the albedo of the persona's average
+    (stubble, lips, the collection's top light) into the shading: a beard-like darkening
+    around the mouth (bench contact sheets), so it is not the default. normal_smoothing:
+    Gaussian sigma of the normals before the SH fit and relighting, as a fraction of the
+    eye-corner distance; std: also match the CIELAB spread; poisson: gradient-domain blending at
+    the border; feather: width of the inward feather as a fraction of the eye-corner distance;
+    erode: the driver's outline is shrunk by this fraction (the face-oval vertices sit on the
+    silhouette, where skin meets hair or background); mouth: draw the driver's mouth interior
+    inside the puppet's lips.
+    """
+
+    lighting: str = "stats"
+    sh_strength: float = 1.0
+    normal_smoothing: float = 0.05
+    std: bool = False
+    poisson: bool = True
+    feather: float = 0.06
+    erode: float = 0.03
+    mouth: bool = True
+
+
+def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_points68, puppet_lips=None,
+                   driver_normals=None, params: CompositeParams = CompositeParams()) -> tuple[np.ndarray, np.ndarray]:
+    """The puppet composited into the driver's frame: (image (H, W, 3), alpha (H, W)).
+
+    ``frame`` (H, W, 3) the driver's frame; ``puppet`` (H, W, 3) the rendered puppet,
+    ``coverage`` (H, W) its anti-aliased coverage, ``normals`` (H, W, 3) its unit camera-space
+    normals (needed for ``lighting="sh"`` only, else may be None); ``driver_oval`` (K, 2) the
+    driver's face outline and ``driver_points68`` its
+    landmarks (frame px); ``puppet_lips`` (8, 2) the puppet's inner lips (output px) or None;
+    ``driver_normals`` (H, W, 3) the driver's own face normals (its lighting is fitted with them;
+    default: the puppet's normals).
+    All work happens in the face's bounding box."""
+    if params.lighting not in LIGHTINGS:
+        raise BadInputError(f"unknown lighting {params.lighting!r}: use one of {', '.join(LIGHTINGS)}")
+    frame = np.asarray(frame, np.float32)
+    H, W = frame.shape[:2]
+    p68 = np.asarray(driver_points68, np.float64)
+    iod = float(np.linalg.norm(p68[36] - p68[45]))
+    outline = polygon_mask(driver_oval, (H, W)) > 0.5
+    k = int(round(params.erode * iod))
+    if k > 0:
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1,) * 2)
+        outline = cv2.erode(outline.astype(np.uint8), disc) > 0
+    region = outline & (np.asarray(coverage) > 0.5)
+    if region.sum() < 16:
+        return frame.copy(), np.zeros((H, W), np.float32)
+    ys, xs = np.nonzero(region)
+    pad = 3 + int(round(0.1 * iod))
+    y0, y1 = max(0, ys.min() - pad), min(H, ys.max() + pad + 1)
+    x0, x1 = max(0, xs.min() - pad), min(W, xs.max() + pad + 1)
+    box = (slice(y0, y1), slice(x0, x1))
+    fr, pu, rg = frame[box], np.asarray(puppet, np.float32)[box], region[box]
+    nr = None if normals is None else np.asarray(normals, np.float32)[box]
+    skin = rg & ~feature_mask(p68 - [x0, y0], rg.shape)
+    skin = cv2.erode(skin.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    if skin.sum() < 16:
+        skin = rg
+    out = pu
+    if params.lighting == "sh":
+        if nr is None:
+            raise BadInputError("lighting='sh' needs the puppet's normals")
+        # low-frequency lighting: normals smoothed over ~5 % of the eye distance (the grid mesh's
+        # creases at nostrils and lip corners would otherwise print as bright lines)
+        sig = max(1.0, params.normal_smoothing * iod)
+
+        def smooth(n, valid):
+            # a visible surface faces the camera (n_z < 0): folds of a deformed mesh must not flip it
+            n = np.where(n[..., 2:3] > 0, -n, n) * valid[..., None]
+            wgt = cv2.GaussianBlur(valid.astype(np.float32), (0, 0), sig)[..., None]
+            n = cv2.GaussianBlur(n, (0, 0), sig) / np.maximum(wgt, 1e-3)
+            return n / np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-6)
+
+        nr = smooth(nr, rg)
+        nd = nr
+        if driver_normals is not None:
+            dn = np.asarray(driver_normals, np.float32)[box]
+            valid = np.linalg.norm(dn, axis=2) > 0.5
+            if (valid & skin).sum() > 0.5 * skin.sum():
+                nd = smooth(dn, valid)
+        # lighting from luminance only (colour comes from the statistics below): per-channel fits
+        # turn red lips and stubble under the mouth into a colour cast of the downward normals
+        lin_p, lin_d = srgb_to_linear(pu), srgb_to_linear(fr)
+        lum_p, lum_d = (lin_p @ _LUMA)[..., None], (lin_d @ _LUMA)[..., None]
+        lp = fit_sh_lighting(lum_p, nr, skin)
+        ld = fit_sh_lighting(lum_d, nd, skin)
+        ratio = relight(np.ones_like(lum_p), nr, lp, ld) ** params.sh_strength
+        out = linear_to_srgb(lin_p * ratio)
+    if params.lighting in ("sh", "stats"):
+        out = match_color_statistics(out, fr, skin, std=params.std)
+    if params.poisson:
+        out = poisson_blend(out, fr, rg)
+    if params.mouth and puppet_lips is not None:
+        mi, ma = mouth_interior(fr, p68[list(INNER_LIPS)] - [x0, y0], np.asarray(puppet_lips) - [x0, y0], rg.shape)
+        ma = ma * rg
+        out = ma[..., None] * mi + (1 - ma[..., None]) * out
+    alpha = inner_feather(rg, max(1.0, params.feather * iod))
+    res = frame.copy()
+    res[box] = alpha[..., None] * out + (1 - alpha[..., None]) * fr
+    full = np.zeros((H, W), np.float32)
+    full[box] = alpha
+    return res, full

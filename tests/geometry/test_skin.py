@@ -1,0 +1,89 @@
+"""Skin masks (facetex.geometry.skin): features excluded, hair excluded, highlights kept."""
+
+import cv2
+import numpy as np
+import pytest
+
+from facetex._resources import sample_path
+from facetex.errors import BadInputError
+from facetex.geometry.masks import face_width
+from facetex.geometry.skin import (
+    feature_mask,
+    face_region_mask,
+    protected_mask,
+    skin_colour_distance,
+    skin_mask,
+)
+from facetex.landmarks import detect_face, face_mesh468
+
+
+@pytest.fixture(scope="module")
+def face():
+    img = cv2.imread(str(sample_path("frl_004_neutral.jpg")))[..., ::-1].astype(np.float32) / 255.0
+    f = detect_face(img)
+    return img, f.points68, face_mesh468(img, f)
+
+
+def test_mask_is_zero_on_every_feature_and_outside_the_face(face):
+    img, p, mesh = face
+    m = skin_mask(img, p, mesh=mesh)
+    assert m.dtype == np.float32 and m.shape == img.shape[:2]
+    assert 0.0 <= m.min() and m.max() <= 1.0
+    assert m[protected_mask(p, img.shape)].max() == 0.0  # eyes, brows, lips
+    assert m[feature_mask(p, img.shape)].max() == 0.0  # grown features incl. nostrils
+    assert m[~face_region_mask(p, img.shape, mesh=mesh)].max() == 0.0
+    # most of both cheeks is skin
+    for idx in ((2, 31, 41, 48), (14, 35, 46, 54)):
+        x, y = np.round(p[list(idx)].mean(0)).astype(int)
+        assert m[y, x] > 0.9
+
+
+def test_dark_hair_over_the_forehead_is_not_skin(face):
+    img, p, mesh = face
+    img = cv2.resize(img, None, fx=2.5, fy=2.5, interpolation=cv2.INTER_CUBIC)  # FRL's own 1000 px
+    p, mesh = (p + 0.5) * 2.5 - 0.5, (mesh + 0.5) * 2.5 - 0.5
+    fw = face_width(p)
+    band = face_region_mask(p, img.shape, mesh=mesh) & ~feature_mask(p, img.shape)
+    band[int(p[17:27, 1].min() - 0.1 * fw):] = False  # the forehead above the brows
+    assert band.sum() > 2000
+    hair = img.copy()
+    hair[band] = (0.18, 0.12, 0.08)  # a dark-brown fringe
+    with_colour = skin_mask(hair, p, mesh=mesh, soft=False)
+    without = skin_mask(hair, p, mesh=mesh, colour=False, soft=False)
+    assert with_colour[band].mean() < 0.02
+    assert without[band].mean() > 0.9  # the face oval alone would take it as skin
+
+
+def test_a_specular_highlight_stays_skin(face):
+    img, p, mesh = face
+    hl = img.copy()
+    c = np.round(p[[2, 31, 41, 48]].mean(0)).astype(int)
+    cv2.circle(hl, tuple(int(v) for v in c), 4, (1.0, 1.0, 1.0), -1)
+    m = skin_mask(hl, p, mesh=mesh, soft=False)
+    assert m[c[1], c[0]]
+
+
+def test_colour_distance_separates_skin_from_black_and_green(face):
+    img, p, _ = face
+    test = img.copy()
+    test[:10, :10] = (0.02, 0.02, 0.02)
+    test[:10, -10:] = (0.1, 0.6, 0.1)
+    dist, z = skin_colour_distance(test, p)
+    c = np.round(p[[14, 35, 46, 54]].mean(0)).astype(int)
+    assert dist[c[1], c[0]] < 2.0 and abs(z[c[1], c[0]]) < 2.0
+    assert z[:10, :10].max() < -4.0  # much darker than the skin
+    assert dist[:10, -10:].min() > 10.0  # far in chromaticity
+
+
+def test_landmark_outline_fallback_without_mesh(face):
+    img, p, _ = face
+    m = skin_mask(img, p, mesh=None)
+    assert m.max() > 0.9 and m[protected_mask(p, img.shape)].max() == 0.0
+
+
+def test_bad_input(face):
+    img, p, _ = face
+    with pytest.raises(BadInputError):
+        skin_mask(img, p[:10])
+    with pytest.raises(BadInputError):
+        skin_mask(img[..., 0], p)

@@ -1,0 +1,231 @@
+"""Putting the puppet into the driver's frame: colour/lighting transfer, blending, masks, the
+boundary colour-step measure and the mouth interior, on hand-computed cases."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from facetex.errors import BadInputError
+from facetex.persona.composite import (
+    CompositeParams,
+    boundary_color_step,
+    composite_face,
+    fit_sh_lighting,
+    inner_feather,
+    linear_to_srgb,
+    match_color_statistics,
+    mouth_interior,
+    poisson_blend,
+    polygon_mask,
+    relight,
+    sh_shading,
+    srgb_to_linear,
+)
+
+
+def _lab(img):
+    return cv2.cvtColor(np.asarray(img, np.float32), cv2.COLOR_RGB2Lab)
+
+
+def _disc(h=64, w=64, cx=32.0, cy=32.0, r=20.0):
+    yy, xx = np.mgrid[0:h, 0:w]
+    return (xx - cx) ** 2 + (yy - cy) ** 2 <= r * r
+
+
+def _sphere_normals(h=64, w=64, r=30.0):
+    """Unit normals of a sphere seen from the camera (z away from it: frontal normal (0, 0, -1))."""
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    x, y = (xx - (w - 1) / 2) / r, (yy - (h - 1) / 2) / r
+    inside = x * x + y * y < 0.95
+    z = -np.sqrt(np.clip(1 - x * x - y * y, 0, 1))
+    n = np.stack([x, y, z], axis=-1)
+    n[~inside] = 0
+    return n.astype(np.float32), inside
+
+
+# ----------------------------------------------------------------------------- colour statistics
+@pytest.mark.parametrize("std", [False, True])
+def test_colour_transfer_moves_the_lab_statistics_exactly(std):
+    rng = np.random.default_rng(0)
+    src = (0.6 + 0.03 * rng.normal(size=(40, 50, 3))).astype(np.float32)
+    src[..., 2] *= 0.8  # a pink-grey "puppet"
+    ref = (0.35 + 0.02 * rng.normal(size=(40, 50, 3))).astype(np.float32)
+    ref[..., 0] += 0.15  # a darker, redder "driver" (both well inside the gamut: nothing clips)
+    m_src = np.zeros((40, 50), bool)
+    m_src[5:35, 5:30] = True
+    m_ref = np.zeros((40, 50), bool)
+    m_ref[10:38, 20:48] = True
+    out = match_color_statistics(src, ref, m_src, m_ref, std=std)
+    a, b = _lab(out)[m_src], _lab(ref)[m_ref]
+    np.testing.assert_allclose(a.mean(axis=0), b.mean(axis=0), atol=0.05)
+    if std:
+        np.testing.assert_allclose(a.std(axis=0), b.std(axis=0), rtol=0.01, atol=0.05)
+    else:  # the spread is the source's own
+        np.testing.assert_allclose(a.std(axis=0), _lab(src)[m_src].std(axis=0), rtol=0.01, atol=0.05)
+    assert np.abs(a.mean(axis=0) - _lab(src)[m_src].mean(axis=0)).max() > 5  # it did move
+
+
+def test_colour_transfer_with_an_empty_mask_changes_nothing():
+    src = np.full((8, 8, 3), 0.4, np.float32)
+    out = match_color_statistics(src, src * 0.5, np.zeros((8, 8), bool))
+    np.testing.assert_array_equal(out, src)
+
+
+# ----------------------------------------------------------------------------- lighting
+def test_sh_fit_recovers_the_lighting_despite_outliers():
+    n, inside = _sphere_normals()
+    true = np.array([[0.5, 0.45, 0.4], [0.2, 0.1, 0.05], [-0.1, -0.1, -0.1], [-0.15, -0.2, -0.1]], np.float32)
+    img = sh_shading(n, true)
+    img[20:26, 20:40] = 0.02  # a dark eyebrow: not shading
+    fit = fit_sh_lighting(img, n, inside)
+    np.testing.assert_allclose(fit, true, atol=0.02)
+    plain = np.linalg.lstsq(np.c_[np.ones(inside.sum()), n[inside]], img[inside], rcond=None)[0]
+    assert np.abs(plain - true).max() > 2 * np.abs(fit - true).max()  # least squares alone is pulled off
+
+
+def test_relight_moves_one_lighting_to_another():
+    n, inside = _sphere_normals()
+    l_src = np.array([[0.5] * 3, [0.25] * 3, [0.0] * 3, [-0.1] * 3], np.float32)  # light from the right
+    l_dst = np.array([[0.45] * 3, [-0.2] * 3, [-0.05] * 3, [-0.1] * 3], np.float32)  # from the left
+    albedo = np.float32([0.9, 0.7, 0.6])
+    src = albedo * sh_shading(n, l_src)
+    out = relight(src, n, l_src, l_dst, limits=(0.01, 100.0), floor=0.0)
+    ok = inside & (sh_shading(n, l_src)[..., 0] > 0.05)
+    np.testing.assert_allclose(out[ok], (albedo * sh_shading(n, l_dst))[ok], rtol=1e-4, atol=1e-5)
+
+
+def test_srgb_round_trip():
+    x = np.linspace(0, 1, 101, dtype=np.float32)
+    np.testing.assert_allclose(linear_to_srgb(srgb_to_linear(x)), x, atol=1e-5)
+    assert srgb_to_linear(np.float32(0.5)) == pytest.approx(0.2140, abs=1e-3)
+
+
+# ----------------------------------------------------------------------------- blending and masks
+def test_poisson_blend_takes_the_border_from_the_destination():
+    rng = np.random.default_rng(1)
+    yy, xx = np.mgrid[0:60, 0:70].astype(np.float32)
+    dst = np.stack([0.3 + 0.004 * xx, 0.4 + 0.003 * yy, 0.5 + 0.0 * xx], axis=-1)
+    dst += 0.01 * rng.normal(size=dst.shape).astype(np.float32)
+    bump = 0.2 * np.exp(-((xx - 35) ** 2 + (yy - 30) ** 2) / 40.0)[..., None]
+    src = dst + 0.25 + bump  # a brighter copy with a feature in the middle
+    mask = _disc(60, 70, 35, 30, 22)
+    out = poisson_blend(np.clip(src, 0, 1), np.clip(dst, 0, 1), mask)
+    np.testing.assert_array_equal(out[~mask], np.clip(dst, 0, 1)[~mask])  # outside: the destination
+    # a constant offset has no gradient: it is removed entirely, the feature stays
+    inner = _disc(60, 70, 35, 30, 19)
+    np.testing.assert_allclose(out[inner], np.clip(dst + bump, 0, 1)[inner], atol=0.012)
+
+
+def test_poisson_blend_checks_sizes():
+    with pytest.raises(BadInputError):
+        poisson_blend(np.zeros((8, 8, 3)), np.zeros((9, 8, 3)), np.ones((8, 8), bool))
+
+
+def test_polygon_mask_area_and_antialiasing():
+    sq = np.array([[10.25, 10.25], [40.25, 10.25], [40.25, 30.25], [10.25, 30.25]])
+    m = polygon_mask(sq, (50, 50))
+    assert m.sum() == pytest.approx(30 * 20, rel=0.015)
+    assert ((m > 0.05) & (m < 0.95)).any()  # fractional coverage at the edges
+
+
+def test_inner_feather_stays_inside_the_mask():
+    mask = _disc(r=20)
+    a = inner_feather(mask, 5.0)
+    assert a[~mask].max() == 0.0
+    assert a[32, 32] == pytest.approx(1.0)
+    row = a[32, 12:33]  # from the edge towards the centre: rises monotonically
+    assert np.all(np.diff(row) >= -1e-6) and row[0] < 0.2
+
+
+# ----------------------------------------------------------------------------- boundary step
+def test_boundary_step_of_a_known_colour_edge():
+    mask = _disc(r=20)
+    lab = np.zeros((64, 64, 3), np.float32)
+    lab[..., 0] = np.where(mask, 50.0, 60.0)  # grey 50 inside, grey 60 outside: ΔE 10
+    img = cv2.cvtColor(lab, cv2.COLOR_Lab2RGB)
+    mean, sectors = boundary_color_step(img, mask, band=3, gap=1, sectors=8)
+    assert mean == pytest.approx(10.0, abs=0.2)
+    np.testing.assert_allclose(sectors, 10.0, atol=0.3)
+    # the same image measured at an edge that does not exist there: no step
+    flat = boundary_color_step(img, _disc(r=10), band=3, gap=1, sectors=8)[0]
+    assert flat < 0.5
+
+
+def test_boundary_step_sees_local_breaks_a_global_mean_would_cancel():
+    mask = _disc(r=20)
+    lab = np.full((64, 64, 3), 55.0, np.float32)
+    lab[..., 1:] = 0
+    inside_top = mask & (np.mgrid[0:64, 0:64][0] < 32)
+    lab[..., 0] = np.where(inside_top, 63.0, np.where(mask, 47.0, 55.0))  # +8 on top, -8 below
+    img = cv2.cvtColor(lab, cv2.COLOR_Lab2RGB)
+    assert boundary_color_step(img, mask, band=3, sectors=16)[0] > 6.0
+
+
+# ----------------------------------------------------------------------------- mouth interior
+def test_mouth_interior_moves_the_drivers_mouth_into_the_puppets_lips():
+    h, w = 80, 100
+    frame = np.full((h, w, 3), 0.7, np.float32)
+    d_lips = np.array([[20, 30], [27, 25], [35, 24], [43, 25], [50, 30], [43, 35], [35, 36], [27, 35]], float)
+    cv2.fillPoly(frame, [np.round(d_lips).astype(np.int32)], (0.1, 0.0, 0.2))  # dark purple interior
+    # the puppet's mouth: elsewhere, wider, opened less
+    p_lips = d_lips.copy()
+    p_lips[:, 0] = 50 + (d_lips[:, 0] - 35) * 1.3
+    p_lips[:, 1] = 55 + (d_lips[:, 1] - 30) * 0.7
+    img, alpha = mouth_interior(frame, d_lips, p_lips)
+    core = alpha > 0.99
+    assert core.sum() > 50
+    np.testing.assert_allclose(img[core], np.broadcast_to([0.1, 0.0, 0.2], img[core].shape), atol=0.02)
+    assert alpha[:40].max() == 0  # nothing where the puppet's mouth is not
+    # the puppet's lips closed: no interior
+    closed = p_lips.copy()
+    closed[5:, 1] = closed[[3, 2, 1], 1]
+    assert mouth_interior(frame, d_lips, closed)[1].sum() < 0.05 * core.sum()
+    # the driver's lips closed: nothing to show either (its lip sliver would draw a red line)
+    shut = d_lips.copy()
+    shut[5:, 1] = shut[[3, 2, 1], 1] + 0.5
+    assert mouth_interior(frame, shut, p_lips)[1].max() == 0
+
+
+# ----------------------------------------------------------------------------- the whole composite
+@pytest.mark.parametrize("lighting", ["stats", "sh"])
+def test_composite_sits_in_the_frame_and_never_leaves_the_drivers_outline(lighting):
+    h, w = 96, 96
+    yy, xx = np.mgrid[0:h, 0:w]
+    frame = np.zeros((h, w, 3), np.float32)
+    frame[:] = (0.1, 0.5, 0.8)  # blue background
+    face = ((xx - 48) / 26.0) ** 2 + ((yy - 50) / 32.0) ** 2 <= 1
+    frame[face] = (0.55, 0.4, 0.3)  # the driver's darker, warmer skin
+    # a puppet wider than the driver's face, pale grey-pink
+    n, _ = _sphere_normals(h, w, 40.0)
+    puppet = np.broadcast_to(np.float32([0.85, 0.75, 0.75]), (h, w, 3)).copy()
+    coverage = (((xx - 48) / 34.0) ** 2 + ((yy - 50) / 38.0) ** 2 <= 1).astype(np.float32)
+    t = np.linspace(0, 2 * np.pi, 36, endpoint=False)
+    oval = np.c_[48 + 26 * np.cos(t), 50 + 32 * np.sin(t)]
+    p68 = np.zeros((68, 2))
+    p68[:, 0], p68[:, 1] = 48, 50
+    p68[36], p68[45] = (36, 42), (60, 42)  # eye corners: the face's scale
+    out, alpha = composite_face(frame, puppet, coverage, n, driver_oval=oval, driver_points68=p68,
+                                params=CompositeParams(lighting=lighting, mouth=False))
+    assert alpha[~face].max() == 0.0  # no halo: nothing outside the driver's face outline
+    np.testing.assert_array_equal(out[~face], frame[~face])
+    inner = ((xx - 48) / 18.0) ** 2 + ((yy - 50) / 24.0) ** 2 <= 1
+    assert alpha[inner].min() > 0.99
+    # the pale puppet took the driver's skin colour (it would be ΔE ~ 35 off otherwise)
+    de = np.linalg.norm(_lab(out)[inner].mean(axis=0) - _lab(frame)[inner].mean(axis=0))
+    assert de < 3.0
+    raw = composite_face(frame, puppet, coverage, n, driver_oval=oval, driver_points68=p68,
+                         params=CompositeParams(lighting="none", poisson=False, mouth=False))[0]
+    assert np.linalg.norm(_lab(raw)[inner].mean(axis=0) - _lab(frame)[inner].mean(axis=0)) > 20
+    # the edge of the composite is no more visible than the driver's own edge at the same place
+    edge = alpha > 0.5
+    own = boundary_color_step(frame, edge)[0]
+    assert boundary_color_step(out, edge)[0] < 1.2 * own
+
+
+def test_composite_rejects_an_unknown_lighting():
+    with pytest.raises(BadInputError, match="lighting"):
+        composite_face(np.zeros((8, 8, 3)), np.zeros((8, 8, 3)), np.ones((8, 8)), np.zeros((8, 8, 3)),
+                       driver_oval=np.zeros((3, 2)), driver_points68=np.zeros((68, 2)),
+                       params=CompositeParams(lighting="studio"))
