@@ -107,9 +107,36 @@ def _markdown_table(md: str) -> str:
     return "\n".join(out)
 
 
+def command_defaults(command: str) -> dict:
+    """The defaults of a facetex command's options ({dest: default}), from its parser."""
+    import argparse
+
+    from ..cli import build_parser
+
+    parser = build_parser()
+    for word in command.split(":")[0].split():
+        subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        if not subs or word not in subs[0].choices:
+            return {}
+        parser = subs[0].choices[word]
+    return {a.dest: a.default for a in parser._actions if a.dest not in ("help", "debug") and a.option_strings}
+
+
+def _normal(v):
+    return list(v) if isinstance(v, tuple) else v
+
+
 def _settings_html(run: Run) -> str:
     s = {k: v for k, v in run.settings.items() if k != "versions"}
     non_default = {k: v for k, v in s.items() if k in _DEFAULTS and _DEFAULTS[k] != v}
+    p = (run.provenance or {}).get("params") or {}
+    if p and (run.provenance or {}).get("command"):
+        defaults = command_defaults(run.provenance["command"])
+        for k, v in p.items():
+            if k in defaults and k not in ("out", "data", "json", "quiet", "overwrite") \
+                    and _normal(defaults[k]) != _normal(v):
+                non_default[k] = v
+                s.setdefault(k, v)
     parts = ["<table class='kv'>"]
     for k, v in s.items():
         mark = " class='nondefault' title='differs from the default'" if k in non_default else ""

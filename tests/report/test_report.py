@@ -49,6 +49,8 @@ def test_report_is_self_contained_and_complete(runs, tmp_path, capsys):
                    "class='thumb'", "Zoom panels at native resolution", "Per-item metrics", "run.json",
                    "Sidecar parameters", "table.md"):
         assert needed in page, needed
+    nd = re.search(r"<b>Non-default settings:</b> ([^<]*)</p>", page).group(1)
+    assert "pairs = 3" in nd and "preset" not in nd  # from run.json against the command's own defaults
     assert page.count("class='thumb'") == 2 * 3 * 5  # 2 runs x 3 pairs x (style, content, 3 methods)
     side = json.loads((tmp_path / "report.html.json").read_text())
     assert side["command"] == "report" and len(side["inputs"]["run1"]["sha256"]) == 64
