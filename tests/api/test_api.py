@@ -204,3 +204,13 @@ def test_landmarks_json_into_head_ends_quietly(tmp_path):
     cmd = f'"{sys.executable}" -m facetex landmarks "{FACE}" --json | head -2'
     r = subprocess.run(["bash", "-c", cmd], capture_output=True, text=True)
     assert r.returncode == 0 and r.stdout.startswith("{") and r.stderr == "", r.stderr
+
+
+def test_cli_lets_openmp_threads_sleep_unless_told_otherwise():
+    code = "import os, facetex.cli as c; c._passive_openmp(); print(os.environ['OMP_WAIT_POLICY'])"
+    env = {k: v for k, v in __import__("os").environ.items() if k != "OMP_WAIT_POLICY"}
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert r.stdout.strip() == "PASSIVE", r.stderr
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       env={**env, "OMP_WAIT_POLICY": "ACTIVE"})
+    assert r.stdout.strip() == "ACTIVE", r.stderr
