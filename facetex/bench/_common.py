@@ -369,6 +369,11 @@ def finish_bench(args, bench: str, out, files: Mapping | None = None, *, inputs=
     out = Path(out)
     files = {k: str(v) for k, v in (files or {}).items()}
     params = {k: v for k, v in vars(args).items() if k not in ("func", "json", "quiet", "debug") and not callable(v)}
+    table_md = out / "table.md"
+    if table_md.is_file():  # the run's own table, then its settings and the spread of every mean
+        extra = settings_and_spread_markdown(args, bench, out)
+        table = table_md.read_text(encoding="utf-8").rstrip("\n") + "\n\n" + extra
+        write_text(table_md, table)
     record = provenance(command=f"bench {bench}", seed=getattr(args, "seed", None), inputs=inputs or {},
                         params={**params, **(settings or {})}, outputs=list(files.values()),
                         summary=json_safe(no_image_data(summary)) if summary is not None else None)
@@ -453,3 +458,39 @@ def write_figure_formats(stem, fig, *, formats: Sequence[str] = ("png", "svg", "
     finally:
         plt.close(fig)
     return out
+
+
+def settings_and_spread_markdown(args, bench: str, out) -> str:
+    """Markdown: the options of this run that differ from the command's defaults, and per method
+    the mean ± sample std and the 95 % CI of each key metric over the run's items (pairs,
+    targets, clips), read back from the run folder as ``facetex report`` reads it."""
+    from ..errors import FacetexError
+    from ..report.compare import KEY_METRICS, metric_summary
+    from ..report.html import command_defaults
+    from ..report.runs import load_run
+
+    defaults = command_defaults(f"bench {bench}")
+    skip = {"out", "json", "quiet", "overwrite", "func", "debug"}
+    nd = {k: v for k, v in vars(args).items() if k in defaults and k not in skip
+          and (list(v) if isinstance(v, tuple) else v) != (list(defaults[k]) if isinstance(defaults[k], tuple)
+                                                           else defaults[k])}
+    lines = ["## Settings of this run", "",
+             "Options that differ from the defaults of `facetex bench " + bench + "`: " +
+             (", ".join(f"`--{k.replace('_', '-')} {','.join(map(str, v)) if isinstance(v, (list, tuple)) else v}`"
+                        for k, v in nd.items()) or "none") + ". All settings, input hashes and versions: `run.json`.",
+             ""]
+    try:
+        rows = [r for r in metric_summary(load_run(out)) if r["metric"] in KEY_METRICS]
+    except FacetexError:
+        rows = []
+    if rows:
+        lines += ["## Spread", "",
+                  "Mean ± sample standard deviation over the items, and the 95 % confidence interval of the mean "
+                  "(Student t); n items.", "",
+                  "| method | metric | n | mean ± std | 95 % CI |", "|---|---|---:|---:|---:|"]
+        for r in rows:
+            std = "" if not math.isfinite(r["std"]) else f" ± {r['std']:.4g}"
+            ci = "–" if not math.isfinite(r["ci95_half"]) else f"[{r['ci95'][0]:.4g}, {r['ci95'][1]:.4g}]"
+            lines.append(f"| {r['method']} | {r['metric']} | {r['n']} | {r['mean']:.4g}{std} | {ci} |")
+        lines.append("")
+    return "\n".join(lines)
