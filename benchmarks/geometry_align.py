@@ -7,7 +7,7 @@ cross-correlation of gradient magnitudes inside the content face (contour alignm
 the morph / dense-refinement times. Saves style | content | aligned | 50/50 blend strips
 for the first pairs under benchmarks/out/geometry/.
 
-    python benchmarks/geometry_align.py [--data /work/shared/data/frl-london] [--pairs 10]
+    python benchmarks/geometry_align.py [--data DATA/frl-london] [--pairs 10]
 """
 
 from __future__ import annotations
@@ -55,11 +55,13 @@ def grad_ncc(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", default="/work/shared/data/frl-london")
+    ap.add_argument("--data", help="data root holding frl-london/ or the folder itself (default $FACETEX_DATA)")
     ap.add_argument("--pairs", type=int, default=10)
     ap.add_argument("--save", type=int, default=3, help="pairs to save images for")
     ap.add_argument("--out", default=str(Path(__file__).parent / "out" / "geometry"))
     args = ap.parse_args()
+    from facetex.bench._common import data_folder, data_root  # --data or $FACETEX_DATA, never a machine path
+    args.data = str(data_folder(data_root(args.data), 'frl-london'))
     files = sorted(Path(args.data).glob("*_neutral.jpg"))
     if len(files) < 2 * args.pairs:
         raise SystemExit(f"need {2 * args.pairs} neutral images in {args.data}, found {len(files)}")

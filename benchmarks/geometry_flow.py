@@ -1,6 +1,6 @@
 """Benchmark of facetex.geometry.flow: optical_flow methods and sift_flow variants.
 
-Usage: python benchmarks/geometry_flow.py [--data /work/shared/data] [--n 5] [--size 256]
+Usage: python benchmarks/geometry_flow.py [--data DATA] [--n 5] [--size 256]
 
 1. Known smooth warp: for each real face (n from frl-london, n from lfw George_W_Bush)
    a random low-frequency field F (sum of sinusoids, max 6 px at 256 px) warps the
@@ -102,12 +102,14 @@ METHODS = {
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", default="/work/shared/data")
+    ap.add_argument("--data", help="data root or the folder itself (default $FACETEX_DATA)")
     ap.add_argument("--n", type=int, default=5, help="faces per data set")
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--max-disp", type=float, default=6.0)
     ap.add_argument("--only", default="", help="substring filter on method names")
     args = ap.parse_args(argv)
+    from facetex.bench._common import data_folder, data_root  # --data or $FACETEX_DATA, never a machine path
+    args.data = str(data_folder(data_root(args.data), ''))
     frl = sorted(glob.glob(os.path.join(args.data, "frl-london", "*_neutral.jpg")))
     lfw = sorted(glob.glob(os.path.join(args.data, "lfw", "George_W_Bush", "*.jpg")))
     if not frl or not lfw:

@@ -1,6 +1,6 @@
 """Benchmark of facetex.geometry.frontalize on a photo collection (default: LFW George_W_Bush).
 
-    python benchmarks/geometry_frontalize.py [--data /work/shared/data/lfw/George_W_Bush] [--n 50]
+    python benchmarks/geometry_frontalize.py [--data DATA/lfw/George_W_Bush] [--n 50]
 
 Prints: ms per photo for landmark detection (dlib, timed separately), head pose, and
 pose + frontalization; the spread of landmarks re-detected on the frontalized outputs
@@ -61,11 +61,13 @@ def _dist(a, b, idx=slice(None)) -> float:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", default="/work/shared/data/lfw/George_W_Bush")
+    ap.add_argument("--data", help="data root holding lfw/George_W_Bush/ or the folder itself (default $FACETEX_DATA)")
     ap.add_argument("--n", type=int, default=50, help="number of photos (sorted by name)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "out" / "frontalize"))
     ap.add_argument("--save", type=int, default=8, help="before/after strips to save")
     args = ap.parse_args(argv)
+    from facetex.bench._common import data_folder, data_root  # --data or $FACETEX_DATA, never a machine path
+    args.data = str(data_folder(data_root(args.data), 'lfw/George_W_Bush'))
 
     files = sorted(p for p in Path(args.data).iterdir() if p.suffix.lower() in (".jpg", ".jpeg", ".png"))[: args.n]
     if not files:

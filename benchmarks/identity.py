@@ -26,7 +26,7 @@ from facetex.io import read_image
 from facetex.landmarks import detect_face
 from facetex.nets.dlib_resnet import SAME_PERSON_THRESHOLD, FaceRecognitionNet, face_descriptor
 
-FRL = Path("/work/shared/data/frl-london")
+FRL = Path(__import__("os").environ.get("FACETEX_DATA", "FACETEX_DATA-not-set")) / "frl-london"  # data root: $FACETEX_DATA
 SAMPLES = ("frl_003_neutral", "frl_004_neutral", "frl_004_smiling", "frl_005_neutral",
            "frl_005_smiling", "frl_008_neutral")
 

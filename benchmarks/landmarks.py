@@ -1,6 +1,6 @@
 """Landmark accuracy and speed on Helen test photos with 300-W ground truth.
 
-    python benchmarks/landmarks.py [--data /work/shared/data/helen-300w] [--detector hog|cnn]
+    python benchmarks/landmarks.py [--data DATA] [--detector hog|cnn]
 
 NME = mean point-to-point distance of the 68 points / distance between the
 ground truth's outer eye corners (36 and 45, 0-based). The .pts files are in
@@ -40,12 +40,14 @@ def nme(points: np.ndarray, gt: np.ndarray) -> float:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", default="/work/shared/data/helen-300w")
+    ap.add_argument("--data", help="data root holding helen-300w/ or the folder itself (default $FACETEX_DATA)")
     ap.add_argument("--detector", choices=("hog", "cnn"), default="hog")
     ap.add_argument("--max-upsample", type=int, default=1)
     ap.add_argument("--cnn-fallback", action="store_true",
                     help="with --detector hog: try the CNN detector (upsample 0) on images HOG misses")
     args = ap.parse_args(argv)
+    from facetex.bench._common import data_folder, data_root  # --data or $FACETEX_DATA, never a machine path
+    args.data = str(data_folder(data_root(args.data), 'helen-300w'))
 
     jpgs = sorted(p for p in Path(args.data).glob("*.jpg") if p.with_suffix(".pts").is_file())
     if not jpgs:

@@ -11,7 +11,7 @@ capped at the iteration count (a short run stores no more pairs), in the estimat
 Run: ``python benchmarks/memory.py`` (default configurations, ~2-5 min on 2 cores) or
 ``python benchmarks/memory.py --config facetex:default:256 facetex:paper:768``
 (METHOD:PRESET:SIZE[:NET]). Content/style: FRL London 001/002 neutral from
-/work/shared/data when present, else the bundled samples.
+$FACETEX_DATA/frl-london when present, else the bundled samples.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import sys
 import time
 from pathlib import Path
 
-DATA = Path("/work/shared/data/frl-london")
+DATA = Path(__import__("os").environ.get("FACETEX_DATA", "FACETEX_DATA-not-set")) / "frl-london"  # data root: $FACETEX_DATA
 DEFAULT_CONFIGS = ["facetex:default:256", "facetex:default:512", "facetex:paper:512", "facetex:paper:768"]
 
 

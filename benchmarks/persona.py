@@ -1,6 +1,6 @@
 """Persona texture speed and memory (Tom Hanks Sec. 6 "Runtime": 0.34 s per texture on one core).
 
-    python benchmarks/persona.py [--data /work/shared/data/lfw/George_W_Bush] [--cache DIR]
+    python benchmarks/persona.py [--data DATA/lfw/George_W_Bush] [--cache DIR]
 
 1. build time per photo on 2 cores (``--build-photos`` photos, jobs = 2);
 2. synthesis time per target, median over 50 targets, one thread (OMP/BLAS/OpenCV = 1),
@@ -45,12 +45,14 @@ def _persona(data: Path, files, cache: Path, jobs: int):
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--data", default="/work/shared/data/lfw/George_W_Bush")
+    ap.add_argument("--data", help="data root holding lfw/George_W_Bush/ or the folder itself (default $FACETEX_DATA)")
     ap.add_argument("--cache", default="bench_out/persona_speed")
     ap.add_argument("--build-photos", type=int, default=60)
     ap.add_argument("--synth-photos", type=int, default=250)
     ap.add_argument("--targets", type=int, default=50)
     args = ap.parse_args()
+    from facetex.bench._common import data_folder, data_root  # --data or $FACETEX_DATA, never a machine path
+    args.data = str(data_folder(data_root(args.data), 'lfw/George_W_Bush'))
     cv2.setNumThreads(1)
     try:
         import torch

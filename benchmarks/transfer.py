@@ -1,6 +1,6 @@
 """Transfer speed and memory targets (FaceTex issue), printed as a table.
 
-    python benchmarks/transfer.py [--data ../shared/data/frl-london] [--content 004] [--style 005]
+    python benchmarks/transfer.py [--data DATA] [--content 004] [--style 005]
                                   [--iters 100,100,100] [--skip-vgg] [--skip-memory]
 
 Rows:
@@ -23,7 +23,6 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-DEFAULT_DATA = HERE.parent.parent / "shared" / "data" / "frl-london"
 
 CHILD = r"""
 import json, resource, sys, time, warnings
@@ -54,13 +53,15 @@ def run_child(content, style, method, preset, options) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--data", default=str(DEFAULT_DATA))
+    ap.add_argument("--data", help="data root holding frl-london/ or the folder itself (default $FACETEX_DATA)")
     ap.add_argument("--content", default="004")
     ap.add_argument("--style", default="005")
     ap.add_argument("--iters", default="100,100,100")
     ap.add_argument("--skip-vgg", action="store_true")
     ap.add_argument("--skip-memory", action="store_true")
     a = ap.parse_args()
+    from facetex.bench._common import data_folder, data_root  # --data or $FACETEX_DATA, never a machine path
+    a.data = str(data_folder(data_root(a.data), "frl-london"))
     content = Path(a.data) / f"{a.content}_neutral.jpg"
     style = Path(a.data) / f"{a.style}_neutral.jpg"
     iters = [int(v) for v in a.iters.split(",")]

@@ -37,7 +37,7 @@ from facetex.landmarks import detect_face
 from facetex.metrics import transfer_metrics
 from facetex.transfer import face_crop_box, preset, transfer_with_info
 
-DATA = Path("/work/shared/data/frl-london")
+DATA = Path(__import__("os").environ.get("FACETEX_DATA", "FACETEX_DATA-not-set")) / "frl-london"  # data root: $FACETEX_DATA
 OUT = Path(__file__).resolve().parent / "out" / "choices"
 PAIRS = (("004", "005"), ("004", "012"), ("004", "020"), ("008", "033"))
 INPUT_SIZE = 500

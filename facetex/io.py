@@ -30,7 +30,7 @@ from PIL import Image, ImageCms, ImageOps, UnidentifiedImageError
 from struct import error as struct_error
 from zlib import error as zlib_error
 
-from .errors import BadImageError, BadInputError, BadVideoError, FacetexError, OutputError
+from .errors import BadImageError, BadInputError, BadVideoError, FacetexError, OutputError, not_found_error
 
 __all__ = [
     "read_image", "read_image_reduced", "read_image_uint8", "to_uint8", "to_float32",
@@ -86,7 +86,7 @@ def _stat_error(path: Path, e: OSError, error: type, what: str):
     if e.errno in (errno.ENOENT, errno.ENOTDIR):
         if os.path.islink(path):
             return error(f"broken symlink: its target does not exist ({os.readlink(path)})", path=path)
-        return error(f"{what} not found: check the path", path=path)
+        return not_found_error(error)(f"{what} not found: check the path", path=path)
     if e.errno == errno.EACCES:
         return error(f"permission denied: cannot read this {what}", path=path)
     if e.errno == errno.ENAMETOOLONG:
@@ -551,6 +551,8 @@ def _commit(pairs, *, overwrite: bool, inputs=()) -> None:
                     os.replace(backup, f)
                 else:
                     os.unlink(f)
+        if isinstance(e, FacetexError):  # already one line naming the file (OutputError is an OSError)
+            raise
         if isinstance(e, FileExistsError):
             raise OutputError(_APPEARED, path=final) from None
         if isinstance(e, OSError):
@@ -583,6 +585,8 @@ def write_files(items, *, overwrite: bool = False, inputs=()) -> list[Path]:
                     content(tmp)
                 else:
                     _write_bytes(tmp, content.encode("utf-8") if isinstance(content, str) else bytes(content))
+            except FacetexError:
+                raise
             except OSError as e:
                 raise _write_error(path, e) from None
         _commit(list(zip(temps, paths)), overwrite=overwrite, inputs=inputs)
@@ -603,6 +607,8 @@ def atomic_path(path, *, overwrite: bool = True, inputs=()) -> Iterator[Path]:
     try:
         try:
             yield tmp
+        except FacetexError:
+            raise
         except OSError as e:
             raise _write_error(path, e) from None
         _commit([(tmp, path)], overwrite=overwrite, inputs=inputs)
@@ -961,6 +967,8 @@ def write_video(path, frames: Iterable[np.ndarray], fps: float, *, audio_from=No
     except _SourceError as e:
         raise BadVideoError(f"damaged audio ({e}): re-export the video or strip its audio",
                             path=audio_from) from None
+    except FacetexError:
+        raise
     except (av.FFmpegError, OSError, ValueError) as e:
         raise OutputError(f"video encoding failed ({_cause(e)})", path=path) from None
     finally:

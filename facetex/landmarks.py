@@ -21,8 +21,10 @@ the same lock; dlib calls are not, so parallelise with processes, not threads.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
+import sys
 import threading
 from dataclasses import dataclass
 from typing import Literal, Sequence
@@ -144,6 +146,24 @@ _lock = threading.Lock()
 _models: dict[str, object] = {}
 
 
+@contextlib.contextmanager
+def _stderr_silenced():
+    """Discard what C++ code writes to file descriptor 2 meanwhile (Python errors still raise)."""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):
+        yield
+        return
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+            yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 def _model(name: str):
     m = _models.get(name)
     if m is not None:
@@ -162,8 +182,10 @@ def _model(name: str):
             elif name == "mesh":
                 from ai_edge_litert.interpreter import Interpreter
 
-                m = Interpreter(model_path=str(model_path("face_landmark.tflite")), num_threads=1)
-                m.allocate_tensors()
+                path = str(model_path("face_landmark.tflite"))
+                with _stderr_silenced():  # LiteRT prints "INFO: Created TensorFlow Lite XNNPACK delegate"
+                    m = Interpreter(model_path=path, num_threads=1)
+                    m.allocate_tensors()
             else:  # pragma: no cover
                 raise KeyError(name)
             _models[name] = m

@@ -26,9 +26,13 @@ from ..io import atomic_path, to_uint8, write_image, write_json
 
 __all__ = [
     "list_portraits", "select_pairs", "ResultStore", "Column", "markdown_table", "csv_table",
-    "write_text", "write_figure", "image_grid", "write_grid", "mean_finite", "json_safe", "versions",
-    "check_out_dir",
+    "write_text", "write_figure", "write_figure_formats", "image_grid", "write_grid", "mean_finite", "json_safe",
+    "versions", "check_out_dir", "DATA_ENV", "data_root", "data_folder", "default_out", "add_bench_options",
+    "finish_bench", "spread", "spread_text", "non_default_settings", "no_image_data", "pair_rank",
 ]
+
+#: environment variable naming the data root of the benchmarks (``--data`` overrides it)
+DATA_ENV = "FACETEX_DATA"
 
 _IMAGE_EXTS = (".jpg", ".jpeg", ".png")
 
@@ -51,26 +55,39 @@ def list_portraits(folder, *, tag: str = "neutral") -> dict[str, Path]:
     return dict(sorted(found.items()))
 
 
+def pair_rank(a: str, b: str, seed: int = 0) -> str:
+    """Sort key of the ordered pair (a, b): a hash of the two ids and the seed, so a pair's
+    place does not depend on which other people are in the data folder."""
+    import hashlib
+
+    return hashlib.sha256(f"{int(seed)}\0{a}\0{b}".encode("utf-8")).hexdigest()
+
+
 def select_pairs(ids: Sequence[str], n: int, *, seed: int = 0) -> list[tuple[str, str]]:
     """``n`` ordered (content, style) pairs of *different* ids, deterministic per ``seed``.
 
-    The ids are shuffled and paired off first (each person in at most one pair while
-    that is possible), further pairs are drawn from the remaining ordered pairs. The
-    first k pairs do not depend on ``n``, so a longer run extends a shorter one.
-    Fewer than ``n`` pairs are returned when fewer exist (m people give m(m-1))."""
+    All ordered pairs are ranked by :func:`pair_rank` (a hash of the two ids and the seed);
+    going down that ranking, a pair is taken while neither person is in an earlier pair
+    (each person in at most one pair while that is possible), then the remaining pairs follow
+    in ranking order. Adding a portrait to the folder adds its pairs at their hashed places
+    and leaves the others' order alone, so most of the chosen pairs stay (not a reshuffle).
+    The first k pairs do not depend on ``n``, so a longer run extends a shorter one. Fewer
+    than ``n`` pairs are returned when fewer exist (m people give m(m-1))."""
     ids = sorted(set(ids))
     if len(ids) < 2:
         raise BadInputError(f"need at least 2 different people to pair, got {len(ids)}")
     if n < 1:
         raise BadInputError(f"number of pairs must be at least 1, got {n}")
-    rng = np.random.default_rng(seed)
-    order = [ids[i] for i in rng.permutation(len(ids))]
-    pairs = [(order[i], order[i + 1]) for i in range(0, len(order) - 1, 2)]
-    if n > len(pairs):
-        taken = set(pairs)
-        rest = [(a, b) for a in ids for b in ids if a != b and (a, b) not in taken]
-        pairs += [rest[i] for i in rng.permutation(len(rest))]
-    return pairs[:n]
+    ranked = sorted(((a, b) for a in ids for b in ids if a != b), key=lambda p: pair_rank(*p, seed=seed))
+    used: set[str] = set()
+    first, rest = [], []
+    for a, b in ranked:
+        if a not in used and b not in used:
+            first.append((a, b))
+            used.update((a, b))
+        else:
+            rest.append((a, b))
+    return (first + rest)[:n]
 
 
 # ------------------------------------------------------------------ result store
@@ -293,3 +310,187 @@ def check_out_dir(out) -> Path:
     except OSError as e:
         raise OutputError(f"cannot create output folder ({e.strerror}): choose another --out", path=out) from None
     return out
+
+
+# ------------------------------------------------------------------ data and out
+def data_root(data=None) -> Path:
+    """The benchmarks' data folder: ``data`` (``--data``) or else ``$FACETEX_DATA``.
+
+    Raises BadInputError when neither is given (a benchmark never defaults to a path of
+    the machine it was written on) or the folder does not exist."""
+    import os
+
+    from ..io import check_input_dir
+
+    value = data if data not in (None, "") else os.environ.get(DATA_ENV) or None
+    if value is None:
+        raise BadInputError(f"no data folder: pass --data DIR or set {DATA_ENV}=DIR (the folder holding "
+                            "frl-london/, lfw/ and grid/, or the bench's own folder)")
+    return check_input_dir(value, BadInputError, what="data folder")
+
+
+def data_folder(root, sub: str | None) -> Path:
+    """``root/sub`` when that exists (``root`` is the data root), else ``root`` itself (the
+    bench's own folder was given). ``sub`` may also be an absolute or relative path."""
+    root = Path(root)
+    if not sub:
+        return root
+    p = Path(sub)
+    if p.is_absolute() or p.exists() and not (root / p).exists():
+        return p
+    return root / p if (root / p).exists() else root
+
+
+def default_out(bench: str) -> str:
+    """Every benchmark writes to ``bench_out/<bench>`` unless ``--out`` says otherwise."""
+    return f"bench_out/{bench}"
+
+
+def add_bench_options(p, bench: str, data_help: str) -> None:
+    """The options every ``facetex bench`` command shares, with the same names and defaults."""
+    from ..cli._common import add_json, add_quiet
+
+    p.add_argument("--data", metavar="DIR", default=None,
+                   help=f"{data_help}; default ${DATA_ENV} (required when that is not set)")
+    p.add_argument("--out", metavar="DIR", default=default_out(bench),
+                   help=f"output folder (created; default {default_out(bench)}); gets run.json with the "
+                        "command line, input hashes, settings and versions")
+    add_json(p, "the run's summary")
+    add_quiet(p)
+
+
+def finish_bench(args, bench: str, out, files: Mapping | None = None, *, inputs=None, settings=None,
+                 summary=None, table: str | None = None) -> Path:
+    """Write the run folder's provenance sidecar ``OUT/run.json`` and report: ``wrote PATH``
+    lines and the table (or the JSON summary with ``--json``)."""
+    from .._provenance import provenance
+    from ..cli._common import print_json, say
+
+    out = Path(out)
+    files = {k: str(v) for k, v in (files or {}).items()}
+    params = {k: v for k, v in vars(args).items() if k not in ("func", "json", "quiet", "debug") and not callable(v)}
+    table_md = out / "table.md"
+    if table_md.is_file():  # the run's own table, then its settings and the spread of every mean
+        extra = settings_and_spread_markdown(args, bench, out)
+        table = table_md.read_text(encoding="utf-8").rstrip("\n") + "\n\n" + extra
+        write_text(table_md, table)
+    record = provenance(command=f"bench {bench}", seed=getattr(args, "seed", None), inputs=inputs or {},
+                        params={**params, **(settings or {})}, outputs=list(files.values()),
+                        summary=json_safe(no_image_data(summary)) if summary is not None else None)
+    run_json = write_json(out / "run.json", record, overwrite=True)
+    if getattr(args, "json", False):
+        print_json(json_safe(no_image_data({"out": str(out), "files": {**files, "run": str(run_json)},
+                                            "summary": summary})))
+    else:
+        if table:
+            say(args, table.rstrip("\n"))
+        say(args, *(f"wrote {v}" for v in files.values()), f"wrote {run_json}")
+    return run_json
+
+
+# ------------------------------------------------------------------ statistics
+def spread(values: Iterable) -> dict:
+    """``n``, ``mean``, ``std`` (sample, ddof=1) and the 95 % confidence interval of the mean
+    (Student t) of the finite values; NaN where undefined."""
+    a = np.array([v for v in values if v is not None], dtype=np.float64)
+    a = a[np.isfinite(a)]
+    n = int(a.size)
+    nan = float("nan")
+    if n == 0:
+        return {"n": 0, "mean": nan, "std": nan, "ci95": (nan, nan), "ci95_half": nan}
+    mean = float(a.mean())
+    if n == 1:
+        return {"n": 1, "mean": mean, "std": nan, "ci95": (nan, nan), "ci95_half": nan}
+    from scipy import stats
+
+    std = float(a.std(ddof=1))
+    half = float(stats.t.ppf(0.975, n - 1) * std / math.sqrt(n))
+    return {"n": n, "mean": mean, "std": std, "ci95": (mean - half, mean + half), "ci95_half": half}
+
+
+def spread_text(values: Iterable, fmt: str = ".3f") -> str:
+    """``"mean ± std [lo, hi]"`` (std: sample standard deviation; brackets: 95 % CI of the mean)."""
+    s = spread(values)
+    if s["n"] == 0:
+        return "–"
+    if s["n"] == 1:
+        return f"{s['mean']:{fmt}}"
+    return f"{s['mean']:{fmt}} ± {s['std']:{fmt}} [{s['ci95'][0]:{fmt}}, {s['ci95'][1]:{fmt}}]"
+
+
+def non_default_settings(settings: Mapping, defaults: Mapping) -> dict:
+    """The settings whose value differs from ``defaults`` (keys missing there count as set)."""
+    return {k: v for k, v in settings.items() if k not in defaults or defaults[k] != v}
+
+
+def no_image_data(obj, *, max_list: int = 4096):
+    """``obj`` without image data: arrays become ``{"array": shape, "dtype"}`` and an
+    ``"images"`` entry of a mapping is dropped, so a benchmark's JSON stays small."""
+    if isinstance(obj, np.ndarray):
+        if obj.size <= 16:
+            return obj.tolist()
+        return {"array": list(obj.shape), "dtype": str(obj.dtype)}
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Mapping):
+        return {k: no_image_data(v, max_list=max_list) for k, v in obj.items() if k != "images"}
+    if isinstance(obj, (list, tuple)):
+        if len(obj) > max_list and all(isinstance(v, (int, float)) for v in obj[:16]):
+            return {"list_of": len(obj)}
+        return [no_image_data(v, max_list=max_list) for v in obj]
+    return obj
+
+
+def write_figure_formats(stem, fig, *, formats: Sequence[str] = ("png", "svg", "pdf"), dpi: int = 150) -> list[Path]:
+    """Save a matplotlib figure as ``stem.png``, ``stem.svg`` and ``stem.pdf`` (vector for
+    papers), atomically, then close it."""
+    import matplotlib.pyplot as plt
+
+    stem = Path(stem)
+    out = []
+    try:
+        for fmt in formats:
+            path = stem.with_name(f"{stem.name}.{fmt}")
+            with atomic_path(path) as tmp:
+                meta = {"svg": {"Date": None}, "pdf": {"CreationDate": None}}.get(fmt)  # reproducible bytes
+                fig.savefig(tmp, dpi=dpi, format=fmt, bbox_inches="tight", metadata=meta)
+            out.append(path)
+    finally:
+        plt.close(fig)
+    return out
+
+
+def settings_and_spread_markdown(args, bench: str, out) -> str:
+    """Markdown: the options of this run that differ from the command's defaults, and per method
+    the mean ± sample std and the 95 % CI of each key metric over the run's items (pairs,
+    targets, clips), read back from the run folder as ``facetex report`` reads it."""
+    from ..errors import FacetexError
+    from ..report.compare import KEY_METRICS, metric_summary
+    from ..report.html import command_defaults
+    from ..report.runs import load_run
+
+    defaults = command_defaults(f"bench {bench}")
+    skip = {"out", "json", "quiet", "overwrite", "func", "debug"}
+    nd = {k: v for k, v in vars(args).items() if k in defaults and k not in skip
+          and (list(v) if isinstance(v, tuple) else v) != (list(defaults[k]) if isinstance(defaults[k], tuple)
+                                                           else defaults[k])}
+    lines = ["## Settings of this run", "",
+             "Options that differ from the defaults of `facetex bench " + bench + "`: " +
+             (", ".join(f"`--{k.replace('_', '-')} {','.join(map(str, v)) if isinstance(v, (list, tuple)) else v}`"
+                        for k, v in nd.items()) or "none") + ". All settings, input hashes and versions: `run.json`.",
+             ""]
+    try:
+        rows = [r for r in metric_summary(load_run(out)) if r["metric"] in KEY_METRICS]
+    except FacetexError:
+        rows = []
+    if rows:
+        lines += ["## Spread", "",
+                  "Mean ± sample standard deviation over the items, and the 95 % confidence interval of the mean "
+                  "(Student t); n items.", "",
+                  "| method | metric | n | mean ± std | 95 % CI |", "|---|---|---:|---:|---:|"]
+        for r in rows:
+            std = "" if not math.isfinite(r["std"]) else f" ± {r['std']:.4g}"
+            ci = "–" if not math.isfinite(r["ci95_half"]) else f"[{r['ci95'][0]:.4g}, {r['ci95'][1]:.4g}]"
+            lines.append(f"| {r['method']} | {r['metric']} | {r['n']} | {r['mean']:.4g}{std} | {ci} |")
+        lines.append("")
+    return "\n".join(lines)

@@ -24,7 +24,7 @@ from ._common import Column, check_out_dir, csv_table, markdown_table, versions,
 
 __all__ = ["run_bench_persona", "register_bench", "masked_metrics"]
 
-DEFAULT_DATA = "/work/shared/data/lfw/George_W_Bush"
+DATA_SUBFOLDER = "lfw/George_W_Bush"  # inside --data / $FACETEX_DATA (or --data is this folder itself)
 GRID_METHODS = ("static", "weighted", "prewarp", "ours")
 
 
@@ -75,7 +75,7 @@ def _choose_holdout(files: list[Path], holdout: int, seed: int, params, progress
     return held, rest
 
 
-def run_bench_persona(data=DEFAULT_DATA, *, holdout: int = 20, seed: int = 0, out="bench_out/persona",
+def run_bench_persona(data, *, holdout: int = 20, seed: int = 0, out="bench_out/persona",
                       jobs: int = 2, sigma: float = 10.0, exact: int = 0, grid_rows: int = 8,
                       progress: Callable | None = None) -> dict:
     """Run the leave-out evaluation; returns {"rows": per-method means, "targets": per-target
@@ -196,12 +196,15 @@ def run_bench_persona(data=DEFAULT_DATA, *, holdout: int = 20, seed: int = 0, ou
 def register_bench(sub) -> None:
     """Add ``persona`` to the ``facetex bench`` sub-commands (wired by the bench parser)."""
     from ..cli._common import bounded_int, finite_float, positive_int
+    from ._common import add_bench_options
 
-    p = sub.add_parser("persona", help="leave-out evaluation of persona textures (Tom Hanks Fig. 5)")
-    p.add_argument("--data", default=DEFAULT_DATA, help=f"folder of photos of one person (default {DEFAULT_DATA})")
+    p = sub.add_parser("persona", help="leave-out evaluation of persona textures (Tom Hanks Fig. 5)",
+                       description="Build a persona without --holdout photos, synthesize each held-out photo's "
+                                   "texture with every method and compare it with the photo: table.md/.csv, "
+                                   "per_target.csv, grid.png, summary.json.")
+    add_bench_options(p, "persona", f"data root holding {DATA_SUBFOLDER}/, or a folder of photos of one person")
     p.add_argument("--holdout", type=positive_int, default=20, help="photos held out as targets (default 20)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the held-out choice (default 0)")
-    p.add_argument("--out", default="bench_out/persona", help="output folder (default bench_out/persona)")
     p.add_argument("--jobs", type=bounded_int(1, 64), default=2, help="worker processes for the build (default 2)")
     p.add_argument("--sigma", type=finite_float(0.0, open_lo=True), default=10.0, help="Eq. 3 sigma (default 10)")
     p.add_argument("--exact", type=bounded_int(0), default=0, metavar="N",
@@ -210,12 +213,16 @@ def register_bench(sub) -> None:
 
 
 def _run_cli(args) -> int:
-    import sys
-
     from ..cli._common import progress_bar
+    from ..persona.collection import _list_photos
+    from ._common import data_folder, data_root, finish_bench
 
-    with progress_bar(desc="bench persona", unit="step") as update:
-        res = run_bench_persona(args.data, holdout=args.holdout, seed=args.seed, out=args.out, jobs=args.jobs,
+    data = data_folder(data_root(args.data), DATA_SUBFOLDER)
+    n = len(_list_photos(data))
+    total = args.holdout + 2 * max(0, n - args.holdout) + args.holdout  # hold-out choice, build, targets
+    with progress_bar(total=total, desc="bench persona", unit="step", disable=args.quiet) as update:
+        res = run_bench_persona(data, holdout=args.holdout, seed=args.seed, out=args.out, jobs=args.jobs,
                                 sigma=args.sigma, exact=args.exact, progress=update)
-    sys.stdout.write(res["table"])
+    finish_bench(args, "persona", args.out, res["files"], inputs={"data": data}, settings={"data": str(data)},
+                 summary={"rows": res["rows"]}, table=res["table"])
     return 0

@@ -416,7 +416,7 @@ def _data_paths(data, drivers, puppet) -> tuple[Path, Path]:
     return Path(drivers), Path(puppet)
 
 
-def run_bench_puppet(drivers=None, puppet=None, out="bench-puppet", *, data=None, clips: int | None = None,
+def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, data=None, clips: int | None = None,
                      size: int | None = 256, max_frames: int | None = None, texture_shape: str = "collection",
                      partial: bool = True, progress: Callable | None = None) -> dict:
     """Run the puppetry benchmark: every ``*.mpg`` / ``*.mp4`` in ``drivers`` (the first ``clips``)
@@ -496,15 +496,19 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench-puppet", *, data=None
 def register_bench(bench_subparsers) -> argparse.ArgumentParser:
     """Add the ``puppet`` sub-parser to ``facetex bench``."""
     from ..cli._common import bounded_int, positive_int
+    from ._common import add_bench_options
 
     p = bench_subparsers.add_parser(
         "puppet", help="puppetry: talking-face clips drive a persona (mouth, boundary colour, identity, lost faces)",
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--data", help="data folder with grid/ (driver clips) and lfw/George_W_Bush/ "
-                                  "(default: $FACETEX_DATA)")
-    p.add_argument("--drivers", help="folder of driver videos (default DATA/grid)")
-    p.add_argument("--puppet", help="puppet .persona file or photo folder (default DATA/lfw/George_W_Bush)")
-    p.add_argument("--out", default="bench-puppet", help="output folder (default ./bench-puppet)")
+        description="Driver clips drive a persona (Tom Hanks §4, §6); measured per clip: the mouth (slope and "
+                    "correlation of the puppet's opening on the driver's), the colour step at the composite's "
+                    "edge relative to the driver's own, the expression texture, identity distances to the "
+                    "puppet and to the driver, lost and rejected frames (with a half-out-of-frame check), and "
+                    "flicker on still frames. Writes table.md/.csv, results.json, contact sheets (fitted and "
+                    "at 100 %%), zoomed crops and, for the first clip, a side-by-side MP4.")
+    add_bench_options(p, "puppet", "data root holding grid/ (driver clips) and lfw/George_W_Bush/ (the puppet)")
+    p.add_argument("--drivers", metavar="DIR", help="folder of driver videos (default DATA/grid)")
+    p.add_argument("--puppet", metavar="PATH", help="puppet .persona file or photo folder (default DATA/lfw/George_W_Bush)")
     p.add_argument("--clips", type=positive_int, help="use only the first N clips")
     p.add_argument("--size", type=bounded_int(32, 4096), default=256, help="longer side of the rendered frames (default 256)")
     p.add_argument("--max-frames", type=positive_int, help="use only the first N frames of each clip")
@@ -515,15 +519,33 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def _run(args) -> int:
-    from ..cli._common import print_json, progress_bar
 
-    with progress_bar(desc="bench puppet", unit="frame") as bar:
-        res = run_bench_puppet(args.drivers, args.puppet, args.out, data=args.data, clips=args.clips, size=args.size,
+def _run(args) -> int:
+    from ..cli._common import progress_bar
+    from ..io import video_info
+    from ._common import data_root, finish_bench
+
+    root = None if (args.drivers and args.puppet and not args.data) else data_root(args.data)
+    drivers, puppet = _data_paths(root, args.drivers, args.puppet)
+    clips = sorted(f for f in drivers.iterdir() if f.suffix.lower() in (".mpg", ".mp4", ".mov", ".avi", ".mkv")) \
+        if drivers.is_dir() else [drivers]
+    clips = clips[: args.clips or None]
+    total = 0
+    for c in clips:  # the bar counts evaluated frames
+        try:
+            n = video_info(c)["n_frames"]
+        except Exception:  # noqa: BLE001 - the run itself reports a bad clip
+            n = 0
+        total += min(n, args.max_frames) if args.max_frames else n
+    with progress_bar(total=total or None, desc="bench puppet", unit="frame", disable=args.quiet) as bar:
+        res = run_bench_puppet(drivers, puppet, args.out, clips=args.clips, size=args.size,
                                max_frames=args.max_frames, texture_shape=args.shape, partial=not args.no_partial,
                                progress=bar)
-    print_json(json_safe({"out": str(res["out"]), "files": {k: str(v) for k, v in res["files"].items()},
-                          "summary": res["summary"], "partial": res["partial"], "targets_met": res["targets_met"]}))
+    table = Path(res["files"]["table_md"]).read_text(encoding="utf-8")
+    finish_bench(args, "puppet", res["out"], res["files"], inputs={"drivers": drivers, "puppet": puppet},
+                 settings={"drivers": str(drivers), "puppet": str(puppet)},
+                 summary={"summary": res["summary"], "partial": res["partial"], "targets_met": res["targets_met"]},
+                 table=table)
     return 0
 
 

@@ -34,12 +34,13 @@ import numpy as np
 from ..errors import BadInputError, NoFaceError, OutputError
 from ..io import read_image, to_uint8, write_image, write_json
 from ._common import (Column, ResultStore, check_out_dir, csv_table, list_portraits, markdown_table,
-                      json_safe, mean_finite, select_pairs, versions, write_figure, write_grid, write_text)
+                      json_safe, mean_finite, no_image_data, select_pairs, versions, write_figure_formats, write_grid,
+                      write_text)
 
 __all__ = ["METHODS", "METHOD_TITLES", "METHOD_COLOURS", "PAPER_TABLE1", "PRESETS",
            "run_bench_transfer", "register_bench", "run"]
 
-DEFAULT_DATA = "/work/shared/data/frl-london"
+DATA_SUBFOLDER = "frl-london"  # inside --data / $FACETEX_DATA (or --data is this folder itself)
 METHODS = ("gatys", "mrf", "facetex")
 NONE = "none"  # the content scored as the output ("doing nothing")
 PRESETS = ("default", "paper")
@@ -197,7 +198,7 @@ def _write_scatter(path, records, pairs, methods) -> Path:
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
     fig.suptitle("FaceTex Figure 4: per-pair metrics (dots), paper means (crosses)")
-    return write_figure(path, fig)
+    return write_figure_formats(Path(path).with_suffix(""), fig)[0]  # .png, and .svg + .pdf for papers
 
 
 def _default_metrics(output, content, style, **kw):
@@ -252,9 +253,9 @@ def _write_grid(path, out, pairs, paths, methods, records) -> Path:
     return write_grid(path, rows, col_titles=titles, cell_labels=labels, cell=256)
 
 
-def run_bench_transfer(data=DEFAULT_DATA, out="bench-transfer", *, pairs: int = 5,
+def run_bench_transfer(data, out="bench_out/transfer", *, pairs: int = 5,
                        methods: Sequence[str] | str = METHODS, preset: str = "default", seed: int = 0,
-                       size: int | None = None, device: str = "cpu", overwrite: bool = False,
+                       size: int | None = None, iters=None, device: str = "cpu", overwrite: bool = False,
                        transfer_fn: Callable | None = None, metrics_fn: Callable | None = None,
                        progress: Callable | None = None) -> dict:
     """Run the FaceTex §3.1 benchmark and write its tables, figures and per-pair results to ``out``.
@@ -281,6 +282,8 @@ def run_bench_transfer(data=DEFAULT_DATA, out="bench-transfer", *, pairs: int = 
     (out / "images").mkdir(exist_ok=True)
     store = ResultStore(out / "results")
     options = {} if size is None else {"size": int(size)}
+    if iters is not None:
+        options["iters"] = list(iters)
     transfer_fn = transfer_fn or _default_transfer_fn()
     if metrics_fn is None:
         metrics_fn = _default_metrics
@@ -352,7 +355,7 @@ def run_bench_transfer(data=DEFAULT_DATA, out="bench-transfer", *, pairs: int = 
             write_json(image_path.with_suffix(".json"), json_safe({
                 "content": str(portraits[c]), "style": str(portraits[s]), "method": method,
                 "preset": preset, "seed": int(seed), "device": device, "options": options,
-                "wall_s": wall, **info, "versions": settings["versions"]}), overwrite=True)
+                "wall_s": wall, **no_image_data(dict(info or {})), "versions": settings["versions"]}), overwrite=True)
             rec = {"content": c, "style": s, "method": method, "config": config, "metrics": metrics,
                    "metrics_error": error, "wall_s": wall, "prewarp_folds": info.get("prewarp_folds"),
                    "timings": dict(info.get("timings", {})),
@@ -389,18 +392,22 @@ def run_bench_transfer(data=DEFAULT_DATA, out="bench-transfer", *, pairs: int = 
 def register_bench(bench_subparsers) -> argparse.ArgumentParser:
     """Add ``transfer`` to the ``facetex bench`` sub-parsers."""
     from ..cli._common import add_overwrite, add_seed_device, bounded_int, positive_int
+    from ..cli.cmd_transfer import _iters
+    from ._common import add_bench_options
 
     p = bench_subparsers.add_parser(
         "transfer", help="FaceTex §3.1 benchmark: Table 1, Figures 3 and 4",
         description="Run Neural Style, MRF-CNN and FaceTex on content/style pairs of different people "
                     "and write table.md/.csv, grid.png, scatter.png and pairs.json. Resumable: finished "
                     "(pair, method) results in --out are reused.")
-    p.add_argument("--data", default=DEFAULT_DATA, help=f"folder of NNN_neutral.jpg portraits (default {DEFAULT_DATA})")
+    add_bench_options(p, "transfer", f"data root holding {DATA_SUBFOLDER}/, or a folder of NNN_neutral.jpg portraits")
     p.add_argument("--pairs", type=positive_int, default=5, help="number of content/style pairs (default 5)")
     p.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated subset of {','.join(METHODS)}")
     p.add_argument("--preset", choices=PRESETS, default="default", help="transfer parameters (default: default)")
-    p.add_argument("--out", default="bench-transfer", help="output folder (created; default ./bench-transfer)")
     p.add_argument("--size", type=bounded_int(32, 4096), default=None, help="working size in px passed to the transfer (optional)")
+    p.add_argument("--iters", type=_iters, default=None, metavar="N,N,N",
+                   help="L-BFGS iterations per level passed to the transfer, e.g. 5,5,5 for a quick run "
+                        "(default: the preset's)")
     add_seed_device(p)
     add_overwrite(p)
     p.set_defaults(func=run)
@@ -408,16 +415,21 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    from ..cli._common import check_device, print_json, progress_bar
+    from ..cli._common import check_device, progress_bar
+    from ._common import data_folder, data_root, finish_bench
 
     methods = parse_methods(args.methods)
     check_device(args.device)  # before the work
-    total = max(1, int(args.pairs)) * len(methods)
-    with progress_bar(total=total, desc="bench transfer", unit="run") as update:
-        result = run_bench_transfer(args.data, args.out, pairs=args.pairs, methods=methods, preset=args.preset,
-                                    seed=args.seed, size=args.size, device=args.device,
+    data = data_folder(data_root(args.data), DATA_SUBFOLDER)
+    n_people = len(list_portraits(data, tag="neutral"))
+    total = max(1, min(int(args.pairs), n_people * (n_people - 1))) * len(methods)
+    with progress_bar(total=total, desc="bench transfer", unit="run", disable=args.quiet) as update:
+        result = run_bench_transfer(data, args.out, pairs=args.pairs, methods=methods, preset=args.preset,
+                                    seed=args.seed, size=args.size, iters=args.iters, device=args.device,
                                     overwrite=args.overwrite, progress=update)
-    print_json({"out": str(result["out"]), "files": {k: str(v) for k, v in result["files"].items()},
-                "run": result["n_run"], "reused": result["n_reused"],
-                "table": json_safe(result["table"])})
+    table = Path(result["files"]["table_md"]).read_text(encoding="utf-8")
+    finish_bench(args, "transfer", result["out"], result["files"], inputs={"data": data},
+                 settings={"data": str(data)},
+                 summary={"run": result["n_run"], "reused": result["n_reused"], "table": json_safe(result["table"])},
+                 table=table)
     return 0

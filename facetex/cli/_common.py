@@ -89,11 +89,34 @@ def check_device(device: str) -> str:
 
 def add_seed_device(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    parser.add_argument("--device", type=device_name, default="cpu", help="torch device: cpu or cuda (default cpu)")
+    parser.add_argument("--device", type=device_name, default="cpu", metavar="{cpu,cuda,cuda:N,mps}",
+                        help="torch device (default cpu; cuda needs a CUDA build of torch)")
 
 
 def add_overwrite(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+
+
+def add_quiet(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress bar and no success message (errors are still printed)")
+
+
+def add_json(parser: argparse.ArgumentParser, what: str = "the result") -> None:
+    parser.add_argument("--json", action="store_true", help=f"print {what} as JSON on stdout (nothing else)")
+
+
+def say(args, *lines: str) -> None:
+    """Success lines (``wrote PATH``) on stdout, unless ``--quiet`` or ``--json``."""
+    if getattr(args, "quiet", False) or getattr(args, "json", False):
+        return
+    for line in lines:
+        print(line)
+
+
+def wrote(args, *paths) -> None:
+    """``wrote PATH`` for each written file (see :func:`say`)."""
+    say(args, *(f"wrote {p}" for p in paths))
 
 
 def print_json(obj) -> None:
@@ -125,16 +148,24 @@ def read_json_file(path, error=None, *, what: str = "JSON file"):
 
 
 @contextmanager
-def progress_bar(total: int | None = None, desc: str = "", unit: str = "it"):
-    """A tqdm bar on stderr; yields a callback ``update(n=1, **postfix)`` for the API."""
-    bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, dynamic_ncols=True, leave=False)
+def progress_bar(total: int | None = None, desc: str = "", unit: str = "it", *, disable: bool = False,
+                 leave: bool = True):
+    """A tqdm bar on stderr (it stays on screen when done, with its count and time); yields a
+    callback ``update(n=1, **postfix)`` for the API. ``disable``: no bar (``--quiet``)."""
+    bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, dynamic_ncols=True, leave=leave,
+               disable=disable)
 
     def update(n: int = 1, **postfix):
         if postfix:
             bar.set_postfix(postfix, refresh=False)
+        if bar.total is not None and bar.n + n > bar.total:  # an estimated total: grow it, never overflow
+            bar.total = bar.n + n
         bar.update(n)
 
     try:
         yield update
+        if bar.total is not None and bar.n < bar.total:  # an estimated total: end the finished bar at 100 %
+            bar.total = bar.n
+            bar.refresh()
     finally:
         bar.close()

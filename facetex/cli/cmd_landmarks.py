@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
-from ._common import add_overwrite, nonnegative_int, print_json
+from ._common import add_overwrite, nonnegative_int, print_json, wrote
 
 
 def register(sub) -> None:
     p = sub.add_parser("landmarks", help="detect faces and their 68 iBUG landmarks")
     p.add_argument("image", help="input image")
     p.add_argument("--json", action="store_true",
-                   help='print {"image": ..., "faces": [{"box": [x0,y0,x1,y1], "points68": [[x,y],...]}]}')
+                   help='print {"image": ..., "faces": [{"box": [x0,y0,x1,y1], "points68": [[x,y],...]}]} '
+                        '(no face: "faces": [] and exit 0)')
     p.add_argument("-o", "--output", metavar="OVERLAY",
-                   help="write the image with boxes and numbered points (e.g. overlay.png)")
+                   help="write the image with boxes and numbered points (e.g. overlay.png; OVERLAY.json gets "
+                        "the parameters)")
     p.add_argument("--upsample", type=nonnegative_int, default=None, metavar="N",
                    help="double the image N times before detecting (default: automatic, "
                         "2x only when nothing is found in an image of at most 1200 px); the doubled "
@@ -65,9 +67,11 @@ def run(args) -> int:
     from ..io import DETECT_MAX_PIXELS, IMAGE_EXTENSIONS, check_output_path, read_image_reduced, write_image
     from ..landmarks import detect_faces
 
+    sidecar = None
     if args.output:  # fail before the work, not after it
         check_output_path(args.output, overwrite=args.overwrite, inputs=[args.image], extensions=IMAGE_EXTENSIONS,
                           what="image")
+        sidecar = check_output_path(f"{args.output}.json", overwrite=args.overwrite, inputs=[args.image])
     image, scale = read_image_reduced(args.image, DETECT_MAX_PIXELS)
     h, w = image.shape[:2]
     factor = 2.0 / (scale[0] + scale[1])  # returned image -> original pixels
@@ -84,6 +88,9 @@ def run(args) -> int:
                             f"{h * 2 ** args.upsample} image, over the {DETECT_MAX_PIXELS // 10**6} megapixel limit: "
                             f"use at most --upsample {n} for this {w}x{h} image", path=args.image)
     faces = detect_faces(image, upsample=args.upsample, detector=args.detector)
+    if not faces and args.json and not args.output:  # an answer, not an error: a script gets an empty list
+        print_json({"image": str(args.image), "faces": []})
+        return 0
     if not faces:
         raise NoFaceError("no face found: try --upsample 1 or --detector cnn, or a larger frontal photo",
                           path=args.image)
@@ -91,10 +98,22 @@ def run(args) -> int:
     if not 0 <= k < len(faces):
         raise BadInputError(f"--face-index {k} is out of range: {len(faces)} face(s) found "
                             f"(use 0..{len(faces) - 1})", path=args.image)
+    full = [f.scaled(factor) for f in faces] if factor != 1.0 else faces
     if args.output:
-        write_image(args.output, _overlay(image, faces, k), overwrite=args.overwrite, inputs=[args.image])
-    if factor != 1.0:
-        faces = [f.scaled(factor) for f in faces]
+        import numpy as np
+
+        from .._provenance import provenance
+        from ..io import encode_image, encode_json, write_files
+
+        record = provenance(
+            command="landmarks", inputs={"image": args.image},
+            params={"upsample": args.upsample, "detector": args.detector, "face_index": k,
+                    "overlay_scale": 1.0 / factor},
+            outputs=[args.output],
+            faces=[{"box": [float(v) for v in f.box], "points68": np.asarray(f.points68).tolist()} for f in full])
+        write_files({args.output: encode_image(args.output, _overlay(image, faces, k)),
+                     sidecar: encode_json(record)}, overwrite=args.overwrite, inputs=[args.image])
+    faces = full
     if args.json:
         print_json({
             "image": str(args.image),
@@ -112,5 +131,5 @@ def run(args) -> int:
             print(f"{mark} face {i}: box ({x0:.0f}, {y0:.0f}, {x1:.0f}, {y1:.0f}) {x1 - x0:.0f}x{y1 - y0:.0f} px,"
                   f" score {f.score:.2f}, eye distance {iod:.1f} px")
         if args.output:
-            print(f"overlay written to {args.output}")
+            wrote(args, args.output, sidecar)
     return 0

@@ -3,7 +3,8 @@ collection (Tom Hanks Sec. 4-5)."""
 
 from __future__ import annotations
 
-from ._common import add_overwrite, bounded_int, finite_float, positive_int, print_json, progress_bar
+from ._common import (add_json, add_overwrite, add_quiet, bounded_int, finite_float, positive_int, print_json,
+                      progress_bar, wrote)
 
 
 def register(sub) -> None:
@@ -21,6 +22,7 @@ def register(sub) -> None:
                    help="build even when the photos show several people (default: photos of other people are "
                         "left out when one person has >= 80%% of them, else the build is refused)")
     add_overwrite(b)
+    add_quiet(b)
     b.set_defaults(func=run_build)
 
     t = ps.add_parser("texture", help="synthesize a texture for a target expression")
@@ -56,6 +58,7 @@ def register(sub) -> None:
                    help="collection: the persona's photometric-stereo average depth (default; the generic "
                         "face if it is missing or implausible); generic: the generic face")
     add_overwrite(m)
+    add_json(m, "the mesh's summary (vertices, faces, depth source, paths)")
     m.set_defaults(func=run_mesh)
 
 
@@ -73,6 +76,7 @@ def _write_with_sidecar(out, sidecar, image, record: dict, args, inputs) -> None
 
     write_files({out: encode_image(out, image), sidecar: encode_json(record)}, overwrite=args.overwrite,
                 inputs=inputs)
+    wrote(args, out, sidecar)
 
 
 def run_build(args) -> int:
@@ -85,23 +89,36 @@ def run_build(args) -> int:
     from ..persona.collection import _list_photos
     from ..persona.identity import MixedCollectionError
 
+    from .._provenance import provenance
+    from ..io import encode_json, write_files
+
     folder = check_input_dir(args.photo_dir, BadInputError, what="photo folder")
     photos = _list_photos(folder)
-    check_output_path(args.output, overwrite=args.overwrite, inputs=photos, extensions=(".persona",),
-                      what="persona file")
+    out = check_output_path(args.output, overwrite=args.overwrite, inputs=photos, extensions=(".persona",),
+                            what="persona file")
+    sidecar = check_output_path(f"{out}.json", overwrite=args.overwrite, inputs=photos)
     t0 = time.perf_counter()
-    with progress_bar(total=2 * len(photos), desc="persona", unit="photo") as update:
+    with progress_bar(total=2 * len(photos), desc="persona", unit="photo", disable=args.quiet) as update:
         try:
             persona = build_persona(folder, jobs=args.jobs, progress=update, allow_mixed=args.allow_mixed,
                                     params=PersonaParams(min_photos=args.min_photos))
         except MixedCollectionError as e:
             raise MixedCollectionError(f"{e.message}, or pass --allow-mixed to build from all of them",
                                        path=e.path, main=e.main, others=e.others, people=e.people) from None
-    persona.save(args.output, overwrite=args.overwrite)
-    print(f"{args.output}: {len(persona)} photos used, {len(persona.skipped)} skipped "
-          f"({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
-    for s in persona.skipped:
-        print(f"  skipped {s['file']}: {s['reason']}", file=sys.stderr)
+    record = provenance(command="persona build", inputs={"photo_dir": folder},
+                        params={"jobs": args.jobs, "min_photos": args.min_photos, "allow_mixed": args.allow_mixed,
+                                "persona_params": persona.params},
+                        outputs=[out], photos_used=len(persona), skipped=persona.skipped,
+                        seconds=time.perf_counter() - t0)
+    # the persona and its sidecar are committed together
+    write_files({out: lambda tmp: persona.save(tmp, overwrite=True), sidecar: encode_json(record)},
+                overwrite=args.overwrite, inputs=photos)
+    if not args.quiet:
+        print(f"{out}: {len(persona)} photos used, {len(persona.skipped)} skipped "
+              f"({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
+        for s in persona.skipped:
+            print(f"  skipped {s['file']}: {s['reason']}", file=sys.stderr)
+    wrote(args, out, sidecar)
     return 0
 
 
@@ -164,12 +181,14 @@ def run_texture(args) -> int:
     with progress_bar(desc="texture", unit="step") as update:
         img = synthesize_texture(persona, method=args.method, sigma=args.sigma, progress=update, **kw)
     t2 = time.perf_counter()
-    _write_with_sidecar(out, sidecar, img, {
-        "command": "persona texture", "persona": args.persona, "photos": len(persona),
-        "target": {"like": args.like} if args.like else {"fiducials": args.fiducials},
-        "method": args.method, "sigma": args.sigma,
-        "timings_s": {"load": t1 - t0, "synthesize_incl_precompute": t2 - t1},
-    }, args, inputs)
+    from .._provenance import provenance
+
+    _write_with_sidecar(out, sidecar, img, provenance(
+        command="persona texture", inputs={"persona": args.persona, "like": args.like, "fiducials": args.fiducials},
+        params={"method": args.method, "sigma": args.sigma,
+                "target": "like" if args.like else "fiducials"},
+        outputs=[out], photos=len(persona),
+        timings_s={"load": t1 - t0, "synthesize_incl_precompute": t2 - t1}), args, inputs)
     return 0
 
 
@@ -185,9 +204,11 @@ def run_average(args) -> int:
     t1 = time.perf_counter()
     img = average_face(persona, args.stage)
     t2 = time.perf_counter()
-    _write_with_sidecar(out, sidecar, img, {
-        "command": "persona average", "persona": args.persona, "photos": len(persona), "stage": args.stage,
-        "timings_s": {"load": t1 - t0, "average": t2 - t1}}, args, inputs)
+    from .._provenance import provenance
+
+    _write_with_sidecar(out, sidecar, img, provenance(
+        command="persona average", inputs={"persona": args.persona}, params={"stage": args.stage},
+        outputs=[out], photos=len(persona), timings_s={"load": t1 - t0, "average": t2 - t1}), args, inputs)
     return 0
 
 
@@ -195,19 +216,17 @@ def run_mesh(args) -> int:
     import time
     from pathlib import Path
 
+    from .._api import persona_mesh
+    from .._provenance import provenance
     from ..errors import BadInputError, OutputError
-    from ..io import check_output_path
-    from ..persona import average_face, load_persona
-    from ..persona.collection import average_depth, face_region
-    from ..persona.mesh_io import depth_to_mesh, write_obj
-    from ..persona.shape import checked_depth, generic_depth_px
-
-    from ..persona import read_persona_header
+    from ..io import check_output_path, encode_json
+    from ..persona import load_persona, read_persona_header
 
     out = Path(args.output)
     if out.suffix.lower() != ".obj":
         raise OutputError("mesh file name must end in .obj", path=out)
-    paths = {"obj": out, "mtl": out.with_suffix(".mtl"), "texture": out.with_suffix(".png")}
+    paths = {"obj": out, "mtl": out.with_suffix(".mtl"), "texture": out.with_suffix(".png"),
+             "sidecar": Path(f"{out}.json")}
     for p in paths.values():  # before any work: no partial output set
         check_output_path(p, overwrite=args.overwrite, inputs=[args.persona])
     W, H = read_persona_header(args.persona)["size"]
@@ -217,34 +236,26 @@ def run_mesh(args) -> int:
                             f"use 1..{max_step}", path=args.persona)
     t0 = time.perf_counter()
     persona = load_persona(args.persona)
-    W, H = persona.size
-    region = face_region(persona.points68.mean(axis=0), (H, W))
     t1 = time.perf_counter()
-    origin, n_used = None, 0
-    if args.shape == "generic":
-        depth, source = generic_depth_px((W, H)).astype("float64"), "generic"
-    else:
-        if persona.depth is not None:
-            raw, n_used, origin = persona.depth, persona.depth_photos, "stored"
-        else:  # version-1 persona: reconstruct as a build does
-            raw, n_used = average_depth(persona)
-            origin = "computed"
-        depth, source = checked_depth(raw, region, (W, H))
+    try:
+        mesh = persona_mesh(persona, step=args.step, shape=args.shape)
+    except BadInputError as e:
+        raise BadInputError(e.message.replace("step ", "--step ", 1), path=args.persona) from None
     t2 = time.perf_counter()
-    vertices, faces, uv = depth_to_mesh(depth, region, step=args.step)
-    if len(faces) == 0:
-        raise BadInputError(f"--step {args.step} leaves no triangle on the face: use a smaller step",
-                            path=args.persona)
-    texture = average_face(persona, "d")
-    t3 = time.perf_counter()
-    write_obj(out, vertices, faces, uv, texture, overwrite=args.overwrite, inputs=[args.persona])
-    print_json({
+    summary = {
         "command": "persona mesh", "persona": str(args.persona), "photos": len(persona),
         "paths": {k: str(v) for k, v in paths.items()},
-        "vertices": int(len(vertices)), "faces": int(len(faces)), "step": args.step,
-        "depth_source": source, "depth_origin": origin, "depth_photos": int(n_used),
+        "vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces)), "step": args.step,
+        "depth_source": mesh.depth_source, "depth_origin": mesh.depth_origin, "depth_photos": mesh.depth_photos,
         "units": "canonical px, OBJ axes (x right, y up, z towards the viewer)",
-        "timings_s": {"load": t1 - t0, "depth": t2 - t1, "mesh_texture": t3 - t2,
-                      "write": time.perf_counter() - t3},
-    })
+        "timings_s": {"load": t1 - t0, "mesh_texture": t2 - t1},
+    }
+    record = provenance(command="persona mesh", inputs={"persona": args.persona},
+                        params={"step": args.step, "shape": args.shape},
+                        outputs=[paths["obj"], paths["mtl"], paths["texture"]], result=summary)
+    mesh.save(out, overwrite=args.overwrite, inputs=[args.persona],
+              extra_files={paths["sidecar"]: encode_json(record)})
+    if args.json:
+        print_json(summary)
+    wrote(args, *(paths[k] for k in ("obj", "mtl", "texture", "sidecar")))
     return 0

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from ._common import add_overwrite, bounded_int, positive_int, print_json, progress_bar
+from ._common import add_json, add_overwrite, add_quiet, bounded_int, positive_int, print_json, progress_bar, wrote
 
 MAX_SIZE = 4096  # longer side of an output panel (px)
 
@@ -29,6 +29,8 @@ def register(sub) -> None:
                    help="expression-dependent texture (default) or the static average texture")
     p.add_argument("--max-frames", type=positive_int, help="use only the first N frames")
     add_overwrite(p)
+    add_quiet(p)
+    add_json(p, "the run's report (frames, lost frames, timings)")
     p.set_defaults(func=run)
 
 
@@ -40,22 +42,35 @@ def run(args) -> int:
     from ..persona.puppet import PuppetParams, puppeteer
 
     # everything checked before the work: output, inputs, the driver's size
-    check_output_path(args.output, overwrite=args.overwrite, inputs=[args.driver, args.puppet],
-                      extensions=VIDEO_EXTENSIONS, what="video")
+    from .._provenance import provenance
+    from ..io import write_json
+
+    inputs = [args.driver, args.puppet]
+    out = check_output_path(args.output, overwrite=args.overwrite, inputs=inputs, extensions=VIDEO_EXTENSIONS,
+                            what="video")
+    sidecar = check_output_path(f"{out}.json", overwrite=args.overwrite, inputs=inputs)
     if args.driver_photos:
         check_input_dir(args.driver_photos, BadInputError, what="driver photo folder")
     read_persona_header(args.puppet)  # fail fast on a wrong file; the arrays load while the driver is tracked
     n = video_info(args.driver)["n_frames"]
     if args.max_frames is not None:
         n = min(n, max(0, args.max_frames))
-    with progress_bar(2 * n, desc="puppet", unit="frame") as bar:
+    with progress_bar(2 * n, desc="puppet", unit="frame", disable=args.quiet) as bar:
         report = puppeteer(args.driver, args.puppet, args.output, driver_photos=args.driver_photos,
                            side_by_side=args.side_by_side, size=args.size, mode=args.mode,
                            overwrite=args.overwrite, max_frames=args.max_frames,
                            params=PuppetParams(texture=args.texture, composite=CompositeParams(lighting=args.lighting)),
                            progress=bar)
-    if report["lost_frames"]:
+    write_json(sidecar, provenance(
+        command="puppet", inputs={"driver": args.driver, "puppet": args.puppet, "driver_photos": args.driver_photos},
+        params={"side_by_side": args.side_by_side, "size": args.size, "mode": args.mode, "texture": args.texture,
+                "lighting": args.lighting, "max_frames": args.max_frames,
+                "puppet_params": PuppetParams(texture=args.texture, composite=CompositeParams(lighting=args.lighting))},
+        outputs=[out], result=report), overwrite=args.overwrite, inputs=inputs)
+    if report["lost_frames"] and not args.quiet:
         print(f"{args.driver}: face lost in {report['lost_frames']} of {report['frames']} frames "
               "(not found, partly outside the frame or implausible; those frames show the driver)", file=sys.stderr)
-    print_json(report)
+    if args.json:
+        print_json(report)
+    wrote(args, out, sidecar)
     return 0

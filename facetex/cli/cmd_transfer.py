@@ -1,32 +1,39 @@
-"""``facetex transfer CONTENT STYLE -o OUT`` — FaceTex texture transfer (or a baseline)."""
+"""``facetex transfer CONTENT STYLE -o OUT`` — FaceTex texture transfer (or a baseline).
+
+Options follow neural-style-pt's conventions where they overlap: loss weights on the
+command line, ``--init``, ``--print-every``, ``--save-every``, ``-q/--quiet``.
+"""
 
 from __future__ import annotations
 
 import argparse
 import math
+import sys
 import time
 import warnings
 from pathlib import Path
 
-from ._common import add_overwrite, add_seed_device, bounded_int, check_device, positive_int, progress_bar
+from ._common import (add_overwrite, add_quiet, add_seed_device, bounded_int, check_device, finite_float,
+                      nonnegative_int, positive_int, progress_bar, say)
 
 MAX_ITERS = 100_000  # per level
 MAX_LEVELS = 8
 
+METHOD_HELP = {"facetex": "FaceTex (Eq. 5: MRF texture + facial structure + TV, skin only)",
+               "mrf": "MRF-CNN baseline (Eq. 7)", "gatys": "Gatys neural style baseline (Eq. 6)"}
+PRESET_HELP = {"default": "384 px face crop, 3 x 100 L-BFGS iterations, minutes on a CPU",
+               "paper": "the paper's whole image at 1000 px, 3 x 200 iterations (much slower)"}
+
 
 def _iters(text: str) -> tuple[int, ...]:
     """argparse type of ``--iters``: comma-separated positive iteration counts, one per level."""
+    from .._api import parse_iters
+    from ..errors import BadInputError
+
     try:
-        vals = tuple(int(v) for v in str(text).split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"takes comma-separated integers such as 100,100,100, not {text!r}") from None
-    if any(v < 1 for v in vals):
-        raise argparse.ArgumentTypeError(f"every level needs at least 1 iteration, not {text!r}")
-    if any(v > MAX_ITERS for v in vals) or len(vals) > MAX_LEVELS:
-        raise argparse.ArgumentTypeError(f"at most {MAX_LEVELS} levels of at most {MAX_ITERS} iterations, "
-                                         f"not {text!r}")
-    return vals
+        return parse_iters(text)
+    except BadInputError as e:
+        raise argparse.ArgumentTypeError(str(e).replace("iters takes", "takes")) from None
 
 
 _iters.__name__ = "iteration list"
@@ -53,26 +60,51 @@ def _memory(text: str) -> int:
 _memory.__name__ = "size"
 
 
+def _choices_help(table: dict, default: str) -> str:
+    return "; ".join(f"{k}{' (default)' if k == default else ''}: {v}" for k, v in table.items())
+
+
 def register(sub) -> None:
     from ..transfer.methods import METHODS, PRESETS, TEXTURE_NETS
 
-    p = sub.add_parser("transfer", help="transfer skin texture from a style face onto a content face")
+    p = sub.add_parser(
+        "transfer", help="transfer skin texture from a style face onto a content face",
+        description="Transfer the skin texture of STYLE onto CONTENT, keeping the content person's identity "
+                    "(FaceTex, Kaur, Zhang & Dana 2017), or run a baseline. Writes OUT and OUT.json (every "
+                    "parameter, input hashes, versions, timings).")
     p.add_argument("content", help="content face image (identity kept)")
     p.add_argument("style", help="style face image (texture source)")
-    p.add_argument("-o", "--output", required=True, help="output image (.png/.jpg); OUT.json gets the parameters")
-    p.add_argument("--method", choices=METHODS, default="facetex")
-    p.add_argument("--preset", choices=PRESETS, default="default")
-    p.add_argument("--size", type=bounded_int(32, 4096), help="long edge of the working region in px, 32..4096 "
-                                                              "(default: preset's)")
-    p.add_argument("--iters", type=_iters, help="L-BFGS iterations per level, e.g. 100,100,100")
-    p.add_argument("--texture-net", choices=TEXTURE_NETS, help="texture feature network (default effnet-lite0)")
-    p.add_argument("--vgg19-weights", help="path of torchvision's vgg19-dcbb9e9d.pth (for --texture-net vgg19)")
-    p.add_argument("--crop", choices=("face", "image"), help="work on a face crop (default) or the whole image")
-    p.add_argument("--save-every", type=positive_int,
-                   help="save OUT_level<L>_eval<N>.png every N loss evaluations (kept if the run is interrupted)")
-    p.add_argument("--max-memory", type=_memory, help="refuse above this estimated peak (e.g. 8G; default 75%% of free RAM)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT",
+                   help="output image (.png/.jpg/.tif/.webp); OUT.json gets the parameters")
+    p.add_argument("--method", choices=METHODS, default="facetex", help=_choices_help(METHOD_HELP, "facetex"))
+    p.add_argument("--preset", choices=PRESETS, default="default", help=_choices_help(PRESET_HELP, "default"))
+    p.add_argument("--size", type=bounded_int(32, 4096), metavar="PX",
+                   help="long edge of the working region in px, 32..4096 (default: the preset's, 384 / 1000)")
+    p.add_argument("--iters", type=_iters, metavar="N,N,N",
+                   help="L-BFGS iterations per resolution level, e.g. 100,100,100 (default: the preset's)")
+    p.add_argument("--init", default="content", metavar="content|random|PATH",
+                   help="start of the optimisation: the content image (default), seeded uniform noise, or an "
+                        "image file of the content's size")
+    w = p.add_argument_group("loss weights (default: the method's; normalised per level, see the README)")
+    for name, what in (("mrf", "MRF texture term (Eq. 2)"), ("structure", "facial-structure term (Eq. 3)"),
+                       ("content", "content term (Eqs. 6, 7)"), ("style", "Gram style term (Eq. 6)"),
+                       ("tv", "total-variation term (Eq. 4)")):
+        w.add_argument(f"--{name}-weight", type=finite_float(0.0), metavar="W", help=f"weight of the {what}")
+    p.add_argument("--texture-net", choices=TEXTURE_NETS,
+                   help="texture feature network (default effnet-lite0; vgg19 needs --vgg19-weights or the "
+                        "torchvision file in $TORCH_HOME)")
+    p.add_argument("--vgg19-weights", metavar="PATH", help="path of torchvision's vgg19-dcbb9e9d.pth (for --texture-net vgg19)")
+    p.add_argument("--crop", choices=("face", "image"), help="work on a face crop (default preset) or the whole image")
+    p.add_argument("--save-every", type=positive_int, metavar="N",
+                   help="every N loss evaluations (and after each level) write the full-size image so far as "
+                        "OUT_level<L>_eval<NNNN>.png beside OUT (kept if the run is interrupted)")
+    p.add_argument("--print-every", type=nonnegative_int, default=0, metavar="N",
+                   help="print the loss terms every N loss evaluations (default 0: never)")
+    p.add_argument("--max-memory", type=_memory, metavar="SIZE",
+                   help="refuse above this estimated peak (e.g. 8G; default 75%% of free RAM)")
     add_seed_device(p)
     add_overwrite(p)
+    add_quiet(p)
     p.set_defaults(func=run)
 
 
@@ -87,11 +119,17 @@ def check_step_files(stem: Path, overwrite: bool) -> None:
 
 
 def run(args) -> int:
+    from .._api import as_image, transfer_params, transfer_step_image
+    from .._api import transfer_with_info
+    from .._provenance import provenance
+    from ..errors import BadInputError
     from ..io import IMAGE_EXTENSIONS, check_input_file, check_output_path, encode_image, encode_json, read_image
     from ..io import write_files, write_image
-    from ..transfer import preset, transfer_with_info
+    from ..landmarks import detect_face
+    from ..transfer import face_crop_box
 
-    inputs = [args.content, args.style] + ([args.vgg19_weights] if args.vgg19_weights else [])
+    init_path = None if args.init in ("content", "random") else args.init
+    inputs = [args.content, args.style] + [p for p in (args.vgg19_weights, init_path) if p]
     # everything that can be checked is checked before the work
     out = check_output_path(args.output, overwrite=args.overwrite, inputs=inputs, extensions=IMAGE_EXTENSIONS,
                             what="image")
@@ -101,31 +139,65 @@ def run(args) -> int:
         check_step_files(stem, args.overwrite)
     for p in inputs:
         check_input_file(p)
+    weights = {f"{k}_weight": getattr(args, f"{k}_weight") for k in ("mrf", "structure", "content", "style", "tv")}
     options = {k: v for k, v in {"size": args.size, "iters": args.iters, "texture_net": args.texture_net,
-                                  "vgg19_weights": args.vgg19_weights, "crop": args.crop}.items() if v is not None}
-    params = preset(args.method, args.preset, args.texture_net).with_options(
-        **{k: v for k, v in options.items() if k != "texture_net"})
+                                  "vgg19_weights": args.vgg19_weights, "crop": args.crop, **weights}.items()
+               if v is not None}
+    params = transfer_params(args.method, args.preset, **options)
     check_device(args.device)
     content = read_image(args.content)
     style = read_image(args.style)
+    init = args.init
+    if init_path:
+        init = as_image(init_path, f"--init image {init_path}")
+        if init.shape != content.shape:
+            raise BadInputError(f"--init image is {init.shape[1]}x{init.shape[0]} px, the content "
+                                f"{content.shape[1]}x{content.shape[0]}: it must have the content's size",
+                                path=init_path)
+    points_c = detect_face(content, source=args.content).points68
+    points_s = detect_face(style, source=args.style).points68
+    box = face_crop_box(points_c, content.shape) if params.crop == "face" else (0, 0, content.shape[1],
+                                                                                content.shape[0])
+    steps: list[str] = []
 
     def save(image, level, evaluation):
-        write_image(f"{stem}_level{level}_eval{evaluation:04d}.png", image, overwrite=args.overwrite, inputs=inputs)
+        path = f"{stem}_level{level}_eval{evaluation:04d}.png"
+        mine = path in steps  # the end of a level can fall on a periodic save: same name, same run
+        write_image(path, transfer_step_image(content, image, box), overwrite=args.overwrite or mine,
+                    inputs=inputs)
+        if not mine:
+            steps.append(path)
 
     total = sum(params.iters) * 5 // 4 + params.levels  # L-BFGS evaluations are at most 1.25 × iterations
-    with warnings.catch_warnings(), progress_bar(total, desc=f"{args.method}", unit="eval") as bar:
+    evals = 0
+    with warnings.catch_warnings(), progress_bar(total, desc=args.method, unit="eval", disable=args.quiet) as bar:
         warnings.simplefilter("always")  # advice (e.g. upscaling) is shown when it is known, before the work
+
+        def progress(n=1, level=0, loss=0.0, **terms):
+            nonlocal evals
+            evals += n
+            bar(n, level=level, loss=f"{loss:.4g}")
+            if args.print_every and evals % args.print_every == 0 and not args.quiet:
+                from tqdm import tqdm
+
+                tqdm.write(f"level {level} evaluation {evals}: loss {loss:.6g}", file=sys.stderr)
+
         t0 = time.perf_counter()
         image, info = transfer_with_info(
             content, style, method=args.method, preset=args.preset, seed=args.seed, device=args.device,
-            progress=lambda n=1, level=0, loss=0.0: bar(n, level=level, loss=f"{loss:.4g}"),
-            callback=save if args.save_every else None, save_every=args.save_every,
-            content_source=args.content, style_source=args.style, max_memory=args.max_memory, **options)
+            progress=progress, callback=save if args.save_every else None, save_every=args.save_every,
+            content_points=points_c, style_points=points_s, content_source=args.content,
+            style_source=args.style, max_memory=args.max_memory, init=init, **options)
     info.pop("images", None)
-    info["inputs"] = {"content": str(args.content), "style": str(args.style)}
     info["timings"]["wall_s"] = time.perf_counter() - t0
+    record = provenance(
+        command="transfer", seed=args.seed,
+        inputs={"content": args.content, "style": args.style, "init": init_path, "vgg19_weights": args.vgg19_weights},
+        params={**(info.get("params") or {}), "method": args.method, "preset": args.preset, "init": args.init,
+                "device": args.device, "command_line_options": options},
+        outputs=[out], steps=steps, result=info)
     # the image and its sidecar are committed together: never one without the other
-    write_files({out: encode_image(out, image), sidecar: encode_json(info)}, overwrite=args.overwrite,
+    write_files({out: encode_image(out, image), sidecar: encode_json(record)}, overwrite=args.overwrite,
                 inputs=inputs)
-    print(f"wrote {out} ({info['timings']['total_s']:.1f} s) and {sidecar}")
+    say(args, f"wrote {out}", f"wrote {sidecar}")
     return 0

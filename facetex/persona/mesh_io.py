@@ -72,10 +72,11 @@ def _table(fmt: str, arr: np.ndarray) -> str:
 
 
 def write_obj(path, vertices, faces, uv=None, texture=None, *, overwrite: bool = True,
-              to_gl_axes: bool = True, inputs=()) -> Path:
+              to_gl_axes: bool = True, inputs=(), extra_files=None) -> Path:
     """Write a mesh as ``path`` (.obj), with ``<stem>.mtl`` and ``<stem>.png`` when ``texture``
     (H, W, 3) float [0, 1] is given (it needs ``uv``). The files are written together: all of
-    them or none (:func:`facetex.io.write_files`; exclusive creates unless ``overwrite``).
+    them or none (:func:`facetex.io.write_files`; exclusive creates unless ``overwrite``);
+    ``extra_files`` ({path: bytes}, e.g. a provenance sidecar) are committed with them.
     ``to_gl_axes`` turns OpenCV axes into the y-up axes viewers expect. Returns the .obj path.
     """
     path = Path(path)
@@ -111,6 +112,7 @@ def write_obj(path, vertices, faces, uv=None, texture=None, *, overwrite: bool =
     else:
         parts.append(_table("f %d %d %d", f + 1))
     files[path] = "".join(parts)
+    files.update(extra_files or {})
     write_files(files, overwrite=overwrite, inputs=inputs)
     return path
 

@@ -239,12 +239,60 @@ def test_cli_parser_and_run(data, tmp_path, monkeypatch, capsys):
     parser = argparse.ArgumentParser()
     bench.register_bench(parser.add_subparsers())
     args = parser.parse_args(["transfer", "--data", str(data), "--out", str(tmp_path / "o"), "--pairs", "1",
-                              "--methods", "mrf", "--seed", "2", "--preset", "paper"])
+                              "--methods", "mrf", "--seed", "2", "--preset", "paper", "--json"])
     assert args.func(args) == 0
     printed = json.loads(capsys.readouterr().out)
-    assert printed["run"] == 1 and [r["method_id"] for r in printed["table"]] == ["none", "mrf"]
+    assert printed["summary"]["run"] == 1
+    assert [r["method_id"] for r in printed["summary"]["table"]] == ["none", "mrf"]
     assert fake.calls == [("mrf", {})]
     assert (tmp_path / "o" / "grid.png").is_file()
+    run = json.loads((tmp_path / "o" / "run.json").read_text())
+    assert run["command"] == "bench transfer" and run["seed"] == 2 and run["params"]["preset"] == "paper"
+    assert run["inputs"]["data"]["files"] >= 2 and len(run["inputs"]["data"]["sha256_of_files"]) == 64
+    # --iters reaches the transfer; without --json the table and `wrote` lines are printed
+    args = parser.parse_args(["transfer", "--data", str(data), "--out", str(tmp_path / "q"), "--pairs", "1",
+                              "--methods", "gatys", "--iters", "2,2"])
+    assert args.func(args) == 0
+    text = capsys.readouterr().out
+    assert "| method |" in text and f"wrote {tmp_path / 'q' / 'run.json'}" in text
+    md = (tmp_path / "q" / "table.md").read_text()
+    assert "`--pairs 1`" in md and "`--methods gatys`" in md and "`--iters 2,2`" in md and "preset" not in md.split(
+        "## Settings of this run")[1].split("## Spread")[0]
+    assert "## Spread" in md and "| gatys | S_style | 1 |" in md
+    assert fake.calls[-1] == ("gatys", {"iters": [2, 2]})
+
+
+def test_data_folder_comes_from_option_or_environment(data, tmp_path, monkeypatch):
+    monkeypatch.delenv(_common.DATA_ENV, raising=False)
+    with pytest.raises(BadInputError, match="--data DIR or set FACETEX_DATA"):
+        _common.data_root(None)
+    monkeypatch.setenv(_common.DATA_ENV, str(tmp_path))
+    assert _common.data_root(None) == tmp_path
+    assert _common.data_root(data) == data  # the option wins
+    (tmp_path / "frl-london").mkdir()
+    assert _common.data_folder(tmp_path, "frl-london") == tmp_path / "frl-london"  # the data root
+    assert _common.data_folder(data, "frl-london") == data  # the bench's own folder
+    with pytest.raises(BadInputError, match="data folder not found"):
+        _common.data_root(tmp_path / "nope")
+
+
+def test_pairs_stay_when_a_portrait_is_added():
+    ids = [f"{i:03d}" for i in range(60)]
+    changed = [len(set(_common.select_pairs(ids, 5, seed=s)) - set(_common.select_pairs(ids + ["061"], 5, seed=s)))
+               for s in range(20)]
+    assert sum(changed) <= 10  # random shuffling would change nearly all 100
+    assert max(changed) <= 2
+
+
+def test_spread_and_no_image_data():
+    s = _common.spread([1.0, 2.0, 3.0, float("nan"), None])
+    assert s["n"] == 3 and s["mean"] == 2.0 and s["std"] == 1.0
+    assert abs(s["ci95_half"] - 4.302652729749464 / 3 ** 0.5) < 1e-9  # t(0.975, 2) * std / sqrt(n)
+    assert _common.spread_text([1.0, 2.0, 3.0], ".1f") == "2.0 ± 1.0 [-0.5, 4.5]"
+    info = {"images": {"x": np.zeros((50, 50, 3))}, "mask": np.ones((64, 64)), "loss": [1.0, 2.0]}
+    clean = _common.no_image_data(info)
+    assert clean == {"mask": {"array": [64, 64], "dtype": "float64"}, "loss": [1.0, 2.0]}
+    assert _common.non_default_settings({"a": 1, "b": 2, "c": 3}, {"a": 1, "b": 5}) == {"b": 2, "c": 3}
 
 
 def test_markdown_and_csv_tables():

@@ -31,7 +31,7 @@ def persona_file(tmp_path_factory):
 
 
 def _run(capsys, *argv):
-    code = main(["persona", "mesh", *map(str, argv)])
+    code = main(["persona", "mesh", *map(str, argv), "--json"])
     out = capsys.readouterr()
     return code, (json.loads(out.out) if code == 0 else None), out.err
 
@@ -47,7 +47,10 @@ def test_mesh_from_stored_depth(persona_file, tmp_path, capsys):
     code, rep, _ = _run(capsys, persona_file, "-o", obj)
     assert code == 0
     assert rep["depth_source"] == want_src and rep["depth_origin"] == "stored" and rep["depth_photos"] == 8
-    assert rep["paths"] == {"obj": str(obj), "mtl": str(tmp_path / "face.mtl"), "texture": str(tmp_path / "face.png")}
+    assert rep["paths"] == {"obj": str(obj), "mtl": str(tmp_path / "face.mtl"), "texture": str(tmp_path / "face.png"),
+                            "sidecar": str(tmp_path / "face.obj.json")}
+    side = json.loads((tmp_path / "face.obj.json").read_text())
+    assert side["command"] == "persona mesh" and side["inputs"]["persona"]["sha256"]
     v, f, uv = read_obj(obj)
     assert len(v) == rep["vertices"] == int(region.sum()) and len(f) == rep["faces"] > len(v)
     xs, ys = v[:, 0].astype(int), v[:, 1].astype(int)

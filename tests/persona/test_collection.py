@@ -225,7 +225,7 @@ def test_cli_texture_and_average(persona, tmp_path):
     out = tmp_path / "t.png"
     assert main(["persona", "texture", str(pf), "--fiducials", str(pts), "-o", str(out), "--method", "prewarp"]) == 0
     side = json.loads((tmp_path / "t.png.json").read_text())
-    assert side["method"] == "prewarp" and side["photos"] == 12 and "timings_s" in side
+    assert side["params"]["method"] == "prewarp" and side["photos"] == 12 and "timings_s" in side
     assert read_image(out).shape == (SIZE[1], SIZE[0], 3)
     assert main(["persona", "texture", str(pf), "--fiducials", str(pts), "-o", str(out)]) == 2  # exists
     avg = tmp_path / "avg.png"

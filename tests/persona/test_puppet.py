@@ -209,7 +209,7 @@ def test_cli_puppet(tmp_path, driver_video, tiny_persona, capsys):
     persona_file = tiny_persona.save(tmp_path / "tiny.persona")
     out = tmp_path / "cli.mp4"
     code = main(["puppet", "--driver", str(driver_video), "--puppet", str(persona_file), "-o", str(out),
-                 "--max-frames", "3", "--size", "96", "--mode", "face"])
+                 "--max-frames", "3", "--size", "96", "--mode", "face", "--json"])
     assert code == 0 and out.is_file()
     assert video_info(out)["n_frames"] == 3
     assert '"lost_frames": 0' in capsys.readouterr().out

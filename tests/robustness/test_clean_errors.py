@@ -160,7 +160,7 @@ def test_driver_audio(capsys, audio_videos, outdir, persona_file, video, audio):
     else:
         assert any(path.name in w and "audio cannot be decoded" in w and "no audio" in w for w in warnings), warnings
     assert video_info(outdir / "o.mp4")["has_audio"] is audio
-    assert [p.name for p in outdir.iterdir()] == ["o.mp4"]
+    assert sorted(p.name for p in outdir.iterdir()) == ["o.mp4", "o.mp4.json"]  # the video and its sidecar
     assert sha1s(path) == before
 
 

@@ -130,7 +130,7 @@ def test_concurrent_runs_one_wins_nothing_replaced(bad, tmp_path):
     err = next(e for c, e in res if c == 2)
     assert "Traceback" not in err and "o.png" in err and ("exists" in err or "appeared during the run" in err)
     assert fio.read_image(out).shape == (400, 400, 3)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.png"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.png", "o.png.json"]  # the winner's image and sidecar
 
 
 # ------------------------------------------------------------ output == an input

@@ -77,7 +77,7 @@ def test_partly_decodable_driver_warns_and_works(capsys, videos, outdir, persona
     assert "Traceback" not in run.err and run.lines == [], run.lines
     warnings = [l for l in run.err.replace("\r", "\n").splitlines() if l.startswith("facetex: warning:")]
     assert warnings and all(path.name in w and "damaged" in w for w in warnings)
-    assert [p.name for p in outdir.iterdir()] == ["o.mp4"]  # no temp file
+    assert sorted(p.name for p in outdir.iterdir()) == ["o.mp4", "o.mp4.json"]  # no temp file; the sidecar
     assert video_info(outdir / "o.mp4")["n_frames"] == 2
 
 
@@ -112,10 +112,11 @@ def test_face_leaving_the_frame_is_reported_lost(capsys, sliding, outdir, person
     import json
 
     path = sliding / "leaves.mp4"
-    run = run_cli(capsys, "puppet", "--driver", path, "--puppet", persona_file, "-o", outdir / "o.mp4", "--size", "96")
+    run = run_cli(capsys, "puppet", "--driver", path, "--puppet", persona_file, "-o", outdir / "o.mp4", "--size", "96",
+                  "--json")
     assert run.code == 0, run.err
     report = json.loads(run.out)
     assert report["lost_indices"] == [4, 5, 6]
     assert sum(report["lost_causes"].values()) == 3
     assert any("lost in 3 of 7 frames" in l and path.name in l for l in run.lines), run.lines
-    assert [p.name for p in outdir.iterdir()] == ["o.mp4"]
+    assert sorted(p.name for p in outdir.iterdir()) == ["o.mp4", "o.mp4.json"]

@@ -67,7 +67,7 @@ def test_unusual_encodings_transfer(capsys, bad, outdir):
     out = read_image(outdir / "t.jpg")
     assert out.shape == (400, 400, 3)
     info = json.loads((outdir / "t.jpg.json").read_text())
-    assert info["inputs"]["content"].endswith("cmyk.jpg")
+    assert info["inputs"]["content"]["path"].endswith("cmyk.jpg")
     assert sorted(p.name for p in outdir.iterdir()) == ["t.jpg", "t.jpg.json"]
     # the face region changed, the corners (outside the face crop) did not
     src = read_image(bad["cmyk.jpg"])

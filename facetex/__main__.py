@@ -1,0 +1,8 @@
+"""``python -m facetex ...`` runs the command-line interface (same as ``facetex ...``)."""
+
+import sys
+
+from .cli import main
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,94 @@
+"""Side-by-side metrics of run folders (``facetex compare`` and the report's comparison)."""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+from ..bench._common import spread
+from .runs import Run
+
+__all__ = ["metric_summary", "compare_rows", "compare_table", "KEY_METRICS"]
+
+#: metrics shown first (in this order) when a run has them
+KEY_METRICS = ("E_content", "E_style", "S_content", "S_style", "identity_content", "identity_style", "time_s",
+               "ssim", "grad_corr", "colour_diff", "mouth_r", "id_puppet", "id_frac", "flicker_ours", "fps")
+
+
+def _order(names):
+    key = [m for m in KEY_METRICS if m in names]
+    return key + [m for m in names if m not in key]
+
+
+def metric_summary(run: Run) -> list[dict]:
+    """Per (method, metric): n, mean, std, 95 % CI of the mean, and the paper's value if any."""
+    rows = []
+    for method in run.methods:
+        for metric in _order(run.metric_names):
+            vals = run.values(method, metric)
+            s = spread(vals)
+            if s["n"] == 0:
+                continue
+            rows.append({"method": method, "metric": metric, **s,
+                         "paper": run.paper.get(method, {}).get(metric)})
+    return rows
+
+
+def compare_rows(runs: Sequence[Run]) -> list[dict]:
+    """One row per (method, metric) present in any run: each run's mean, std, n; and the
+    difference of each later run's mean from the first run's."""
+    table: dict[tuple[str, str], dict] = {}
+    for i, run in enumerate(runs):
+        for r in metric_summary(run):
+            row = table.setdefault((r["method"], r["metric"]), {"method": r["method"], "metric": r["metric"],
+                                                               "runs": [None] * len(runs)})
+            row["runs"][i] = {k: r[k] for k in ("n", "mean", "std", "ci95_half")}
+    out = []
+    for row in table.values():
+        base = row["runs"][0]
+        row["delta"] = [None if (r is None or base is None) else r["mean"] - base["mean"] for r in row["runs"]]
+        out.append(row)
+    methods = []
+    for run in runs:
+        methods += [m for m in run.methods if m not in methods]
+    metrics = _order(list(dict.fromkeys(r["metric"] for r in out)))
+    out.sort(key=lambda r: (methods.index(r["method"]), metrics.index(r["metric"])))
+    return out
+
+
+def _fmt(v, digits: int = 4) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "–"
+    a = abs(v)
+    if a != 0 and (a >= 1e4 or a < 1e-3):
+        return f"{v:.3g}"
+    return f"{v:.{digits}g}" if a < 1 else f"{v:.{max(1, digits - len(str(int(a))))}f}"
+
+
+def cell(r: dict | None) -> str:
+    """``mean ± std (n)`` of a run's summary cell."""
+    if r is None:
+        return "–"
+    if r["n"] < 2:
+        return f"{_fmt(r['mean'])} (n=1)"
+    return f"{_fmt(r['mean'])} ± {_fmt(r['std'], 2)} (n={r['n']})"
+
+
+def compare_table(runs: Sequence[Run], *, markdown: bool = False) -> str:
+    """The comparison as a text table (or Markdown): method, metric, then per run
+    ``mean ± std (n)`` and, for later runs, the difference from the first."""
+    rows = compare_rows(runs)
+    head = ["method", "metric"] + [f"[{i + 1}] {r.name}" for i, r in enumerate(runs)] + \
+           [f"Δ [{i + 1}]-[1]" for i in range(1, len(runs))]
+    body = [[r["method"], r["metric"]] + [cell(c) for c in r["runs"]] + [_fmt(d) for d in r["delta"][1:]]
+            for r in rows]
+    legend = "\n".join(f"[{i + 1}] {r.path} ({r.kind}, {len(r.items)} items)" for i, r in enumerate(runs))
+    if markdown:
+        lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        lines += ["| " + " | ".join(b) + " |" for b in body]
+        return legend + "\n\n" + "\n".join(lines) + "\n\nmean ± sample std over the items (n); Δ: difference of means.\n"
+    widths = [max(len(str(x)) for x in col) for col in zip(head, *body)] if body else [len(h) for h in head]
+    fmt = lambda cells: "  ".join(str(c).ljust(w) if i < 2 else str(c).rjust(w)  # noqa: E731
+                                  for i, (c, w) in enumerate(zip(cells, widths)))
+    lines = [fmt(head), "  ".join("-" * w for w in widths)] + [fmt(b) for b in body]
+    return legend + "\n\n" + "\n".join(lines) + "\n\nmean ± sample std over the items (n); Δ: difference of means.\n"

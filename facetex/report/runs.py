@@ -1,0 +1,248 @@
+"""Reading run folders: what a benchmark, the demo or a set of single runs left behind.
+
+A :class:`Run` is the part of a folder a report shows: settings and provenance, the
+Markdown tables the run wrote, per-item metrics (one record per pair and method, or per
+target, or per clip), the images to compare and the figures. Layouts understood:
+
+- ``facetex bench transfer``: ``pairs.json`` (+ ``images/``, ``results/``, ``table.md``, ``run.json``);
+- ``facetex bench persona``: ``summary.json`` + ``per_target.csv`` + ``table.md``;
+- ``facetex bench puppet``: ``results.json`` + ``table.md`` (+ contact sheet);
+- ``facetex demo``: ``summary.json`` + ``transfer_<method>.png``;
+- any folder of outputs with ``*.json`` sidecars (``facetex transfer -o DIR/x.png``).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..errors import BadInputError
+
+__all__ = ["Run", "Item", "load_run", "METHOD_ORDER"]
+
+METHOD_ORDER = ("none", "gatys", "mrf", "facetex")  # "none": the content itself (no transfer)
+_IMAGE_EXT = (".png", ".jpg", ".jpeg", ".webp", ".tif", ".tiff")
+
+
+@dataclass
+class Item:
+    """One compared unit: a content/style pair (transfer), a held-out photo (persona), a clip."""
+
+    key: str
+    label: str
+    #: name -> image path, in display order ("style", "content", then one per method)
+    images: dict[str, Path] = field(default_factory=dict)
+    #: method -> metric -> value
+    metrics: dict[str, dict[str, float]] = field(default_factory=dict)
+
+
+@dataclass
+class Run:
+    """What a report shows of one run folder."""
+
+    path: Path
+    name: str
+    kind: str  # "bench transfer" | "bench persona" | "bench puppet" | "demo" | "outputs"
+    settings: dict = field(default_factory=dict)
+    provenance: dict | None = None
+    tables: dict[str, str] = field(default_factory=dict)  # file name -> Markdown text
+    items: list[Item] = field(default_factory=list)
+    figures: list[Path] = field(default_factory=list)
+    #: method -> metric -> reference value from the paper (other data)
+    paper: dict[str, dict[str, float]] = field(default_factory=dict)
+    paper_source: str = ""
+    sidecars: dict[str, dict] = field(default_factory=dict)  # relative path -> sidecar record
+
+    @property
+    def methods(self) -> list[str]:
+        seen: list[str] = []
+        for it in self.items:
+            for m in it.metrics:
+                if m not in seen:
+                    seen.append(m)
+        return sorted(seen, key=lambda m: (METHOD_ORDER.index(m) if m in METHOD_ORDER else 99, m))
+
+    @property
+    def metric_names(self) -> list[str]:
+        seen: list[str] = []
+        for it in self.items:
+            for vals in it.metrics.values():
+                for k, v in vals.items():
+                    if k not in seen and isinstance(v, (int, float)) and not isinstance(v, bool):
+                        seen.append(k)
+        return seen
+
+    def values(self, method: str, metric: str) -> list[float]:
+        """The metric of ``method`` over the items (NaN where missing)."""
+        out = []
+        for it in self.items:
+            v = it.metrics.get(method, {}).get(metric)
+            out.append(float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else math.nan)
+        return out
+
+
+def _read_json(path: Path):
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as e:
+        raise BadInputError(f"unreadable JSON in a run folder ({type(e).__name__}: {e})", path=path) from None
+
+
+def _tables(folder: Path) -> dict[str, str]:
+    return {p.name: p.read_text(encoding="utf-8") for p in sorted(folder.glob("table*.md"))}
+
+
+def _figures(folder: Path) -> list[Path]:
+    names = ("grid", "scatter", "figure", "contact")
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png" and p.stem.startswith(names))
+
+
+def _load_bench_transfer(folder: Path, run: Run) -> None:
+    pj = _read_json(folder / "pairs.json")
+    run.kind = "bench transfer"
+    run.settings = dict(pj.get("settings", {}))
+    run.paper = {m: dict(v) for m, v in (pj.get("paper_table1") or {}).items()}
+    run.paper_source = "FaceTex Table 1 (Kaur, Zhang & Dana 2017): 5 pairs of other head portraits"
+    for p in pj.get("pairs", []):
+        c, s = p["content"], p["style"]
+        it = Item(key=f"{c}__{s}", label=f"content {c} / style {s}")
+        for name, key in (("style", "style_path"), ("content", "content_path")):
+            path = Path(p.get(key, ""))
+            if path.is_file():
+                it.images[name] = path
+        results = p.get("results", {})
+        for m in sorted(results, key=lambda m: METHOD_ORDER.index(m) if m in METHOD_ORDER else 99):
+            r = results[m]
+            if r.get("image") and (folder / r["image"]).is_file():
+                it.images[m] = folder / r["image"]
+            it.metrics[m] = {k: v for k, v in (r.get("metrics") or {}).items()}
+            if isinstance(r.get("wall_s"), (int, float)):
+                it.metrics[m]["time_s"] = float(r["wall_s"])
+        run.items.append(it)
+    for sc in sorted((folder / "images").glob("*.json")):
+        try:
+            rec = json.loads(sc.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        run.sidecars[f"images/{sc.name}"] = rec
+
+
+def _load_bench_persona(folder: Path, run: Run) -> None:
+    summary = _read_json(folder / "summary.json")
+    run.kind = "bench persona"
+    run.settings = {k: v for k, v in summary.items() if k not in ("rows", "skipped", "held_out")}
+    per = folder / "per_target.csv"
+    if per.is_file():
+        with open(per, newline="", encoding="utf-8") as fh:
+            for row in csv.DictReader(fh):
+                it = Item(key=row.get("file", ""), label=row.get("file", ""))
+                for k, v in row.items():
+                    if "_" not in k or k in ("file",):
+                        continue
+                    method, metric = k.split("_", 1)
+                    try:
+                        it.metrics.setdefault(method, {})[metric] = float(v)
+                    except (TypeError, ValueError):
+                        pass
+                run.items.append(it)
+
+
+def _load_bench_puppet(folder: Path, run: Run) -> None:
+    res = _read_json(folder / "results.json")
+    run.kind = "bench puppet"
+    run.settings = dict(res.get("settings", {}))
+    for r in res.get("rows", []):
+        it = Item(key=str(r.get("clip")), label=f"clip {r.get('clip')}")
+        it.metrics["puppet"] = {k: v for k, v in r.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
+        media = r.get("media") or {}
+        sheet = Path(media.get("contact_sheet", ""))
+        if sheet.is_file():
+            it.images["contact sheet"] = sheet
+        run.items.append(it)
+
+
+def _load_demo(folder: Path, run: Run) -> None:
+    from .._resources import sample_path
+
+    summary = _read_json(folder / "summary.json")
+    run.kind = "demo"
+    run.settings = {k: v for k, v in summary.items() if k not in ("transfers",)}
+    ins = summary.get("inputs", {})
+    it = Item(key="demo", label=f"content {ins.get('content')} / style {ins.get('style')}")
+    for name in ("style", "content"):
+        p = sample_path(ins.get(name, "")) if ins.get(name) else None
+        if p is not None and p.is_file():
+            it.images[name] = p
+    for m, t in (summary.get("transfers") or {}).items():
+        img = folder / f"transfer_{m}.png"
+        if img.is_file():
+            it.images[m] = img
+        it.metrics[m] = {**(t.get("metrics") or {}), "time_s": t.get("seconds")}
+    run.items.append(it)
+
+
+def _load_outputs(folder: Path, run: Run) -> None:
+    """A folder of outputs with sidecars: one item per output image whose sidecar names a
+    content and a style (``facetex transfer``), grouped by (content, style)."""
+    run.kind = "outputs"
+    groups: dict[tuple, Item] = {}
+    for img in sorted(p for p in folder.iterdir() if p.suffix.lower() in _IMAGE_EXT):
+        sc = img.with_name(img.name + ".json")
+        if not sc.is_file():
+            continue
+        try:
+            rec = json.loads(sc.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        run.sidecars[sc.name] = rec
+        ins = rec.get("inputs") or {}
+        c, s = (ins.get("content") or {}).get("path"), (ins.get("style") or {}).get("path")
+        key = (c, s)
+        if key not in groups:
+            groups[key] = Item(key=f"{Path(c).stem if c else '?'}__{Path(s).stem if s else '?'}",
+                               label=f"content {Path(c).name if c else '?'} / style {Path(s).name if s else '?'}")
+            for name, p in (("style", s), ("content", c)):
+                if p and Path(p).is_file():
+                    groups[key].images[name] = Path(p)
+        method = (rec.get("params") or {}).get("method") or img.stem
+        label = method if method not in groups[key].images else img.stem
+        groups[key].images[label] = img
+        res = rec.get("metrics") or {}
+        timings = (rec.get("result") or {}).get("timings") or {}
+        groups[key].metrics[label] = {**{k: v for k, v in res.items() if isinstance(v, (int, float))},
+                                      **({"time_s": timings["total_s"]} if "total_s" in timings else {})}
+    run.items.extend(groups.values())
+
+
+def load_run(path) -> Run:
+    """Read one run folder (see the module docstring for the layouts).
+
+    Raises BadInputError naming the folder when it is missing or holds nothing a report can show."""
+    from ..io import check_input_dir
+
+    folder = check_input_dir(path, BadInputError, what="run folder")
+    run = Run(path=folder, name=folder.resolve().name, kind="")
+    if (folder / "run.json").is_file():
+        try:
+            run.provenance = json.loads((folder / "run.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            run.provenance = None
+    if (folder / "pairs.json").is_file():
+        _load_bench_transfer(folder, run)
+    elif (folder / "results.json").is_file() and (folder / "table.md").is_file():
+        _load_bench_puppet(folder, run)
+    elif (folder / "summary.json").is_file() and (folder / "per_target.csv").is_file():
+        _load_bench_persona(folder, run)
+    elif (folder / "summary.json").is_file() and any(folder.glob("transfer_*.png")):
+        _load_demo(folder, run)
+    else:
+        _load_outputs(folder, run)
+    run.tables = _tables(folder)
+    run.figures = _figures(folder)
+    if not run.items and not run.tables:
+        raise BadInputError("nothing to report: not a run folder of facetex bench / demo, and no output images "
+                            "with .json sidecars", path=folder)
+    return run
