@@ -22,7 +22,8 @@ import torch
 from .._memory import available_memory
 from ..errors import BadImageError, BadInputError, MemoryBudgetError
 from ..io import to_float32
-from .losses import StylePatches, _grid, gram_loss, gram_matrix, mrf_loss, mrf_memory_estimate, style_patches, tv_loss
+from .losses import (StylePatches, _grid, channel_softmax, gram_loss, gram_matrix, mrf_loss, mrf_memory_estimate,
+                     style_patches, tv_loss)
 from .methods import TransferParams
 from .methods import preset as make_preset
 from .optimize import _resize as _resize_level
@@ -163,7 +164,7 @@ class _LevelLoss:
         self.norms: dict[str, float] | None = None
         with torch.no_grad():
             tex_layers = list(dict.fromkeys(p.mrf_layers + p.style_layers))
-            fs = self.net.features(s, tex_layers) if tex_layers else {}
+            fs = self._transform(self.net.features(s, tex_layers) if tex_layers else {})
             fc = self.net.features(c, list(p.content_layers)) if p.content_layers else {}
             if builder.style_mask is not None:
                 sm = _resize_level(builder.style_mask, shape)
@@ -190,11 +191,19 @@ class _LevelLoss:
                 self.struct_ms = {l: float(v.square().mean()) + 1e-12 for l, v in fsc.items()}
             self.tv_ref = float(tv_loss(c)) + 1e-12
 
+    def _transform(self, feats: dict) -> dict:
+        """SWAG's channel softmax on the texture layers (MRF and Gram), if asked for."""
+        p = self.p
+        if p.feature_transform != "softmax":
+            return feats
+        tex = set(p.mrf_layers + p.style_layers)
+        return {k: (channel_softmax(v, p.feature_temperature) if k in tex else v) for k, v in feats.items()}
+
     def raw_terms(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
         p = self.p
         xin = apply_facial_prior(x, self.prior) if (p.prior and self.prior is not None) else x
         layers = list(dict.fromkeys(p.mrf_layers + p.style_layers + p.content_layers))
-        f = self.net.features(xin, layers) if layers else {}
+        f = self._transform(self.net.features(xin, layers) if layers else {})
         terms = {}
         for l in p.mrf_layers:  # Eq. 2
             terms[f"mrf:{l}"] = mrf_loss(f[l], self.patches[l], patch_size=p.patch_size,
@@ -408,7 +417,7 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
                                  lbfgs_history=params.lbfgs_history, line_search=params.line_search,
                                  seed=seed, device=device, progress=progress, callback=callback,
                                  save_every=save_every, level_init=params.level_init, change_mask=change_mask,
-                                 start=start)
+                                 start=start, eval_budget=params.eval_budget)
     timings["optimize_s"] = info["seconds"]
 
     # back to the region's full resolution: paste the *change*, so the content's own detail

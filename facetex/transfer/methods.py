@@ -90,9 +90,12 @@ class TransferParams:
     align: str | None = "beier-neely"  # style → content pre-warp (Sec. 2.3), None to skip
     align_refine: str | None = "sift-flow"
     align_frame: str = "similarity"  # pre-warp frame pinning (see geometry.morph.align_style_to_content)
+    feature_transform: str | None = None  # "softmax": SWAG's channel softmax on texture features
+    feature_temperature: float = 1.0
     detail: bool = False  # native-resolution skin detail stage (transfer/detail.py)
     detail_strength: float = 1.0
     lbfgs_history: int = 25
+    eval_budget: float = 2.0  # loss evaluations per level ≤ this × iterations (strong-Wolfe uses 1–4 per iteration)
     level_init: str = "residual"  # "upsample" is CNNMRF's (see optimize_image)
     line_search: str | None = "strong_wolfe"
     vgg19_weights: str | None = None
@@ -132,6 +135,10 @@ class TransferParams:
             raise BadInputError(f"target_region must be 'skin' or 'image', not {self.target_region!r}")
         if self.constraint not in (None, "skin"):
             raise BadInputError(f"constraint must be None or 'skin', not {self.constraint!r}")
+        if self.feature_transform not in (None, "softmax"):
+            raise BadInputError(f"feature_transform must be None or 'softmax', not {self.feature_transform!r}")
+        if not self.feature_temperature > 0:
+            raise BadInputError(f"feature_temperature must be > 0, got {self.feature_temperature}")
         if not 0.0 <= self.detail_strength <= 2.0:
             raise BadInputError(f"detail_strength must be in [0, 2], got {self.detail_strength}")
 
@@ -150,6 +157,7 @@ def preset(method: str = "facetex", name: str = "default", texture_net: str | No
     if name == "paper":
         base = replace(base, size=1000, crop="image", levels=3, iters=(200, 200, 200))
     else:
+        base = replace(base, eval_budget=1.25)  # torch's max_eval default: the speed budget holds
         # measured on 10 FRL pairs at 1000 px (benchmarks/geometry_align.py): optical-flow
         # refinement left 2.66 px landmark error vs 2.93 px for SIFT flow, at 1/7 of the time
         base = replace(base, align_refine="optical-flow")
