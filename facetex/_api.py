@@ -370,7 +370,7 @@ def transfer_with_info(
     c = as_image(content, "content image" + (f" {content_source}" if content_source else ""))
     s = as_image(style, "style image" + (f" {style_source}" if style_source else ""))
     start = _init_arg(init, c)
-    total = sum(params.iters) * 5 // 4 + params.levels  # L-BFGS evaluations: at most ~1.25 x iterations
+    total = int(sum(params.iters) * params.eval_budget) + params.levels  # the evaluation budget per level
     with _progress(progress, total, method, "eval") as bar:
         return _run(c, s, method=method, preset=preset, seed=int(seed), device=device, progress=bar,
                     callback=callback, save_every=save_every, content_points=content_points,

@@ -302,8 +302,10 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
     an info dict (parameters, timings, per-level loss terms, pre-warp folds, and under
     ``"images"`` the working-region images: content, pre-warped style at native and working
     resolution, skin masks, the optimiser's output). ``progress(n=1, level=, loss=)`` is
-    called per loss evaluation; ``callback(image=, level=, evaluation=)`` every
-    ``save_every`` evaluations and after each level (images of the working region).
+    called per loss evaluation; ``callback(image=, level=, evaluation=, full_image=, box=)``
+    every ``save_every`` evaluations and after each level: ``image`` is the working region at
+    the level's size, ``full_image`` the full-size picture of that step (pasted as the output
+    is, before the detail stage), ``box`` the region in the content.
     ``init``: where the optimisation starts — "content" (FaceTex §2.3), "random" (uniform
     noise in [0, 1], seeded, in the pixels that may change), or an (H, W, 3) image of the
     content's size.
@@ -413,6 +415,11 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
                                 f"{content.shape[1]}x{content.shape[0]}: it must have the content's size")
         start = _resize(ini[box[1]:box[3], box[0]:box[2]], (wh[1], wh[0]))
     builder = _LossBuilder(params, content_w, style_w, prior, style_mask, target_mask, cpw, device)
+    user_callback = callback
+    if user_callback is not None:
+        def callback(image, level, evaluation):  # noqa: F811 — adds the full-size picture of the step
+            full = _paste(content, region, box, content_w, _resize(image, (wh[1], wh[0])), skin_c, params)
+            user_callback(image=image, level=level, evaluation=evaluation, full_image=full, box=box)
     out_w, info = optimize_image(content_w, builder, levels=params.levels, iters=params.iters,
                                  lbfgs_history=params.lbfgs_history, line_search=params.line_search,
                                  seed=seed, device=device, progress=progress, callback=callback,
@@ -423,10 +430,7 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
     # back to the region's full resolution: paste the *change*, so the content's own detail
     # above the working resolution survives instead of being blurred by the resampling
     t0 = time.perf_counter()
-    delta = cv2.resize(out_w - content_w, (rw, rh), interpolation=cv2.INTER_CUBIC)
-    if params.constraint == "skin":
-        delta *= (skin_c > 0)[..., None]  # exactly nothing outside the skin (cubic rings 1–2 px)
-    out_region = np.clip(region + delta, 0.0, 1.0)
+    out_region = _paste_region(region, content_w, out_w, skin_c, params)
     optimised_region = out_region
     detail_info = None
     if params.detail:
@@ -440,12 +444,7 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
                                                        style_energy=energies, face_width=face_width(cpr),
                                                        params=dparams, return_info=True)
     timings["detail_s"] = time.perf_counter() - t0
-    out = content.copy()
-    if params.crop == "face" and params.constraint != "skin":
-        alpha = _edge_feather((rh, rw), box, (H, W))
-        out[box[1]:box[3], box[0]:box[2]] = alpha[..., None] * out_region + (1 - alpha[..., None]) * region
-    else:
-        out[box[1]:box[3], box[0]:box[2]] = out_region
+    out = _compose(content, region, box, out_region, params)
     timings["total_s"] = time.perf_counter() - t_start
     info = {
         "method": params.method, "preset": params.preset, "params": _jsonable(asdict(params)),
@@ -460,6 +459,34 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
                    "optimised_region": optimised_region, "output_region": out_region},
     }
     return out.astype(np.float32), info
+
+
+def _paste_region(region, content_w, out_w, skin_c, params) -> np.ndarray:
+    """The region at its full resolution with the optimiser's *change* pasted in: the
+    content's own detail above the working resolution survives instead of being blurred
+    by the resampling; with the skin constraint nothing changes outside the skin."""
+    rh, rw = region.shape[:2]
+    delta = cv2.resize(out_w - content_w, (rw, rh), interpolation=cv2.INTER_CUBIC)
+    if params.constraint == "skin":
+        delta *= (skin_c > 0)[..., None]  # exactly nothing outside the skin (cubic rings 1–2 px)
+    return np.clip(region + delta, 0.0, 1.0)
+
+
+def _compose(content, region, box, out_region, params) -> np.ndarray:
+    """The full image with the region replaced (feathered at inner crop edges when the whole
+    crop may change)."""
+    out = content.copy()
+    rh, rw = region.shape[:2]
+    if params.crop == "face" and params.constraint != "skin":
+        alpha = _edge_feather((rh, rw), box, content.shape[:2])
+        out[box[1]:box[3], box[0]:box[2]] = alpha[..., None] * out_region + (1 - alpha[..., None]) * region
+    else:
+        out[box[1]:box[3], box[0]:box[2]] = out_region
+    return out
+
+
+def _paste(content, region, box, content_w, out_w, skin_c, params) -> np.ndarray:
+    return _compose(content, region, box, _paste_region(region, content_w, out_w, skin_c, params), params)
 
 
 def _edge_feather(shape, box, full_shape, frac: float = 0.08) -> np.ndarray:
