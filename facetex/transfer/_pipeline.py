@@ -393,7 +393,13 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
     prior = prior_mask(cpw, wh) if params.prior else None
     style_mask = {"skin": None if skin_sw is None else skin_sw * (skin_cw > 0.05), "face": face,
                   "image": None}[params.style_region]
-    target_mask = skin_cw if params.target_region == "skin" else None
+    target_mask = None
+    if params.target_region == "skin":
+        target_mask = skin_cw
+    elif params.target_region == "face":  # every patch that can change: the face grown by the features' reach
+        r = max(1, int(round(0.05 * max(wh))))
+        target_mask = cv2.dilate((face > 0.01).astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8))
+        target_mask = target_mask.astype(np.float32)
     change_mask = None
     if params.constraint == "skin":
         cm = torch.from_numpy(np.ascontiguousarray(skin_cw))[None, None].to(device)

@@ -76,7 +76,7 @@ class TransferParams:
     patch_size: int = 3
     style_stride: int = 2
     style_region: str = "face"  # MRF style patches from: "skin" (the style's skin, warped), "face", "image"
-    target_region: str = "image"  # texture loss over "image" or only the content's "skin"
+    target_region: str = "image"  # texture loss over the "image", the "face" (all it can change) or the "skin"
     constraint: str | None = None  # "skin": x = c + m ⊙ z, only the content's skin can change
     content_layers: tuple[str, ...] = ()
     content_weight: float = 0.0
@@ -131,8 +131,8 @@ class TransferParams:
             raise BadInputError(f"size {self.size} px is out of range 32..4096")
         if self.style_region not in ("skin", "face", "image"):
             raise BadInputError(f"style_region must be 'skin', 'face' or 'image', not {self.style_region!r}")
-        if self.target_region not in ("skin", "image"):
-            raise BadInputError(f"target_region must be 'skin' or 'image', not {self.target_region!r}")
+        if self.target_region not in ("skin", "face", "image"):
+            raise BadInputError(f"target_region must be 'skin', 'face' or 'image', not {self.target_region!r}")
         if self.constraint not in (None, "skin"):
             raise BadInputError(f"constraint must be None or 'skin', not {self.constraint!r}")
         if self.feature_transform not in (None, "softmax"):
@@ -165,6 +165,10 @@ def preset(method: str = "facetex", name: str = "default", texture_net: str | No
         # texture 2 : structure 1 (docs/texture-nets.md): more texture than MRF-CNN, identity kept
         p = replace(base, mrf_layers=layers["mrf"], mrf_weight=2.0, structure_layers=STRUCTURE_LAYERS,
                     structure_weight=1.0, tv_weight=0.05, prior=True)
+        if name == "paper":
+            # the prior and face mask freeze everything outside the face (§3.1): texture patches
+            # there cannot change, so they are not matched (same optimum, a fraction of the time)
+            p = replace(p, target_region="face")
         if name == "default":
             # only the content's skin changes (hard constraint instead of the gradient-scaling
             # prior, which L-BFGS undoes), texture from the style's skin only, and the style's
