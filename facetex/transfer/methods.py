@@ -6,10 +6,15 @@ builds it from (method, preset, texture network). Two presets:
 - ``paper``: the paper's schedule — whole image at 1000 px long edge, 3 levels × 200
   L-BFGS iterations (Gatys: 1000 iterations at full size), the paper's layers when the
   texture network is VGG-19.
-- ``default``: the best quality we measured in a few minutes on a 2-core CPU — a face
+- ``default``: the best quality we measured in under a minute on a 2-core CPU — a face
   crop (forehead to chin plus margin: FaceTex works on tight head portraits, and hair and
   background caused most artifacts in our measurements) at 384 px, 3 levels × 100
-  iterations (the authors' CNNMRF defaults), EfficientNet-Lite0 texture features.
+  iterations (the authors' CNNMRF defaults), EfficientNet-Lite0 texture features; for
+  FaceTex also: only the content's skin may change (a hard constraint in place of the
+  gradient-scaling prior, see prior.py), style patches come only from the style's skin,
+  the texture loss counts only the content's skin, and a native-resolution detail stage
+  (detail.py) puts the style's own pores and fine wrinkles at the output's resolution
+  (docs/facetex-fidelity.md has the measurements behind each choice).
 
 Loss weights are *normalised* in both presets (``normalize=True``): each MRF and Gram
 term is divided by its value at the start of its level, content and structure terms by
