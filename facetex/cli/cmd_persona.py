@@ -30,8 +30,15 @@ def register(sub) -> None:
     t.add_argument("-o", "--output", required=True, metavar="OUT.png")
     t.add_argument("--method", choices=("ours", "static", "weighted", "prewarp"), default="ours",
                    help="ours (default) or a Fig. 5 baseline")
-    t.add_argument("--sigma", type=float, default=10.0,
-                   help="expression-similarity sigma of Eq. 3 (default 10, typically 6-12)")
+    t.add_argument("--weights", choices=("regional", "global"), default="regional",
+                   help="expression weights: regional (default: mouth, eyes and the rest of the face each "
+                        "weighted by their own fiducials) or global (the paper's Eq. 2/3: all fiducials, sigma, "
+                        "Laplacian weighting alpha 1)")
+    t.add_argument("--sigma", type=float, default=None,
+                   help="--weights global only: sigma of Eq. 2/3 (default 10, typically 6-12)")
+    t.add_argument("--neighbours", type=int, default=None, metavar="K",
+                   help="--weights regional only: each region's sigma is the target's distance to its K-th "
+                        "nearest photo / 2 (default 3)")
     add_overwrite(t)
     t.set_defaults(func=run_texture)
 
@@ -125,15 +132,32 @@ def run_texture(args) -> int:
     t0 = time.perf_counter()
     persona = load_persona(args.persona)
     t1 = time.perf_counter()
+    import dataclasses
+
+    from ..errors import BadInputError
+    from ..persona import TextureParams
+
+    if args.sigma is not None and args.weights != "global":
+        raise BadInputError("--sigma applies to --weights global (the regional weights measure their own "
+                            "sigma: use --neighbours)")
+    if args.neighbours is not None and (args.weights != "regional" or args.neighbours < 1):
+        raise BadInputError("--neighbours is a positive integer and applies to --weights regional")
+    tp = TextureParams(weights=args.weights)
+    if args.sigma is not None:
+        tp = dataclasses.replace(tp, sigma=args.sigma)
+    if args.neighbours is not None:
+        tp = dataclasses.replace(tp, neighbours=args.neighbours)
     kw = {"reference": args.like} if args.like else {"fiducials": _read_fiducials(args.fiducials)}
     with progress_bar(desc="texture", unit="step") as update:
-        img = synthesize_texture(persona, method=args.method, sigma=args.sigma, progress=update, **kw)
+        img = synthesize_texture(persona, method=args.method, params=tp, progress=update, **kw)
     t2 = time.perf_counter()
     write_image(args.output, img, overwrite=args.overwrite)
     _sidecar(args.output, {
         "command": "persona texture", "persona": args.persona, "photos": len(persona),
         "target": {"like": args.like} if args.like else {"fiducials": args.fiducials},
-        "method": args.method, "sigma": args.sigma,
+        "method": args.method, "weights": tp.weights,
+        "sigma": tp.sigma if tp.weights == "global" else None,
+        "neighbours": tp.neighbours if tp.weights == "regional" else None,
         "timings_s": {"load": t1 - t0, "synthesize_incl_precompute": t2 - t1},
     })
     return 0

@@ -47,6 +47,7 @@ __all__ = [
     "canonical_points68",
     "rotation_from_angles",
     "rotate_face",
+    "fill_confidence",
     "PNP_INDEX",
     "CANONICAL_SIZE",
 ]
@@ -384,6 +385,42 @@ def frontalize(
     pts = _pose_corrected_points(p, pose, frame)
     mp.setflags(write=False)
     return Frontalized(np.clip(out, 0.0, 1.0, dtype=np.float32), vis, pts, pose, mp, np.array(surf.on_mesh))
+
+
+def fill_confidence(visibility, points68=None, *, mirror_weight: float = 0.1, feather: float = 2.0,
+                    outside_face: float = 0.25, floor: float = 0.02) -> np.ndarray:
+    """How much a frontalized image can be trusted per canonical pixel, float32 (..., H, W).
+
+    ``visibility`` (..., H, W) in [0, 1] (or uint8 x 255): the photo's own visibility (before the
+    symmetry fill). Pixels the photo saw count fully; pixels filled from the mirrored side
+    count ``mirror_weight`` (they are the other cheek under other light: a collection blend
+    should take them from photos that saw them, which is what removes the fill's oval seam);
+    the visibility is Gaussian-feathered (``feather`` px at a 192 px wide frame) so the trust
+    has no hard edge. With ``points68`` ((..., 68, 2) pose-corrected landmarks of each photo),
+    pixels outside the photo's own face (jaw line and forehead arc, soft edge) count
+    ``outside_face``: hair, neck, collar and background do not leak into another photo's face.
+    ``floor`` is added everywhere (every pixel has some weight)."""
+    v = np.asarray(visibility)
+    v = v.astype(np.float32) / 255.0 if v.dtype == np.uint8 else v.astype(np.float32)
+    lead = v.shape[:-2]
+    H, W = v.shape[-2:]
+    flat = v.reshape(-1, H, W)
+    pts = None
+    if points68 is not None:
+        pts = np.asarray(points68, np.float64).reshape(-1, 68, 2)
+        if len(pts) != len(flat):
+            raise BadInputError(f"{len(pts)} landmark sets for {len(flat)} visibility maps")
+    s = feather * W / CANONICAL_SIZE[0]
+    out = np.empty_like(flat)
+    for i, vi in enumerate(flat):
+        own = cv2.GaussianBlur(vi, (0, 0), s) if s > 0 else vi
+        c = own + np.float32(mirror_weight) * (1.0 - own) * own[:, ::-1]
+        if pts is not None:
+            from .masks import face_mask
+
+            c = c * (np.float32(outside_face) + np.float32(1.0 - outside_face) * face_mask(pts[i], (H, W)))
+        out[i] = c + np.float32(floor)
+    return out.reshape(lead + (H, W))
 
 
 def rotate_face(

@@ -15,6 +15,7 @@ from facetex.io import read_image, write_image
 from facetex.persona import (
     METHODS,
     PersonaParams,
+    TextureParams,
     average_face,
     build_persona,
     load_persona,
@@ -176,7 +177,11 @@ def _masked_rmse(a, b, points68):
 def test_texture_end_to_end(persona):
     i = persona.photos.index("frl_004_smiling_0.jpg")
     ref = persona.images[i].astype(np.float32) / 255
-    out = synthesize_texture(persona, fiducials=persona.fiducials[i], sigma=10)
+    out = synthesize_texture(persona, fiducials=persona.fiducials[i])
+    paper = synthesize_texture(persona, fiducials=persona.fiducials[i], weights="global", sigma=10)
+    assert not np.allclose(out, paper, atol=1e-3)
+    with pytest.raises(BadInputError, match="sigma applies to the paper"):
+        synthesize_texture(persona, fiducials=persona.fiducials[i], sigma=10)
     W, H = SIZE
     assert out.shape == (H, W, 3) and out.dtype == np.float32
     assert out.min() >= 0 and out.max() <= 1
@@ -199,11 +204,13 @@ def test_all_methods_stages_and_reference(persona, photo_dir):
     assert not np.allclose(outs["ours"], outs["static"], atol=1e-3)
     stages = [average_face(persona, s) for s in "abcd"]
     assert all(s.shape == (H, W, 3) for s in stages)
-    # the multi-scale Laplacian-weighted blend (d) is sharper in the face than the plain aligned mean (c)
-    m = face_mask(persona.points68.mean(axis=0), (H, W))[:, 1:] > 0.5
-    grad = [float(np.abs(np.diff(s.mean(axis=2), axis=1))[m].mean()) for s in stages]
-    assert grad[3] > 1.05 * grad[2]
     assert min(float(np.abs(stages[k] - stages[k + 1]).mean()) for k in range(3)) > 2e-4
+    # with the paper's Eq. 3 (alpha = 1) the multi-scale Laplacian-weighted blend (d) is sharper in
+    # the face than the plain aligned mean (c) (Fig. 6-7)
+    m = face_mask(persona.points68.mean(axis=0), (H, W))[:, 1:] > 0.5
+    grad = [float(np.abs(np.diff(s.mean(axis=2), axis=1))[m].mean())
+            for s in (stages[2], average_face(persona, "d", params=TextureParams.paper()))]
+    assert grad[1] > 1.05 * grad[0]
     by_ref = synthesize_texture(persona, reference=photo_dir / "frl_004_smiling_0.jpg")
     assert by_ref.shape == (H, W, 3)
     exact = synthesize_texture(persona, fiducials=persona.fiducials[i], precomputed=False)
