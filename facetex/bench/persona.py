@@ -16,9 +16,10 @@ pipeline with the global Eq. 3 weights) and ours (the default weights). Gains of
 over static are reported with their standard error over the targets.
 
 Writes table.md, table.csv, per_target.csv, summary.json, grid.png (full textures at
-native resolution: reference, the methods) and zoom_<region>.png sheets (mouth, eyes,
+native resolution: reference, the methods), zoom_<region>.png sheets (mouth, eyes,
 brow, chin, boundary crops at native resolution enlarged 3x, nearest neighbour: rows =
-targets, columns = reference, static, paper, ours).
+targets, columns = reference, static, paper, ours) and teeth.png (the collection's broad
+smiles with teeth, each left out and re-synthesized: reference, static, paper, ours).
 """
 
 from __future__ import annotations
@@ -160,6 +161,66 @@ def write_zoom_sheets(out: Path, items: list[dict], columns=("reference",) + ZOO
         sheet = np.concatenate([head.astype(np.float32) / 255] + rows, axis=0)
         files[f"zoom_{region}.png"] = write_image(out / f"zoom_{region}.png", np.clip(sheet, 0, 1), overwrite=True)
     return files
+
+
+def teeth_score(image_u8: np.ndarray, points68: np.ndarray) -> float:
+    """Fraction of the inner-lip polygon (iBUG 60-67) that is bright and unsaturated (teeth),
+    times whether the lips are apart (inner-lip gap > 0.12 IOD): a broad smile with teeth scores
+    high. Used to pick the smiles of the teeth sheet."""
+    p = np.asarray(points68, np.float64)
+    iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
+    if np.linalg.norm(p[66] - p[62]) < 0.12 * iod:
+        return 0.0
+    m = np.zeros(image_u8.shape[:2], np.uint8)
+    cv2.fillPoly(m, [np.round(p[60:68]).astype(np.int32)], 1)
+    if m.sum() < 20:
+        return 0.0
+    hsv = cv2.cvtColor(np.ascontiguousarray(image_u8), cv2.COLOR_RGB2HSV)[m > 0]
+    return float(((hsv[:, 2] > 150) & (hsv[:, 1] < 90)).mean())
+
+
+def leave_one_out(persona, i: int):
+    """The persona without photo i (the collection flow and appearance subspace were computed with
+    it; one photo of hundreds hardly moves them)."""
+    import dataclasses
+
+    keep = np.array([j for j in range(len(persona)) if j != i])
+    arrays = {k: getattr(persona, k)[keep] for k in ("images", "visibility", "fiducials", "points68", "poses", "flows")}
+    return dataclasses.replace(persona, _cache={}, photos=[persona.photos[j] for j in keep], **arrays)
+
+
+def write_teeth_sheet(out: Path, persona, params, n: int = 4) -> tuple[Path | None, list[dict]]:
+    """teeth.png: the ``n`` photos of the collection with the most visible teeth (:func:`teeth_score`),
+    each left out of the collection and synthesized from its fiducials: mouth crops of the
+    reference, static, paper and ours (rows). Returns the path and per-photo records."""
+    import dataclasses
+
+    from ..io import write_image
+    from ..persona import synthesize_texture
+
+    scores = np.array([teeth_score(persona.images[i], persona.points68[i]) for i in range(len(persona))])
+    picks = [int(i) for i in np.argsort(-scores)[:n] if scores[i] > 0.3]
+    rows, recs = [], []
+    for i in picks:
+        q = leave_one_out(persona, i)
+        ref = persona.images[i].astype(np.float32) / 255
+        imgs = [ref]
+        for name, method, weights in (("static", "static", None), ("paper", "ours", "global"), ("ours", "ours", None)):
+            tp = params if weights is None else dataclasses.replace(params, weights=weights)
+            imgs.append(synthesize_texture(q, fiducials=persona.fiducials[i], method=method, params=tp))
+        box = zoom_boxes(persona.points68[i])["mouth"]
+        crops = [_crop(x, box) for x in imgs]
+        # teeth visible = the synthesized inner mouth is bright: its teeth score as the reference's
+        recs.append({"file": persona.photos[i], "reference": float(scores[i]),
+                     **{c: teeth_score(np.clip(np.rint(x * 255), 0, 255).astype(np.uint8), persona.points68[i])
+                        for c, x in zip(("static", "paper", "ours"), imgs[1:])}})
+        gap = np.ones((crops[0].shape[0], 4, 3), np.float32)
+        rows.append(np.concatenate(sum(([c, gap] for c in crops), [])[:-1], axis=1))
+    if not rows:
+        return None, recs
+    wmax = max(r.shape[1] for r in rows)
+    sheet = np.concatenate([np.pad(r, ((0, 4), (0, wmax - r.shape[1]), (0, 0)), constant_values=1.0) for r in rows])
+    return write_image(out / "teeth.png", np.clip(sheet, 0, 1), overwrite=True), recs
 
 
 def _choose_holdout(files: list[Path], holdout: int, seed: int, params, progress) -> tuple[list[dict], list[Path]]:
@@ -337,9 +398,17 @@ def run_bench_persona(data=DEFAULT_DATA, *, holdout: int = 20, seed: int = 0, ou
         files_out["grid.png"] = write_grid(out / "grid.png", grid, col_titles=names, cell_labels=labels,
                                            cell=max(persona.size))
     files_out.update(write_zoom_sheets(out, items))
+    teeth_path, teeth = write_teeth_sheet(out, persona, tp)
+    if teeth_path is not None:
+        files_out["teeth.png"] = teeth_path
+        table += ("\nBroad smiles with teeth (the collection's photos with the most visible teeth, each left out "
+                  "and synthesized from its fiducials; teeth score = bright unsaturated fraction of the inner "
+                  "mouth, reference / static / paper / ours; teeth.png):\n"
+                  + "".join(f"- {t['file']}: {t['reference']:.2f} / {t['static']:.2f} / {t['paper']:.2f} / "
+                            f"{t['ours']:.2f}\n" for t in teeth))
     from ..io import write_json
 
-    summary = {"data": str(data), "holdout": holdout, "seed": seed, "sigma": sigma, "weights": tp.weights,
+    summary = {"teeth": teeth, "data": str(data), "holdout": holdout, "seed": seed, "sigma": sigma, "weights": tp.weights,
                "neighbours": tp.neighbours, "expression_model": model.summary() if model else None,
                "photos": len(persona), "skipped": persona.skipped, "held_out": [h["file"] for h in held],
                "rows": rows, "build_s": t_build, "precompute_s": t_prep, "versions": versions()}

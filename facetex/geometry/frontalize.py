@@ -64,6 +64,9 @@ ZBUFFER_TOLERANCE_MM = 5.0
 MAX_HIT_DISTANCE_MM = 15.0
 #: Smoothing (canonical px at the default size) of the z-buffer mask, against blocky seams.
 VISIBILITY_BLUR_PX = 1.5
+#: Off-photo samples blend from the replicated border into a smooth continuation over this many
+#: (sampled-photo) pixels.
+OUTSIDE_RAMP_PX = 3.0
 #: Head rotation centre of :func:`rotate_face` in model coordinates (mm): behind the eyes.
 HEAD_CENTRE_MM = (0.0, 20.0, 90.0)
 
@@ -310,7 +313,20 @@ def _sample(img: np.ndarray, mp: np.ndarray, pixels_per_canonical: float) -> np.
         kx, ky = size[0] / (x1 - x0), size[1] / (y1 - y0)
         crop = cv2.resize(crop, size, interpolation=cv2.INTER_AREA)
         m = (m + 0.5) * np.array([kx, ky], dtype=np.float32) - 0.5
-    return cv2.remap(crop, m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    out = cv2.remap(crop, m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    # Off the photo, replicating its border rows and columns paints straight streaks (hair and
+    # background at the frame's edges, the collar below the chin): there the photo's border is
+    # continued smoothly instead, from a heavily blurred copy, blending in over OUTSIDE_RAMP_PX.
+    ch, cw = crop.shape[:2]
+    dx = np.maximum(np.maximum(-0.5 - m[..., 0], m[..., 0] - (cw - 0.5)), 0)
+    dy = np.maximum(np.maximum(-0.5 - m[..., 1], m[..., 1] - (ch - 0.5)), 0)
+    a = np.clip(np.maximum(dx, dy) / OUTSIDE_RAMP_PX, 0, 1)[..., None]
+    if a.max() > 0:
+        s = max(2.0, 0.08 * max(ch, cw))
+        soft = cv2.GaussianBlur(crop, (0, 0), s, borderType=cv2.BORDER_REPLICATE)
+        far = cv2.remap(soft, m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        out = (1 - a) * out + a * far
+    return out.astype(np.float32)
 
 
 def frontalize(

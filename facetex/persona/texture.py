@@ -103,7 +103,7 @@ class TextureParams:
     beta: float = 20.0
     tau: float = 1.0
     iod_ref: float = 69.12
-    min_level_side: int = 4
+    min_level_side: int = 2
     laplacian_blur: float = 1.0
     laplacian_floor: float = 1e-3
     use_visibility: bool = True
