@@ -56,8 +56,9 @@ def register(sub) -> None:
                    help="mesh to write; FACE.mtl and FACE.png (stage-d average texture) go beside it")
     m.add_argument("--step", type=int, default=1, metavar="N", help="grid step of the mesh in canonical px (default 1)")
     m.add_argument("--shape", choices=("collection", "generic"), default="collection",
-                   help="collection: the persona's photometric-stereo average depth (default; the generic "
-                        "face if it is missing or implausible); generic: the generic face")
+                   help="collection: the persona's photometric-stereo average depth when it passed its "
+                        "photometric validation on held-out photos (default; else the generic face, and the "
+                        "report says why); generic: the generic face")
     add_overwrite(m)
     m.set_defaults(func=run_mesh)
 
@@ -188,7 +189,7 @@ def run_mesh(args) -> int:
     from ..errors import BadInputError, OutputError
     from ..io import check_output_path
     from ..persona import average_face, load_persona
-    from ..persona.collection import average_depth, face_region
+    from ..persona.collection import average_shape, face_region
     from ..persona.mesh_io import depth_to_mesh, write_obj
     from ..persona.shape import checked_depth, generic_depth_px
 
@@ -205,16 +206,28 @@ def run_mesh(args) -> int:
     W, H = persona.size
     region = face_region(persona.points68.mean(axis=0), (H, W))
     t1 = time.perf_counter()
-    origin, n_used = None, 0
+    origin, n_used, validation = None, 0, None
     if args.shape == "generic":
         depth, source = generic_depth_px((W, H)).astype("float64"), "generic"
+        reason = "--shape generic"
     else:
-        if persona.depth is not None:
-            raw, n_used, origin = persona.depth, persona.depth_photos, "stored"
-        else:  # version-1 persona: reconstruct as a build does
-            raw, n_used = average_depth(persona)
+        if persona.shape_report is not None:  # validated at build time
+            raw, n_used, origin, validation = persona.depth, persona.depth_photos, "stored", persona.shape_report
+            if not validation.get("accepted"):
+                raw, n_used = None, 0
+        else:  # a version-1 persona, or one built before the validation: reconstruct and validate now
+            raw, n_used, validation = average_shape(persona)
             origin = "computed"
+            if not validation.get("accepted"):
+                raw, n_used = None, 0
         depth, source = checked_depth(raw, region, (W, H))
+        if source == "collection":
+            reason = validation.get("reason", "")
+        elif validation is not None and not validation.get("accepted"):
+            reason = f"generic face: {validation.get('reason', 'the shape was rejected')}"
+        else:
+            reason = ("generic face: the validated depth is implausible (RMS difference to the generic face "
+                      "above 8 % of the frame width)")
     t2 = time.perf_counter()
     vertices, faces, uv = depth_to_mesh(depth, region, step=args.step)
     texture = average_face(persona, "d")
@@ -224,7 +237,8 @@ def run_mesh(args) -> int:
         "command": "persona mesh", "persona": str(args.persona), "photos": len(persona),
         "paths": {k: str(v) for k, v in paths.items()},
         "vertices": int(len(vertices)), "faces": int(len(faces)), "step": args.step,
-        "depth_source": source, "depth_origin": origin, "depth_photos": int(n_used),
+        "depth_source": source, "depth_origin": origin, "depth_photos": int(n_used), "shape_reason": reason,
+        "shape_validation": validation,
         "units": "canonical px, OBJ axes (x right, y up, z towards the viewer)",
         "timings_s": {"load": t1 - t0, "depth": t2 - t1, "mesh_texture": t3 - t2,
                       "write": time.perf_counter() - t3},

@@ -22,7 +22,15 @@ from facetex.persona import (
     read_persona_header,
     synthesize_texture,
 )
-from facetex.persona.collection import PERSONA_VERSION, _Pool, _process_star, average_depth, face_region
+from facetex.persona.collection import (
+    PERSONA_VERSION,
+    _Pool,
+    _process_star,
+    average_depth,
+    average_shape,
+    face_region,
+    shape_split,
+)
 
 SIZE = (96, 120)  # small canonical frame: fast flows
 PARAMS = PersonaParams(size=SIZE, min_photos=8)
@@ -243,19 +251,30 @@ def test_cli_texture_and_average(persona, tmp_path):
 
 
 # ------------------------------------------------------------------ average depth (format v2)
-def test_build_stores_the_average_depth(persona):
+def test_build_stores_the_validated_average_shape(persona):
     W, H = SIZE
     region = face_region(persona.points68.mean(axis=0), (H, W))
     assert persona.depth.shape == (H, W) and persona.depth.dtype == np.float32
-    assert persona.depth_photos == 12  # fewer photos than shape_photos: all of them
-    assert np.isfinite(persona.depth[region]).all() and np.isnan(persona.depth[~region]).all()
-    # same photos from the loaded arrays (TPS maps recomputed, not the build's): same depth
-    again, n = average_depth(persona)
-    assert n == 12 and np.allclose(again, persona.depth, atol=0.05, equal_nan=True)
-    # evenly spaced subset: step = ceil(12 / max(4, 5)) = 3 -> photos 0, 3, 6, 9
-    sub, n = average_depth(persona, shape_photos=5)
-    assert n == 4 and np.isfinite(sub[region]).all()
-    assert average_depth(persona, shape_photos=1)[1] == 4  # at least 4 lightings
+    rep = persona.shape_report
+    # 12 photos: 3 evenly spaced ones held out for the photometric validation, 9 reconstruct
+    assert rep["train_photos"] == 9 and rep["heldout_photos"] == 3 and isinstance(rep["accepted"], bool)
+    assert {"rms_person", "rms_generic", "person_wins", "reason"} <= set(rep)
+    if rep["accepted"]:
+        assert persona.depth_photos == 9 and np.isfinite(persona.depth[region]).all()
+    else:  # rejected: all NaN, the generic face is used
+        assert persona.depth_photos == 0 and np.isnan(persona.depth).all()
+    assert np.isnan(persona.depth[~region]).all()
+    # same photos from the loaded arrays (TPS maps recomputed, not the build's): same verdict and depth
+    depth, n, again = average_shape(persona)
+    assert n == 9 and again["accepted"] == rep["accepted"]
+    assert abs(again["rms_person"] - rep["rms_person"]) < 1e-3
+    if rep["accepted"]:
+        assert np.allclose(depth, persona.depth, atol=0.05, equal_nan=True)
+    train, held = shape_split(12, 128)
+    assert list(held) == [0, 6, 11] and list(train) == [1, 2, 3, 4, 5, 7, 8, 9, 10]
+    train, held = shape_split(12, 5)  # evenly spaced subset of the rest: step ceil(9 / 5) = 2
+    assert list(train) == [1, 3, 5, 8, 10]
+    assert len(shape_split(10, 128)[1]) == 0  # too few to validate
 
 
 def test_average_depth_failure_is_all_nan(persona):
@@ -267,8 +286,10 @@ def test_average_depth_failure_is_all_nan(persona):
                                                          "flows")},
                  subspace=persona.subspace, photos=persona.photos[:3], params=flat)
     assert p3.depth is None and p3.depth_photos == 0
-    d, n = average_depth(p3)  # 3 photos < rank 4
+    d, n = average_depth(p3)  # 3 photos: too few to reconstruct and validate
     assert n == 0 and d.shape == (H, W) and d.dtype == np.float32 and np.isnan(d).all()
+    _, _, rep = average_shape(p3)
+    assert rep["accepted"] is False and "too few photos" in rep["reason"]
 
 
 def _npz(path, header, arrays):
