@@ -275,3 +275,22 @@ def test_bad_image_size_and_focal_raise():
         estimate_head_pose(pts, (480, 400), focal=-1)
     with pytest.raises(BadInputError):
         estimate_head_pose(pts, "shape")
+
+
+def test_fill_confidence_hand_computed():
+    from facetex.geometry.frontalize import fill_confidence
+
+    H, W = 240, 192
+    vis = np.zeros((H, W), np.float32)
+    vis[:, : W // 2 - 20] = 1.0  # the left part seen, its mirror (the right part) not
+    c = fill_confidence(vis, mirror_weight=0.1, floor=0.02, feather=2.0)
+    assert c[100, 10] == pytest.approx(1.02, abs=1e-4)  # seen: 1 + floor
+    assert c[100, W - 11] == pytest.approx(0.1 + 0.02, abs=1e-4)  # mirror-filled: 0.1 + floor
+    assert c[100, W // 2] == pytest.approx(0.02, abs=1e-4)  # neither: the floor
+    assert np.abs(np.diff(c[100])).max() < 0.25  # feathered: no hard edge
+    # outside the photo's own face outline the trust drops to 0.25 of it
+    pts = canonical_points68((W, H))
+    cf = fill_confidence(np.ones((H, W), np.float32), pts, outside_face=0.25, floor=0.0)
+    assert cf[5, 5] == pytest.approx(0.25, abs=1e-3) and cf[120, 96] == pytest.approx(1.0, abs=1e-3)
+    # uint8 visibility (as stored in a persona) and a batch of maps
+    assert fill_confidence(np.stack([(vis * 255).astype(np.uint8)] * 2)).shape == (2, H, W)

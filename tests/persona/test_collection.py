@@ -388,3 +388,36 @@ def test_large_members_are_stored_uncompressed(persona, tmp_path):
     assert kinds["images.npy"] == kinds["flows.npy"] == zipfile.ZIP_STORED  # loads without inflating
     assert kinds["visibility.npy"] == zipfile.ZIP_DEFLATED
     assert persona.save(tmp_path / "t.persona").read_bytes() == path.read_bytes()  # byte-reproducible
+
+
+def test_segmented_sparse_blend_equals_the_dense_formula(persona, monkeypatch):
+    # the blend over pixel segments with cut-off weights equals, with nothing cut, the per-pixel
+    # formula sum_r m_r(x) (w_r . rows(x)) + m_out(x) static(x), w_r = (s_r + u_l) / sum(s_r + u_l)
+    import math
+
+    import facetex.persona.texture as tx
+
+    monkeypatch.setattr(tx, "SPARSE_MASS", 1.0)
+    tp = TextureParams(max_photos=None)
+    prep = tx.prepare_persona(persona, tp)
+    S = tx.target_weights(persona, persona.fiducials[[2, 7]], tp)  # (2 targets, 3 regions, n)
+    got = prep.blend_many(S)
+    n, bands = len(persona), []
+    full, masks = prep.pyr, prep.level_masks()
+    for k in range(prep.levels):
+        h, w = prep.level_shapes[k]
+        u = tx._uniform_term(prep.levels - 1 - k, tp.tau, tp.beta)
+        static = prep.static[k].reshape(h, w, 4)
+        if math.isinf(u):
+            r = np.broadcast_to(static, (2, h, w, 4))
+        else:
+            wts = (S + u) / (S + u).sum(axis=-1, keepdims=True)  # (2, 3, n)
+            num = np.einsum("brn,np->brp", wts, full[k]).reshape(2, 3, h, w, 4)
+            r = (masks[k][:3, ..., None] * num).sum(axis=1) + masks[k][3][..., None] * static
+        bands.append(r[..., :3] / r[..., 3:])
+    want = np.stack([tx.collapse_pyramid([b[j] for b in bands]) for j in range(2)])
+    np.testing.assert_allclose(got, want, atol=2e-4)
+    # cutting the smallest weights and capping the photos changes the blend only a little
+    monkeypatch.setattr(tx, "SPARSE_MASS", 0.995)
+    cut = tx.prepare_persona(persona, TextureParams(max_photos=6)).blend_many(S)
+    assert 0 < np.abs(cut - got).mean() < 0.02
