@@ -243,6 +243,19 @@ def test_cli_texture_and_average(persona, tmp_path):
     assert side["method"] == "prewarp" and side["photos"] == 12 and "timings_s" in side
     assert read_image(out).shape == (SIZE[1], SIZE[0], 3)
     assert main(["persona", "texture", str(pf), "--fiducials", str(pts), "-o", str(out)]) == 2  # exists
+    # the paper's global weights with a sigma; ours with a neighbour count; mixing them is an error
+    g = tmp_path / "g.png"
+    assert main(["persona", "texture", str(pf), "--fiducials", str(pts), "-o", str(g), "--weights", "global",
+                 "--sigma", "8"]) == 0
+    side = json.loads((tmp_path / "g.png.json").read_text())
+    assert side["weights"] == "global" and side["sigma"] == 8 and side["neighbours"] is None
+    r = tmp_path / "r.png"
+    assert main(["persona", "texture", str(pf), "--fiducials", str(pts), "-o", str(r), "--neighbours", "2"]) == 0
+    side = json.loads((tmp_path / "r.png.json").read_text())
+    assert side["weights"] == "regional" and side["neighbours"] == 2 and side["sigma"] is None
+    assert not np.array_equal(read_image(g), read_image(r))
+    assert main(["persona", "texture", str(pf), "--fiducials", str(pts), "-o", str(tmp_path / "e.png"),
+                 "--sigma", "8"]) == 2 and not (tmp_path / "e.png").exists()
     avg = tmp_path / "avg.png"
     assert main(["persona", "average", str(pf), "-o", str(avg), "--stage", "c"]) == 0 and avg.exists()
     bad = tmp_path / "bad.json"
