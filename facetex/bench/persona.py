@@ -373,7 +373,7 @@ def run_bench_persona(data=DEFAULT_DATA, *, holdout: int = 20, seed: int = 0, ou
     model = expression_model(persona, tp) if tp.weights == "regional" else None
     head = (f"Persona texture leave-out evaluation: {data.name}, {len(persona)} photos in the persona "
             f"({len(persona.skipped)} skipped), {len(held)} held out (seed {seed}). ours: {tp.weights} weights"
-            + (f" (neighbours {tp.neighbours}; per region components/explained/sigma {model.summary()})"
+            + (f" (neighbours {tp.neighbours}, at most {tp.max_photos} photos per region; per region {model.summary()})"
                if model else "") + f"; paper and the weighted/prewarp baselines: global weights, sigma {sigma}.\n"
             f"Build {t_build:.0f} s ({'built' if built else 'cached'}), precompute {t_prep:.1f} s.\n\n")
     extra = ""

@@ -216,6 +216,11 @@ def eq3_weights(similarity, laplacian, level: int, *, tau: float = 1.0, beta: fl
     return a.reshape((-1,) + (1,) * (L.ndim - 1)) * L
 
 
+#: Outside the face support the finest OUTSIDE_SMOOTH_LEVELS pyramid bands are left out: there
+#: (hair, neck, collar, background) every frontalized photo is stretched along the generic
+#: surface's steep extension, and the average keeps the streaks it paints.
+OUTSIDE_SMOOTH_LEVELS = 2
+
 #: fraction of a target's total expression similarity that the fine pyramid levels sum over
 #: exactly (the photos with the smallest similarities that make up the rest are left out)
 SPARSE_MASS = 0.995
@@ -488,7 +493,10 @@ class _Prepared:
             static = self.static[k]
             out = np.broadcast_to(static, (B, h * w * 4)).copy()
             if not math.isinf(u):
-                out *= self.masks[k][-1].repeat(4)[None]
+                outside = self.masks[k][-1].repeat(4)
+                if k < OUTSIDE_SMOOTH_LEVELS:  # off the face: no fine detail (frontalization streaks)
+                    outside = outside * np.tile(np.array([0, 0, 0, 1], np.float32), h * w)
+                out *= outside[None]
                 coef = [((Wn[j] / (sums[j] + n * u)[:, None]).astype(np.float32)) for j in range(len(Wn))]
                 ucoef = [(n * u / (sums[j] + n * u)).astype(np.float32)[:, None] for j in range(len(Wn))]
                 mats = [(_csr(c) if np.count_nonzero(c) < 0.5 * c.size else c) for c in coef]
