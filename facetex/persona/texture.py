@@ -410,6 +410,7 @@ class _Prepared:
         self.static = [(x / max(n, 1)).astype(np.float32) for x in self.static]  # uniform weights
         self._stage = {"b": np.clip(np.sum([r[0] for r in results], axis=0) / max(n, 1), 0, 1).astype(np.float32)}
         self._single = {}
+        self._outside_cache = {}
         if progress:
             progress(n=1, stage="precompute")
 
@@ -461,6 +462,17 @@ class _Prepared:
         and, last, of the outside (static average), summing to 1."""
         return [m.reshape((-1,) + tuple(sh)) for m, sh in zip(self.masks, self.level_shapes)]
 
+    def _outside(self, k: int) -> np.ndarray:
+        """Level k's static rows times the outside mask (its finest bands left out: no fine detail
+        off the face, where the frontalization paints streaks), cached."""
+        if k not in self._outside_cache:
+            h, w = self.level_shapes[k]
+            outside = self.masks[k][-1].repeat(4)
+            if k < OUTSIDE_SMOOTH_LEVELS:
+                outside = outside * np.tile(np.array([0, 0, 0, 1], np.float32), h * w)
+            self._outside_cache[k] = (self.static[k] * outside).astype(np.float32)
+        return self._outside_cache[k]
+
     def blend_many(self, weights: np.ndarray) -> np.ndarray:
         """(B, H, W, 3) blends for B targets. ``weights``: (B, n) global similarities (the same for
         every region) or (B, R, n) per-region similarities (mixed per pixel by the region masks,
@@ -485,32 +497,32 @@ class _Prepared:
         Wn = [_cut_small(S[:, j], SPARSE_MASS, self.tp.max_photos if regional else None)
               for j in range(R if regional else 1)]
         sums = [w.sum(axis=-1) for w in Wn]  # the kept weights sum to 1 (with the uniform term)
+        # one (sparse when that pays off) matrix per region; each level only rescales its rows
+        mats = [_csr(w.astype(np.float32)) if np.count_nonzero(w) < 0.5 * w.size else w.astype(np.float32)
+                for w in Wn]
         bands = []
         for k in range(p):
             lvl = p - 1 - k  # paper's l
             h, w = self.level_shapes[k]
             u = _uniform_term(lvl, self.tp.tau, self.tp.beta)
             static = self.static[k]
-            out = np.broadcast_to(static, (B, h * w * 4)).copy()
-            if not math.isinf(u):
-                outside = self.masks[k][-1].repeat(4)
-                if k < OUTSIDE_SMOOTH_LEVELS:  # off the face: no fine detail (frontalization streaks)
-                    outside = outside * np.tile(np.array([0, 0, 0, 1], np.float32), h * w)
-                out *= outside[None]
-                coef = [((Wn[j] / (sums[j] + n * u)[:, None]).astype(np.float32)) for j in range(len(Wn))]
+            if math.isinf(u):
+                out = np.broadcast_to(static, (B, h * w * 4))
+            else:
+                out = np.repeat(self._outside(k)[None], B, axis=0)
+                scale = [(1.0 / (sums[j] + n * u)).astype(np.float32)[:, None] for j in range(len(Wn))]
                 ucoef = [(n * u / (sums[j] + n * u)).astype(np.float32)[:, None] for j in range(len(Wn))]
-                mats = [(_csr(c) if np.count_nonzero(c) < 0.5 * c.size else c) for c in coef]
                 for seg in self.segments[k]:
                     st = static[seg.cols][None] if u > 0 else None
                     if not regional:  # one product, the regions' masks summed
-                        acc = mats[0] @ seg.stack
+                        acc = (mats[0] @ seg.stack) * scale[0]
                         if u > 0:
                             acc += ucoef[0] * st
                         acc *= seg.masks.sum(axis=0)[None]
                     else:
                         acc = np.zeros((B, seg.stack.shape[1]), np.float32)
                         for mj, j in zip(seg.masks, seg.regions):
-                            num = mats[j] @ seg.stack
+                            num = (mats[j] @ seg.stack) * scale[j]
                             if u > 0:
                                 num += ucoef[j] * st
                             acc += mj[None] * num
@@ -717,7 +729,9 @@ def synthesize_texture(persona: Persona, *, fiducials=None, reference=None, meth
         return _synthesize_exact(persona, FT, ref_img, s, method, tp, progress)
     prep = prepare_persona(persona, tp, progress=progress)
     p = prep.levels
-    masks = _mask_levels(prep.points68, (H, W), 1, tp.regions)[0] if s.ndim == 2 else None
+    masks = None
+    if s.ndim == 2 and method in ("weighted", "prewarp"):  # single-scale blends: the region masks
+        masks = _mask_levels(prep.points68, (H, W), 1, tp.regions)[0]
     if method == "weighted":  # no alignment: the frontal photos as they are
         out = _mixed_blend(prep.single("frontal", persona), s, p - 1, tp, (H, W), masks)
         return np.clip(out, 0, 1).astype(np.float32)
