@@ -15,7 +15,8 @@ prewarp with the paper's global weights, sigma 10), the paper's method ("paper":
 pipeline with the global Eq. 3 weights) and ours (the default weights). Gains of ours
 over static are reported with their standard error over the targets.
 
-Writes table.md, table.csv, per_target.csv, summary.json, grid.png (full textures at
+Writes table.md, table.csv, per_target.csv, results.json (settings, per-method means, teeth
+scores; the JSON file name every bench uses), grid.png (full textures at
 native resolution: reference, the methods), zoom_<region>.png sheets (mouth, eyes,
 brow, chin, boundary crops at native resolution enlarged 3x, nearest neighbour: rows =
 targets, columns = reference, static, paper, ours) and teeth.png (the collection's broad
@@ -408,11 +409,11 @@ def run_bench_persona(data, *, holdout: int = 20, seed: int = 0, out="bench_out/
                             f"{t['ours']:.2f}\n" for t in teeth))
     from ..io import write_json
 
-    summary = {"teeth": teeth, "data": str(data), "holdout": holdout, "seed": seed, "sigma": sigma, "weights": tp.weights,
+    summary = {"bench": "persona", "teeth": teeth, "data": str(data), "holdout": holdout, "seed": seed, "sigma": sigma, "weights": tp.weights,
                "neighbours": tp.neighbours, "expression_model": model.summary() if model else None,
                "photos": len(persona), "skipped": persona.skipped, "held_out": [h["file"] for h in held],
                "rows": rows, "build_s": t_build, "precompute_s": t_prep, "versions": versions()}
-    files_out["summary.json"] = write_json(out / "summary.json", summary, overwrite=True)
+    files_out["results.json"] = write_json(out / "results.json", summary, overwrite=True)
     return {"rows": rows, "targets": targets, "files": {k: str(v) for k, v in files_out.items()}, "table": table}
 
 
@@ -424,7 +425,7 @@ def register_bench(sub) -> None:
     p = sub.add_parser("persona", help="leave-out evaluation of persona textures (Tom Hanks Fig. 5)",
                        description="Build a persona without --holdout photos, synthesize each held-out photo's "
                                    "texture with every method and compare it with the photo: table.md/.csv, "
-                                   "per_target.csv, summary.json, grid.png, zoom_<region>.png and teeth.png "
+                                   "per_target.csv, results.json, grid.png, zoom_<region>.png and teeth.png "
                                    "sheets at native resolution.")
     add_bench_options(p, "persona", f"data root holding {DATA_SUBFOLDER}/, or a folder of photos of one person")
     p.add_argument("--holdout", type=positive_int, default=20, help="photos held out as targets (default 20)")

@@ -482,7 +482,7 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, data=
     paths = {"table_md": out / "table.md", "table_csv": out / "table.csv", "results": out / "results.json"}
     write_text(paths["table_md"], head + markdown_table(COLUMNS, table_rows) + tail)
     write_text(paths["table_csv"], csv_table(COLUMNS, table_rows))
-    write_json(paths["results"], json_safe({"settings": {"drivers": str(drivers), "puppet": str(puppet),
+    write_json(paths["results"], json_safe({"bench": "puppet", "settings": {"drivers": str(drivers), "puppet": str(puppet),
                                                          "persona_file": persona_file, "size": size,
                                                          "max_frames": max_frames, "versions": versions()},
                                             "rows": rows, "summary": summary, "partial": part,
