@@ -38,7 +38,7 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from ..errors import BadImageError, BadInputError, BadPersonaError, FacetexError
+from ..errors import BadImageError, BadInputError, BadPersonaError, FacetexError, PersonaNotFoundError
 
 __all__ = [
     "PersonaParams",
@@ -195,8 +195,8 @@ def _read_header(path: Path) -> tuple[dict, PersonaParams, list[str]]:
     """Parse and validate only the JSON header member (no array is decompressed)."""
     from ..io import check_input_file
 
-    if not path.exists() and not path.is_symlink():
-        raise BadPersonaError("persona file not found: build one with `facetex persona build`", path=path)
+    if not path.exists() and not path.is_symlink():  # also a FileNotFoundError, as users catch it
+        raise PersonaNotFoundError("persona file not found: build one with `facetex persona build`", path=path)
     check_input_file(path, BadPersonaError, what="persona file")  # FIFO, device, symlink loop, empty
     try:
         with zipfile.ZipFile(path) as zf:

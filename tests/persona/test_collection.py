@@ -161,6 +161,7 @@ def test_corrupt_and_future_files_rejected(persona, tmp_path):
         with pytest.raises(BadPersonaError) as e:
             load_persona(path)
         assert e.value.path == str(path) and words in str(e.value)
+        assert isinstance(e.value, FileNotFoundError) == (words == "not found")
 
 
 def test_too_few_photos_and_empty_folders(photo_dir, tmp_path):
@@ -248,11 +249,13 @@ def test_cli_texture_and_average(persona, tmp_path):
     assert main(["persona", "texture", str(pf), "--fiducials", str(pts), "-o", str(g), "--weights", "global",
                  "--sigma", "8"]) == 0
     side = json.loads((tmp_path / "g.png.json").read_text())
-    assert side["weights"] == "global" and side["sigma"] == 8 and side["neighbours"] is None
+    sp = side["params"]
+    assert sp["weights"] == "global" and sp["sigma"] == 8 and sp["neighbours"] is None
     r = tmp_path / "r.png"
     assert main(["persona", "texture", str(pf), "--fiducials", str(pts), "-o", str(r), "--neighbours", "2"]) == 0
     side = json.loads((tmp_path / "r.png.json").read_text())
-    assert side["weights"] == "regional" and side["neighbours"] == 2 and side["sigma"] is None
+    sp = side["params"]
+    assert sp["weights"] == "regional" and sp["neighbours"] == 2 and sp["sigma"] is None
     assert not np.array_equal(read_image(g), read_image(r))
     assert main(["persona", "texture", str(pf), "--fiducials", str(pts), "-o", str(tmp_path / "e.png"),
                  "--sigma", "8"]) == 2 and not (tmp_path / "e.png").exists()
@@ -377,7 +380,7 @@ def test_header_reader_does_not_read_arrays(persona, tmp_path):
     for path, words in [(tmp_path / "missing.persona", "not found")]:
         with pytest.raises(BadPersonaError) as e:
             read_persona_header(path)
-        assert words in str(e.value)
+        assert words in str(e.value) and isinstance(e.value, FileNotFoundError)  # what users catch
     junk = tmp_path / "junk.persona"
     junk.write_bytes(b"hello")
     noheader = tmp_path / "nohead.persona"
