@@ -898,7 +898,7 @@ def persona_mesh(persona: PersonaLike, *, step: int = 1,
 def puppeteer(driver: str | os.PathLike, puppet: PersonaLike, output: str | os.PathLike, *,
               side_by_side: bool = False, size: int | None = None,
               mode: Literal["composite", "face"] = "composite", lighting: Literal["stats", "sh", "none"] = "stats",
-              texture: Literal["ours", "static"] = "ours",
+              texture: Literal["ours", "static"] = "ours", weights: Literal["regional", "global"] = "regional",
               max_frames: int | None = None, driver_photos: str | os.PathLike | None = None,
               overwrite: bool = False, progress: Progress = False) -> dict:
     """Drive a persona's 3D face with another person's video (Suwajanakorn et al. 2015, §6).
@@ -923,6 +923,10 @@ def puppeteer(driver: str | os.PathLike, puppet: PersonaLike, output: str | os.P
         spherical-harmonics lighting, or neither.
     texture : {"ours", "static"}
         Expression-dependent texture or the static average.
+    weights : {"regional", "global"}
+        Expression weights of the texture: regional (mouth, eyes and the rest of the face
+        each by their own fiducials, as :func:`persona_texture`) or the paper's global
+        Eq. 2/3 weights (sigma 10).
     max_frames : int, optional
         Use only the first frames.
     driver_photos : str or os.PathLike, optional
@@ -960,11 +964,14 @@ def puppeteer(driver: str | os.PathLike, puppet: PersonaLike, output: str | os.P
 
     if texture not in ("ours", "static"):
         raise BadInputError(f"texture must be 'ours' or 'static', not {texture!r}")
+    if weights not in ("regional", "global"):
+        raise BadInputError(f"weights must be 'regional' or 'global', not {weights!r}")
     n = video_info(driver)["n_frames"] if progress is True else None
     if n is not None and max_frames is not None:
         n = min(n, max(0, int(max_frames)))
     with _progress(progress, None if n is None else 2 * n, "puppet", "frame") as bar:
         return _puppeteer(driver, puppet, output, driver_photos=driver_photos, side_by_side=side_by_side,
                           size=size, mode=mode, overwrite=overwrite, max_frames=max_frames,
-                          params=PuppetParams(texture=texture, composite=CompositeParams(lighting=lighting)),
+                          params=PuppetParams(texture=texture, weights=weights,
+                                              composite=CompositeParams(lighting=lighting)),
                           progress=bar)

@@ -294,10 +294,13 @@ def _pyramid_stack(aligned: np.ndarray, conf: np.ndarray, levels: int, tp: Textu
             if k > 0:
                 g = cv2.pyrDown(g)
                 c = cv2.pyrDown(c)
-            L = laplacian_response(g, blur=tp.laplacian_blur, floor=tp.laplacian_floor)
-            if tp.alpha_ != 1:
-                L = L ** np.float32(tp.alpha_)
-            L = L * c
+            if tp.alpha_ == 0:  # L^0 = 1: the response is not needed
+                L = np.array(c, np.float32)
+            else:
+                L = laplacian_response(g, blur=tp.laplacian_blur, floor=tp.laplacian_floor)
+                if tp.alpha_ != 1:
+                    L = L ** np.float32(tp.alpha_)
+                L = L * c
             if stacks[k] is None:
                 stacks[k] = np.empty((n, L.size * 4), np.float32)
             row = stacks[k][i].reshape(L.shape + (4,))
@@ -394,8 +397,8 @@ class _Prepared:
             for k, rows in enumerate(full):
                 sums.append(rows.sum(axis=0, dtype=np.float64))
                 r4 = rows.reshape(len(rows), -1, 4)
-                for seg in self.segments[k]:
-                    seg.stack[i0:i1] = r4[:, seg.pixels].reshape(len(rows), -1)
+                for seg in self.segments[k]:  # gathered straight into the segment's rows
+                    np.take(r4, seg.pixels, axis=1, out=seg.stack[i0:i1].reshape(len(rows), -1, 4))
             # Fig. 6 b needs the TPS alone: its sum is kept, the maps are not
             return remap_stack(persona.images[i0:i1], maps).sum(axis=0, dtype=np.float64), sums
 
