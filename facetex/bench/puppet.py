@@ -257,7 +257,7 @@ def _evaluate_clip(clip: Path, persona, ref_desc, out: Path, *, size, max_frames
     finally:
         pup.params = saved
     # expression texture against the static average, mouth region, open-mouth frames
-    static = neutral_texture(persona, persona.mean_fiducials, method="static")
+    static = neutral_texture(persona, persona.mean_fiducials, method="static", params=params.texture_params())
     mouth = _face_region_mask(persona)
     ok = np.isfinite(drv_open)
     open_frames = np.flatnonzero(ok & (drv_open >= np.nanpercentile(drv_open, 75))) if ok.any() else []
@@ -418,7 +418,7 @@ def _data_paths(data, drivers, puppet) -> tuple[Path, Path]:
 
 def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, data=None, clips: int | None = None,
                      size: int | None = 256, max_frames: int | None = None, texture_shape: str = "collection",
-                     partial: bool = True, progress: Callable | None = None) -> dict:
+                     weights: str = "regional", partial: bool = True, progress: Callable | None = None) -> dict:
     """Run the puppetry benchmark: every ``*.mpg`` / ``*.mp4`` in ``drivers`` (the first ``clips``)
     drives the persona ``puppet`` (a .persona file, or a photo folder built once and cached in
     ``out``); ``data`` (or FACETEX_DATA) supplies the defaults ``grid/`` and
@@ -441,7 +441,8 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, data=
     out = check_out_dir(out)
     persona, persona_file = _load_or_build_persona(puppet, out, progress)
     ref = _collection_descriptor(persona)
-    params = PuppetParams(shape=texture_shape)
+    params = PuppetParams(shape=texture_shape, weights=weights)
+    params.texture_params()  # unknown weights: an error before any work
     rows = []
     for k, clip in enumerate(files):
         rows.append(_evaluate_clip(clip, persona, ref, out, size=size, max_frames=max_frames, params=params,
@@ -454,7 +455,8 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, data=
     summary["frames"], summary["lost"] = int(sum(r["frames"] for r in rows)), int(sum(r["lost"] for r in rows))
     table_rows = rows + [summary]
     head = (f"# Puppetry benchmark\n\nPuppet: `{puppet}` ({len(persona)} photos); drivers: {len(files)} clip(s) "
-            f"from `{drivers}`; panel size {size or 'native'}; puppet shape: {rows[0]['shape']}.\n\n"
+            f"from `{drivers}`; panel size {size or 'native'}; puppet shape: {rows[0]['shape']}; texture "
+            f"weights: {weights}.\n\n"
             f"Targets per clip: mouth slope >= {SLOPE_TARGET} and r >= {CORR_TARGET}; edge ΔE ratio (composite "
             f"/ driver's own) <= {STEP_RATIO_TARGET}; id dist to the puppet < {ID_THRESHOLD} on >= "
             f"{ID_FRACTION_TARGET:.0%} of frames and smaller than to the driver; partial faces rejected.\n\n")
@@ -482,8 +484,9 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, data=
     paths = {"table_md": out / "table.md", "table_csv": out / "table.csv", "results": out / "results.json"}
     write_text(paths["table_md"], head + markdown_table(COLUMNS, table_rows) + tail)
     write_text(paths["table_csv"], csv_table(COLUMNS, table_rows))
-    write_json(paths["results"], json_safe({"settings": {"drivers": str(drivers), "puppet": str(puppet),
+    write_json(paths["results"], json_safe({"bench": "puppet", "settings": {"drivers": str(drivers), "puppet": str(puppet),
                                                          "persona_file": persona_file, "size": size,
+                                                         "weights": weights,
                                                          "max_frames": max_frames, "versions": versions()},
                                             "rows": rows, "summary": summary, "partial": part,
                                             "targets_met": ok}), overwrite=True)
@@ -514,6 +517,8 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
     p.add_argument("--max-frames", type=positive_int, help="use only the first N frames of each clip")
     p.add_argument("--shape", choices=("collection", "generic"), default="collection",
                    help="puppet average shape: photometric stereo (falls back to generic) or the generic face")
+    p.add_argument("--weights", choices=("regional", "global"), default="regional",
+                   help="expression weights of the puppet's texture: regional (default) or the paper's global")
     p.add_argument("--no-partial", action="store_true", help="skip the half-out-of-frame check")
     p.set_defaults(func=_run)
     return p
@@ -539,7 +544,8 @@ def _run(args) -> int:
         total += min(n, args.max_frames) if args.max_frames else n
     with progress_bar(total=total or None, desc="bench puppet", unit="frame", disable=args.quiet) as bar:
         res = run_bench_puppet(drivers, puppet, args.out, clips=args.clips, size=args.size,
-                               max_frames=args.max_frames, texture_shape=args.shape, partial=not args.no_partial,
+                               max_frames=args.max_frames, texture_shape=args.shape, weights=args.weights,
+                               partial=not args.no_partial,
                                progress=bar)
     table = Path(res["files"]["table_md"]).read_text(encoding="utf-8")
     finish_bench(args, "puppet", res["out"], res["files"], inputs={"drivers": drivers, "puppet": puppet},
