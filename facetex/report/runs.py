@@ -4,7 +4,8 @@ A :class:`Run` is the part of a folder a report shows: settings and provenance, 
 Markdown tables the run wrote, per-item metrics (one record per pair and method, or per
 target, or per clip), the images to compare and the figures. Layouts understood:
 
-- ``facetex bench transfer``: ``pairs.json`` (+ ``images/``, ``results/``, ``table.md``, ``run.json``);
+- ``facetex bench transfer``: ``results.json`` (``pairs.json`` before 2026-12; + ``images/``, ``results/``,
+  ``table.md``, ``zoom.png``, ``run.json``);
 - ``facetex bench persona``: ``results.json`` + ``per_target.csv`` + ``table.md`` (+ grid and zoom sheets);
 - ``facetex bench puppet``: ``results.json`` + ``table.md`` (+ contact sheet);
 
