@@ -6,7 +6,8 @@ Runs FaceTex (default preset) on content/style pairs of different people from a 
 ``NNN_neutral.jpg`` portraits (default $FACETEX_DATA/frl-london) in several variants and
 prints one table (means over the pairs, per-pair values in ``--out``/results.json):
 
-- ``cnn``: the optimisation at the default working size (384 px), no detail stage;
+- ``cnn``: the optimisation at the default working size (384 px), no detail stage (the same
+  run as ``cnn+detail``, its output before the detail stage);
 - ``cnn+detail``: the same plus the native-resolution detail stage (the default);
 - ``detail``: the detail stage alone (no optimisation);
 - ``native``: the optimisation with its finest level at the face crop's native size;
@@ -14,7 +15,8 @@ prints one table (means over the pairs, per-pair values in ``--out``/results.jso
 - ``swag+detail``: both.
 
 Columns: S gain = S(xt,xs) − S(xc,xs), detail ratio = detail(output)/detail(aligned style),
-E(xt,xc), identity distance to the content, seconds. Writes zoom sheets per pair.
+E(xt,xc), identity distance to the content, seconds of the run (load-dependent). Writes zoom
+sheets per pair. Resumable: results.json in --out is reused.
 """
 
 from __future__ import annotations
@@ -35,13 +37,21 @@ from facetex.io import write_image
 from facetex.metrics import transfer_metrics
 from facetex.transfer import face_crop_box, transfer_with_info
 
-VARIANTS = {
-    "cnn": {"detail": False},
-    "cnn+detail": {},
+# variant -> (run options, which image of the run): one optimisation gives both the
+# optimiser's own output (its pasted change, before the detail stage) and the final output
+RUNS = {
+    "default": {},
     "detail": {"iters": (0, 0, 0)},
+    "swag": {"feature_transform": "softmax"},
     "native": {"detail": False, "size": "native"},
-    "swag": {"detail": False, "feature_transform": "softmax"},
-    "swag+detail": {"feature_transform": "softmax"},
+}
+VARIANTS = {
+    "cnn": ("default", "optimised"),
+    "cnn+detail": ("default", "output"),
+    "detail": ("detail", "output"),
+    "swag": ("swag", "optimised"),
+    "swag+detail": ("swag", "output"),
+    "native": ("native", "output"),
 }
 KEYS = ("S_style_gain", "detail_ratio", "E_content", "identity_content", "seconds")
 
@@ -54,6 +64,7 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=1, help="pair selection seed (default 1: not the bench's pairs)")
     ap.add_argument("--variants", default=",".join(VARIANTS))
     ap.add_argument("--out", type=Path, default=Path("benchmarks/out/transfer_detail"))
+    ap.add_argument("--native-pairs", type=int, default=None, help="run the slow native variant on the first N pairs only")
     a = ap.parse_args()
     names = [v for v in a.variants.split(",") if v]
     portraits = list_portraits(a.data)
@@ -70,23 +81,33 @@ def main() -> int:
         aligned = align_style_to_content(style, content, style_points=ps, content_points=pc, refine=None,
                                          interpolation="lanczos").image
         cols = [("content", content), ("aligned style", aligned)]
-        for v in names:
-            key = f"{c}__{s}__{v}"
-            img_path = a.out / f"{key}.png"
-            opts = dict(VARIANTS[v])
+        runs = {VARIANTS[v][0] for v in names}
+        if a.native_pairs is not None and pairs.index((c, s)) >= a.native_pairs:
+            runs.discard("native")
+        for run in sorted(runs):
+            todo = [v for v in names if VARIANTS[v][0] == run]
+            if all(f"{c}__{s}__{v}" in results and (a.out / f"{c}__{s}__{v}.png").is_file() for v in todo):
+                continue
+            opts = dict(RUNS[run])
             if opts.get("size") == "native":
                 box = face_crop_box(pc, content.shape)
                 opts["size"] = int(max(box[2] - box[0], box[3] - box[1]))
-            if key not in results or not img_path.is_file():
-                t0 = time.perf_counter()
-                out, _ = transfer_with_info(content, style, content_points=pc, style_points=ps, **opts)
-                sec = time.perf_counter() - t0
-                out = np.round(np.clip(out, 0, 1) * 255) / 255.0
-                write_image(img_path, out, overwrite=True)
-                m = transfer_metrics(out, content, style, points=(None, pc, ps), aligned_style=aligned)
-                results[key] = {k: float(m[k]) for k in KEYS[:-1]} | {"seconds": sec}
-                rpath.write_text(json.dumps(results, indent=1))
-            cols.append((v, facetex.read_image(img_path)))
+            t0 = time.perf_counter()
+            out, info = transfer_with_info(content, style, content_points=pc, style_points=ps, **opts)
+            sec = time.perf_counter() - t0
+            x0, y0, x1, y1 = info["region_box"]
+            optimised = content.copy()
+            optimised[y0:y1, x0:x1] = info["images"]["optimised_region"]
+            for v in todo:
+                img = out if VARIANTS[v][1] == "output" else optimised
+                img = np.round(np.clip(img, 0, 1) * 255) / 255.0
+                write_image(a.out / f"{c}__{s}__{v}.png", img, overwrite=True)
+                m = transfer_metrics(img, content, style, points=(None, pc, ps), aligned_style=aligned)
+                results[f"{c}__{s}__{v}"] = {k: float(m[k]) for k in KEYS[:-1]} | {"seconds": sec}
+            rpath.write_text(json.dumps(results, indent=1))
+        for v in names:
+            if (a.out / f"{c}__{s}__{v}.png").is_file():
+                cols.append((v, facetex.read_image(a.out / f"{c}__{s}__{v}.png")))
         write_image(a.out / f"zoom_{c}__{s}.png", zoom_sheet(cols, pc, title=f"{c} <- {s}"), overwrite=True)
     print(f"{len(pairs)} pairs: {', '.join(f'{c}<-{s}' for c, s in pairs)}")
     print(f"| variant | {' | '.join(KEYS)} |")

@@ -5,8 +5,8 @@ portrait) cannot be represented, and the pre-warp resamples the style. This stag
 the *style's own* fine detail into the content's skin at the output's resolution:
 
 1. split the optimised output and the aligned style into difference-of-Gaussian bands
-   ``B_k = G_{σ_{k-1}} − G_{σ_k}`` (σ = 0, 1, 2, 4 px at the 330 px reference face width,
-   scaled with the face), the rest of the output (coarser than σ = 4) stays as optimised;
+   ``B_k = G_{σ_{k-1}} − G_{σ_k}`` (σ = 0, 1, 2, 4, 8 px at the 330 px reference face width,
+   scaled with the face), the rest of the output (coarser than σ = 8) stays as optimised;
 2. local band energies ``E_k = G_{2σ_k} * B_k²`` (Shih et al. 2014, "Style Transfer for
    Headshot Portraits", §4: local energy of a Laplacian stack, blurred at twice the band's
    scale). The style's energy is measured in the style photo itself and carried into the
@@ -46,7 +46,10 @@ REF_FACE_WIDTH = 330.0
 class DetailParams:
     """Parameters of :func:`transfer_skin_detail` (lengths in px at REF_FACE_WIDTH)."""
 
-    sigmas: tuple[float, ...] = (1.0, 2.0, 4.0)  # band edges: [0,1], [1,2], [2,4]
+    # band edges [0,1], [1,2], [2,4], [4,8] px: pores, fine lines, freckles and blemishes; the
+    # [4,8] band moved S(xt,xs) by +0.012 on 5 FRL pairs (identity distance +0.05), coarser
+    # bands carry the face's own shading (docs/facetex-fidelity.md)
+    sigmas: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0)
     energy_scale: float = 2.0  # energy blur = energy_scale × the band's outer sigma
     gain_range: tuple[float, float] = (0.5, 3.0)  # of the style's bands (restores resampling losses)
     rough_lo: float = 3.0  # style detail up to this × its median skin energy is skin texture
