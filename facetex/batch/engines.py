@@ -489,14 +489,19 @@ class RayEngine(Engine):
             main = threading.current_thread() is threading.main_thread()
             saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)} if main else {}
             try:
-                kw: dict[str, Any] = {"logging_level": logging.WARNING, "log_to_driver": False}
+                # Ray's start-up notices (token set-up, signal handlers) are not the user's concern
+                kw: dict[str, Any] = {"logging_level": logging.ERROR, "log_to_driver": False}
                 if self.address:
                     ray.init(address=self.address, **kw)
                 else:
                     ray.init(num_cpus=int(self.num_cpus or available_cpus()), include_dashboard=False, **kw)
             except Exception as e:  # noqa: BLE001 - Ray raises many kinds; one line naming the address
                 where = self.address or "a local Ray"
-                raise EngineError(f"cannot start Ray at {where}: {_one_line(str(e), 300)}") from None
+                hint = ""
+                if self.address and self.address != "auto" and os.environ.get("RAY_AUTH_MODE", "").lower() != "token":
+                    hint = ("; if the cluster uses token authentication (Ray's default), set RAY_AUTH_MODE=token and "
+                            "give its token (~/.ray/auth_token or RAY_AUTH_TOKEN)")
+                raise EngineError(f"cannot connect to Ray at {where}: {_one_line(str(e), 300)}{hint}") from None
             finally:
                 for s, h in saved.items():  # ray.init installs its own SIGTERM handler (sys.exit)
                     signal.signal(s, h)
@@ -518,8 +523,13 @@ class RayEngine(Engine):
         cpus = max(1, int(resources.cpus or self.cpus_per_item))
         gpus = float(resources.gpus or self.gpus_per_item)
         h = next(self._ids)
-        ref = self._remote.options(num_cpus=cpus, num_gpus=gpus, max_retries=0, retry_exceptions=False,
-                                   name=f"facetex:{getattr(fn, '__name__', 'item')}").remote(fn, payload, cpus)
+        try:
+            ref = self._remote.options(num_cpus=cpus, num_gpus=gpus, max_retries=0, retry_exceptions=False,
+                                       name=f"facetex:{getattr(fn, '__name__', 'item')}").remote(fn, payload, cpus)
+        except Exception as e:  # noqa: BLE001 - Ray client errors come in many kinds
+            hint = " (is the same facetex installed on the cluster?)" if "ModuleNotFound" in str(e) else ""
+            raise EngineError(f"the Ray cluster at {self.address or 'local'} did not take the task: "
+                              f"{_one_line(str(e), 300)}{hint}") from None
         self._refs[ref] = (h, time.time())
         return h
 
@@ -540,6 +550,12 @@ class RayEngine(Engine):
                 out.append(_outcome(h, ray.get(ref), submitted))
             except ray.exceptions.TaskCancelledError:
                 out.append(Outcome(h, False, error="cancelled", error_type="Cancelled",
+                                   stats={"submitted": submitted, "returned": time.time()}))
+            except ray.exceptions.RayTaskError as e:  # raised in the task outside the item (e.g. an import)
+                cause = getattr(e, "cause", None) or e
+                text = f"{type(cause).__name__}: {cause}" if cause is not e else str(e).strip().splitlines()[-1]
+                hint = " (is the same facetex installed on every node?)" if isinstance(cause, ImportError) else ""
+                out.append(Outcome(h, False, error=_one_line(text, 300) + hint, error_type=type(cause).__name__,
                                    stats={"submitted": submitted, "returned": time.time()}))
             except ray.exceptions.RayError as e:  # worker crashed, killed, out of memory, node lost
                 first = _one_line(str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__, 300)
