@@ -176,7 +176,10 @@ def transfer_items(rows: Sequence[dict], out, *, method: str = "facetex", preset
             raise BadInputError(f"{where}: seed must be an integer, not {r['seed']!r}") from None
         for k in ("content", "style"):
             if r[k] not in checked:
-                check_input_file(r[k], BadInputError, what=f"{k} image")
+                try:
+                    check_input_file(r[k], BadInputError, what=f"{k} image")
+                except BadInputError as e:
+                    raise type(e)(f"{e.message} ({where})" if where else e.message, path=e.path) from None
                 checked.add(r[k])
         content, style = str(Path(r["content"]).resolve()), str(Path(r["style"]).resolve())
         parts = [Path(content).stem, Path(style).stem, m] + ([pr] if pr != "default" else []) + \

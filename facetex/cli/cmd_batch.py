@@ -207,9 +207,9 @@ def run_transfer(args) -> int:
         rows = pairs_from_folders(args.contents, args.styles, args.pairs, seed=args.seed)
     check_device(args.device)
     _engine(args)  # option errors before any output folder is made
-    out = _out_dir(args, [args.contents, args.styles])
-    items = transfer_items(rows, out, method=args.method, preset=args.preset, seed=args.seed, size=args.size,
+    items = transfer_items(rows, args.out, method=args.method, preset=args.preset, seed=args.seed, size=args.size,
                            iters=args.iters, device=args.device, cpus=args.cpus_per_item, argv=_argv())
+    out = _out_dir(args, [args.contents, args.styles])
     return _run(args, "transfer", items, out)
 
 
@@ -217,9 +217,9 @@ def run_persona(args) -> int:
     from ..batch import persona_items
 
     _engine(args)
+    items, ignored = persona_items(args.people_dir, args.out, min_photos=args.min_photos,
+                                   allow_mixed=args.allow_mixed, cpus=args.cpus_per_item, argv=_argv())
     out = _out_dir(args, [args.people_dir])
-    items, ignored = persona_items(args.people_dir, out, min_photos=args.min_photos, allow_mixed=args.allow_mixed,
-                                   cpus=args.cpus_per_item, argv=_argv())
     if ignored and not args.quiet:
         print(f"facetex: left out {len(ignored)} subfolder(s) without photos: {', '.join(ignored[:5])}",
               file=sys.stderr)
@@ -230,8 +230,8 @@ def run_puppet(args) -> int:
     from ..batch import puppet_items
 
     _engine(args)
-    out = _out_dir(args, [args.drivers, args.puppets])
-    items = puppet_items(args.drivers, args.puppets, out, size=args.size, mode=args.mode,
+    items = puppet_items(args.drivers, args.puppets, args.out, size=args.size, mode=args.mode,
                          side_by_side=args.side_by_side, lighting=args.lighting, texture=args.texture,
                          max_frames=args.max_frames, cpus=args.cpus_per_item, argv=_argv())
+    out = _out_dir(args, [args.drivers, args.puppets])
     return _run(args, "puppet", items, out)
