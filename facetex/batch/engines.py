@@ -494,7 +494,9 @@ class RayEngine(Engine):
                 if self.address:
                     ray.init(address=self.address, **kw)
                 else:
-                    ray.init(num_cpus=int(self.num_cpus or available_cpus()), include_dashboard=False, **kw)
+                    # "local": a new Ray here, even when a cluster runs on this machine ("auto" would join it)
+                    ray.init(address="local", num_cpus=int(self.num_cpus or available_cpus()),
+                             include_dashboard=False, **kw)
             except Exception as e:  # noqa: BLE001 - Ray raises many kinds; one line naming the address
                 where = self.address or "a local Ray"
                 hint = ""
