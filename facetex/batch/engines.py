@@ -463,6 +463,7 @@ class RayEngine(Engine):
         self._ids = itertools.count()
         self._ray = None
         self._remote = None
+        self._node_cpus: float | None = None
 
     def describe(self) -> dict:
         d = {"engine": self.name, "address": self.address or "local (started by facetex)", "slots": self.slots,
@@ -516,6 +517,10 @@ class RayEngine(Engine):
             self.close()
             raise EngineError(f"the Ray cluster has {cpus:g} CPUs, fewer than --cpus-per-item {self.cpus_per_item}")
         self.slots = int(self.jobs or max(1, int(cpus // self.cpus_per_item)))
+        try:
+            self._node_cpus = max(float(n.get("Resources", {}).get("CPU", 0.0)) for n in ray.nodes() if n.get("Alive"))
+        except (ValueError, Exception):  # noqa: BLE001 - unknown: let Ray decide
+            self._node_cpus = None
         self._remote = ray.remote(_ray_task)
         return self
 
@@ -524,6 +529,9 @@ class RayEngine(Engine):
             self.start()
         cpus = max(1, int(resources.cpus or self.cpus_per_item))
         gpus = float(resources.gpus or self.gpus_per_item)
+        if self._node_cpus is not None and cpus > self._node_cpus:  # Ray would wait for such a node forever
+            raise EngineError(f"an item needs {cpus} CPUs but the largest node of the Ray cluster has "
+                              f"{self._node_cpus:g}: ask for fewer (--cpus-per-item / --jobs)")
         h = next(self._ids)
         try:
             ref = self._remote.options(num_cpus=cpus, num_gpus=gpus, max_retries=0, retry_exceptions=False,

@@ -75,9 +75,18 @@ def _choose_holdout(files: list[Path], holdout: int, seed: int, params, progress
     return held, rest
 
 
+def _build_item(p: dict) -> dict:
+    """The persona build as an engine item (a Ray task): what ``facetex.build_persona`` does for a
+    user, saved to the run folder's cache file."""
+    import facetex
+
+    facetex.build_persona(p["data"], jobs=p["jobs"], files=p["files"]).save(p["cache"], overwrite=True)
+    return {"cache": p["cache"]}
+
+
 def run_bench_persona(data, *, holdout: int = 20, seed: int = 0, out="bench_out/persona",
                       jobs: int = 2, sigma: float = 10.0, exact: int = 0, grid_rows: int = 8,
-                      progress: Callable | None = None) -> dict:
+                      progress: Callable | None = None, engine=None) -> dict:
     """Run the leave-out evaluation; returns {"rows": per-method means, "targets": per-target
     records, "files": written paths}. ``exact`` > 0 also runs the paper's per-target pipeline
     (``precomputed=False``, slow) on that many targets to measure the precomputation's effect."""
@@ -106,7 +115,13 @@ def run_bench_persona(data, *, holdout: int = 20, seed: int = 0, out="bench_out/
         except Exception:  # noqa: BLE001 - a stale cache is rebuilt
             persona = None
     built = persona is None
-    if built:
+    if built and engine is not None:  # the build is one task of ``jobs`` CPUs on the engine (a Ray cluster)
+        from ..batch import Resources, map_items
+
+        map_items(engine, _build_item, [{"data": str(data.resolve()), "jobs": jobs, "cache": str(cache.resolve()),
+                                         "files": [str(f) for f in rest]}], resources=Resources(cpus=jobs))
+        persona = load_persona(cache)
+    elif built:
         persona = build_persona(data, files=rest, jobs=jobs, progress=progress, params=params)
         persona.save(cache, overwrite=True)
     t_build = time.perf_counter() - t0
@@ -209,6 +224,9 @@ def register_bench(sub) -> None:
     p.add_argument("--sigma", type=finite_float(0.0, open_lo=True), default=10.0, help="Eq. 3 sigma (default 10)")
     p.add_argument("--exact", type=bounded_int(0), default=0, metavar="N",
                    help="also run the paper's per-target pipeline on N targets (slow)")
+    from ..cli._common import add_engine_options
+
+    add_engine_options(p, jobs=False)  # --engine ray: the build runs as one task of --jobs CPUs on the cluster
     p.set_defaults(func=_run_cli)
 
 
@@ -220,9 +238,15 @@ def _run_cli(args) -> int:
     data = data_folder(data_root(args.data), DATA_SUBFOLDER)
     n = len(_list_photos(data))
     total = args.holdout + 2 * max(0, n - args.holdout) + args.holdout  # hold-out choice, build, targets
-    with progress_bar(total=total, desc="bench persona", unit="step", disable=args.quiet) as update:
+    import contextlib
+
+    from ..cli._common import engine_from_args
+
+    engine = engine_from_args(args) if args.engine == "ray" else None  # local: the build's own --jobs workers
+    with engine or contextlib.nullcontext(), \
+            progress_bar(total=total, desc="bench persona", unit="step", disable=args.quiet) as update:
         res = run_bench_persona(data, holdout=args.holdout, seed=args.seed, out=args.out, jobs=args.jobs,
-                                sigma=args.sigma, exact=args.exact, progress=update)
+                                sigma=args.sigma, exact=args.exact, progress=update, engine=engine)
     finish_bench(args, "persona", args.out, res["files"], inputs={"data": data}, settings={"data": str(data)},
                  summary={"rows": res["rows"]}, table=res["table"])
     return 0

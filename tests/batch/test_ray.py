@@ -226,3 +226,28 @@ def test_unreachable_cluster_is_one_line_naming_the_address(tmp_path):
     assert p.returncode == 2
     assert err.strip() == (f"facetex: error: cannot reach the Ray cluster at ray://127.0.0.1:{port}: Connection "
                            "refused (is `ray start --head` running there, and the port open?)")
+
+
+def test_bench_persona_builds_on_ray_with_the_same_numbers(tmp_path, local_ray):
+    import cv2
+    import numpy as np
+
+    from facetex.bench.persona import run_bench_persona
+    from facetex.io import read_image, write_image
+
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    rng = np.random.default_rng(1)
+    for name in ("frl_004_neutral", "frl_004_smiling"):
+        img = read_image(sample_path(f"{name}.jpg"))
+        h, w = img.shape[:2]
+        for k in range(7):
+            m = cv2.getRotationMatrix2D((w / 2, h / 2), rng.uniform(-6, 6), rng.uniform(0.92, 1.05))
+            j = cv2.warpAffine(img, m, (w, h), borderMode=cv2.BORDER_REPLICATE)
+            write_image(photos / f"{name}_{k}.png", np.clip(j * rng.uniform(0.85, 1.1), 0, 1))
+    local = run_bench_persona(photos, holdout=2, out=tmp_path / "local", jobs=1, grid_rows=1)
+    with RayEngine() as eng:
+        remote = run_bench_persona(photos, holdout=2, out=tmp_path / "ray", jobs=1, grid_rows=1, engine=eng)
+    assert (tmp_path / "ray" / "photos_holdout2_seed0.persona").is_file()
+    for a, b in zip(local["rows"], remote["rows"]):
+        assert a["method"] == b["method"] and a["ssim"] == pytest.approx(b["ssim"], abs=1e-9)
