@@ -171,7 +171,8 @@ def _run(args, kind: str, items, out: Path) -> int:
         print_json(s.as_dict())
     else:
         say(args, line)
-        written = [p for it in items if it.key in set(s.computed) for p in it.outputs]
+        computed = set(s.computed)
+        written = [out / Path(p).name for it in items if it.key in computed for p in it.outputs]
         if len(written) <= 40:
             say(args, *(f"wrote {p}" for p in written))
         else:
