@@ -52,6 +52,8 @@ class BatchState:
             d.mkdir(parents=True, exist_ok=True)
         self.manifest = self.out / "manifest.jsonl"
         self._last_manifest = 0.0
+        self._dirty = True
+        self._cache: dict[str, tuple[int, dict]] = {}  # key -> (mtime_ns, record) of the records read
 
     def path(self, key: str) -> Path:
         return self.items / f"{key}.json"
@@ -64,26 +66,35 @@ class BatchState:
 
     def put(self, key: str, record: dict) -> None:
         write_json(self.path(key), dict(record, item=key, time=utc_now()), overwrite=True)
+        self._dirty = True
 
     def all(self) -> dict[str, dict]:
+        """Every record in the folder (a record is read again only when its file changed)."""
         out = {}
         for entry in os.scandir(self.items):
-            if entry.name.endswith(".json") and not entry.name.startswith("."):
-                try:
+            if not entry.name.endswith(".json") or entry.name.startswith("."):
+                continue
+            key = entry.name[:-5]
+            try:
+                mtime = entry.stat().st_mtime_ns
+                cached = self._cache.get(key)
+                if cached is None or cached[0] != mtime:
                     with open(entry.path, encoding="utf-8") as fh:
-                        out[entry.name[:-5]] = json.load(fh)
-                except (OSError, ValueError):
-                    continue
+                        cached = self._cache[key] = (mtime, json.load(fh))
+            except (OSError, ValueError):
+                continue
+            out[key] = cached[1]
         return out
 
     def write_manifest(self, known: dict[str, dict] | None = None, *, every: float = 0.0) -> Path | None:
         """Rewrite ``manifest.jsonl``: every item with a record in the folder, plus ``known``
         (key -> record) for items of this run that have none yet ("pending"). With ``every`` >
-        0, at most once per that many seconds."""
+        0, at most once per that many seconds, and only when a record of this run changed."""
         now = time.monotonic()
-        if every and now - self._last_manifest < every:
+        if every and (now - self._last_manifest < every or not self._dirty):
             return None
         self._last_manifest = now
+        self._dirty = False
         records = dict(known or {})
         records.update(self.all())
         lines = []

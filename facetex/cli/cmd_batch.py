@@ -206,7 +206,8 @@ def run_transfer(args) -> int:
         rows = read_pairs_csv(args.pairs_csv)
     else:
         rows = pairs_from_folders(args.contents, args.styles, args.pairs, seed=args.seed)
-    check_device(args.device)
+    if args.engine == "local":  # on a Ray cluster the GPUs are the nodes', not necessarily this machine's
+        check_device(args.device)
     _engine(args)  # option errors before any output folder is made
     items = transfer_items(rows, args.out, method=args.method, preset=args.preset, seed=args.seed, size=args.size,
                            iters=args.iters, device=args.device, cpus=args.cpus_per_item, argv=_argv())

@@ -155,3 +155,58 @@ def test_sigterm_stops_the_batch_without_partial_output_or_orphans(tmp_path):
     done = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=600)
     assert done.returncode == 0, done.stderr
     assert {r["state"] for r in _manifest(out).values()} == {"done"} and len(list(out.glob("*.png"))) == 3
+
+
+def _start_and_wait_running(cmd, env, out, n_running=1, timeout=180):
+    """Start ``cmd``; return (process, its descendants) once ``n_running`` items run."""
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    seen: set[int] = set()
+    deadline = time.monotonic() + timeout
+    items = out / ".facetex-batch" / "items"
+    while time.monotonic() < deadline:
+        seen |= children(proc.pid)
+        states = [json.loads(p.read_text()).get("state") for p in items.glob("*.json")] if items.is_dir() else []
+        if states.count("running") >= n_running and seen:
+            time.sleep(1.0)
+            return proc, seen | children(proc.pid)
+        if proc.poll() is not None:
+            pytest.fail(f"the batch ended early: {proc.communicate()[1]}")
+        time.sleep(0.2)
+    proc.kill()
+    pytest.fail("no item started in time")
+
+
+def _alive(pids):
+    out = []
+    for pid in pids:
+        try:
+            if open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0] != "Z":
+                out.append(pid)
+        except OSError:
+            pass
+    return out
+
+
+@pytest.mark.slow  # ~40 s
+def test_a_killed_batch_leaves_no_worker_and_the_next_run_takes_over_at_once(tmp_path):
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "facetex", "batch", "transfer", "--contents", str(sample_path()), "--styles",
+           str(sample_path()), "--pairs", "2", "--out", str(out), "--jobs", "2", *SMALL, "-q",
+           "--claim-timeout", "3600"]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(__file__).parents[2]),
+                                                        os.environ.get("PYTHONPATH", "")]))
+    proc, procs = _start_and_wait_running(cmd, env, out, n_running=2)
+    proc.kill()  # SIGKILL: no clean-up in the batch itself
+    proc.wait()
+    deadline = time.monotonic() + 30
+    while _alive(procs - {proc.pid}) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not _alive(procs - {proc.pid}), "workers outlived a killed batch"
+    assert list((out / ".facetex-batch" / "claims").iterdir())  # the killed run's claims are still there
+    t0 = time.monotonic()
+    done = subprocess.run(cmd[:-2] + ["--json"], capture_output=True, text=True, env=env, timeout=600)
+    assert done.returncode == 0, done.stderr
+    s = json.loads(done.stdout)
+    assert s["done"] + s["skipped_done"] == 2 and s["remaining"] == 0  # not waiting an hour for the claims
+    assert time.monotonic() - t0 < 300
+    assert not [p for p in out.iterdir() if p.name.startswith(".") and p.name != ".facetex-batch"]
