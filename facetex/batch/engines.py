@@ -550,9 +550,14 @@ class RayEngine(Engine):
         ray = self._ray
         if not self._refs:
             return []
-        ready, _ = ray.wait(list(self._refs), num_returns=1, timeout=timeout)
-        if ready:  # everything else that is ready too, without waiting
+        # Poll, sleeping in Python: a signal raised inside ray.wait reaches us as a bare KeyboardInterrupt
+        # (Ray's C++ replaces the exception), so SIGTERM would look like Ctrl-C
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
             ready, _ = ray.wait(list(self._refs), num_returns=len(self._refs), timeout=0)
+            if ready or (deadline is not None and time.monotonic() >= deadline):
+                break
+            time.sleep(0.02)
         out = []
         for ref in ready:
             h, submitted = self._refs.pop(ref)

@@ -257,21 +257,25 @@ def test_sigterm_stops_a_local_ray_batch_and_its_ray(tmp_path, ray_before):
     from test_cli_batch import _start_and_wait_running
 
     out = tmp_path / "out"
-    before = _ray_processes()
     cmd = [sys.executable, "-m", "facetex", "batch", "transfer", "--contents", str(sample_path()), "--styles",
            str(sample_path()), "--pairs", "3", "--size", "96", "--iters", "2,2,2", "--out", str(out),
            "--engine", "ray", "-q"]
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([REPO] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
-    proc, _ = _start_and_wait_running(cmd, env, out, n_running=1)
+    from conftest import children
+    from test_cli_batch import _alive
+
+    proc, procs = _start_and_wait_running(cmd, env, out, n_running=1)
     time.sleep(2.0)
+    procs |= children(proc.pid)  # its Ray: GCS, raylet, workers
+    assert procs & _ray_processes()
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 143, err
     assert "interrupted by SIGTERM" in err
     deadline = time.monotonic() + 30
-    while (_ray_processes() - before) and time.monotonic() < deadline:
+    while _alive(procs) and time.monotonic() < deadline:
         time.sleep(0.5)
-    assert not (_ray_processes() - before), "the local Ray outlived the batch"
+    assert not _alive(procs), "the local Ray outlived the batch"
     assert not [p for p in out.iterdir() if p.name.startswith(".") and p.name != ".facetex-batch"]
     for p in out.glob("*.png"):
         assert Path(f"{p}.json").is_file()
