@@ -499,12 +499,12 @@ class RayEngine(Engine):
                     ray.init(address="local", num_cpus=int(self.num_cpus or available_cpus()),
                              include_dashboard=False, **kw)
             except Exception as e:  # noqa: BLE001 - Ray raises many kinds; one line naming the address
-                where = self.address or "a local Ray"
+                where = f"connect to Ray at {self.address}" if self.address else "start a local Ray"
                 hint = ""
                 if self.address and self.address != "auto" and os.environ.get("RAY_AUTH_MODE", "").lower() != "token":
                     hint = ("; if the cluster uses token authentication (Ray's default), set RAY_AUTH_MODE=token and "
                             "give its token (~/.ray/auth_token or RAY_AUTH_TOKEN)")
-                raise EngineError(f"cannot connect to Ray at {where}: {_one_line(str(e), 300)}{hint}") from None
+                raise EngineError(f"cannot {where}: {_one_line(str(e), 300)}{hint}") from None
             finally:
                 for s, h in saved.items():  # ray.init installs its own SIGTERM handler (sys.exit)
                     signal.signal(s, h)
