@@ -210,3 +210,49 @@ def test_a_killed_batch_leaves_no_worker_and_the_next_run_takes_over_at_once(tmp
     assert s["done"] + s["skipped_done"] == 2 and s["remaining"] == 0  # not waiting an hour for the claims
     assert time.monotonic() - t0 < 300
     assert not [p for p in out.iterdir() if p.name.startswith(".") and p.name != ".facetex-batch"]
+
+
+@pytest.mark.slow  # a persona build and a puppet render
+def test_batch_persona_then_puppet(tmp_path, capsys, no_leftover_processes):
+    import cv2
+
+    from facetex.io import read_image, write_image, write_video
+
+    people = tmp_path / "people"
+    rng = np.random.default_rng(0)
+    for person, n in (("alice", 4), ("bob", 1)):
+        (people / person).mkdir(parents=True)
+        for name in ("frl_004_neutral", "frl_004_smiling"):
+            img = read_image(sample_path(f"{name}.jpg"))
+            h, w = img.shape[:2]
+            for k in range(n):
+                m = cv2.getRotationMatrix2D((w / 2, h / 2), rng.uniform(-6, 6), rng.uniform(0.92, 1.05))
+                j = cv2.warpAffine(img, m, (w, h), borderMode=cv2.BORDER_REPLICATE)
+                write_image(people / person / f"{name}_{k}.png", np.clip(j * rng.uniform(0.85, 1.1), 0, 1))
+    (people / "empty").mkdir()
+    personas = tmp_path / "personas"
+    code = main(["batch", "persona", str(people), "--out", str(personas), "--min-photos", "6", "--jobs", "2"])
+    captured = capsys.readouterr()
+    assert code == 4, captured.err  # bob has too few photos
+    assert "left out 1 subfolder(s) without photos: empty" in captured.err
+    assert "facetex: persona item bob failed:" in captured.err
+    m = _manifest(personas)
+    assert m["alice"]["state"] == "done" and m["bob"]["state"] == "failed" and "photo" in m["bob"]["error"]
+    rec = json.loads((personas / "alice.persona.json").read_text())
+    assert rec["command"] == "batch persona" and rec["photos_used"] >= 6
+    assert not (personas / "bob.persona").exists()
+
+    drivers = tmp_path / "drivers"
+    drivers.mkdir()
+    img = cv2.resize(read_image(sample_path("frl_005_neutral.jpg")), (200, 200), interpolation=cv2.INTER_AREA)
+    write_video(drivers / "talk.mp4", [np.roll(img, (i % 3) - 1, axis=1) for i in range(6)], 10.0)
+    videos = tmp_path / "videos"
+    assert main(["batch", "puppet", "--drivers", str(drivers), "--puppets", str(personas), "--out", str(videos),
+                 "--size", "96", "--side-by-side", "--jobs", "1"]) == 0
+    assert f"wrote {videos / 'talk__alice.mp4'}" in capsys.readouterr().out
+    rec = json.loads((videos / "talk__alice.mp4.json").read_text())
+    assert rec["command"] == "batch puppet" and rec["result"]["frames"] == 6 and rec["params"]["side_by_side"]
+    assert rec["result"]["output"] == str(videos / "talk__alice.mp4")
+    from facetex.io import video_info
+
+    assert video_info(videos / "talk__alice.mp4")["n_frames"] == 6
