@@ -151,7 +151,8 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
                 state.put(it.key, {"kind": it.kind, "state": "done", "config_hash": hashes[it.key],
                                    "outputs": list(it.outputs), "host": None, "note": "outputs found"})
             continue
-        if rec is not None and rec.get("state") == "failed" and not retry_failed:
+        if rec is not None and rec.get("state") == "failed" and not retry_failed and \
+                rec.get("config_hash") in (None, hashes[it.key]):  # failed with other settings: try the new ones
             summary.skipped_failed += 1
             summary.failures.append((it.key, rec.get("error")))
             continue
