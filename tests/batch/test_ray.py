@@ -217,15 +217,14 @@ def test_two_nodes_two_concurrent_runs_compute_each_item_once(tmp_path, two_node
         assert p.read_bytes() == (out / p.name).read_bytes(), p.name
 
 
-def test_unreachable_cluster_is_one_line_naming_the_address(tmp_path):
-    port = _free_port()
-    p = _cli(["batch", "transfer", "--contents", str(sample_path()), "--styles", str(sample_path()),
-              "--out", str(tmp_path / "o"), "--engine", "ray", "--address", f"ray://127.0.0.1:{port}"],
-             dict(os.environ, PYTHONPATH=REPO))
-    _, err = p.communicate(timeout=120)
-    assert p.returncode == 2
-    assert err.strip() == (f"facetex: error: cannot reach the Ray cluster at ray://127.0.0.1:{port}: Connection "
-                           "refused (is `ray start --head` running there, and the port open?)")
+def test_a_gpu_item_on_a_cluster_without_gpus_is_refused(local_ray):
+    from facetex.batch import EngineError, make_engine
+
+    eng = make_engine("ray", device="cuda")
+    assert eng.gpus_per_item == 1.0
+    with pytest.raises(EngineError, match="has no GPU: use --device cpu"):
+        eng.start()
+    assert ray.is_initialized()  # the caller's Ray is left alone
 
 
 def test_bench_persona_builds_on_ray_with_the_same_numbers(tmp_path, local_ray):
