@@ -267,7 +267,7 @@ class _Worker:
         if p.is_alive() and self.task is None:
             try:
                 self.conn.send(None)
-            except OSError:
+            except OSError:  # already told, or gone
                 pass
         p.join(timeout)
         if p.is_alive():
@@ -411,10 +411,18 @@ class LocalEngine(Engine):
             w.task = None
 
     def close(self) -> None:
-        for k, w in enumerate(self._workers):
-            if w is not None:
-                w.stop(5.0)
-                self._workers[k] = None
+        live = [w for w in self._workers if w is not None]
+        for w in live:  # all at once: the interpreters wind down in parallel
+            if w.process.is_alive() and w.task is None:
+                try:
+                    w.conn.send(None)
+                except OSError:
+                    pass
+        deadline = time.monotonic() + 5.0
+        for w in live:
+            w.task = None
+            w.stop(max(0.0, deadline - time.monotonic()))
+        self._workers = [None] * self.jobs
         self._where.clear()
 
 
