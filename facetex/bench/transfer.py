@@ -346,22 +346,33 @@ def run_bench_transfer(data, out="bench_out/transfer", *, pairs: int = 5,
                 "n_pairs": len(chosen), "pairs_requested": int(pairs), "size": size, "device": device,
                 "versions": versions()}
 
+    from ..batch import map_items
     from ..batch.engines import InlineEngine
 
     records: dict[tuple[str, str, str], dict] = {}
     n_run = n_reused = 0
     here = engine is None or isinstance(engine, InlineEngine)
-    jobs, loads = [], {}
+    jobs: list[dict] = []
+
+    def finished(batch):
+        def done(n=1, index=0, result=None):
+            nonlocal n_run
+            job = batch[index]
+            records[(job["content"], job["style"], job["method"])] = result
+            n_run += 1
+            if progress:
+                progress(n=1, pair=f"{job['content']}/{job['style']}", method=job["method"], done="run")
+        return done
+
     for c, s in chosen:
         loaded: dict = {}
 
-        def load(c=c, s=s, loaded=loaded):
+        def load():
             if not loaded:
                 loaded.update(_load_pair(portraits[c], portraits[s]))
             return loaded
 
-        loads[(c, s)] = load
-
+        pair_jobs = []
         for method in (NONE,) + tuple(methods):
             key = store.key(c, s, method)
             config = _item_config(method, portraits[c], portraits[s], preset, seed,
@@ -388,26 +399,21 @@ def run_bench_transfer(data, out="bench_out/transfer", *, pairs: int = 5,
                 store.put(key, rec)
                 records[(c, s, method)] = rec
                 continue
-            jobs.append({"key": key, "content": c, "style": s, "method": method, "out": str(out.resolve()),
-                         "content_path": str(portraits[c]), "style_path": str(portraits[s]), "preset": preset,
-                         "seed": seed, "device": device, "options": options, "config": config,
-                         "versions": settings["versions"], "transfer_fn": transfer_fn, "metrics_fn": metrics_fn,
-                         **({"load": load, "progress": _inner_progress(progress, method)} if here else {})})
-
-    def finished(n=1, index=0, result=None):
-        nonlocal n_run
-        job = jobs[index]
-        records[(job["content"], job["style"], job["method"])] = result
-        n_run += 1
-        if progress:
-            progress(n=1, pair=f"{job['content']}/{job['style']}", method=job["method"], done="run")
-
-    from ..batch import map_items
-
-    # the (pair, method) transfers: one after another here, or the items of an engine
-    map_items(engine or InlineEngine(), _transfer_item, jobs, progress=finished)
-    for c, s in chosen:
-        _write_pair_zoom(out, c, s, portraits, methods, records, loads[(c, s)])
+            pair_jobs.append({"key": key, "content": c, "style": s, "method": method, "out": str(out.resolve()),
+                              "content_path": str(portraits[c]), "style_path": str(portraits[s]), "preset": preset,
+                              "seed": seed, "device": device, "options": options, "config": config,
+                              "versions": settings["versions"], "transfer_fn": transfer_fn, "metrics_fn": metrics_fn,
+                              **({"load": load, "progress": _inner_progress(progress, method)} if here else {})})
+        if here:  # one after another, as before: the pair's images are loaded once for all its methods
+            map_items(InlineEngine(), _transfer_item, pair_jobs, progress=finished(pair_jobs))
+            _write_pair_zoom(out, c, s, portraits, methods, records, load)
+        else:  # the engine's workers load the pair themselves
+            jobs += pair_jobs
+    if not here:
+        map_items(engine, _transfer_item, jobs, progress=finished(jobs))
+        for c, s in chosen:
+            _write_pair_zoom(out, c, s, portraits, methods, records,
+                             lambda c=c, s=s: _load_pair(portraits[c], portraits[s]))
 
     rows = _summary_rows(records, chosen, (NONE,) + tuple(methods))
     files = {"table_md": out / "table.md", "table_csv": out / "table.csv", "grid": out / "grid.png",
