@@ -13,8 +13,9 @@
     and face mode (2x supersampled);
 * end to end on 2 cores: the wall time of the `facetex puppet` command (a fresh process with
   2 BLAS/OpenCV threads) incl. imports, persona load, decode, tracking, rendering, compositing
-  and H.264 encode, at --size (target >= 10 fps), with the expression-dependent texture and,
-  as the baseline of the same run, the static average texture.
+  and H.264 encode, at --size (target >= 10 fps), with the expression-dependent texture (regional
+  weights, the default; and the paper's global weights) and, as the baseline of the same run,
+  the static average texture.
 The machine's load average is printed before and after: on a shared machine the wall times
 are upper bounds.
 """
@@ -63,13 +64,14 @@ def persona_path(arg, data) -> Path:
     return p
 
 
-def cli_run(persona: str, driver: str, size: int, texture: str) -> tuple[float, dict]:
+def cli_run(persona: str, driver: str, size: int, texture: str, weights: str = "regional") -> tuple[float, dict]:
     """Wall time of the `facetex puppet` command in a fresh process with 2 threads (2 cores)."""
     env = dict(os.environ, OMP_NUM_THREADS="2", OPENBLAS_NUM_THREADS="2", MKL_NUM_THREADS="2")
     exe = Path(sys.executable).with_name("facetex")
     with tempfile.TemporaryDirectory() as d:
         cmd = [str(exe), "puppet", "--driver", driver, "--puppet", persona, "-o", str(Path(d) / "out.mp4"),
-               "--size", str(size), "--texture", texture]
+               "--size", str(size), "--texture", texture, "--weights", weights,
+               "--json", "-q"]  # the report: JSON only with --json
         t0 = time.perf_counter()
         res = subprocess.run(cmd, env=env, capture_output=True, text=True)
         wall = time.perf_counter() - t0
@@ -123,36 +125,60 @@ def main(argv=None):
         lay_t.append(t3 - t2)
         comp_t.append(t4 - t3)
         face_t.append(t5 - t4)
-    # what the render pass does: textures blended in batches
+    # what the render pass does: textures blended in batches (the default regional weights)
     t0 = time.perf_counter()
     for i0 in range(0, len(s.motion), TEXTURE_BATCH):
         pup.textures(range(i0, min(i0 + TEXTURE_BATCH, len(s.motion))))
     tex_batch = (time.perf_counter() - t0) / len(s.motion)
+    # the paper's global weights, same frames (their own precomputation, alpha 1, timed apart)
+    from dataclasses import replace
+
+    from facetex.persona import prepare_persona
+
+    pup.params = replace(pup.params, weights="global")
+    t0 = time.perf_counter()
+    prepare_persona(persona, pup.params.texture_params())
+    prep_global = time.perf_counter() - t0
+    tex_global = []
+    for i in range(len(s.motion)):
+        t0 = time.perf_counter()
+        pup.texture(i)
+        tex_global.append(time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    for i0 in range(0, len(s.motion), TEXTURE_BATCH):
+        pup.textures(range(i0, min(i0 + TEXTURE_BATCH, len(s.motion))))
+    tex_batch_global = (time.perf_counter() - t0) / len(s.motion)
     print(f"persona: {args.persona} ({len(persona)} photos); driver {args.driver} ({len(s.motion)} frames); "
           f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     print(f"{'step (1 core)':50s} {'median ms':>10s} {'p90 ms':>8s}  target")
     for name, t, target in (("deformed puppet mesh (transfer + Huber-ROF + lips)", mesh_t, "<= 50"),
-                            ("texture, one frame alone (Eq. 3 + pyramid blend)", tex_t, "<= 100"),
+                            ("texture, one frame alone (regional weights)", tex_t, "<= 100"),
+                            ("texture, one frame alone (paper's global Eq. 3)", tex_global, "<= 100"),
                             (f"puppet layers at {W}x{H} (raster, texture, normals)", lay_t, ""),
                             (f"composite mode, render + composite at {W}x{H}", comp_t, ""),
                             (f"face mode, render (2x supersampled) at {W}x{H}", face_t, "")):
         print(f"{name:50s} {1000 * np.median(t):10.1f} {1000 * np.percentile(t, 90):8.1f}  {target}")
     print(f"{'texture, batches of %d frames (mean per frame)' % TEXTURE_BATCH:50s} {1000 * tex_batch:10.1f} "
           f"{'':8s}  <= 100  ({np.median(tex_t) / tex_batch:.1f}x faster than one alone)")
+    print(f"{'  the same with the global weights':50s} {1000 * tex_batch_global:10.1f} {'':8s}  "
+          f"(their precomputation {prep_global:.1f} s, not needed by the default)")
     print(f"one-time setup (1 core): {prep:.1f} s  " + json.dumps({k: round(v, 2) for k, v in s.timings.items()}))
     print(f"\nend to end: `facetex puppet --size {args.size}` in a fresh process, 2 threads on {os.cpu_count()} cores "
           f"(imports, persona load, tracking, rendering, H.264 encode), median of {args.runs}")
     print(f"{'texture':8s} {'frames':>6s} {'wall s':>7s} {'fps':>6s}  stage times (s, overlapping)")
     walls = {}
-    for texture in ("static", "ours"):
-        runs = [cli_run(args.persona, args.driver, args.size, texture) for _ in range(max(1, args.runs))]
+    for label, texture, weights in (("static", "static", "regional"), ("ours", "ours", "regional"),
+                                    ("global", "ours", "global")):
+        runs = [cli_run(args.persona, args.driver, args.size, texture, weights) for _ in range(max(1, args.runs))]
         wall, rep = sorted(runs, key=lambda r: r[0])[len(runs) // 2]
-        walls[texture] = wall
+        walls[label] = wall
         n = rep["frames"]
         keys = ("track_s", "persona_load_s", "persona_prepare_s", "puppet_wait_s", "motion_s", "render_pass_s")
-        print(f"{texture:8s} {n:6d} {wall:7.2f} {n / wall:6.2f}  " +
+        print(f"{label:8s} {n:6d} {wall:7.2f} {n / wall:6.2f}  " +
               " ".join(f"{k[:-2]}={rep['timings'].get(k, 0):.2f}" for k in keys))
-    print(f"expression-dependent texture costs {walls['ours'] / walls['static']:.2f}x the static texture's wall time; "
+    print("(ours: --texture ours, regional weights, the default; global: --weights global, the paper's Eq. 2/3)")
+    print(f"expression-dependent texture costs {walls['ours'] / walls['static']:.2f}x the static texture's wall time "
+          f"({walls['global'] / walls['static']:.2f}x with the global weights); "
           f"target >= 10 fps end to end: {'met' if n / walls['ours'] >= 10 else 'NOT met'}")
     load_after = os.getloadavg()
     print(f"load average (1, 5, 15 min) before: {load_before[0]:.1f} {load_before[1]:.1f} {load_before[2]:.1f}, "

@@ -38,7 +38,7 @@ from .errors import (  # noqa: E402
 _LAZY = {
     "transfer": "_api", "transfer_with_info": "_api", "transfer_step_image": "_api", "as_image": "_api",
     "parse_iters": "_api", "build_persona": "_api", "load_persona": "_api", "persona_texture": "_api",
-    "persona_average": "_api", "persona_mesh": "_api", "Mesh": "_api", "puppeteer": "_api",
+    "texture_params": "_api", "persona_average": "_api", "persona_mesh": "_api", "Mesh": "_api", "puppeteer": "_api",
     "read_image": "io", "write_image": "io", "read_video": "io", "write_video": "io",
     "Face": "landmarks", "detect_faces": "landmarks", "detect_face": "landmarks", "face_mesh468": "landmarks",
     "landmark_error": "metrics", "texture_similarity": "metrics", "identity_distance": "metrics",

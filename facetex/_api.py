@@ -25,7 +25,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = [
     "ImageLike", "as_image", "parse_iters", "transfer", "transfer_with_info", "transfer_step_image",
-    "build_persona", "load_persona", "persona_texture", "persona_average", "persona_mesh", "Mesh", "puppeteer",
+    "build_persona", "load_persona", "persona_texture", "texture_params", "persona_average", "persona_mesh", "Mesh",
+    "puppeteer",
 ]
 
 #: a path, a PIL image or an (H, W, 3) array (uint8, uint16, or float in [0, 1])
@@ -370,7 +371,7 @@ def transfer_with_info(
     c = as_image(content, "content image" + (f" {content_source}" if content_source else ""))
     s = as_image(style, "style image" + (f" {style_source}" if style_source else ""))
     start = _init_arg(init, c)
-    total = sum(params.iters) * 5 // 4 + params.levels  # L-BFGS evaluations: at most ~1.25 x iterations
+    total = int(sum(params.iters) * params.eval_budget) + params.levels  # the evaluation budget per level
     with _progress(progress, total, method, "eval") as bar:
         return _run(c, s, method=method, preset=preset, seed=int(seed), device=device, progress=bar,
                     callback=callback, save_every=save_every, content_points=content_points,
@@ -637,8 +638,9 @@ def load_persona(path: str | os.PathLike) -> "Persona":
 
 def persona_texture(persona: PersonaLike, *, like: ImageLike | None = None,
                     fiducials: np.ndarray | Sequence[Sequence[float]] | None = None,
-                    method: Literal["ours", "static", "weighted", "prewarp"] = "ours", sigma: float = 10.0,
-                    progress: Progress = False) -> np.ndarray:
+                    method: Literal["ours", "static", "weighted", "prewarp"] = "ours",
+                    weights: Literal["regional", "global"] = "regional", sigma: float | None = None,
+                    neighbours: int | None = None, progress: Progress = False) -> np.ndarray:
     """The persona's face texture for a target expression (Suwajanakorn et al. 2015, Eq. 3).
 
     Parameters
@@ -651,8 +653,16 @@ def persona_texture(persona: PersonaLike, *, like: ImageLike | None = None,
         Or the target's 49 (or 68) (x, y) fiducials in the persona's canonical frame.
     method : {"ours", "static", "weighted", "prewarp"}
         The paper's expression-weighted multi-scale blend ("ours") or a Fig. 5 baseline.
-    sigma : float
-        Expression-similarity sigma of Eq. 3 (typically 6-12).
+    weights : {"regional", "global"}
+        Expression weights: regional (mouth, eyes and the rest of the face each weighted by
+        their own normalised fiducials, blended spatially) or global (the paper's Eq. 2/3:
+        all fiducials, one ``sigma``, Laplacian exponent alpha 1).
+    sigma : float, optional
+        ``weights="global"`` only: expression-similarity sigma of Eq. 2/3 (default 10,
+        typically 6-12).
+    neighbours : int, optional
+        ``weights="regional"`` only: each region's sigma is the target's distance to its
+        K-th nearest photo / 2 (default 3).
     progress : bool or callable
         True shows a tqdm bar.
 
@@ -664,17 +674,21 @@ def persona_texture(persona: PersonaLike, *, like: ImageLike | None = None,
     Raises
     ------
     ValueError
-        Neither or both of ``like`` and ``fiducials``; bad fiducials; no face in ``like``.
+        Neither or both of ``like`` and ``fiducials``; bad fiducials; no face in ``like``;
+        ``sigma`` with regional weights or ``neighbours`` with global ones.
 
     Examples
     --------
     >>> import facetex
     >>> tex = facetex.persona_texture("george.persona", like="smiling.jpg")  # doctest: +SKIP
+    >>> paper = facetex.persona_texture("george.persona", like="smiling.jpg",
+    ...                                 weights="global", sigma=10)  # doctest: +SKIP
     """
     from .persona import synthesize_texture
 
     if (like is None) == (fiducials is None):
         raise BadInputError("give exactly one of like= (a reference photo) and fiducials=")
+    tp = texture_params(weights=weights, sigma=sigma, neighbours=neighbours)
     p = _persona(persona)
     kw: dict[str, Any] = {}
     if like is not None:
@@ -682,7 +696,64 @@ def persona_texture(persona: PersonaLike, *, like: ImageLike | None = None,
     else:
         kw["fiducials"] = np.asarray(fiducials, np.float64)
     with _progress(progress, None, "texture", "step") as bar:
-        return synthesize_texture(p, method=method, sigma=float(sigma), progress=bar, **kw)
+        return synthesize_texture(p, method=method, params=tp, progress=bar, **kw)
+
+
+def texture_params(*, weights: Literal["regional", "global"] = "regional", sigma: float | None = None,
+                   neighbours: int | None = None) -> "TextureParams":
+    """Persona texture parameters from the user-facing options, checked.
+
+    Parameters
+    ----------
+    weights : {"regional", "global"}
+        Regional expression weights (ours) or the paper's global Eq. 2/3 weights.
+    sigma : float, optional
+        Global weights only: sigma of Eq. 2/3 (default 10).
+    neighbours : int, optional
+        Regional weights only: K of the adaptive per-region sigma (default 3).
+
+    Returns
+    -------
+    facetex.persona.TextureParams
+
+    Raises
+    ------
+    ValueError
+        (:class:`facetex.BadInputError`) an unknown ``weights``, a non-positive ``sigma`` or
+        ``neighbours``, or an option that does not apply to ``weights``.
+
+    Examples
+    --------
+    >>> import facetex
+    >>> facetex.texture_params(weights="global", sigma=8).sigma
+    8.0
+    """
+    import math
+
+    from .persona import WEIGHTS, TextureParams
+
+    if weights not in WEIGHTS:
+        raise BadInputError(f"weights must be one of {', '.join(map(repr, WEIGHTS))}, not {weights!r}")
+    kw: dict[str, Any] = {"weights": weights}
+    if sigma is not None:
+        if weights != "global":
+            raise BadInputError("sigma applies to the paper's global weights (weights='global'); the regional "
+                                "weights measure their own sigma: set neighbours instead")
+        try:
+            s = float(sigma)
+        except (TypeError, ValueError):
+            s = math.nan
+        if not (math.isfinite(s) and s > 0):
+            raise BadInputError(f"sigma must be a positive number (typically 6-12), not {sigma!r}")
+        kw["sigma"] = s
+    if neighbours is not None:
+        if weights != "regional":
+            raise BadInputError("neighbours applies to the regional weights (weights='regional'); the global "
+                                "weights take sigma")
+        if not isinstance(neighbours, (int, np.integer)) or isinstance(neighbours, bool) or neighbours < 1:
+            raise BadInputError(f"neighbours must be a positive integer, not {neighbours!r}")
+        kw["neighbours"] = int(neighbours)
+    return TextureParams(**kw)
 
 
 def persona_average(persona: PersonaLike, *, stage: Literal["a", "b", "c", "d"] = "d") -> np.ndarray:
@@ -721,7 +792,11 @@ def persona_average(persona: PersonaLike, *, stage: Literal["a", "b", "c", "d"] 
 class Mesh:
     """A textured triangle mesh: vertices (n, 3) in canonical px (OBJ axes: x right, y up,
     z towards the viewer), faces (m, 3) vertex indices, uv (n, 2) in [0, 1], texture
-    (H, W, 3) float32, and where its depth came from."""
+    (H, W, 3) float32, and where its depth came from: ``depth_source`` "collection" (the
+    person's photometric-stereo shape) or "generic"; ``depth_origin`` "stored" (validated at
+    build time), "computed" (an older persona, reconstructed and validated now) or None
+    (generic on request); ``shape_reason`` why that shape was used; ``shape_validation`` the
+    photometric validation's numbers and verdict (None with ``shape="generic"``)."""
 
     vertices: np.ndarray
     faces: np.ndarray
@@ -730,6 +805,8 @@ class Mesh:
     depth_source: str
     depth_origin: str | None
     depth_photos: int
+    shape_reason: str = ""
+    shape_validation: dict | None = None
 
     def save(self, path: str | os.PathLike, *, overwrite: bool = False, inputs=(),
              extra_files: dict | None = None) -> Path:
@@ -757,13 +834,16 @@ def persona_mesh(persona: PersonaLike, *, step: int = 1,
     step : int
         Grid step in canonical px (1 = every pixel; at most 1/8 of the frame width).
     shape : {"collection", "generic"}
-        The persona's photometric-stereo average depth (the generic face when it is
-        missing or implausible) or the generic face.
+        The persona's photometric-stereo average depth when it passed its photometric
+        validation on held-out photos (else the generic face, and ``mesh.shape_reason``
+        says why) or the generic face.
 
     Returns
     -------
     Mesh
-        ``mesh.save("face.obj")`` writes the .obj, .mtl and .png texture.
+        ``mesh.save("face.obj")`` writes the .obj, .mtl and .png texture;
+        ``mesh.depth_source``, ``mesh.shape_reason`` and ``mesh.shape_validation`` say
+        which shape was used and why.
 
     Raises
     ------
@@ -776,7 +856,7 @@ def persona_mesh(persona: PersonaLike, *, step: int = 1,
     >>> facetex.persona_mesh("george.persona", step=2).save("face.obj")  # doctest: +SKIP
     """
     from .persona import average_face
-    from .persona.collection import average_depth, face_region
+    from .persona.collection import average_shape, face_region
     from .persona.mesh_io import depth_to_mesh
     from .persona.shape import checked_depth, generic_depth_px
 
@@ -789,26 +869,36 @@ def persona_mesh(persona: PersonaLike, *, step: int = 1,
         raise BadInputError(f"step {step} leaves too few grid points in the {W}x{H} canonical frame: "
                             f"use 1..{max_step}")
     region = face_region(p.points68.mean(axis=0), (H, W))
-    origin, n_used = None, 0
+    origin, n_used, validation = None, 0, None
     if shape == "generic":
         depth, source = generic_depth_px((W, H)).astype("float64"), "generic"
+        reason = "generic face on request (shape='generic')"
     else:
-        if p.depth is not None:
-            raw, n_used, origin = p.depth, p.depth_photos, "stored"
-        else:  # version-1 persona: reconstruct as a build does
-            raw, n_used = average_depth(p)
+        if p.shape_report is not None:  # reconstructed and validated at build time
+            raw, n_used, origin, validation = p.depth, p.depth_photos, "stored", p.shape_report
+        else:  # a version-1 persona, or one built before the validation: reconstruct and validate now
+            raw, n_used, validation = average_shape(p)
             origin = "computed"
+        if not validation.get("accepted"):
+            raw, n_used = None, 0
         depth, source = checked_depth(raw, region, (W, H))
+        if source == "collection":
+            reason = validation.get("reason", "")
+        elif not validation.get("accepted"):
+            reason = f"generic face: {validation.get('reason', 'the shape was rejected')}"
+        else:
+            reason = ("generic face: the validated depth is implausible (RMS difference to the generic face "
+                      "above 8 % of the frame width)")
     vertices, faces, uv = depth_to_mesh(depth, region, step=int(step))
     if len(faces) == 0:
         raise BadInputError(f"step {step} leaves no triangle on the face: use a smaller step")
-    return Mesh(vertices, faces, uv, average_face(p, "d"), source, origin, int(n_used))
+    return Mesh(vertices, faces, uv, average_face(p, "d"), source, origin, int(n_used), reason, validation)
 
 
 def puppeteer(driver: str | os.PathLike, puppet: PersonaLike, output: str | os.PathLike, *,
               side_by_side: bool = False, size: int | None = None,
               mode: Literal["composite", "face"] = "composite", lighting: Literal["stats", "sh", "none"] = "stats",
-              texture: Literal["ours", "static"] = "ours",
+              texture: Literal["ours", "static"] = "ours", weights: Literal["regional", "global"] = "regional",
               max_frames: int | None = None, driver_photos: str | os.PathLike | None = None,
               overwrite: bool = False, progress: Progress = False) -> dict:
     """Drive a persona's 3D face with another person's video (Suwajanakorn et al. 2015, §6).
@@ -833,6 +923,10 @@ def puppeteer(driver: str | os.PathLike, puppet: PersonaLike, output: str | os.P
         spherical-harmonics lighting, or neither.
     texture : {"ours", "static"}
         Expression-dependent texture or the static average.
+    weights : {"regional", "global"}
+        Expression weights of the texture: regional (mouth, eyes and the rest of the face
+        each by their own fiducials, as :func:`persona_texture`) or the paper's global
+        Eq. 2/3 weights (sigma 10).
     max_frames : int, optional
         Use only the first frames.
     driver_photos : str or os.PathLike, optional
@@ -870,11 +964,14 @@ def puppeteer(driver: str | os.PathLike, puppet: PersonaLike, output: str | os.P
 
     if texture not in ("ours", "static"):
         raise BadInputError(f"texture must be 'ours' or 'static', not {texture!r}")
+    if weights not in ("regional", "global"):
+        raise BadInputError(f"weights must be 'regional' or 'global', not {weights!r}")
     n = video_info(driver)["n_frames"] if progress is True else None
     if n is not None and max_frames is not None:
         n = min(n, max(0, int(max_frames)))
     with _progress(progress, None if n is None else 2 * n, "puppet", "frame") as bar:
         return _puppeteer(driver, puppet, output, driver_photos=driver_photos, side_by_side=side_by_side,
                           size=size, mode=mode, overwrite=overwrite, max_frames=max_frames,
-                          params=PuppetParams(texture=texture, composite=CompositeParams(lighting=lighting)),
+                          params=PuppetParams(texture=texture, weights=weights,
+                                              composite=CompositeParams(lighting=lighting)),
                           progress=bar)

@@ -248,7 +248,7 @@ def run_puppet_item(p: dict) -> dict:
 
     out = p["output"]
     report: dict = {}
-    opts = {k: p[k] for k in ("side_by_side", "size", "mode", "lighting", "texture", "max_frames")}
+    opts = {k: p[k] for k in ("side_by_side", "size", "mode", "lighting", "texture", "weights", "max_frames")}
 
     def video(tmp):
         report.update(facetex.puppeteer(p["driver"], p["puppet"], tmp, overwrite=True, **opts))
@@ -266,7 +266,8 @@ def run_puppet_item(p: dict) -> dict:
 
 def puppet_items(drivers, puppets, out, *, size: int | None = None, mode: str = "composite",
                  side_by_side: bool = False, lighting: str = "stats", texture: str = "ours",
-                 max_frames: int | None = None, cpus: int | None = None, argv=None) -> list[Item]:
+                 weights: str = "regional", max_frames: int | None = None, cpus: int | None = None,
+                 argv=None) -> list[Item]:
     """Items of ``facetex batch puppet``: every driver video of ``drivers`` with every
     ``.persona`` of ``puppets`` -> ``OUT/<driver>__<puppet>.mp4``."""
     from ..io import check_input_dir
@@ -289,7 +290,7 @@ def puppet_items(drivers, puppets, out, *, size: int | None = None, mode: str = 
             output = str(out / f"{key}.mp4")
             config = {"driver": str(c.resolve()), "puppet": str(pp.resolve()), "size": size, "mode": mode,
                       "side_by_side": bool(side_by_side), "lighting": lighting, "texture": texture,
-                      "max_frames": max_frames}
+                      "weights": weights, "max_frames": max_frames}
             payload = dict(config, output=output, argv=argv, source=f"{c.name} x {pp.name}")
             items.append(Item(key, "puppet", run_puppet_item, payload, (output, f"{output}.json"), config,
                               Resources(cpus=cpus or 0)))

@@ -2,12 +2,25 @@
 
 The persona is built without ``holdout`` photos drawn at random (``seed``) among the
 usable ones; for each held-out photo the texture is synthesized for its pose-corrected
-fiducials with every method and compared with its frontalized image inside the face
-mask where the photo was visible: SSIM (skimage, on luminance), correlation of the
-gradient magnitudes (Sobel, luminance) and the mean-colour difference (RGB, 0-255).
-"Colour std" is the spread (RMS over RGB of the per-channel std) of the texture's mean
-colour across the targets: the lower, the more consistent. Writes table.md, table.csv,
-per_target.csv, grid.png (reference, static, weighted, prewarp, ours) and summary.json.
+fiducials with every method and compared with its frontalized image where the photo
+itself saw the face (its own visibility > 0.5, mirrored fill excluded), in three regions:
+the whole face (jaw + forehead), the mouth and the eyes with the brows (the hard 0.5 level
+of the region masks of :func:`facetex.persona.weights.region_masks`, at the held-out
+photo's own landmarks). Scores: SSIM (skimage, luminance, Gaussian window sigma 1.5, the
+map averaged over the region), correlation of the gradient magnitudes (Sobel, luminance)
+and the mean-colour difference (RGB, 0-255). "Colour std" is the spread (RMS over RGB of
+the per-channel std) of the texture's mean colour across the targets: the lower, the
+more consistent. Methods: the paper's Fig. 5 baselines (static average; weighted and
+prewarp with the paper's global weights, sigma 10), the paper's method ("paper": our
+pipeline with the global Eq. 3 weights) and ours (the default weights). Gains of ours
+over static are reported with their standard error over the targets.
+
+Writes table.md, table.csv, per_target.csv, results.json (settings, per-method means, teeth
+scores; the JSON file name every bench uses), grid.png (full textures at
+native resolution: reference, the methods), zoom_<region>.png sheets (mouth, eyes,
+brow, chin, boundary crops at native resolution enlarged 3x, nearest neighbour: rows =
+targets, columns = reference, static, paper, ours) and teeth.png (the collection's broad
+smiles with teeth, each left out and re-synthesized: reference, static, paper, ours).
 """
 
 from __future__ import annotations
@@ -22,38 +35,193 @@ import numpy as np
 from ..errors import BadInputError
 from ._common import Column, check_out_dir, csv_table, markdown_table, versions, write_grid, write_text
 
-__all__ = ["run_bench_persona", "register_bench", "masked_metrics"]
+__all__ = ["run_bench_persona", "register_bench", "masked_metrics", "evaluation_masks", "region_scores",
+           "zoom_boxes"]
 
 DATA_SUBFOLDER = "lfw/George_W_Bush"  # inside --data / $FACETEX_DATA (or --data is this folder itself)
-GRID_METHODS = ("static", "weighted", "prewarp", "ours")
+#: (row name, method, weights): the paper's baselines use the paper's (global) weights
+ROWS = (("static", "static", None), ("weighted", "weighted", "global"), ("prewarp", "prewarp", "global"),
+        ("paper", "ours", "global"), ("ours", "ours", None))
+REGIONS = ("face", "mouth", "eyes")
+ZOOM_COLUMNS = ("static", "paper", "ours")
 
 
 def _gray(img: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(np.ascontiguousarray(img, np.float32), cv2.COLOR_RGB2GRAY)
 
 
+def _ssim_map(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    from skimage.metrics import structural_similarity
+
+    _, smap = structural_similarity(_gray(a), _gray(b), data_range=1.0, full=True, gaussian_weights=True,
+                                    sigma=1.5, use_sample_covariance=False)
+    return smap
+
+
+def _grad_mag(g: np.ndarray) -> np.ndarray:
+    gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3)
+    return np.sqrt(gx * gx + gy * gy)
+
+
+def region_scores(out: np.ndarray, ref: np.ndarray, masks: dict) -> dict:
+    """{region: {ssim, grad_corr, colour_diff, mean_colour}} of ``out`` vs ``ref`` (float RGB in
+    [0, 1]) inside each boolean mask of ``masks``."""
+    smap = _ssim_map(out, ref)
+    ga, gb = _grad_mag(_gray(out)), _grad_mag(_gray(ref))
+    res = {}
+    for name, mask in masks.items():
+        if mask.sum() < 16:
+            res[name] = {"ssim": float("nan"), "grad_corr": float("nan"), "colour_diff": float("nan"),
+                         "mean_colour": [float("nan")] * 3}
+            continue
+        mean_out, mean_ref = out[mask].mean(axis=0), ref[mask].mean(axis=0)
+        res[name] = {
+            "ssim": float(smap[mask].mean()),
+            "grad_corr": float(np.corrcoef(ga[mask], gb[mask])[0, 1]),
+            "colour_diff": float(np.linalg.norm(mean_out - mean_ref) * 255),
+            "mean_colour": (mean_out * 255).tolist(),
+        }
+    return res
+
+
 def masked_metrics(out: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> dict:
     """SSIM, gradient-magnitude correlation and mean-colour difference of ``out`` vs ``ref``
     (float RGB in [0, 1]) inside the boolean ``mask``."""
-    from skimage.metrics import structural_similarity
+    return region_scores(out, ref, {"m": mask})["m"]
 
-    ga, gb = _gray(out), _gray(ref)
-    _, smap = structural_similarity(ga, gb, data_range=1.0, full=True, gaussian_weights=True, sigma=1.5,
-                                    use_sample_covariance=False)
-    mag = []
-    for g in (ga, gb):
-        gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3)
-        gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3)
-        mag.append(np.sqrt(gx * gx + gy * gy)[mask])
-    corr = float(np.corrcoef(mag[0], mag[1])[0, 1])
-    mean_out = out[mask].mean(axis=0)
-    mean_ref = ref[mask].mean(axis=0)
-    return {
-        "ssim": float(smap[mask].mean()),
-        "grad_corr": corr,
-        "colour_diff": float(np.linalg.norm(mean_out - mean_ref) * 255),
-        "mean_colour": (mean_out * 255).tolist(),
+
+def evaluation_masks(points68: np.ndarray, visibility: np.ndarray) -> dict:
+    """{"face", "mouth", "eyes"} boolean masks (H, W) of a frontalized photo: the region at its
+    landmarks where the photo itself saw the face (visibility > 0.5)."""
+    from ..geometry.masks import face_mask
+    from ..persona.weights import region_masks
+
+    H, W = visibility.shape
+    seen = visibility > 0.5
+    face = (face_mask(points68, (H, W)) > 0.5) & seen
+    rm = region_masks(points68, (H, W), ("mouth", "eyes", "face"))
+    return {"face": face, "mouth": (rm[0] > 0.5) & face, "eyes": (rm[1] > 0.5) & face}
+
+
+def zoom_boxes(points68: np.ndarray) -> dict:
+    """{region: (x, y, w, h)} crop boxes at a face's 68 landmarks (canonical frame): mouth, eyes,
+    brow (glabella and forehead), chin, boundary (the left cheek's edge)."""
+    p = np.asarray(points68, np.float64)
+    iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
+    centres = {
+        "mouth": (p[48] + p[54]) / 2,
+        "eyes": (p[36:48].mean(0)),
+        "brow": (p[21] + p[22]) / 2 - [0, 0.25 * iod],
+        "chin": p[8] - [0, 0.15 * iod],
+        "boundary": p[3] + [0.1 * iod, -0.2 * iod],
     }
+    sizes = {"mouth": (1.3, 0.8), "eyes": (2.0, 0.6), "brow": (1.2, 0.7), "chin": (1.2, 0.7),
+             "boundary": (0.7, 1.0)}
+    out = {}
+    for k, c in centres.items():
+        w, h = int(round(sizes[k][0] * iod)), int(round(sizes[k][1] * iod))
+        out[k] = (int(round(c[0] - w / 2)), int(round(c[1] - h / 2)), w, h)
+    return out
+
+
+def _crop(img: np.ndarray, box, zoom: int = 3) -> np.ndarray:
+    x, y, w, h = box
+    H, W = img.shape[:2]
+    pad = np.full((h, w, 3), 0.5, np.float32)
+    x0, y0, x1, y1 = max(0, x), max(0, y), min(W, x + w), min(H, y + h)
+    if x1 > x0 and y1 > y0:
+        pad[y0 - y:y1 - y, x0 - x:x1 - x] = img[y0:y1, x0:x1]
+    return cv2.resize(pad, (w * zoom, h * zoom), interpolation=cv2.INTER_NEAREST)
+
+
+def write_zoom_sheets(out: Path, items: list[dict], columns=("reference",) + ZOOM_COLUMNS) -> dict:
+    """zoom_<region>.png: per target a row of native-resolution crops (3x, nearest) of the
+    reference and the methods ``columns`` at the target's landmarks."""
+    from ..io import write_image
+
+    files = {}
+    if not items:
+        return files
+    for region in zoom_boxes(items[0]["points68"]):
+        rows = []
+        for it in items:
+            box = zoom_boxes(it["points68"])[region]
+            crops = [_crop(it["images"][c], box) for c in columns]
+            gap = np.ones((crops[0].shape[0], 4, 3), np.float32)
+            row = crops[0]
+            for c in crops[1:]:
+                row = np.concatenate([row, gap, c], axis=1)
+            rows.append(row)
+        wmax = max(r.shape[1] for r in rows)
+        rows = [np.pad(r, ((0, 4), (0, wmax - r.shape[1]), (0, 0)), constant_values=1.0) for r in rows]
+        head = np.full((28, wmax, 3), 255, np.uint8)
+        cw = rows[0].shape[1] // len(columns)
+        for i, c in enumerate(columns):
+            cv2.putText(head, c, (i * cw + 6, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
+        sheet = np.concatenate([head.astype(np.float32) / 255] + rows, axis=0)
+        files[f"zoom_{region}.png"] = write_image(out / f"zoom_{region}.png", np.clip(sheet, 0, 1), overwrite=True)
+    return files
+
+
+def teeth_score(image_u8: np.ndarray, points68: np.ndarray) -> float:
+    """Fraction of the inner-lip polygon (iBUG 60-67) that is bright and unsaturated (teeth),
+    times whether the lips are apart (inner-lip gap > 0.12 IOD): a broad smile with teeth scores
+    high. Used to pick the smiles of the teeth sheet."""
+    p = np.asarray(points68, np.float64)
+    iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
+    if np.linalg.norm(p[66] - p[62]) < 0.12 * iod:
+        return 0.0
+    m = np.zeros(image_u8.shape[:2], np.uint8)
+    cv2.fillPoly(m, [np.round(p[60:68]).astype(np.int32)], 1)
+    if m.sum() < 20:
+        return 0.0
+    hsv = cv2.cvtColor(np.ascontiguousarray(image_u8), cv2.COLOR_RGB2HSV)[m > 0]
+    return float(((hsv[:, 2] > 150) & (hsv[:, 1] < 90)).mean())
+
+
+def leave_one_out(persona, i: int):
+    """The persona without photo i (the collection flow and appearance subspace were computed with
+    it; one photo of hundreds hardly moves them)."""
+    import dataclasses
+
+    keep = np.array([j for j in range(len(persona)) if j != i])
+    arrays = {k: getattr(persona, k)[keep] for k in ("images", "visibility", "fiducials", "points68", "poses", "flows")}
+    return dataclasses.replace(persona, _cache={}, photos=[persona.photos[j] for j in keep], **arrays)
+
+
+def write_teeth_sheet(out: Path, persona, params, n: int = 4) -> tuple[Path | None, list[dict]]:
+    """teeth.png: the ``n`` photos of the collection with the most visible teeth (:func:`teeth_score`),
+    each left out of the collection and synthesized from its fiducials: mouth crops of the
+    reference, static, paper and ours (rows). Returns the path and per-photo records."""
+    import dataclasses
+
+    from ..io import write_image
+    from ..persona import synthesize_texture
+
+    scores = np.array([teeth_score(persona.images[i], persona.points68[i]) for i in range(len(persona))])
+    picks = [int(i) for i in np.argsort(-scores)[:n] if scores[i] > 0.3]
+    rows, recs = [], []
+    for i in picks:
+        q = leave_one_out(persona, i)
+        ref = persona.images[i].astype(np.float32) / 255
+        imgs = [ref]
+        for name, method, weights in (("static", "static", None), ("paper", "ours", "global"), ("ours", "ours", None)):
+            tp = params if weights is None else dataclasses.replace(params, weights=weights)
+            imgs.append(synthesize_texture(q, fiducials=persona.fiducials[i], method=method, params=tp))
+        box = zoom_boxes(persona.points68[i])["mouth"]
+        crops = [_crop(x, box) for x in imgs]
+        # teeth visible = the synthesized inner mouth is bright: its teeth score as the reference's
+        recs.append({"file": persona.photos[i], "reference": float(scores[i]),
+                     **{c: teeth_score(np.clip(np.rint(x * 255), 0, 255).astype(np.uint8), persona.points68[i])
+                        for c, x in zip(("static", "paper", "ours"), imgs[1:])}})
+        gap = np.ones((crops[0].shape[0], 4, 3), np.float32)
+        rows.append(np.concatenate(sum(([c, gap] for c in crops), [])[:-1], axis=1))
+    if not rows:
+        return None, recs
+    wmax = max(r.shape[1] for r in rows)
+    sheet = np.concatenate([np.pad(r, ((0, 4), (0, wmax - r.shape[1]), (0, 0)), constant_values=1.0) for r in rows])
+    return write_image(out / "teeth.png", np.clip(sheet, 0, 1), overwrite=True), recs
 
 
 def _choose_holdout(files: list[Path], holdout: int, seed: int, params, progress) -> tuple[list[dict], list[Path]]:
@@ -80,27 +248,20 @@ def _build_item(p: dict) -> dict:
     user, saved to the run folder's cache file."""
     import facetex
 
-    facetex.build_persona(p["data"], jobs=p["jobs"], files=p["files"]).save(p["cache"], overwrite=True)
+    facetex.build_persona(p["data"], jobs=p["jobs"], files=p["files"], params=p["params"]).save(
+        p["cache"], overwrite=True)
     return {"cache": p["cache"]}
 
 
-def run_bench_persona(data, *, holdout: int = 20, seed: int = 0, out="bench_out/persona",
-                      jobs: int = 2, sigma: float = 10.0, exact: int = 0, grid_rows: int = 8,
-                      progress: Callable | None = None, engine=None) -> dict:
-    """Run the leave-out evaluation; returns {"rows": per-method means, "targets": per-target
-    records, "files": written paths}. ``exact`` > 0 also runs the paper's per-target pipeline
-    (``precomputed=False``, slow) on that many targets to measure the precomputation's effect."""
-    from ..geometry.masks import face_mask
-    from ..persona import PersonaParams, build_persona, load_persona, synthesize_texture
+def load_or_build(data: Path, out: Path, holdout: int, seed: int, jobs: int, progress=None, params=None,
+                  engine=None):
+    """(persona without the held-out photos (cached in ``out``), held-out records, built?, build s).
+    ``engine`` (started): the build runs there as one item of ``jobs`` CPUs (e.g. on a Ray cluster)."""
+    from ..persona import PersonaParams, build_persona, load_persona
     from ..persona.collection import _list_photos
-    from ..persona.texture import prepare_persona
 
-    if holdout < 1:
-        raise BadInputError(f"--holdout must be at least 1, got {holdout}")
-    out = check_out_dir(out)
-    data = Path(data)
     files = _list_photos(data)
-    params = PersonaParams()
+    params = params or PersonaParams()
     held, rest = _choose_holdout(files, holdout, seed, params, progress)
     if len(held) < holdout:
         raise BadInputError(f"only {len(held)} usable photos to hold out (asked {holdout})", path=data)
@@ -110,7 +271,7 @@ def run_bench_persona(data, *, holdout: int = 20, seed: int = 0, out="bench_out/
     if cache.exists():
         try:
             persona = load_persona(cache)
-            if set(persona.photos) & {h["file"] for h in held}:
+            if set(persona.photos) & {h["file"] for h in held} or persona.params != params:
                 persona = None
         except Exception:  # noqa: BLE001 - a stale cache is rebuilt
             persona = None
@@ -119,93 +280,162 @@ def run_bench_persona(data, *, holdout: int = 20, seed: int = 0, out="bench_out/
         from ..batch import Resources, map_items
 
         map_items(engine, _build_item, [{"data": str(data.resolve()), "jobs": jobs, "cache": str(cache.resolve()),
-                                         "files": [str(f) for f in rest]}], resources=Resources(cpus=jobs))
+                                         "files": [str(f) for f in rest], "params": params}],
+                  resources=Resources(cpus=jobs))
         persona = load_persona(cache)
     elif built:
         persona = build_persona(data, files=rest, jobs=jobs, progress=progress, params=params)
         persona.save(cache, overwrite=True)
-    t_build = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    prepare_persona(persona)
-    t_prep = time.perf_counter() - t0
+    return persona, held, built, time.perf_counter() - t0
 
-    H, W = persona.images.shape[1:3]
-    targets, grid, labels = [], [], []
-    times = {m: [] for m in GRID_METHODS}
+
+def evaluate(persona, held: list[dict], *, params=None, rows=ROWS, keep_images: int = 0,
+             progress: Callable | None = None) -> tuple[list[dict], list[dict]]:
+    """Per held-out target: scores of every row of ``rows`` ((name, method, weights or None =
+    ``params``' default)). Returns (records, image items of the first ``keep_images`` targets)."""
+    import dataclasses
+
+    from ..persona import TextureParams, synthesize_texture
+
+    tp = params or TextureParams()
+    records, items = [], []
     for k, h in enumerate(held):
         ref = h["image"].astype(np.float32) / 255
-        v = h["visibility"].astype(np.float32) / 255
-        v = v + (1 - v) * v[:, ::-1]
-        mask = (face_mask(h["points68"], (H, W)) > 0.5) & (v > 0.5)
-        rec = {"file": h["file"], "yaw": h["pose"][0]}
-        row = [ref]
-        for m in GRID_METHODS:
+        masks = evaluation_masks(h["points68"], h["visibility"].astype(np.float32) / 255)
+        rec = {"file": h["file"], "yaw": h["pose"][0], **{f"px_{r}": int(m.sum()) for r, m in masks.items()}}
+        imgs = {"reference": ref}
+        for name, method, weights in rows:
+            p = tp if weights is None else dataclasses.replace(tp, weights=weights)
             t = time.perf_counter()
-            img = synthesize_texture(persona, fiducials=h["fiducials"], method=m, sigma=sigma)
-            times[m].append(time.perf_counter() - t)
-            for key, val in masked_metrics(img, ref, mask).items():
-                rec[f"{m}_{key}"] = val
-            row.append(img)
-            if m == "ours" and k < exact:
-                t = time.perf_counter()
-                ex = synthesize_texture(persona, fiducials=h["fiducials"], method="ours", sigma=sigma,
-                                        precomputed=False)
-                rec["exact_time_s"] = time.perf_counter() - t
-                for key, val in masked_metrics(ex, ref, mask).items():
-                    rec[f"exact_{key}"] = val
-                rec["exact_vs_ours_mad"] = float(np.abs(ex - img)[mask].mean() * 255)
-                rec["_exact_img"] = ex
-        targets.append(rec)
-        if k < grid_rows:
-            grid.append(row + ([rec.pop("_exact_img")] if "_exact_img" in rec else []))
-            labels.append([h["file"].rsplit(".", 1)[0][-4:]] + [None] * (len(grid[-1]) - 1))
-        rec.pop("_exact_img", None)
+            img = synthesize_texture(persona, fiducials=h["fiducials"], method=method, params=p)
+            rec[f"{name}_time_s"] = time.perf_counter() - t
+            for region, sc in region_scores(img, ref, masks).items():
+                for key, val in sc.items():
+                    rec[f"{name}_{region}_{key}"] = val
+            imgs[name] = img
+        records.append(rec)
+        if k < keep_images:
+            items.append({"file": h["file"], "points68": h["points68"], "images": imgs})
         if progress:
             progress(n=1, stage="targets")
+    return records, items
 
-    rows = []
-    names = list(GRID_METHODS) + (["exact"] if exact > 0 else [])
-    for m in names:
-        recs = [t for t in targets if f"{m}_ssim" in t]
-        cols = np.array([t[f"{m}_mean_colour"] for t in recs])
-        rows.append({
-            "method": m if m != "exact" else "ours, per-target (paper pipeline)",
-            "n": len(recs),
-            "ssim": float(np.mean([t[f"{m}_ssim"] for t in recs])),
-            "grad_corr": float(np.mean([t[f"{m}_grad_corr"] for t in recs])),
-            "colour_diff": float(np.mean([t[f"{m}_colour_diff"] for t in recs])),
-            "colour_std": float(np.sqrt((cols.std(axis=0) ** 2).mean())) if len(cols) > 1 else float("nan"),
-            "time_ms": float(np.median(times[m]) * 1000) if m in times else
-            float(np.median([t["exact_time_s"] for t in recs]) * 1000),
-        })
-    columns = [Column("method", "method"), Column("n", "targets"), Column("ssim", "SSIM ↑", ".4f"),
-               Column("grad_corr", "grad. corr. ↑", ".4f"), Column("colour_diff", "colour diff ↓", ".2f"),
-               Column("colour_std", "colour std across targets ↓", ".2f"),
-               Column("time_ms", "median time / target (ms)", ".1f")]
+
+def summarize(records: list[dict], rows=ROWS) -> list[dict]:
+    """Per row: mean scores per region, colour spread, median time; and the gain of each row over
+    static in SSIM with its standard error over the targets."""
+    out = []
+    for name, _, _ in rows:
+        r = {"method": name, "n": len(records)}
+        for region in REGIONS:
+            v = np.array([t[f"{name}_{region}_ssim"] for t in records], np.float64)
+            base = np.array([t[f"static_{region}_ssim"] for t in records], np.float64)
+            d = v - base
+            ok = np.isfinite(d)
+            r[f"{region}_ssim"] = float(np.nanmean(v))
+            r[f"{region}_gain"] = float(d[ok].mean()) if ok.any() else float("nan")
+            r[f"{region}_gain_se"] = float(d[ok].std(ddof=1) / np.sqrt(ok.sum())) if ok.sum() > 1 else float("nan")
+        r["face_grad_corr"] = float(np.nanmean([t[f"{name}_face_grad_corr"] for t in records]))
+        r["face_colour_diff"] = float(np.nanmean([t[f"{name}_face_colour_diff"] for t in records]))
+        cols = np.array([t[f"{name}_face_mean_colour"] for t in records])
+        r["colour_std"] = float(np.sqrt((cols.std(axis=0) ** 2).mean())) if len(cols) > 1 else float("nan")
+        r["time_ms"] = float(np.median([t[f"{name}_time_s"] for t in records]) * 1000)
+        out.append(r)
+    return out
+
+
+COLUMNS = [Column("method", "method"), Column("n", "targets"),
+           Column("face_ssim", "SSIM face ↑", ".4f"), Column("face_gain", "Δ face vs static", "+.4f"),
+           Column("mouth_ssim", "SSIM mouth ↑", ".4f"), Column("mouth_gain", "Δ mouth vs static", "+.4f"),
+           Column("mouth_gain_se", "± s.e.", ".4f"),
+           Column("eyes_ssim", "SSIM eyes ↑", ".4f"), Column("eyes_gain", "Δ eyes vs static", "+.4f"),
+           Column("face_grad_corr", "grad. corr. ↑", ".4f"), Column("face_colour_diff", "colour diff ↓", ".2f"),
+           Column("colour_std", "colour std across targets ↓", ".2f"),
+           Column("time_ms", "median time / target (ms)", ".1f")]
+
+
+def run_bench_persona(data, *, holdout: int = 20, seed: int = 0, out="bench_out/persona",
+                      jobs: int = 2, sigma: float = 10.0, exact: int = 0, grid_rows: int = 8,
+                      weights: str = "regional", neighbours: int | None = None,
+                      progress: Callable | None = None, engine=None) -> dict:
+    """Run the leave-out evaluation; returns {"rows": per-method means, "targets": per-target
+    records, "files": written paths, "table"}. ``weights``/``neighbours``: the "ours" row's
+    weights; ``sigma``: the global (paper) weights' sigma. ``exact`` > 0 also runs the paper's
+    per-target pipeline (``precomputed=False``, slow) on that many targets. ``engine``
+    (:mod:`facetex.batch.engines`, started): the build runs as one item of ``jobs`` CPUs there
+    (default: here, on ``jobs`` worker processes)."""
+    import dataclasses
+
+    from ..persona import TextureParams, synthesize_texture
+    from ..persona.texture import expression_model, prepare_persona
+
+    if holdout < 1:
+        raise BadInputError(f"--holdout must be at least 1, got {holdout}")
+    out = check_out_dir(out)
+    data = Path(data)
+    persona, held, built, t_build = load_or_build(data, out, holdout, seed, jobs, progress, engine=engine)
+    tp = TextureParams(weights=weights, sigma=sigma)
+    if neighbours is not None:
+        tp = dataclasses.replace(tp, neighbours=int(neighbours))
+    t0 = time.perf_counter()
+    prepare_persona(persona, tp)
+    t_prep = time.perf_counter() - t0
+
+    targets, items = evaluate(persona, held, params=tp, keep_images=grid_rows, progress=progress)
+    if exact > 0:
+        for rec, h in zip(targets[:exact], held[:exact]):
+            t = time.perf_counter()
+            ex = synthesize_texture(persona, fiducials=h["fiducials"], params=tp, precomputed=False)
+            rec["exact_time_s"] = time.perf_counter() - t
+            ref = h["image"].astype(np.float32) / 255
+            masks = evaluation_masks(h["points68"], h["visibility"].astype(np.float32) / 255)
+            for region, sc in region_scores(ex, ref, masks).items():
+                rec[f"exact_{region}_ssim"] = sc["ssim"]
+    rows = summarize(targets)
+    model = expression_model(persona, tp) if tp.weights == "regional" else None
     head = (f"Persona texture leave-out evaluation: {data.name}, {len(persona)} photos in the persona "
-            f"({len(persona.skipped)} skipped), {len(held)} held out (seed {seed}), sigma {sigma}.\n"
+            f"({len(persona.skipped)} skipped), {len(held)} held out (seed {seed}). ours: {tp.weights} weights"
+            + (f" (neighbours {tp.neighbours}, at most {tp.max_photos} photos per region; per region {model.summary()})"
+               if model else "") + f"; paper and the weighted/prewarp baselines: global weights, sigma {sigma}.\n"
             f"Build {t_build:.0f} s ({'built' if built else 'cached'}), precompute {t_prep:.1f} s.\n\n")
     extra = ""
     if exact > 0:
-        mads = [t["exact_vs_ours_mad"] for t in targets if "exact_vs_ours_mad" in t]
-        extra = (f"\nPrecomputed vs per-target pipeline on {len(mads)} targets: mean |difference| "
-                 f"{np.mean(mads):.2f} / 255 inside the mask.\n")
+        ex = [t for t in targets if "exact_face_ssim" in t]
+        extra = (f"\nPaper's per-target pipeline (no precomputation) on {len(ex)} targets: SSIM face "
+                 f"{np.mean([t['exact_face_ssim'] for t in ex]):.4f} / mouth "
+                 f"{np.nanmean([t['exact_mouth_ssim'] for t in ex]):.4f} vs precomputed ours "
+                 f"{np.mean([t['ours_face_ssim'] for t in ex]):.4f} / "
+                 f"{np.nanmean([t['ours_mouth_ssim'] for t in ex]):.4f}.\n")
+    table = head + markdown_table(COLUMNS, rows) + extra
     files_out = {
-        "table.md": write_text(out / "table.md", head + markdown_table(columns, rows) + extra),
-        "table.csv": write_text(out / "table.csv", csv_table(columns, rows)),
+        "table.md": write_text(out / "table.md", table),
+        "table.csv": write_text(out / "table.csv", csv_table(COLUMNS, rows)),
     }
     tcols = [Column(k, k) for k in targets[0] if not k.endswith("mean_colour")]
     files_out["per_target.csv"] = write_text(out / "per_target.csv", csv_table(tcols, targets))
-    titles = ["reference", *GRID_METHODS] + (["ours (per-target)"] if exact > 0 else [])
-    files_out["grid.png"] = write_grid(out / "grid.png", grid, col_titles=titles, cell_labels=labels, cell=192)
+    names = ["reference"] + [r[0] for r in ROWS]
+    grid = [[it["images"][c] for c in names] for it in items]
+    labels = [[it["file"].rsplit(".", 1)[0][-4:]] + [None] * (len(names) - 1) for it in items]
+    if grid:
+        files_out["grid.png"] = write_grid(out / "grid.png", grid, col_titles=names, cell_labels=labels,
+                                           cell=max(persona.size))
+    files_out.update(write_zoom_sheets(out, items))
+    teeth_path, teeth = write_teeth_sheet(out, persona, tp)
+    if teeth_path is not None:
+        files_out["teeth.png"] = teeth_path
+        table += ("\nBroad smiles with teeth (the collection's photos with the most visible teeth, each left out "
+                  "and synthesized from its fiducials; teeth score = bright unsaturated fraction of the inner "
+                  "mouth, reference / static / paper / ours; teeth.png):\n"
+                  + "".join(f"- {t['file']}: {t['reference']:.2f} / {t['static']:.2f} / {t['paper']:.2f} / "
+                            f"{t['ours']:.2f}\n" for t in teeth))
     from ..io import write_json
 
-    summary = {"data": str(data), "holdout": holdout, "seed": seed, "sigma": sigma, "photos": len(persona),
-               "skipped": persona.skipped, "held_out": [h["file"] for h in held], "rows": rows,
-               "build_s": t_build, "precompute_s": t_prep, "versions": versions()}
-    files_out["summary.json"] = write_json(out / "summary.json", summary, overwrite=True)
-    return {"rows": rows, "targets": targets, "files": {k: str(v) for k, v in files_out.items()},
-            "table": head + markdown_table(columns, rows) + extra}
+    summary = {"bench": "persona", "teeth": teeth, "data": str(data), "holdout": holdout, "seed": seed, "sigma": sigma, "weights": tp.weights,
+               "neighbours": tp.neighbours, "expression_model": model.summary() if model else None,
+               "photos": len(persona), "skipped": persona.skipped, "held_out": [h["file"] for h in held],
+               "rows": rows, "build_s": t_build, "precompute_s": t_prep, "versions": versions()}
+    files_out["results.json"] = write_json(out / "results.json", summary, overwrite=True)
+    return {"rows": rows, "targets": targets, "files": {k: str(v) for k, v in files_out.items()}, "table": table}
 
 
 def register_bench(sub) -> None:
@@ -216,12 +446,18 @@ def register_bench(sub) -> None:
     p = sub.add_parser("persona", help="leave-out evaluation of persona textures (Tom Hanks Fig. 5)",
                        description="Build a persona without --holdout photos, synthesize each held-out photo's "
                                    "texture with every method and compare it with the photo: table.md/.csv, "
-                                   "per_target.csv, grid.png, summary.json.")
+                                   "per_target.csv, results.json, grid.png, zoom_<region>.png and teeth.png "
+                                   "sheets at native resolution.")
     add_bench_options(p, "persona", f"data root holding {DATA_SUBFOLDER}/, or a folder of photos of one person")
     p.add_argument("--holdout", type=positive_int, default=20, help="photos held out as targets (default 20)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the held-out choice (default 0)")
     p.add_argument("--jobs", type=bounded_int(1, 64), default=2, help="worker processes for the build (default 2)")
-    p.add_argument("--sigma", type=finite_float(0.0, open_lo=True), default=10.0, help="Eq. 3 sigma (default 10)")
+    p.add_argument("--weights", choices=("regional", "global"), default="regional",
+                   help="weights of the 'ours' row (default regional; the 'paper' row always uses global)")
+    p.add_argument("--neighbours", type=positive_int, default=None, metavar="K",
+                   help="regional weights: each region's sigma from the K-th nearest photo (default 3)")
+    p.add_argument("--sigma", type=finite_float(0.0, open_lo=True), default=10.0,
+                   help="sigma of the paper's global weights (default 10)")
     p.add_argument("--exact", type=bounded_int(0), default=0, metavar="N",
                    help="also run the paper's per-target pipeline on N targets (slow)")
     from ..cli._common import add_engine_options
@@ -236,6 +472,10 @@ def _run_cli(args) -> int:
     from ._common import data_folder, data_root, finish_bench
 
     data = data_folder(data_root(args.data), DATA_SUBFOLDER)
+    if args.neighbours is not None and args.weights != "regional":
+        from ..errors import BadInputError
+
+        raise BadInputError("--neighbours applies to --weights regional (the global weights take --sigma)")
     n = len(_list_photos(data))
     total = args.holdout + 2 * max(0, n - args.holdout) + args.holdout  # hold-out choice, build, targets
     import contextlib
@@ -246,7 +486,8 @@ def _run_cli(args) -> int:
     with engine or contextlib.nullcontext(), \
             progress_bar(total=total, desc="bench persona", unit="step", disable=args.quiet) as update:
         res = run_bench_persona(data, holdout=args.holdout, seed=args.seed, out=args.out, jobs=args.jobs,
-                                sigma=args.sigma, exact=args.exact, progress=update, engine=engine)
+                                sigma=args.sigma, exact=args.exact, weights=args.weights,
+                                neighbours=args.neighbours, progress=update, engine=engine)
     finish_bench(args, "persona", args.out, res["files"], inputs={"data": data}, settings={"data": str(data)},
                  summary={"rows": res["rows"]}, table=res["table"])
     return 0

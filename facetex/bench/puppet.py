@@ -257,7 +257,7 @@ def _evaluate_clip(clip: Path, persona, ref_desc, out: Path, *, size, max_frames
     finally:
         pup.params = saved
     # expression texture against the static average, mouth region, open-mouth frames
-    static = neutral_texture(persona, persona.mean_fiducials, method="static")
+    static = neutral_texture(persona, persona.mean_fiducials, method="static", params=params.texture_params())
     mouth = _face_region_mask(persona)
     ok = np.isfinite(drv_open)
     open_frames = np.flatnonzero(ok & (drv_open >= np.nanpercentile(drv_open, 75))) if ok.any() else []
@@ -433,12 +433,14 @@ def _bench_item(p: dict):
         _WORKER_CACHE[p["persona_file"]] = (persona, _collection_descriptor(persona))
     persona, ref = _WORKER_CACHE[p["persona_file"]]
     return _evaluate_clip(Path(p["clip"]), persona, ref, Path(p["out"]), size=p["size"], max_frames=p["max_frames"],
-                          params=PuppetParams(shape=p["shape"]), write_media=p["write_media"], progress=None)
+                          params=PuppetParams(shape=p["shape"], weights=p["weights"]), write_media=p["write_media"],
+                          progress=None)
 
 
 def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, data=None, clips: int | None = None,
                      size: int | None = 256, max_frames: int | None = None, texture_shape: str = "collection",
-                     partial: bool = True, progress: Callable | None = None, engine=None) -> dict:
+                     weights: str = "regional", partial: bool = True, progress: Callable | None = None,
+                     engine=None) -> dict:
     """Run the puppetry benchmark: every ``*.mpg`` / ``*.mp4`` in ``drivers`` (the first ``clips``)
     drives the persona ``puppet`` (a .persona file, or a photo folder built once and cached in
     ``out``); ``data`` (or FACETEX_DATA) supplies the defaults ``grid/`` and
@@ -463,7 +465,8 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, data=
     out = check_out_dir(out)
     persona, persona_file = _load_or_build_persona(puppet, out, progress)
     ref = _collection_descriptor(persona)
-    params = PuppetParams(shape=texture_shape)
+    params = PuppetParams(shape=texture_shape, weights=weights)
+    params.texture_params()  # unknown weights: an error before any work
     from ..batch.engines import InlineEngine
 
     if engine is None or isinstance(engine, InlineEngine):
@@ -477,7 +480,7 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, data=
 
         items = [{"kind": "clip", "clip": str(c), "persona_file": str(Path(persona_file).resolve()),
                   "out": str(out.resolve()), "size": size, "max_frames": max_frames, "shape": texture_shape,
-                  "write_media": k == 0} for k, c in enumerate(files)]
+                  "weights": weights, "write_media": k == 0} for k, c in enumerate(files)]
         if partial:
             items.append({"kind": "partial", "clip": str(files[0]), "out": str(out.resolve()),
                           "max_frames": max_frames})
@@ -496,7 +499,8 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, data=
     summary["frames"], summary["lost"] = int(sum(r["frames"] for r in rows)), int(sum(r["lost"] for r in rows))
     table_rows = rows + [summary]
     head = (f"# Puppetry benchmark\n\nPuppet: `{puppet}` ({len(persona)} photos); drivers: {len(files)} clip(s) "
-            f"from `{drivers}`; panel size {size or 'native'}; puppet shape: {rows[0]['shape']}.\n\n"
+            f"from `{drivers}`; panel size {size or 'native'}; puppet shape: {rows[0]['shape']}; texture "
+            f"weights: {weights}.\n\n"
             f"Targets per clip: mouth slope >= {SLOPE_TARGET} and r >= {CORR_TARGET}; edge ΔE ratio (composite "
             f"/ driver's own) <= {STEP_RATIO_TARGET}; id dist to the puppet < {ID_THRESHOLD} on >= "
             f"{ID_FRACTION_TARGET:.0%} of frames and smaller than to the driver; partial faces rejected.\n\n")
@@ -524,8 +528,9 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, data=
     paths = {"table_md": out / "table.md", "table_csv": out / "table.csv", "results": out / "results.json"}
     write_text(paths["table_md"], head + markdown_table(COLUMNS, table_rows) + tail)
     write_text(paths["table_csv"], csv_table(COLUMNS, table_rows))
-    write_json(paths["results"], json_safe({"settings": {"drivers": str(drivers), "puppet": str(puppet),
+    write_json(paths["results"], json_safe({"bench": "puppet", "settings": {"drivers": str(drivers), "puppet": str(puppet),
                                                          "persona_file": persona_file, "size": size,
+                                                         "weights": weights,
                                                          "max_frames": max_frames, "versions": versions()},
                                             "rows": rows, "summary": summary, "partial": part,
                                             "targets_met": ok}), overwrite=True)
@@ -556,6 +561,8 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
     p.add_argument("--max-frames", type=positive_int, help="use only the first N frames of each clip")
     p.add_argument("--shape", choices=("collection", "generic"), default="collection",
                    help="puppet average shape: photometric stereo (falls back to generic) or the generic face")
+    p.add_argument("--weights", choices=("regional", "global"), default="regional",
+                   help="expression weights of the puppet's texture: regional (default) or the paper's global")
     p.add_argument("--no-partial", action="store_true", help="skip the half-out-of-frame check")
     from ..cli._common import add_engine_options
 
@@ -588,8 +595,8 @@ def _run(args) -> int:
     with engine_from_args(args, inline_single=True) as engine, \
             progress_bar(total=total or None, desc="bench puppet", unit="frame", disable=args.quiet) as bar:
         res = run_bench_puppet(drivers, puppet, args.out, clips=args.clips, size=args.size,
-                               max_frames=args.max_frames, texture_shape=args.shape, partial=not args.no_partial,
-                               progress=bar, engine=engine)
+                               max_frames=args.max_frames, texture_shape=args.shape, weights=args.weights,
+                               partial=not args.no_partial, progress=bar, engine=engine)
     table = Path(res["files"]["table_md"]).read_text(encoding="utf-8")
     finish_bench(args, "puppet", res["out"], res["files"], inputs={"drivers": drivers, "puppet": puppet},
                  settings={"drivers": str(drivers), "puppet": str(puppet)},

@@ -9,7 +9,8 @@ pair, each output is scored against its content and style images with
   wall time; the paper's own values as a reference block in the Markdown);
 - ``grid.png`` — Figure 3 (style, content, MRF-CNN, FaceTex, Neural Style per pair);
 - ``scatter.png`` — Figure 4 ((a) landmark errors, (b) texture similarities per pair);
-- ``pairs.json`` — every number per pair and method, and the settings;
+- ``results.json`` — every number per pair and method, and the settings (``"bench": "transfer"``,
+  as in the other benches' ``results.json``);
 - ``zoom.png`` (and ``zoom/<content>__<style>.png``) — forehead, cheek and chin crops at
   native resolution of the content, the pre-warped style and every output;
 - ``images/<content>__<style>__prewarp.png`` — the pre-warped style the optimiser got.
@@ -417,8 +418,9 @@ def run_bench_transfer(data, out="bench_out/transfer", *, pairs: int = 5,
 
     rows = _summary_rows(records, chosen, (NONE,) + tuple(methods))
     files = {"table_md": out / "table.md", "table_csv": out / "table.csv", "grid": out / "grid.png",
-             "scatter": out / "scatter.png", "pairs": out / "pairs.json"}
-    write_json(files["pairs"], json_safe({
+             "scatter": out / "scatter.png", "results": out / "results.json"}
+    write_json(files["results"], json_safe({
+        "bench": "transfer",
         "settings": settings,
         "pairs": [{"content": c, "style": s, "content_path": str(portraits[c]), "style_path": str(portraits[s]),
                    "results": {m: {k: records[(c, s, m)][k] for k in
@@ -446,7 +448,7 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
     p = bench_subparsers.add_parser(
         "transfer", help="FaceTex §3.1 benchmark: Table 1, Figures 3 and 4",
         description="Run Neural Style, MRF-CNN and FaceTex on content/style pairs of different people "
-                    "and write table.md/.csv, grid.png, scatter.png and pairs.json. Resumable: finished "
+                    "and write table.md/.csv, grid.png, scatter.png, zoom.png and results.json. Resumable: finished "
                     "(pair, method) results in --out are reused.")
     add_bench_options(p, "transfer", f"data root holding {DATA_SUBFOLDER}/, or a folder of NNN_neutral.jpg portraits")
     p.add_argument("--pairs", type=positive_int, default=5, help="number of content/style pairs (default 5)")

@@ -94,6 +94,8 @@ def register(sub) -> None:
     u.add_argument("--side-by-side", action="store_true", help="driver frame left of the puppet")
     u.add_argument("--lighting", choices=("stats", "sh", "none"), default="stats", help="as in `facetex puppet`")
     u.add_argument("--texture", choices=("ours", "static"), default="ours", help="as in `facetex puppet`")
+    u.add_argument("--weights", choices=("regional", "global"), default="regional",
+                   help="expression weights of the texture, as in `facetex puppet` (default regional)")
     u.add_argument("--max-frames", type=positive_int, metavar="N", help="use only the first N frames")
     _batch_options(u)
     u.set_defaults(func=run_puppet, device="cpu")
@@ -234,6 +236,6 @@ def run_puppet(args) -> int:
     _engine(args)
     items = puppet_items(args.drivers, args.puppets, args.out, size=args.size, mode=args.mode,
                          side_by_side=args.side_by_side, lighting=args.lighting, texture=args.texture,
-                         max_frames=args.max_frames, cpus=args.cpus_per_item, argv=_argv())
+                         weights=args.weights, max_frames=args.max_frames, cpus=args.cpus_per_item, argv=_argv())
     out = _out_dir(args, [args.drivers, args.puppets])
     return _run(args, "puppet", items, out)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -108,13 +107,13 @@ def run(args) -> int:
     summary = {"inputs": {"content": CONTENT, "style": STYLE, "smiling": SMILING}, "identity": ident,
                "size": size, "iters": list(args.iters), "transfers": {}}
     tiles = [_label(style, "style"), _label(content, "content")]
+    zoom_cols: list = []
     for method in methods:
         iters = args.iters
-        with progress_bar(sum(iters) * 5 // 4 + len(iters), desc=method, unit="eval", disable=args.quiet) as bar, \
-                warnings.catch_warnings():
-            # facetex/transfer/optimize.py turns the L-BFGS step's loss into a float without detach():
-            # torch's advice is about that line, not about anything the user can change
-            warnings.filterwarnings("ignore", message="Converting a tensor with requires_grad=True to a scalar")
+        from ..transfer import preset as _preset
+
+        budget = _preset(method).eval_budget
+        with progress_bar(int(sum(iters) * budget) + len(iters), desc=method, unit="eval", disable=args.quiet) as bar:
             t0 = time.perf_counter()
             image, info = transfer_with_info(
                 content, style, method=method, size=size, iters=iters, seed=args.seed, device=args.device,
@@ -129,18 +128,34 @@ def run(args) -> int:
                             outputs=[f"transfer_{method}.png"], result=info, metrics=m)
         put(f"transfer_{method}.png", image, record)
         if method == "facetex":
-            for name, key, what in (("aligned_style.png", "style_w", "the style pre-warped onto the content's "
-                                     "face crop (FaceTex §2.3)"),
+            for name, key, what in (("aligned_style.png", "style_native", "the style pre-warped onto the content's "
+                                     "face crop (FaceTex §2.3), at the crop's own resolution"),
+                                    ("skin_content.png", "skin_content", "where the content may change: its skin"),
+                                    ("skin_style.png", "skin_style", "the style's skin, warped onto the content: "
+                                     "where texture may come from"),
                                     ("prior_mask.png", "prior", "the facial prior mask (FaceTex §2.2)")):
                 if images.get(key) is not None:
                     put(name, images[key], provenance(command=f"demo: transfer --method {method}", seed=args.seed,
                                                       inputs={"content": paths["content"], "style": paths["style"]},
                                                       params=record["params"], outputs=[name], what=what))
+            x0, y0, x1, y1 = info["region_box"]
+            aligned_full = content.copy()
+            aligned_full[y0:y1, x0:x1] = images["style_native"]
+            zoom_cols.extend([("content", content), ("pre-warped style", aligned_full)])
+        zoom_cols.append((method, image))
         summary["transfers"][method] = {"seconds": seconds, "metrics": m}
         tiles.append(_label(image, f"{method}  id->content {m['identity_content']:.2f}"))
-    put("figure.png", np.hstack(tiles), provenance(
+    from ..bench._zoom import zoom_sheet
+
+    row = np.hstack(tiles)
+    zoom = zoom_sheet(zoom_cols or [("content", content)], face_c.points68, zoom=3,
+                      title="skin at 100 % (3x, nearest neighbour): forehead, cheeks, chin").astype(np.float32) / 255.0
+    width = max(row.shape[1], zoom.shape[1])
+    pad = lambda a: np.pad(a, ((0, 8), (0, width - a.shape[1]), (0, 0)), constant_values=1.0)  # noqa: E731
+    put("figure.png", np.vstack([pad(row), pad(zoom)]), provenance(
         command="demo", seed=args.seed, inputs={"content": paths["content"], "style": paths["style"]}, params=params,
-        outputs=["figure.png"], what="style, content and each method's output side by side"))
+        outputs=["figure.png"], what="style, content and each method's output side by side; below, zoomed skin "
+                                     "crops at native resolution of the content, the pre-warped style and the outputs"))
     summary["seconds"] = time.perf_counter() - t_start
     files = {out / "summary.json": encode_json(summary),
              out / "run.json": encode_json(provenance(
@@ -156,7 +171,10 @@ def run(args) -> int:
     for method, t in summary["transfers"].items():
         mm = t["metrics"]
         lines.append(f"{method}: {t['seconds']:.1f} s at {size} px, landmark error E(xt,xc) {mm['E_content']:.2f} px², "
-                     f"texture S(xt,xs) {mm['S_style']:.3f}, identity distance to the content {mm['identity_content']:.3f}")
+                     f"texture S(xt,xs) {mm['S_style']:.3f} ({mm['S_style_gain']:+.3f} over no transfer), "
+                     f"skin detail {mm['detail_output']:.2f} vs the style's {mm['detail_style']:.2f}, "
+                     f"eyes/brows/lips changed {mm['protected_change']:.2f}/255, background "
+                     f"{mm['background_change']:.2f}/255, identity distance to the content {mm['identity_content']:.3f}")
     lines.append(f"demo finished in {summary['seconds']:.1f} s; outputs in {out}:")
     say(args, *lines, *(f"wrote {p}" for p in written))
     return 0

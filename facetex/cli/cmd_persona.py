@@ -35,8 +35,15 @@ def register(sub) -> None:
     t.add_argument("-o", "--output", required=True, metavar="OUT.png")
     t.add_argument("--method", choices=("ours", "static", "weighted", "prewarp"), default="ours",
                    help="ours (default) or a Fig. 5 baseline")
-    t.add_argument("--sigma", type=finite_float(0.0, open_lo=True), default=10.0,
-                   help="expression-similarity sigma of Eq. 3 (default 10, typically 6-12)")
+    t.add_argument("--weights", choices=("regional", "global"), default="regional",
+                   help="expression weights: regional (default: mouth, eyes and the rest of the face each "
+                        "weighted by their own fiducials) or global (the paper's Eq. 2/3: all fiducials, sigma, "
+                        "Laplacian weighting alpha 1)")
+    t.add_argument("--sigma", type=finite_float(0.0, open_lo=True), default=None,
+                   help="--weights global only: sigma of Eq. 2/3 (default 10, typically 6-12)")
+    t.add_argument("--neighbours", type=positive_int, default=None, metavar="K",
+                   help="--weights regional only: each region's sigma is the target's distance to its K-th "
+                        "nearest photo / 2 (default 3)")
     add_overwrite(t)
     t.set_defaults(func=run_texture)
 
@@ -55,8 +62,9 @@ def register(sub) -> None:
     m.add_argument("--step", type=positive_int, default=1, metavar="N",
                    help="grid step of the mesh in canonical px (default 1; at most 1/8 of the frame width)")
     m.add_argument("--shape", choices=("collection", "generic"), default="collection",
-                   help="collection: the persona's photometric-stereo average depth (default; the generic "
-                        "face if it is missing or implausible); generic: the generic face")
+                   help="collection: the persona's photometric-stereo average depth when it passed its "
+                        "photometric validation on held-out photos (default; else the generic face, and the "
+                        "report says why); generic: the generic face")
     add_overwrite(m)
     add_json(m, "the mesh's summary (vertices, faces, depth source, paths)")
     m.set_defaults(func=run_mesh)
@@ -160,6 +168,19 @@ def _read_fiducials(path, size=None):
     return a
 
 
+def _texture_params(args):
+    """TextureParams of ``persona texture``'s options, checked before any work."""
+    from .._api import texture_params
+    from ..errors import BadInputError
+
+    if args.sigma is not None and args.weights != "global":
+        raise BadInputError("--sigma applies to --weights global (the regional weights measure their own "
+                            "sigma: use --neighbours)")
+    if args.neighbours is not None and args.weights != "regional":
+        raise BadInputError("--neighbours applies to --weights regional (the global weights take --sigma)")
+    return texture_params(weights=args.weights, sigma=args.sigma, neighbours=args.neighbours)
+
+
 def run_texture(args) -> int:
     import time
 
@@ -167,6 +188,7 @@ def run_texture(args) -> int:
     from ..io import check_input_file
     from ..persona import load_persona, read_persona_header, synthesize_texture
 
+    tp = _texture_params(args)
     inputs = [args.persona, args.like or args.fiducials]
     out, sidecar = _outputs(args, inputs)
     t0 = time.perf_counter()
@@ -179,13 +201,15 @@ def run_texture(args) -> int:
     persona = load_persona(args.persona)
     t1 = time.perf_counter()
     with progress_bar(desc="texture", unit="step") as update:
-        img = synthesize_texture(persona, method=args.method, sigma=args.sigma, progress=update, **kw)
+        img = synthesize_texture(persona, method=args.method, params=tp, progress=update, **kw)
     t2 = time.perf_counter()
     from .._provenance import provenance
 
     _write_with_sidecar(out, sidecar, img, provenance(
         command="persona texture", inputs={"persona": args.persona, "like": args.like, "fiducials": args.fiducials},
-        params={"method": args.method, "sigma": args.sigma,
+        params={"method": args.method, "weights": tp.weights,
+                "sigma": tp.sigma if tp.weights == "global" else None,
+                "neighbours": tp.neighbours if tp.weights == "regional" else None,
                 "target": "like" if args.like else "fiducials"},
         outputs=[out], photos=len(persona),
         timings_s={"load": t1 - t0, "synthesize_incl_precompute": t2 - t1}), args, inputs)
@@ -247,6 +271,7 @@ def run_mesh(args) -> int:
         "paths": {k: str(v) for k, v in paths.items()},
         "vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces)), "step": args.step,
         "depth_source": mesh.depth_source, "depth_origin": mesh.depth_origin, "depth_photos": mesh.depth_photos,
+        "shape_reason": mesh.shape_reason, "shape_validation": mesh.shape_validation,
         "units": "canonical px, OBJ axes (x right, y up, z towards the viewer)",
         "timings_s": {"load": t1 - t0, "mesh_texture": t2 - t1},
     }
@@ -257,5 +282,9 @@ def run_mesh(args) -> int:
               extra_files={paths["sidecar"]: encode_json(record)})
     if args.json:
         print_json(summary)
+    else:  # which shape and why, on stderr beside the progress (stdout keeps the `wrote` lines)
+        import sys
+
+        print(f"{out}: {mesh.depth_source} shape ({mesh.shape_reason})", file=sys.stderr)
     wrote(args, *(paths[k] for k in ("obj", "mtl", "texture", "sidecar")))
     return 0

@@ -27,6 +27,10 @@ def register(sub) -> None:
                         "first-order spherical-harmonics lighting (sh), or neither (none)")
     p.add_argument("--texture", choices=("ours", "static"), default="ours",
                    help="expression-dependent texture (default) or the static average texture")
+    p.add_argument("--weights", choices=("regional", "global"), default="regional",
+                   help="expression weights of the texture: regional (default; mouth, eyes and the rest of the "
+                        "face each weighted by their own fiducials, as `persona texture`) or global (the paper's "
+                        "Eq. 2/3, sigma 10)")
     p.add_argument("--max-frames", type=positive_int, help="use only the first N frames")
     add_overwrite(p)
     add_quiet(p)
@@ -55,17 +59,17 @@ def run(args) -> int:
     n = video_info(args.driver)["n_frames"]
     if args.max_frames is not None:
         n = min(n, max(0, args.max_frames))
+    params = PuppetParams(texture=args.texture, weights=args.weights,
+                          composite=CompositeParams(lighting=args.lighting))
     with progress_bar(2 * n, desc="puppet", unit="frame", disable=args.quiet) as bar:
         report = puppeteer(args.driver, args.puppet, args.output, driver_photos=args.driver_photos,
                            side_by_side=args.side_by_side, size=args.size, mode=args.mode,
-                           overwrite=args.overwrite, max_frames=args.max_frames,
-                           params=PuppetParams(texture=args.texture, composite=CompositeParams(lighting=args.lighting)),
-                           progress=bar)
+                           overwrite=args.overwrite, max_frames=args.max_frames, params=params, progress=bar)
     write_json(sidecar, provenance(
         command="puppet", inputs={"driver": args.driver, "puppet": args.puppet, "driver_photos": args.driver_photos},
         params={"side_by_side": args.side_by_side, "size": args.size, "mode": args.mode, "texture": args.texture,
-                "lighting": args.lighting, "max_frames": args.max_frames,
-                "puppet_params": PuppetParams(texture=args.texture, composite=CompositeParams(lighting=args.lighting))},
+                "weights": args.weights, "lighting": args.lighting, "max_frames": args.max_frames,
+                "puppet_params": params},
         outputs=[out], result=report), overwrite=args.overwrite, inputs=inputs)
     if report["lost_frames"] and not args.quiet:
         print(f"{args.driver}: face lost in {report['lost_frames']} of {report['frames']} frames "

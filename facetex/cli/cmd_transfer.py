@@ -160,15 +160,15 @@ def run(args) -> int:
                                                                                 content.shape[0])
     steps: list[str] = []
 
-    def save(image, level, evaluation):
+    def save(image, level, evaluation, full_image=None, **_):
         path = f"{stem}_level{level}_eval{evaluation:04d}.png"
         mine = path in steps  # the end of a level can fall on a periodic save: same name, same run
-        write_image(path, transfer_step_image(content, image, box), overwrite=args.overwrite or mine,
-                    inputs=inputs)
+        full = full_image if full_image is not None else transfer_step_image(content, image, box)
+        write_image(path, full, overwrite=args.overwrite or mine, inputs=inputs)
         if not mine:
             steps.append(path)
 
-    total = sum(params.iters) * 5 // 4 + params.levels  # L-BFGS evaluations are at most 1.25 × iterations
+    total = int(sum(params.iters) * params.eval_budget) + params.levels  # the evaluation budget per level
     evals = 0
     with warnings.catch_warnings(), progress_bar(total, desc=args.method, unit="eval", disable=args.quiet) as bar:
         warnings.simplefilter("always")  # advice (e.g. upscaling) is shown when it is known, before the work

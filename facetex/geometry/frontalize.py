@@ -11,7 +11,9 @@
    samples them relative to a frontal view (cosines of the surface normal with
    the two view directions).
 4. Soft symmetry: poorly visible pixels are filled from the mirrored side of the
-   face, weighted by visibility (Hassner et al. Sec. 3.3).
+   face, weighted by visibility (Hassner et al. Sec. 3.3), feathered and brightness-matched
+   (:func:`symmetry_fill_image`). Collections should weight the fill down
+   (:func:`fill_confidence`).
 
 The canonical frame (an orthographic frontal view with the eye centres at fixed
 positions) and the generic model are described in ``_generic_face``.
@@ -47,6 +49,8 @@ __all__ = [
     "canonical_points68",
     "rotation_from_angles",
     "rotate_face",
+    "fill_confidence",
+    "symmetry_fill_image",
     "PNP_INDEX",
     "CANONICAL_SIZE",
 ]
@@ -63,6 +67,13 @@ ZBUFFER_TOLERANCE_MM = 5.0
 MAX_HIT_DISTANCE_MM = 15.0
 #: Smoothing (canonical px at the default size) of the z-buffer mask, against blocky seams.
 VISIBILITY_BLUR_PX = 1.5
+#: Erosion and feather (px at a 192 px wide frame) of the own side's weight in the symmetry fill.
+FILL_FEATHER_PX = 3.0
+#: Scale (px at a 192 px wide frame) of the local brightness match of the mirrored side.
+FILL_GAIN_PX = 12.0
+#: Off-photo samples blend from the replicated border into a smooth continuation over this many
+#: (sampled-photo) pixels.
+OUTSIDE_RAMP_PX = 3.0
 #: Head rotation centre of :func:`rotate_face` in model coordinates (mm): behind the eyes.
 HEAD_CENTRE_MM = (0.0, 20.0, 90.0)
 
@@ -309,7 +320,20 @@ def _sample(img: np.ndarray, mp: np.ndarray, pixels_per_canonical: float) -> np.
         kx, ky = size[0] / (x1 - x0), size[1] / (y1 - y0)
         crop = cv2.resize(crop, size, interpolation=cv2.INTER_AREA)
         m = (m + 0.5) * np.array([kx, ky], dtype=np.float32) - 0.5
-    return cv2.remap(crop, m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    out = cv2.remap(crop, m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    # Off the photo, replicating its border rows and columns paints straight streaks (hair and
+    # background at the frame's edges, the collar below the chin): there the photo's border is
+    # continued smoothly instead, from a heavily blurred copy, blending in over OUTSIDE_RAMP_PX.
+    ch, cw = crop.shape[:2]
+    dx = np.maximum(np.maximum(-0.5 - m[..., 0], m[..., 0] - (cw - 0.5)), 0)
+    dy = np.maximum(np.maximum(-0.5 - m[..., 1], m[..., 1] - (ch - 0.5)), 0)
+    a = np.clip(np.maximum(dx, dy) / OUTSIDE_RAMP_PX, 0, 1)[..., None]
+    if a.max() > 0:
+        s = max(2.0, 0.08 * max(ch, cw))
+        soft = cv2.GaussianBlur(crop, (0, 0), s, borderType=cv2.BORDER_REPLICATE)
+        far = cv2.remap(soft, m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        out = (1 - a) * out + a * far
+    return out.astype(np.float32)
 
 
 def frontalize(
@@ -329,9 +353,9 @@ def frontalize(
     back-projected through the estimated pose onto the generic surface and projected
     frontally, so they keep the photo's non-rigid residual (expression, identity) and
     lose its rigid pose; a perfectly generic face gives :func:`canonical_points68`.
-    With ``symmetry_fill`` the output is I' = (v I + (1 - v) v_m I_m) / (v + (1 - v) v_m),
-    I_m and v_m being the left-right mirrors of I and the visibility v (soft symmetry,
-    Hassner et al. Sec. 3.3).
+    With ``symmetry_fill`` the poorly visible side is filled from the mirrored one
+    (:func:`symmetry_fill_image`: soft symmetry, Hassner et al. Sec. 3.3, feathered and
+    brightness-matched so it leaves no seam).
     """
     img = _check_image(image)
     p = _check_points(points68)
@@ -372,18 +396,86 @@ def frontalize(
         np.float32
     )
 
-    out = sampled
-    if symmetry_fill:  # soft symmetry (Hassner et al. Sec. 3.3)
-        wm = (1.0 - vis) * vis[:, ::-1]
-        den = vis + wm
-        low = den < 1e-3
-        inv = 1.0 / np.maximum(den, np.float32(1e-3))
-        a = np.where(low, np.float32(1.0), vis * inv)
-        b = np.where(low, np.float32(0.0), wm * inv)
-        out = a[..., None] * sampled + b[..., None] * sampled[:, ::-1]
+    out = symmetry_fill_image(sampled, vis) if symmetry_fill else sampled
     pts = _pose_corrected_points(p, pose, frame)
     mp.setflags(write=False)
     return Frontalized(np.clip(out, 0.0, 1.0, dtype=np.float32), vis, pts, pose, mp, np.array(surf.on_mesh))
+
+
+def symmetry_fill_image(image: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+    """Soft symmetry fill (Hassner et al. Sec. 3.3), without the seam.
+
+    I' = (v I + (1 - v) v_m g I_m) / (v + (1 - v) v_m) with I_m, v_m the left-right mirrors of
+    the image and the visibility, and two changes against a hard seam where the own side meets
+    the mirrored one: v is the visibility eroded and feathered (:data:`FILL_FEATHER_PX`), so the
+    own side fades out before its occluded edge (where the sampling smears), and the mirrored
+    side is gain-matched by g = local mean of I / local mean of I_m over the pixels both sides
+    saw (normalised convolution, :data:`FILL_GAIN_PX`; the two cheeks are lit differently), so
+    the fill has the own side's brightness and colour."""
+    img = np.asarray(image, np.float32)
+    vis = np.asarray(visibility, np.float32)
+    H, W = vis.shape
+    k = W / CANONICAL_SIZE[0]
+    r = max(1, int(round(FILL_FEATHER_PX * k)))
+    core = cv2.erode((vis > 0.5).astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2))
+    v = np.minimum(vis, cv2.GaussianBlur(core.astype(np.float32), (0, 0), FILL_FEATHER_PX * k))
+    vm = v[:, ::-1]
+    mir = img[:, ::-1]
+    both = ((vis > 0.9) & (vis[:, ::-1] > 0.9)).astype(np.float32)
+    gain = np.ones_like(img)
+    if both.sum() > 16:
+        glob = (img * both[..., None]).sum((0, 1)) / np.maximum((mir * both[..., None]).sum((0, 1)), 1e-6)
+        gain = np.broadcast_to(glob, img.shape).astype(np.float32)
+        for sg in (4 * FILL_GAIN_PX * k, 2 * FILL_GAIN_PX * k, FILL_GAIN_PX * k):  # coarse to fine
+            n = cv2.GaussianBlur(both, (0, 0), sg)[..., None]
+            num = cv2.GaussianBlur(img * both[..., None], (0, 0), sg)
+            den = cv2.GaussianBlur(mir * both[..., None], (0, 0), sg)
+            t = np.clip(n / 0.2, 0, 1)  # where this scale has support, its ratio; else the coarser one
+            gain = t * (num / np.maximum(den, 1e-6)) + (1 - t) * gain
+        gain = np.clip(gain, 0.5, 2.0).astype(np.float32)
+    wm = (1.0 - v) * vm
+    den = v + wm
+    low = den < 1e-3
+    inv = 1.0 / np.maximum(den, np.float32(1e-3))
+    a = np.where(low, np.float32(1.0), v * inv)[..., None]
+    b = np.where(low, np.float32(0.0), wm * inv)[..., None]
+    return (a * img + b * gain * mir).astype(np.float32)
+
+
+def fill_confidence(visibility, points68=None, *, mirror_weight: float = 0.1, feather: float = 2.0,
+                    outside_face: float = 0.25, floor: float = 0.02) -> np.ndarray:
+    """How much a frontalized image can be trusted per canonical pixel, float32 (..., H, W).
+
+    ``visibility`` (..., H, W) in [0, 1] (or uint8 x 255): the photo's own visibility (before the
+    symmetry fill). Pixels the photo saw count fully; pixels filled from the mirrored side
+    count ``mirror_weight`` (they are the other cheek under other light: a collection blend
+    should take them from photos that saw them, which is what removes the fill's oval seam);
+    the visibility is Gaussian-feathered (``feather`` px at a 192 px wide frame) so the trust
+    has no hard edge. With ``points68`` ((..., 68, 2) pose-corrected landmarks of each photo),
+    pixels outside the photo's own face (jaw line and forehead arc, soft edge) count
+    ``outside_face``: hair, neck, collar and background do not leak into another photo's face.
+    ``floor`` is added everywhere (every pixel has some weight)."""
+    v = np.asarray(visibility)
+    v = v.astype(np.float32) / 255.0 if v.dtype == np.uint8 else v.astype(np.float32)
+    lead = v.shape[:-2]
+    H, W = v.shape[-2:]
+    flat = v.reshape(-1, H, W)
+    pts = None
+    if points68 is not None:
+        pts = np.asarray(points68, np.float64).reshape(-1, 68, 2)
+        if len(pts) != len(flat):
+            raise BadInputError(f"{len(pts)} landmark sets for {len(flat)} visibility maps")
+    s = feather * W / CANONICAL_SIZE[0]
+    out = np.empty_like(flat)
+    for i, vi in enumerate(flat):
+        own = cv2.GaussianBlur(vi, (0, 0), s) if s > 0 else vi
+        c = own + np.float32(mirror_weight) * (1.0 - own) * own[:, ::-1]
+        if pts is not None:
+            from .masks import face_mask
+
+            c = c * (np.float32(outside_face) + np.float32(1.0 - outside_face) * face_mask(pts[i], (H, W)))
+        out[i] = c + np.float32(floor)
+    return out.reshape(lead + (H, W))
 
 
 def rotate_face(

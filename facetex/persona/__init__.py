@@ -1,7 +1,36 @@
-"""Persona textures from a photo collection ("What makes Tom Hanks look like Tom Hanks", Sec. 5)."""
+"""Persona textures from a photo collection ("What makes Tom Hanks look like Tom Hanks", Sec. 4-6):
+collection, expression-dependent textures (global and regional weights), the average 3D face,
+and puppet compositing into a driver's frame."""
 
 from .collection import Persona, PersonaParams, build_persona, load_persona, read_persona_header
-from .texture import METHODS, STAGES, TextureParams, average_face, prepare_persona, synthesize_texture
+from .composite import (
+    FACE_OVAL,
+    CompositeParams,
+    boundary_color_step,
+    composite_face,
+    feature_mask,
+    fit_sh_lighting,
+    inner_feather,
+    linear_to_srgb,
+    match_color_statistics,
+    mouth_interior,
+    poisson_blend,
+    polygon_mask,
+    relight,
+    sh_basis,
+    sh_shading,
+    srgb_to_linear,
+)
+from .texture import (
+    METHODS,
+    STAGES,
+    WEIGHTS,
+    TextureParams,
+    average_face,
+    blend_textures,
+    prepare_persona,
+    synthesize_texture,
+)
 
 __all__ = [
     "Persona",
@@ -11,8 +40,27 @@ __all__ = [
     "read_persona_header",
     "TextureParams",
     "synthesize_texture",
+    "blend_textures",
+    "WEIGHTS",
     "average_face",
     "prepare_persona",
     "METHODS",
     "STAGES",
+    # compositing a puppet face into a driver frame (composite.py)
+    "FACE_OVAL",
+    "CompositeParams",
+    "composite_face",
+    "polygon_mask",
+    "inner_feather",
+    "feature_mask",
+    "srgb_to_linear",
+    "linear_to_srgb",
+    "sh_basis",
+    "fit_sh_lighting",
+    "sh_shading",
+    "relight",
+    "match_color_statistics",
+    "poisson_blend",
+    "mouth_interior",
+    "boundary_color_step",
 ]

@@ -14,7 +14,8 @@ every photo to the collection's mean fiducials M ("neutral frame"):
 
 Synthesis for a target F^T then composes one TPS M -> F^T with these alignments
 (see :mod:`facetex.persona.texture`). Last, the average 3D face (Tom Hanks Sec. 4):
-photometric stereo on (at most ``shape_photos``) aligned photos, see :func:`average_depth`.
+robust photometric stereo on (at most ``shape_photos``) aligned photos, accepted only when it
+passes a photometric validation on held-out photos, see :func:`average_shape`.
 ``.persona`` files are ``.npz`` zips with a JSON header, loaded with ``allow_pickle=False``;
 version 2 adds the average depth (version 1 files load with ``depth=None``).
 """
@@ -37,7 +38,7 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from ..errors import BadImageError, BadInputError, BadPersonaError, FacetexError
+from ..errors import BadImageError, BadInputError, BadPersonaError, FacetexError, PersonaNotFoundError
 
 __all__ = [
     "PersonaParams",
@@ -46,6 +47,7 @@ __all__ = [
     "load_persona",
     "read_persona_header",
     "average_depth",
+    "average_shape",
     "PERSONA_FORMAT",
     "PERSONA_VERSION",
     "IMAGE_EXTENSIONS",
@@ -110,6 +112,7 @@ class Persona:
     source: str = ""
     depth: np.ndarray | None = None
     depth_photos: int = 0
+    shape_report: dict | None = None
     _cache: dict = field(default_factory=dict, repr=False)
 
     def __len__(self) -> int:
@@ -138,6 +141,7 @@ class Persona:
             "skipped": list(self.skipped),
             # None: no depth array stored
             "depth_photos": None if self.depth is None else int(self.depth_photos),
+            "shape": self.shape_report,
         }
 
     def save(self, path, *, overwrite: bool = False) -> Path:
@@ -191,8 +195,8 @@ def _read_header(path: Path) -> tuple[dict, PersonaParams, list[str]]:
     """Parse and validate only the JSON header member (no array is decompressed)."""
     from ..io import check_input_file
 
-    if not path.exists() and not path.is_symlink():
-        raise BadPersonaError("persona file not found: build one with `facetex persona build`", path=path)
+    if not path.exists() and not path.is_symlink():  # also a FileNotFoundError, as users catch it
+        raise PersonaNotFoundError("persona file not found: build one with `facetex persona build`", path=path)
     check_input_file(path, BadPersonaError, what="persona file")  # FIFO, device, symlink loop, empty
     try:
         with zipfile.ZipFile(path) as zf:
@@ -277,8 +281,11 @@ def load_persona(path) -> Persona:
         raise _bad(path, "persona arrays contain NaN or infinite values")
     if depth_photos is not None and np.isinf(arrays["depth"]).any():
         raise _bad(path, "persona depth contains infinite values")
+    shape_report = header.get("shape") if header["version"] >= 2 else None
+    if shape_report is not None and not isinstance(shape_report, dict):
+        raise _bad(path, "corrupt persona header (shape report is not an object)")
     return Persona(photos=photos, skipped=skipped, params=params, source=str(header.get("source", "")),
-                   depth_photos=int(depth_photos or 0), **arrays)
+                   depth_photos=int(depth_photos or 0), shape_report=shape_report, **arrays)
 
 
 def _check_members(path: Path, header: dict, params: PersonaParams, photos: list) -> None:
@@ -551,7 +558,8 @@ def build_persona(photo_dir, *, jobs: int = 2, progress: Callable | None = None,
     Per photo (``jobs`` processes, results in file-name order): detect, frontalize,
     pose-correct the fiducials; unusable photos are skipped and listed with the reason.
     Then align the collection to its mean fiducials (TPS + collection flow).
-    Last, the average 3D face (:func:`average_depth`) is stored as ``depth``.
+    Last, the average 3D face (:func:`average_shape`) is stored as ``depth`` when it passed its
+    photometric validation (all NaN otherwise), its report as ``shape_report``.
     ``progress(n=1, stage=...)`` is called once per photo for each of the two passes
     (and with n=0, stage="shape" before the average depth).
     ``files`` restricts the build to these paths (e.g. leave-out evaluation).
@@ -618,46 +626,96 @@ def _build(folder: Path, paths: list[Path], params: PersonaParams, pool: _Pool, 
     )
     if progress:
         progress(n=0, stage="shape")
-    persona.depth, persona.depth_photos = average_depth(persona, maps=maps)
+    depth, count, report = average_shape(persona, maps=maps)
+    persona.shape_report = report
+    if report.get("accepted"):
+        persona.depth, persona.depth_photos = depth, count
+    else:  # rejected: the generic face is used (the report says why)
+        persona.depth, persona.depth_photos = np.full(depth.shape, np.nan, np.float32), 0
     persona._cache["tps_maps"] = maps  # reused by the texture precomputation
     return persona
 
 
 def shape_photo_indices(n: int, shape_photos: int) -> np.ndarray:
-    """Indices of the at most ``max(4, shape_photos)`` evenly spaced photos (of n) that feed
-    the photometric stereo."""
+    """Indices of the at most ``max(4, shape_photos)`` evenly spaced photos (of n)."""
     step = max(1, -(-int(n) // max(4, int(shape_photos))))
     return np.arange(0, int(n), step)
 
 
-def average_depth(persona: Persona, *, maps: np.ndarray | None = None,
-                  shape_photos: int | None = None) -> tuple[np.ndarray, int]:
-    """The persona's average 3D face (Tom Hanks Sec. 4): (depth (H, W) float32 in canonical px,
-    NaN off the face region, photos used). Photometric stereo
+#: Share of a collection held out to validate its average shape photometrically, and the
+#: fewest photos for a validated shape (8 to fit the rank-4 factorization, 3 to validate).
+SHAPE_HOLDOUT = 0.2
+MIN_SHAPE_PHOTOS = 11
+#: At most this many held-out photos are used (the validation's cost grows with them).
+MAX_SHAPE_HOLDOUT = 60
+
+
+def shape_split(n: int, shape_photos: int) -> tuple[np.ndarray, np.ndarray]:
+    """(training, held-out) photo indices of the average shape: every 5th photo (at least 3) is
+    held out for the photometric validation; the training photos are at most ``shape_photos``
+    evenly spaced ones of the rest."""
+    n = int(n)
+    k = min(MAX_SHAPE_HOLDOUT, max(3, int(round(SHAPE_HOLDOUT * n))))
+    held = np.unique(np.linspace(0, n - 1, k).round().astype(int)) if n >= MIN_SHAPE_PHOTOS else np.zeros(0, int)
+    rest = np.setdiff1d(np.arange(n), held)
+    train = rest[shape_photo_indices(len(rest), shape_photos)]
+    return train, held
+
+
+def _aligned_with_visibility(persona: Persona, idx: np.ndarray, maps: np.ndarray | None):
+    W, H = persona.size
+    sel = (tps_maps(persona.fiducials[idx], persona.mean_fiducials, (H, W), persona.params.tps_smoothing)
+           if maps is None else maps[idx])
+    amaps = compose_map_flow(sel, persona.flows[idx])
+    return remap_stack(persona.images[idx], amaps), remap_stack(persona.visibility[idx], amaps)
+
+
+def average_shape(persona: Persona, *, maps: np.ndarray | None = None,
+                  shape_photos: int | None = None) -> tuple[np.ndarray, int, dict]:
+    """The persona's average 3D face (Tom Hanks Sec. 4) with its photometric validation:
+    (depth (H, W) float32 canonical px, NaN off the face region; training photos; report).
+
+    Robust, visibility-weighted photometric stereo
     (:func:`facetex.persona.shape.reconstruct_average_shape`) on at most ``shape_photos``
-    (default ``persona.params.shape_photos``) evenly spaced photos aligned to the neutral frame
-    (TPS + collection flow). ``maps``: the (n, H, W, 2) TPS maps of all photos, if at hand.
-    When the reconstruction fails (too few photos, degenerate lighting) the depth is all NaN
-    and the count 0: callers fall back to the generic face
-    (:func:`facetex.persona.shape.checked_depth`)."""
-    from .shape import reconstruct_average_shape
+    (default ``persona.params.shape_photos``) photos aligned to the neutral frame (TPS +
+    collection flow), with their own visibility (the mirrored fill counts 0); then
+    :func:`facetex.persona.shape.validate_shape` on the held-out photos (:func:`shape_split`).
+    The report (JSON-able) holds the validation numbers and the verdict; the depth is the
+    reconstruction whether accepted or not (``report["accepted"]`` says which)."""
+    from .shape import reconstruct_average_shape, validate_shape
 
     W, H = persona.size
-    idx = shape_photo_indices(len(persona), persona.params.shape_photos if shape_photos is None else shape_photos)
-    failed = np.full((H, W), np.nan, np.float32), 0
-    if len(idx) < 4:
-        return failed
-    if maps is None:
-        sel = tps_maps(persona.fiducials[idx], persona.mean_fiducials, (H, W), persona.params.tps_smoothing)
-    else:
-        sel = maps[idx]
-    aligned = remap_stack(persona.images[idx], compose_map_flow(sel, persona.flows[idx]))
-    del sel
+    n = len(persona)
+    train, held = shape_split(n, persona.params.shape_photos if shape_photos is None else shape_photos)
+    nan = np.full((H, W), np.nan, np.float32)
+    base = {"method": "robust visible-half photometric stereo, symmetric, bas-relief fixed by the generic face",
+            "train_photos": int(len(train)), "heldout_photos": int(len(held))}
+    if len(held) < 3 or len(train) < 8:
+        return nan, 0, {**base, "accepted": False,
+                        "reason": f"too few photos ({n}) to reconstruct and validate a shape: at least "
+                                  f"{MIN_SHAPE_PHOTOS} usable photos are needed"}
     region = face_region(persona.points68.mean(axis=0), (H, W))
+    imgs, vis = _aligned_with_visibility(persona, train, maps)
     try:
-        shape = reconstruct_average_shape(aligned, region)
-    except (BadInputError, np.linalg.LinAlgError):
-        return failed
+        shape = reconstruct_average_shape(imgs, region, visibility=vis)
+    except (BadInputError, np.linalg.LinAlgError) as e:
+        return nan, 0, {**base, "accepted": False, "reason": f"reconstruction failed ({e})"}
     if not np.isfinite(shape.depth[region]).any():
-        return failed
-    return shape.depth.astype(np.float32), len(idx)
+        return nan, 0, {**base, "accepted": False, "reason": "reconstruction gave no finite depth"}
+    himgs, hvis = _aligned_with_visibility(persona, held, maps)
+    val = validate_shape(shape.depth, imgs, vis, himgs, hvis, region)
+    return shape.depth.astype(np.float32), int(len(train)), {**base, **val.as_dict()}
+
+
+def average_depth(persona: Persona, *, maps: np.ndarray | None = None,
+                  shape_photos: int | None = None) -> tuple[np.ndarray, int]:
+    """The persona's validated average 3D face: (depth (H, W) float32 canonical px, NaN off the
+    face region, training photos) from :func:`average_shape` when it passed its photometric
+    validation; all NaN and 0 otherwise (callers then fall back to the generic face,
+    :func:`facetex.persona.shape.checked_depth`)."""
+    depth, count, report = average_shape(persona, maps=maps, shape_photos=shape_photos)
+    persona._cache["shape_report"] = report
+    if not report.get("accepted"):
+        W, H = persona.size
+        return np.full((H, W), np.nan, np.float32), 0
+    return depth, count

@@ -15,8 +15,11 @@ Per driver video (see :mod:`facetex.persona.driver` for the motion):
 3. **Deformation transfer** per frame with magnitude adjustment and Huber-ROF
    (:class:`facetex.persona.deform.DeformationTransfer`) on a depth-map grid of 2 px.
 4. **Texture** per frame (§6, Figs. 8-9): synthesized *in the neutral frame* of the
-   average model — the mesh carries the expression — with the Eq. 3 blending weights of
-   the target fiducials F^T = M_P + k (F_D^i − M̄_D) (k: ratio of the eye distances).
+   average model — the mesh carries the expression — with the blending weights of the
+   target fiducials F^T = M_P + k (F_D^i − M̄_D) (k: ratio of the eye distances): the
+   persona's regional expression weights by default (:mod:`facetex.persona.weights`, the
+   same blend as ``facetex persona texture``), or the paper's global Eq. 2/3 weights
+   (``weights="global"``: sigma, Laplacian exponent 1).
 5. **Rendering** with the driver's head pose (orthographic, z-buffered, 2x supersampled).
    ``mode="composite"``: put into the driver's frame (:mod:`facetex.persona.composite`:
    the driver's face outline as mask, SH lighting and colour transfer, Poisson blending, the
@@ -69,7 +72,10 @@ TEXTURES = ("ours", "static")
 @dataclass(frozen=True)
 class PuppetParams:
     """Driver-puppet flow (Tom Hanks §6): alpha, ratio, minWidth, outer, inner, SOR iterations;
-    sigma of Eq. 3; texture "ours" (expression-dependent) or "static" (the average texture);
+    texture "ours" (expression-dependent) or "static" (the average texture); weights of the
+    expression-dependent texture: "regional" (ours, ``neighbours`` K of the per-region
+    adaptive sigma) or "global" (the paper's Eq. 2/3 with ``sigma`` and alpha 1), see
+    :meth:`texture_params`;
     plain: background colour of ``mode="face"``; composite: how the puppet is put into the
     driver's frame; supersample / supersample_composite: rasterization samples per pixel and
     axis in face / composite mode (anti-aliased silhouette; in composite mode the feathered
@@ -91,6 +97,8 @@ class PuppetParams:
     flow_sor: int = 40
     sigma: float = 10.0
     texture: str = "ours"
+    weights: str = "regional"
+    neighbours: int = 3
     plain: tuple[float, float, float] = (0.5, 0.5, 0.5)
     composite: CompositeParams = field(default_factory=CompositeParams)
     supersample: int = 2
@@ -102,6 +110,19 @@ class PuppetParams:
     shape_photos: int = 128
     deform: DeformParams = field(default_factory=DeformParams)
     driver: DriverParams = field(default_factory=DriverParams)
+
+    def texture_params(self):
+        """The :class:`facetex.persona.TextureParams` of the puppet's textures: the persona
+        texture's defaults with the regional weights, :meth:`TextureParams.paper` with the
+        global ones (both the static average and the blends use them, so one precomputation
+        serves all)."""
+        from .texture import WEIGHTS, TextureParams
+
+        if self.weights not in WEIGHTS:
+            raise BadInputError(f"unknown puppet texture weights {self.weights!r}: use one of {', '.join(WEIGHTS)}")
+        if self.weights == "global":
+            return TextureParams.paper(sigma=self.sigma)
+        return TextureParams(neighbours=self.neighbours)
 
 
 # ----------------------------------------------------------------------------- shapes
@@ -188,33 +209,37 @@ def target_fiducials(persona, motion: DriverMotion, i: int) -> np.ndarray:
     return M + k * (motion.fiducials[i] - motion.mean_fiducials)
 
 
-def neutral_texture(persona, fiducials, *, method: str = "ours", sigma: float = 10.0) -> np.ndarray:
-    """Texture (H, W, 3) in the persona's neutral frame (its mean fiducials) with the Eq. 3
+def neutral_texture(persona, fiducials, *, method: str = "ours", params=None, sigma: float | None = None
+                    ) -> np.ndarray:
+    """Texture (H, W, 3) in the persona's neutral frame (its mean fiducials) with the expression
     weights of the target ``fiducials`` (Tom Hanks §6: "we only synthesize textures in their
     neutral expressions for the average models but use the target expressions to calculate
-    the blending weights"). ``method`` "static": the expression-independent average."""
-    return neutral_textures(persona, [fiducials], method=method, sigma=sigma)[0]
+    the blending weights"). ``params``: :class:`facetex.persona.TextureParams` (default: the
+    regional weights); ``sigma``: the global weights' sigma. ``method`` "static": the
+    expression-independent average (the stage-d average face)."""
+    return neutral_textures(persona, [fiducials], method=method, params=params, sigma=sigma)[0]
 
 
-def neutral_textures(persona, fiducials, *, method: str = "ours", sigma: float = 10.0) -> list[np.ndarray]:
+def neutral_textures(persona, fiducials, *, method: str = "ours", params=None, sigma: float | None = None
+                     ) -> list[np.ndarray]:
     """:func:`neutral_texture` for a sequence of target fiducials (B, 49, 2), blended together
-    (one matrix product per pyramid level for the batch)."""
-    from ..geometry._generic_face import EYE_SPAN
-    from .texture import TextureParams, average_face, expression_similarity, prepare_persona
+    (:func:`facetex.persona.blend_textures`: one sparse product per region and pyramid level
+    for the batch)."""
+    import dataclasses
+
+    from .texture import TextureParams, average_face, blend_textures
 
     if method not in TEXTURES:
         raise BadInputError(f"unknown puppet texture {method!r}: use one of {', '.join(TEXTURES)}")
+    tp = params or TextureParams()
     if method == "static":
-        key = ("puppet_static",)
+        key = ("puppet_static", tp.stack_key(), tp.sigma)
         if key not in persona._cache:
-            persona._cache[key] = average_face(persona, "d")
+            persona._cache[key] = average_face(persona, "d", params=tp)
         return [persona._cache[key]] * len(fiducials)
-    tp = TextureParams(sigma=sigma)
-    prep = prepare_persona(persona)
-    scale = tp.iod_ref / (EYE_SPAN * persona.size[0])
-    targets = np.asarray(fiducials, np.float64)[:, None]  # (B, 1, 49, 2) against (n, 49, 2)
-    s = expression_similarity(targets, persona.fiducials, sigma, scale=scale)
-    return list(np.clip(prep.blend_ours_many(s), 0, 1).astype(np.float32))
+    if sigma is not None and tp.weights == "global":
+        tp, sigma = dataclasses.replace(tp, sigma=float(sigma)), None
+    return list(blend_textures(persona, np.asarray(fiducials, np.float64), params=tp, sigma=sigma))
 
 
 # ----------------------------------------------------------------------------- puppeteer
@@ -259,7 +284,7 @@ class Puppeteer:
             dmesh[..., 2] = collection.depth[::st, ::st]
             dmask &= collection.region[::st, ::st]
         t0 = time.perf_counter()
-        self.puppet_average = average_face(persona, "d")
+        self.puppet_average = average_face(persona, "d", params=params.texture_params())
         corr = collection_correspondence(collection.subspace, collection.region, self.puppet_average, params)
         self.correspondence = corr
         corr_grid = (corr[::st, ::st] / st).astype(np.float32)
@@ -341,7 +366,8 @@ class Puppeteer:
     def textures(self, frames, method: str | None = None) -> list[np.ndarray]:
         """Textures of several frames, blended as one batch (faster per frame)."""
         f = [target_fiducials(self.persona, self.motion, i) for i in frames]
-        return neutral_textures(self.persona, f, method=method or self.params.texture, sigma=self.params.sigma)
+        return neutral_textures(self.persona, f, method=method or self.params.texture,
+                                params=self.params.texture_params())
 
     def pose(self, i: int, scale: float) -> tuple[np.ndarray, np.ndarray]:
         """(A, b): output-panel pixel = A X + b of a canonical point X in frame i (driver pixels
@@ -441,14 +467,15 @@ def _prepare_puppet_side(persona, params: PuppetParams, timings: dict):
     precomputation, the average shape and the average texture (all cached on the persona)."""
     from .texture import average_face, prepare_persona
 
+    tp = params.texture_params()
     t0 = time.perf_counter()
     persona = _load(persona)
     t1 = time.perf_counter()
-    prepare_persona(persona)
+    prepare_persona(persona, tp)
     t2 = time.perf_counter()
     puppet_average_shape(persona, params)
     t3 = time.perf_counter()
-    average_face(persona, "d")
+    average_face(persona, "d", params=tp)
     t4 = time.perf_counter()
     timings.update(persona_load_s=t1 - t0, persona_prepare_s=t2 - t1, puppet_shape_s=t3 - t2,
                    puppet_average_s=t4 - t3)
@@ -466,6 +493,7 @@ def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | N
 
     if params.texture not in TEXTURES:
         raise BadInputError(f"unknown puppet texture {params.texture!r}: use one of {', '.join(TEXTURES)}")
+    params.texture_params()  # checks the weights before any work
     size = _persona_size(persona)
     if tuple(params.driver.size) != size:  # work in the persona's canonical frame
         params = replace(params, driver=replace(params.driver, size=size))

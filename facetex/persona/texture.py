@@ -22,16 +22,35 @@ per-target pipeline (one optical flow per photo and target: slow) to measure thi
 Eq. 3 indexing: pyramid levels are l = 0 (coarsest, the Gaussian residual) ...
 p - 1 (finest), as in the paper. The uniform term tau * l^-beta is infinite at l = 0,
 so the coarsest level is blended with expression-independent weights (the limit of the
-normalised weights); at l = 1 it equals tau (comparable to the best expression weight 1);
-from l = 2 on it is <= 2^-20. The pyramid has p levels with the coarsest about 8 px.
+normalised weights); at l = 1 it equals tau; from l = 2 on it is <= 2^-20.
 
-sigma units: ||F^T - F^i|| is the Euclidean norm of the 98-vector of fiducial
-differences, in pixels of a frame whose eye-centre distance is ``iod_ref`` = 69.12 px
-(our default 192 x 240 canonical frame; the paper's ~194 x 244 face frame is similar).
-L (Laplacian response): |Laplacian| (3x3) of the luminance of each Gaussian-pyramid
-level, Gaussian-blurred (sigma 1 px of that level) plus a small floor; alpha = 1.
-Deviation: L is multiplied by the photo's frontalization visibility (with its mirror,
-as the frontal image was symmetry-filled) so photos contribute where they were seen.
+Paper vs ours (``TextureParams()`` is ours, ``TextureParams.paper()`` the paper's Eq. 3;
+leave-out numbers from ``facetex bench persona`` on the LFW Bush and Blair collections):
+
+- Expression weights: regional, normalised, with a per-target measured sigma
+  (:mod:`facetex.persona.weights`) instead of one Gaussian on all 98 fiducial coordinates
+  with sigma = 10.
+- alpha = 0 instead of 1: L^1 gives the photos with the most high-frequency energy (JPEG
+  blocks, noise, hard light, hair and collar edges) the largest weight; static and ours both
+  lose 0.015-0.025 SSIM with it and it puts white speckles on the chin (zoom sheets).
+- Pyramid depth: the coarsest level is ~2 px (the paper does not say). With an 8 px coarsest
+  level the 24 x 30 level (mouth opening, eye shape, brow) falls under the uniform term
+  (l = 1) and expressions wash out; with ~2 px only the lighting (3 x 4 and 6 x 8 levels)
+  is shared by all photos. Measured +0.005-0.015 SSIM; the texture's mean colour varies a
+  little more across targets (1.6 instead of 1.2 / 255).
+- Confidence: the per-pixel weight is multiplied by each photo's trust in that pixel
+  (:func:`facetex.geometry.frontalize.fill_confidence`): its own visibility, feathered;
+  0.1 for pixels filled from the mirrored side (they are the other cheek under other light:
+  this removes the oval seam of the fill from the blend); 0.25 outside the photo's own face
+  outline (collar, flags and background no longer leak into the chin and cheeks).
+- Outside the face (grown by 0.3 IOD) the texture is the expression-independent average.
+- The weights are normalised per level and region, the coarse uniform part is precomputed,
+  and only photos with a weight count (a sparse product over pixel segments grouped by
+  region): ~10-25 ms per target for 500 photos on one core.
+
+The "static" texture (and stage d of :func:`average_face`) is the Eq. 3 blend at the mean
+fiducials with the paper's global weights (sigma 10) and the parameters' alpha and pyramid:
+the average of the whole collection, the baseline "ours" must beat.
 """
 
 from __future__ import annotations
@@ -73,6 +92,10 @@ __all__ = [
     "pyramid_levels",
     "laplacian_response",
     "frontalize_reference",
+    "WEIGHTS",
+    "target_weights",
+    "blend_textures",
+    "expression_model",
 ]
 
 METHODS = ("ours", "static", "weighted", "prewarp")
@@ -81,18 +104,55 @@ STAGES = ("a", "b", "c", "d")
 
 @dataclass(frozen=True)
 class TextureParams:
-    """Eq. 3 constants (alpha, beta, tau) = (1, 20, 1), sigma = 10 (Tom Hanks Sec. 6) and ours."""
+    """Parameters of the texture blend: the paper's Eq. 3 constants (alpha, beta, tau) = (1, 20, 1),
+    sigma = 10 (Tom Hanks Sec. 6) and ours (module docstring).
+
+    weights: "regional" (ours, default, :mod:`facetex.persona.weights`) or "global" (the paper's
+    Eq. 2/3: ``sigma``, alpha 1); neighbours: K of the regional weights' adaptive sigma;
+    max_photos: at most this many photos per region and target (regional weights);
+    alpha: exponent of the Laplacian response L in Eq. 3, None = 1 with the global weights (the
+    paper) and 0 with the regional ones (measured: L^1 favours the photos with the most
+    high-frequency energy, i.e. JPEG blocks, noise and harsh light, and costs 0.015-0.025
+    leave-out SSIM); min_level_side: the pyramid's coarsest level (px, smaller side);
+    mirror_weight / face_support / visibility_floor: the per-photo confidence
+    (:func:`facetex.geometry.frontalize.fill_confidence`); regions: the weight regions."""
 
     sigma: float = 10.0
-    alpha: float = 1.0
+    alpha: float | None = None
     beta: float = 20.0
     tau: float = 1.0
     iod_ref: float = 69.12
-    min_level_side: int = 8
+    min_level_side: int = 2
     laplacian_blur: float = 1.0
     laplacian_floor: float = 1e-3
     use_visibility: bool = True
-    visibility_floor: float = 0.05
+    visibility_floor: float = 0.02
+    mirror_weight: float = 0.1
+    face_support: float = 0.25
+    regions: tuple = ("mouth", "eyes", "face")
+    max_photos: int | None = 32
+    weights: str = "regional"
+    neighbours: int | tuple = 3
+
+    @property
+    def alpha_(self) -> float:
+        """alpha in effect (see the class docstring)."""
+        if self.alpha is not None:
+            return float(self.alpha)
+        return 1.0 if self.weights == "global" else 0.0
+
+    @classmethod
+    def paper(cls, **kw) -> "TextureParams":
+        """The paper's Eq. 3 weights: global, sigma 10, alpha 1."""
+        return cls(**{"weights": "global", "alpha": 1.0, **kw})
+
+    def stack_key(self) -> tuple:
+        """The fields the precomputed stacks depend on (the weights do not)."""
+        return (self.alpha_, self.min_level_side, self.laplacian_blur, self.laplacian_floor, tuple(self.regions),
+                self.use_visibility, self.visibility_floor, self.mirror_weight, self.face_support)
+
+
+WEIGHTS = ("regional", "global")
 
 
 # ------------------------------------------------------------------ pyramids, Eq. 3
@@ -156,6 +216,33 @@ def eq3_weights(similarity, laplacian, level: int, *, tau: float = 1.0, beta: fl
     return a.reshape((-1,) + (1,) * (L.ndim - 1)) * L
 
 
+#: Outside the face support the finest OUTSIDE_SMOOTH_LEVELS pyramid bands are left out: there
+#: (hair, neck, collar, background) every frontalized photo is stretched along the generic
+#: surface's steep extension, and the average keeps the streaks it paints.
+OUTSIDE_SMOOTH_LEVELS = 2
+
+#: fraction of a target's total expression similarity that the fine pyramid levels sum over
+#: exactly (the photos with the smallest similarities that make up the rest are left out)
+SPARSE_MASS = 0.995
+
+
+def _cut_small(similarity: np.ndarray, mass: float = SPARSE_MASS, max_photos: int | None = None) -> np.ndarray:
+    """(B, n) similarities with each target's smallest ones that together hold less than
+    1 - ``mass`` of its total set to 0, and all but the ``max_photos`` largest."""
+    S = np.array(np.atleast_2d(similarity), np.float64)
+    if max_photos is not None and max_photos < S.shape[-1]:
+        kth = -np.partition(-S, max_photos - 1, axis=-1)[:, max_photos - 1 : max_photos]
+        S = np.where(S >= kth, S, 0.0)
+    if mass >= 1.0:
+        return S
+    order = np.argsort(S, axis=-1)  # ascending
+    srt = np.take_along_axis(S, order, axis=-1)
+    cum = np.cumsum(srt, axis=-1)
+    drop = cum < (1.0 - mass) * cum[:, -1:]
+    np.put_along_axis(S, order, np.where(drop, 0.0, srt), axis=-1)
+    return S
+
+
 def _level_scalars(similarity: np.ndarray, level: int, tau: float, beta: float) -> np.ndarray:
     """Per-photo factor of Eq. 3 at ``level`` ((n,) or (B, n) for B targets), divided by its
     maximum per target (the normalisation of the weights cancels it; this keeps float32
@@ -180,13 +267,16 @@ def blend_pyramids(pyramids: list[list[np.ndarray]], weights: list[list[np.ndarr
 
 
 # ------------------------------------------------------------------ precomputation
-def _confidence(vis_u8: np.ndarray, tp: TextureParams) -> np.ndarray:
-    """(n, H, W) float32 visibility confidence of the symmetry-filled frontal images."""
+def _confidence(persona: Persona, tp: TextureParams) -> np.ndarray:
+    """(n, H, W) float32 confidence of the symmetry-filled frontal images
+    (:func:`facetex.geometry.frontalize.fill_confidence`)."""
+    from ..geometry.frontalize import fill_confidence
+
+    vis = persona.visibility
     if not tp.use_visibility:
-        return np.ones(vis_u8.shape, np.float32)
-    v = vis_u8.astype(np.float32) / 255.0
-    v = v + (1.0 - v) * v[:, :, ::-1]
-    return v + np.float32(tp.visibility_floor)
+        return np.ones(vis.shape, np.float32)
+    return fill_confidence(vis, persona.points68 if tp.face_support < 1 else None, mirror_weight=tp.mirror_weight,
+                           outside_face=tp.face_support, floor=tp.visibility_floor)
 
 
 def _pyramid_stack(aligned: np.ndarray, conf: np.ndarray, levels: int, tp: TextureParams,
@@ -204,10 +294,13 @@ def _pyramid_stack(aligned: np.ndarray, conf: np.ndarray, levels: int, tp: Textu
             if k > 0:
                 g = cv2.pyrDown(g)
                 c = cv2.pyrDown(c)
-            L = laplacian_response(g, blur=tp.laplacian_blur, floor=tp.laplacian_floor)
-            if tp.alpha != 1:
-                L = L ** np.float32(tp.alpha)
-            L = L * c
+            if tp.alpha_ == 0:  # L^0 = 1: the response is not needed
+                L = np.array(c, np.float32)
+            else:
+                L = laplacian_response(g, blur=tp.laplacian_blur, floor=tp.laplacian_floor)
+                if tp.alpha_ != 1:
+                    L = L ** np.float32(tp.alpha_)
+                L = L * c
             if stacks[k] is None:
                 stacks[k] = np.empty((n, L.size * 4), np.float32)
             row = stacks[k][i].reshape(L.shape + (4,))
@@ -222,8 +315,8 @@ def _single_stack(images: np.ndarray, conf: np.ndarray, tp: TextureParams) -> np
     out = np.empty((n, images[0].shape[0] * images[0].shape[1] * 4), np.float32)
     for i in range(n):
         L = laplacian_response(images[i], blur=tp.laplacian_blur, floor=tp.laplacian_floor)
-        if tp.alpha != 1:
-            L = L ** np.float32(tp.alpha)
+        if tp.alpha_ != 1:
+            L = L ** np.float32(tp.alpha_)
         L = L * conf[i]
         row = out[i].reshape(L.shape + (4,))
         row[..., :3] = images[i] * L[..., None]
@@ -236,29 +329,62 @@ def _gemv_blend(stack: np.ndarray, w: np.ndarray, shape) -> np.ndarray:
     return r[..., :3] / np.maximum(r[..., 3:], 1e-30)
 
 
+class _Segment:
+    """Pixels of one pyramid level that belong to the same set of weight regions: their stack
+    rows (n, npix * 4) float32 [L' band (3 ch), L'] stored contiguously (so a region's product
+    reads only its own pixels), their flat pixel indices and the regions' masks there."""
+
+    __slots__ = ("pixels", "cols", "regions", "stack", "masks")
+
+    def __init__(self, pixels: np.ndarray, regions: tuple[int, ...], n: int, masks: np.ndarray):
+        self.pixels = pixels
+        self.cols = (pixels[:, None] * 4 + np.arange(4)).reshape(-1)  # stack columns (4 per pixel)
+        self.regions = regions
+        self.stack = np.empty((n, len(pixels) * 4), np.float32)
+        self.masks = np.repeat(masks, 4, axis=1)  # (len(regions), npix * 4) float32
+
+
+def _csr(weights: np.ndarray):
+    """Row-normalised weights (B, n) as a CSR matrix when sparse enough to pay off."""
+    import scipy.sparse as sp
+
+    return sp.csr_array(weights)
+
+
 class _Prepared:
-    """Target-independent data of a persona for :func:`synthesize_texture` (see module doc)."""
+    """Target-independent data of a persona for :func:`synthesize_texture` (see module doc).
+
+    Per pyramid level, the pixels inside the face support are grouped into segments by the
+    weight regions whose (feathered) masks reach them; outside the face support (hair,
+    background, neck) the texture is the expression-independent average (its stack sum is
+    kept), so nothing is stored there."""
 
     #: photos per work unit of the precomputation (bounds the per-chunk maps to ~24 MB)
     CHUNK = 32
+    #: region masks below this are cut (the rest renormalised), so segments stay few
+    MASK_CUT = 0.01
 
     def __init__(self, persona: Persona, tp: TextureParams, progress: Callable | None = None):
         W, H = persona.size
         n = len(persona)
+        self.n = n
         self.shape = (H, W)
         self.tp = tp
         self.levels = pyramid_levels(self.shape, tp.min_level_side)
         self.M = persona.mean_fiducials
+        self.points68 = persona.points68.mean(axis=0)
+        self.region = face_region(self.points68, self.shape)
         self.level_shapes = [p.shape[:2] for p in laplacian_pyramid(np.zeros((H, W, 3), np.float32), self.levels)]
         self.aligned = np.empty((n, H, W, 3), np.float32)
-        self.conf_frontal = _confidence(persona.visibility, tp)
+        self.conf_frontal = _confidence(persona, tp)
         self.conf_aligned = np.empty((n, H, W), np.float32)
-        self.pyr = [np.empty((n, h * w * 4), np.float32) for h, w in self.level_shapes]
+        self._layout(tp.regions)
+        self.static = [np.zeros(h * w * 4, np.float64) for h, w in self.level_shapes]
         built = persona._cache.pop("tps_maps", None)  # left by build_persona; dropped after use
         if built is not None and built.shape[0] != n:
             built = None
 
-        def chunk(i0: int, i1: int) -> np.ndarray:
+        def chunk(i0: int, i1: int):
             if built is not None:
                 maps = built[i0:i1]
             else:
@@ -266,21 +392,57 @@ class _Prepared:
             align = compose_map_flow(maps, persona.flows[i0:i1])
             self.aligned[i0:i1] = remap_stack(persona.images[i0:i1], align)
             self.conf_aligned[i0:i1] = remap_stack(self.conf_frontal[i0:i1], align)
-            _pyramid_stack(self.aligned[i0:i1], self.conf_aligned[i0:i1], self.levels, tp,
-                           out=[p[i0:i1] for p in self.pyr])
+            full = _pyramid_stack(self.aligned[i0:i1], self.conf_aligned[i0:i1], self.levels, tp)
+            sums = []
+            for k, rows in enumerate(full):
+                sums.append(rows.sum(axis=0, dtype=np.float64))
+                r4 = rows.reshape(len(rows), -1, 4)
+                for seg in self.segments[k]:  # gathered straight into the segment's rows
+                    np.take(r4, seg.pixels, axis=1, out=seg.stack[i0:i1].reshape(len(rows), -1, 4))
             # Fig. 6 b needs the TPS alone: its sum is kept, the maps are not
-            return remap_stack(persona.images[i0:i1], maps).sum(axis=0, dtype=np.float64)
+            return remap_stack(persona.images[i0:i1], maps).sum(axis=0, dtype=np.float64), sums
 
         # photos are independent: chunks run on a thread pool (OpenCV and numpy release the
         # GIL); results do not depend on the thread count (partial sums are added in order)
         bounds = [(i, min(i + self.CHUNK, n)) for i in range(0, n, self.CHUNK)]
         with ThreadPoolExecutor(max(1, min(len(bounds), available_cpus()))) as pool:
-            sums = list(pool.map(lambda b: chunk(*b), bounds))
-        self._stage = {"b": np.clip(np.sum(sums, axis=0) / max(n, 1), 0, 1).astype(np.float32)}
-        self.region = face_region(persona.points68.mean(axis=0), self.shape)
+            results = list(pool.map(lambda b: chunk(*b), bounds))
+        for _, sums in results:
+            for k in range(self.levels):
+                self.static[k] += sums[k]
+        self.static = [(x / max(n, 1)).astype(np.float32) for x in self.static]  # uniform weights
+        self._stage = {"b": np.clip(np.sum([r[0] for r in results], axis=0) / max(n, 1), 0, 1).astype(np.float32)}
         self._single = {}
+        self._outside_cache = {}
         if progress:
             progress(n=1, stage="precompute")
+
+    def _layout(self, regions) -> None:
+        """Region masks per level (the face support's complement = the static average) and the
+        pixel segments (see :class:`_Segment`)."""
+        from .weights import face_support, region_masks
+
+        H, W = self.shape
+        base = region_masks(self.points68, (H, W), regions)
+        sup = face_support(self.points68, (H, W))
+        full = np.concatenate([base * sup[None], (1.0 - sup)[None]])  # last: outside (static)
+        self.regions = tuple(regions)
+        self.masks, self.segments = [], []
+        for k in range(self.levels):
+            if k > 0:
+                full = np.stack([cv2.pyrDown(x) for x in full])
+            m = np.where(full < self.MASK_CUT, 0.0, full).astype(np.float32)
+            m /= np.maximum(m.sum(axis=0, keepdims=True), 1e-12)
+            self.masks.append(m)
+            R = len(regions)
+            flat = m[:R].reshape(R, -1) > 0
+            code = (flat * (1 << np.arange(R))[:, None]).sum(axis=0)
+            segs = []
+            for c in np.unique(code[code > 0]):
+                pix = np.nonzero(code == c)[0]
+                regs = tuple(j for j in range(R) if c >> j & 1)
+                segs.append(_Segment(pix, regs, self.n, m[list(regs)].reshape(len(regs), -1)[:, pix].copy()))
+            self.segments.append(segs)
 
     def single(self, which: str, persona: Persona) -> np.ndarray:
         if which not in self._single:
@@ -292,34 +454,163 @@ class _Prepared:
         return self._single[which]
 
     def blend_ours(self, similarity: np.ndarray) -> np.ndarray:
-        return self.blend_ours_many(np.asarray(similarity)[None])[0]
+        return self.blend_many(np.asarray(similarity)[None])[0]
 
     def blend_ours_many(self, similarities: np.ndarray) -> np.ndarray:
-        """(B, H, W, 3) blends for B targets' similarities (B, n): one matrix product per
-        level for all of them, which reads the stack once (a per-target product is
-        memory-bound: measured 34 ms per target alone, 6 ms each in batches of 32)."""
+        """(B, H, W, 3) blends for B targets' global similarities (B, n) (Eq. 3)."""
+        return self.blend_many(np.atleast_2d(similarities))
+
+    def level_masks(self) -> list[np.ndarray]:
+        """Per pyramid level (finest first), the (R + 1, h_k, w_k) masks of the weight regions
+        and, last, of the outside (static average), summing to 1."""
+        return [m.reshape((-1,) + tuple(sh)) for m, sh in zip(self.masks, self.level_shapes)]
+
+    def _outside(self, k: int) -> np.ndarray:
+        """Level k's static rows times the outside mask (its finest bands left out: no fine detail
+        off the face, where the frontalization paints streaks), cached."""
+        if k not in self._outside_cache:
+            h, w = self.level_shapes[k]
+            outside = self.masks[k][-1].repeat(4)
+            if k < OUTSIDE_SMOOTH_LEVELS:
+                outside = outside * np.tile(np.array([0, 0, 0, 1], np.float32), h * w)
+            self._outside_cache[k] = (self.static[k] * outside).astype(np.float32)
+        return self._outside_cache[k]
+
+    def blend_many(self, weights: np.ndarray) -> np.ndarray:
+        """(B, H, W, 3) blends for B targets. ``weights``: (B, n) global similarities (the same for
+        every region) or (B, R, n) per-region similarities (mixed per pixel by the region masks,
+        see :mod:`facetex.persona.weights`).
+
+        Per level and region the Eq. 3 factor (s_i + u_l) is normalised to sum 1 over the photos
+        and split as u_l * (sum of all photos' rows, precomputed) + sum_i s_i * row_i; the second
+        sum leaves out the photos with the smallest similarities that together hold less than
+        1 - :data:`SPARSE_MASS` of a target's total (a sparse product then reads only the
+        remaining photos' rows). Each region's product covers only its own pixels."""
         p = self.levels
-        S = np.atleast_2d(similarities)
+        S = np.asarray(weights, np.float64)
+        if S.ndim == 1:
+            S = S[None]
+        regional = S.ndim == 3
+        if not regional:
+            S = np.repeat(S[:, None], len(self.regions), axis=1)
+        B, R, n = S.shape
+        if R != len(self.regions):
+            raise BadInputError(f"{R} region weights for the {len(self.regions)} regions {self.regions}")
+        # per region: the similarities, small ones cut; sparse products when that pays off
+        Wn = [_cut_small(S[:, j], SPARSE_MASS, self.tp.max_photos if regional else None)
+              for j in range(R if regional else 1)]
+        sums = [w.sum(axis=-1) for w in Wn]  # the kept weights sum to 1 (with the uniform term)
+        # one (sparse when that pays off) matrix per region; each level only rescales its rows
+        mats = [_csr(w.astype(np.float32)) if np.count_nonzero(w) < 0.5 * w.size else w.astype(np.float32)
+                for w in Wn]
         bands = []
         for k in range(p):
-            w = _level_scalars(S, p - 1 - k, self.tp.tau, self.tp.beta)  # paper l = p-1-k
-            r = (w @ self.pyr[k]).reshape((len(S),) + tuple(self.level_shapes[k]) + (4,))
+            lvl = p - 1 - k  # paper's l
+            h, w = self.level_shapes[k]
+            u = _uniform_term(lvl, self.tp.tau, self.tp.beta)
+            static = self.static[k]
+            if math.isinf(u):
+                out = np.broadcast_to(static, (B, h * w * 4))
+            else:
+                out = np.repeat(self._outside(k)[None], B, axis=0)
+                scale = [(1.0 / (sums[j] + n * u)).astype(np.float32)[:, None] for j in range(len(Wn))]
+                ucoef = [(n * u / (sums[j] + n * u)).astype(np.float32)[:, None] for j in range(len(Wn))]
+                for seg in self.segments[k]:
+                    st = static[seg.cols][None] if u > 0 else None
+                    if not regional:  # one product, the regions' masks summed
+                        acc = (mats[0] @ seg.stack) * scale[0]
+                        if u > 0:
+                            acc += ucoef[0] * st
+                        acc *= seg.masks.sum(axis=0)[None]
+                    else:
+                        acc = np.zeros((B, seg.stack.shape[1]), np.float32)
+                        for mj, j in zip(seg.masks, seg.regions):
+                            num = (mats[j] @ seg.stack) * scale[j]
+                            if u > 0:
+                                num += ucoef[j] * st
+                            acc += mj[None] * num
+                    out[:, seg.cols] += acc
+            r = out.reshape(B, h, w, 4)
             bands.append(r[..., :3] / np.maximum(r[..., 3:], 1e-30))
-        return np.stack([collapse_pyramid([b[j] for b in bands]) for j in range(len(S))])
+        return np.stack([collapse_pyramid([b[j] for b in bands]) for j in range(B)])
+
+    @property
+    def pyr(self) -> list[np.ndarray]:
+        """Per level (finest first) the (n, h * w * 4) full-frame stack rows assembled from the
+        segments (zero outside the face support): for inspection and tests, not used by the blend."""
+        out = []
+        for k, (h, w) in enumerate(self.level_shapes):
+            a = np.zeros((self.n, h * w * 4), np.float32)
+            for seg in self.segments[k]:
+                a[:, seg.cols] = seg.stack
+            out.append(a)
+        return out
 
     def nbytes(self) -> int:
-        arrs = [self.aligned, self.conf_frontal, self.conf_aligned, *self.pyr,
-                *self._single.values()]
+        arrs = [self.aligned, self.conf_frontal, self.conf_aligned, *self.static,
+                *(seg.stack for segs in self.segments for seg in segs), *self._single.values()]
         return int(sum(a.nbytes for a in arrs))
 
 
 def prepare_persona(persona: Persona, params: TextureParams | None = None, *, progress=None) -> _Prepared:
     """Precompute (once, cached on the persona) the target-independent synthesis data."""
     tp = params or TextureParams()
-    key = ("prepared", tp)
+    key = ("prepared", tp.stack_key())
     if key not in persona._cache:
         persona._cache[key] = _Prepared(persona, tp, progress)
+    prep = persona._cache[key]
+    if prep.tp != tp:  # same stacks, other weights: a view with these parameters
+        import copy
+
+        prep = copy.copy(prep)
+        prep.tp = tp
+    return prep
+
+
+def expression_model(persona: Persona, params: TextureParams | None = None):
+    """The persona's regional expression model (:func:`facetex.persona.weights.fit_expression_model`),
+    cached on the persona."""
+    from .weights import fit_expression_model
+
+    tp = params or TextureParams()
+    key = ("expression", tp.neighbours, tuple(tp.regions))
+    if key not in persona._cache:
+        persona._cache[key] = fit_expression_model(persona.fiducials, neighbours=tp.neighbours, regions=tp.regions)
     return persona._cache[key]
+
+
+def target_weights(persona: Persona, fiducials, params: TextureParams | None = None,
+                   sigma: float | None = None) -> np.ndarray:
+    """Expression weights of (..., 49, 2) target fiducials against the persona's photos:
+    (..., n) global Eq. 2 similarities (``params.weights == "global"``, sigma default 10) or
+    (..., R, n) per-region similarities ("regional")."""
+    tp = params or TextureParams()
+    if tp.weights not in WEIGHTS:
+        raise BadInputError(f"unknown weights {tp.weights!r}: use one of {', '.join(WEIGHTS)}")
+    if tp.weights == "global":
+        sg = _check_sigma(tp.sigma if sigma is None else sigma)
+        t = np.asarray(fiducials, np.float64)
+        t = t[..., None, :, :] if t.ndim == 3 else t
+        return expression_similarity(t, persona.fiducials, sg, scale=_sigma_scale(persona, tp))
+    if sigma is not None:
+        raise BadInputError("sigma applies to the paper's global weights (weights='global'); the regional "
+                            "weights measure theirs: change TextureParams.neighbours instead")
+    return expression_model(persona, tp).similarities(fiducials)
+
+
+def blend_textures(persona: Persona, fiducials, *, params: TextureParams | None = None,
+                   sigma: float | None = None) -> np.ndarray:
+    """(B, H, W, 3) float32 textures in the persona's neutral frame (its mean fiducials) with the
+    expression weights of B targets (B, 49, 2) (Tom Hanks Sec. 6: "we only synthesize textures
+    in their neutral expressions ... but use the target expressions to calculate the blending
+    weights"); the regional weights by default."""
+    tp = params or TextureParams()
+    f = np.asarray(fiducials, np.float64)
+    if f.ndim == 2:
+        f = f[None]
+    f = np.stack([_fiducials49(x) for x in f])
+    S = target_weights(persona, f, tp, sigma)
+    return np.clip(prepare_persona(persona, tp).blend_many(S), 0, 1).astype(np.float32)
 
 
 # ------------------------------------------------------------------ synthesis
@@ -382,9 +673,30 @@ def _compose(m: np.ndarray, flow: np.ndarray) -> np.ndarray:
     return compose_map_flow(m[None], flow[None])[0]
 
 
+def _mask_levels(points68: np.ndarray, shape, levels: int, regions) -> list[np.ndarray]:
+    from .weights import region_masks
+
+    out = [region_masks(points68, shape, regions)]
+    for _ in range(1, levels):
+        out.append(np.stack([cv2.pyrDown(x) for x in out[-1]]))
+    return out
+
+
+def _mixed_blend(stack: np.ndarray, S: np.ndarray, lvl: int, tp: TextureParams, shape,
+                 masks: np.ndarray | None) -> np.ndarray:
+    """One level's blend: global (n,) weights, or (R, n) regional ones mixed by (R, h, w) masks."""
+    if S.ndim == 1:
+        return _gemv_blend(stack, _level_scalars(S, lvl, tp.tau, tp.beta), shape)
+    r = np.zeros(tuple(shape) + (4,), np.float32)
+    for j in range(len(S)):
+        r += masks[j][..., None] * (_level_scalars(S[j], lvl, tp.tau, tp.beta) @ stack).reshape(r.shape)
+    return r[..., :3] / np.maximum(r[..., 3:], 1e-30)
+
+
 def synthesize_texture(persona: Persona, *, fiducials=None, reference=None, method: str = "ours",
-                       sigma: float = 10.0, progress: Callable | None = None,
-                       params: TextureParams | None = None, precomputed: bool = True) -> np.ndarray:
+                       sigma: float | None = None, progress: Callable | None = None,
+                       params: TextureParams | None = None, precomputed: bool = True,
+                       weights: str | None = None) -> np.ndarray:
     """Texture (H, W, 3) float32 in [0, 1] in the canonical frame for target fiducials
     ``fiducials`` (49 or 68 (x, y) points in the canonical frame) or the expression of a
     ``reference`` photo (path or image; its frontalization gives F^T and the final flow).
@@ -392,39 +704,47 @@ def synthesize_texture(persona: Persona, *, fiducials=None, reference=None, meth
     ``method``: "ours" (TPS + collection flow + Eq. 3 multi-scale blend), "static" (the
     stage-d average TPS-warped to the target), "weighted" (single-scale Eq. 3 weighted
     average of the unaligned frontal photos), "prewarp" (TPS + collection flow, then a
-    single-scale weighted average). ``precomputed=False``: the paper's per-target pipeline
-    (slow; "ours" and "prewarp" only differ).
+    single-scale weighted average). ``weights``: "regional" (default, ours) or "global"
+    (the paper's Eq. 2/3, ``sigma`` default 10); overrides ``params.weights``.
+    ``precomputed=False``: the paper's per-target pipeline (slow; "ours" and "prewarp" only differ).
     """
+    import dataclasses
+
     if method not in METHODS:
         raise BadInputError(f"unknown method {method!r}: use one of {', '.join(METHODS)}")
     if (fiducials is None) == (reference is None):
         raise BadInputError("give exactly one of target fiducials or a reference photo")
-    sigma = _check_sigma(sigma)
     tp = params or TextureParams()
+    if weights is not None:
+        tp = dataclasses.replace(tp, weights=weights)
+    if sigma is not None and tp.weights == "global":
+        tp = dataclasses.replace(tp, sigma=_check_sigma(sigma))
+        sigma = None
     W, H = persona.size
     ref_img = None
     if reference is not None:
         ref_img, FT = frontalize_reference(reference, persona.size)
     else:
         FT = _fiducials49(fiducials)
-    s = expression_similarity(FT, persona.fiducials, sigma, scale=_sigma_scale(persona, tp))
+    s = target_weights(persona, FT, tp, sigma)
     pp = persona.params
     if not precomputed and method in ("ours", "prewarp"):
         return _synthesize_exact(persona, FT, ref_img, s, method, tp, progress)
     prep = prepare_persona(persona, tp, progress=progress)
     p = prep.levels
+    masks = None
+    if s.ndim == 2 and method in ("weighted", "prewarp"):  # single-scale blends: the region masks
+        masks = _mask_levels(prep.points68, (H, W), 1, tp.regions)[0]
     if method == "weighted":  # no alignment: the frontal photos as they are
-        w = _level_scalars(s, p - 1, tp.tau, tp.beta)
-        out = _gemv_blend(prep.single("frontal", persona), w, (H, W))
+        out = _mixed_blend(prep.single("frontal", persona), s, p - 1, tp, (H, W), masks)
         return np.clip(out, 0, 1).astype(np.float32)
     m = tps_map(FT, prep.M, (H, W), pp.tps_smoothing)  # target -> neutral frame
     if method == "static":
         return np.clip(_remap(average_face(persona, "d", params=tp), m), 0, 1)
     if method == "prewarp":
-        w = _level_scalars(s, p - 1, tp.tau, tp.beta)
-        blend = _gemv_blend(prep.single("aligned", persona), w, (H, W))
+        blend = _mixed_blend(prep.single("aligned", persona), s, p - 1, tp, (H, W), masks)
     else:
-        blend = prep.blend_ours(s)
+        blend = prep.blend_many(s[None])[0]
     if progress:
         progress(n=1, stage="blend")
     if ref_img is not None:
@@ -455,33 +775,38 @@ def _synthesize_exact(persona: Persona, FT, ref_img, s, method, tp: TextureParam
         hh = np.broadcast_to(h, amaps.shape)
         amaps = compose_map_flow(amaps, hh)
     aligned = remap_stack(persona.images, amaps)
-    conf = remap_stack(_confidence(persona.visibility, tp), amaps)
+    conf = remap_stack(_confidence(persona, tp), amaps)
     levels = pyramid_levels((H, W), tp.min_level_side)
+    masks = _mask_levels(p68, (H, W), levels, tp.regions) if s.ndim == 2 else [None] * levels
     if method == "prewarp":
-        w = _level_scalars(s, levels - 1, tp.tau, tp.beta)
-        return np.clip(_gemv_blend(_single_stack(aligned, conf, tp), w, (H, W)), 0, 1).astype(np.float32)
+        out = _mixed_blend(_single_stack(aligned, conf, tp), s, levels - 1, tp, (H, W), masks[0])
+        return np.clip(out, 0, 1).astype(np.float32)
     stacks = _pyramid_stack(aligned, conf, levels, tp)
     shapes = [b.shape[:2] for b in laplacian_pyramid(aligned[0], levels)]
-    bands = [_gemv_blend(stacks[k], _level_scalars(s, levels - 1 - k, tp.tau, tp.beta), shapes[k])
-             for k in range(levels)]
+    bands = [_mixed_blend(stacks[k], s, levels - 1 - k, tp, shapes[k], masks[k]) for k in range(levels)]
     return np.clip(collapse_pyramid(bands), 0, 1).astype(np.float32)
 
 
 def average_face(persona: Persona, stage: str = "d", *, params: TextureParams | None = None) -> np.ndarray:
     """The collection's average face (Tom Hanks Fig. 6), (H, W, 3) float32 in [0, 1]:
     a: mean of the frontalized photos; b: after TPS to the mean fiducials; c: after the
-    dense (collection-flow) warp; d: the multi-scale Eq. 3 blend at the mean fiducials."""
+    dense (collection-flow) warp; d: the multi-scale Eq. 3 blend at the mean fiducials with
+    the paper's global weights (sigma ``params.sigma``), whatever ``params.weights``: the
+    average of the whole collection, not of the few photos nearest the mean expression."""
     if stage not in STAGES:
         raise BadInputError(f"unknown average stage {stage!r}: use one of {', '.join(STAGES)}")
     tp = params or TextureParams()
     if stage == "a":
         return (persona.images.astype(np.float32).mean(axis=0) / 255.0).astype(np.float32)
+    import dataclasses
+
+    tp = dataclasses.replace(tp, weights="global", alpha=tp.alpha_)
     prep = prepare_persona(persona, tp)
-    if stage not in prep._stage:
+    key = stage if stage in "bc" else (stage, tp)
+    if key not in prep._stage:
         if stage == "c":
             img = prep.aligned.mean(axis=0)
         else:
-            s = expression_similarity(prep.M, persona.fiducials, tp.sigma, scale=_sigma_scale(persona, tp))
-            img = prep.blend_ours(s)
-        prep._stage[stage] = np.clip(img, 0, 1).astype(np.float32)
-    return prep._stage[stage].copy()
+            img = prep.blend_many(target_weights(persona, prep.M, tp)[None])[0]
+        prep._stage[key] = np.clip(img, 0, 1).astype(np.float32)
+    return prep._stage[key].copy()

@@ -12,7 +12,8 @@ __all__ = ["metric_summary", "compare_rows", "compare_table", "KEY_METRICS"]
 
 #: metrics shown first (in this order) when a run has them
 KEY_METRICS = ("E_content", "E_style", "S_content", "S_style", "identity_content", "identity_style", "time_s",
-               "ssim", "grad_corr", "colour_diff", "mouth_r", "id_puppet", "id_frac", "flicker_ours", "fps")
+               "ssim", "face_ssim", "mouth_ssim", "eyes_ssim", "grad_corr", "face_grad_corr", "colour_diff",
+               "face_colour_diff", "mouth_slope", "mouth_r", "id_puppet", "id_frac", "flicker_ours", "fps")
 
 
 def _order(names):

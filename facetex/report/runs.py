@@ -4,9 +4,13 @@ A :class:`Run` is the part of a folder a report shows: settings and provenance, 
 Markdown tables the run wrote, per-item metrics (one record per pair and method, or per
 target, or per clip), the images to compare and the figures. Layouts understood:
 
-- ``facetex bench transfer``: ``pairs.json`` (+ ``images/``, ``results/``, ``table.md``, ``run.json``);
-- ``facetex bench persona``: ``summary.json`` + ``per_target.csv`` + ``table.md``;
+- ``facetex bench transfer``: ``results.json`` (``pairs.json`` before 2026-12; + ``images/``, ``results/``,
+  ``table.md``, ``zoom.png``, ``run.json``);
+- ``facetex bench persona``: ``results.json`` + ``per_target.csv`` + ``table.md`` (+ grid and zoom sheets);
 - ``facetex bench puppet``: ``results.json`` + ``table.md`` (+ contact sheet);
+
+A bench's ``results.json`` names its bench (``"bench": "persona"``); older folders (persona
+``summary.json``, puppet ``results.json`` without the key) are recognised by their files.
 - ``facetex demo``: ``summary.json`` + ``transfer_<method>.png``;
 - any folder of outputs with ``*.json`` sidecars (``facetex transfer -o DIR/x.png``).
 """
@@ -96,12 +100,31 @@ def _tables(folder: Path) -> dict[str, str]:
 
 
 def _figures(folder: Path) -> list[Path]:
-    names = ("grid", "scatter", "figure", "contact")
+    names = ("grid", "scatter", "figure", "contact", "zoom", "teeth")
     return sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png" and p.stem.startswith(names))
 
 
-def _load_bench_transfer(folder: Path, run: Run) -> None:
-    pj = _read_json(folder / "pairs.json")
+def _bench_json(folder: Path) -> tuple[str | None, Path | None]:
+    """(bench name, its JSON file) of a bench run folder, or (None, None)."""
+    res = folder / "results.json"
+    if res.is_file():
+        try:
+            bench = json.loads(res.read_text(encoding="utf-8")).get("bench")
+        except (OSError, ValueError, AttributeError):
+            bench = None
+        if bench in ("transfer", "persona", "puppet"):
+            return bench, res
+    if (folder / "pairs.json").is_file():
+        return "transfer", folder / "pairs.json"
+    if res.is_file() and (folder / "table.md").is_file():
+        return "puppet", res
+    if (folder / "summary.json").is_file() and (folder / "per_target.csv").is_file():
+        return "persona", folder / "summary.json"
+    return None, None
+
+
+def _load_bench_transfer(folder: Path, run: Run, path: Path) -> None:
+    pj = _read_json(path)
     run.kind = "bench transfer"
     run.settings = dict(pj.get("settings", {}))
     run.paper = {m: dict(v) for m, v in (pj.get("paper_table1") or {}).items()}
@@ -130,17 +153,17 @@ def _load_bench_transfer(folder: Path, run: Run) -> None:
         run.sidecars[f"images/{sc.name}"] = rec
 
 
-def _load_bench_persona(folder: Path, run: Run) -> None:
-    summary = _read_json(folder / "summary.json")
+def _load_bench_persona(folder: Path, run: Run, path: Path) -> None:
+    summary = _read_json(path)
     run.kind = "bench persona"
-    run.settings = {k: v for k, v in summary.items() if k not in ("rows", "skipped", "held_out")}
+    run.settings = {k: v for k, v in summary.items() if k not in ("rows", "skipped", "held_out", "teeth", "bench")}
     per = folder / "per_target.csv"
     if per.is_file():
         with open(per, newline="", encoding="utf-8") as fh:
             for row in csv.DictReader(fh):
                 it = Item(key=row.get("file", ""), label=row.get("file", ""))
-                for k, v in row.items():
-                    if "_" not in k or k in ("file",):
+                for k, v in row.items():  # "<row>_<metric>", e.g. ours_mouth_ssim; px_<region>: mask sizes
+                    if "_" not in k or k in ("file",) or k.startswith("px_"):
                         continue
                     method, metric = k.split("_", 1)
                     try:
@@ -150,8 +173,8 @@ def _load_bench_persona(folder: Path, run: Run) -> None:
                 run.items.append(it)
 
 
-def _load_bench_puppet(folder: Path, run: Run) -> None:
-    res = _read_json(folder / "results.json")
+def _load_bench_puppet(folder: Path, run: Run, path: Path) -> None:
+    res = _read_json(path)
     run.kind = "bench puppet"
     run.settings = dict(res.get("settings", {}))
     for r in res.get("rows", []):
@@ -230,12 +253,10 @@ def load_run(path) -> Run:
             run.provenance = json.loads((folder / "run.json").read_text(encoding="utf-8"))
         except (OSError, ValueError):
             run.provenance = None
-    if (folder / "pairs.json").is_file():
-        _load_bench_transfer(folder, run)
-    elif (folder / "results.json").is_file() and (folder / "table.md").is_file():
-        _load_bench_puppet(folder, run)
-    elif (folder / "summary.json").is_file() and (folder / "per_target.csv").is_file():
-        _load_bench_persona(folder, run)
+    bench, bench_json = _bench_json(folder)
+    if bench is not None:
+        {"transfer": _load_bench_transfer, "persona": _load_bench_persona,
+         "puppet": _load_bench_puppet}[bench](folder, run, bench_json)
     elif (folder / "summary.json").is_file() and any(folder.glob("transfer_*.png")):
         _load_demo(folder, run)
     else:

@@ -22,7 +22,8 @@ import torch
 from .._memory import available_memory
 from ..errors import BadImageError, BadInputError, MemoryBudgetError
 from ..io import to_float32
-from .losses import StylePatches, _grid, gram_loss, gram_matrix, mrf_loss, mrf_memory_estimate, style_patches, tv_loss
+from .losses import (StylePatches, _grid, channel_softmax, gram_loss, gram_matrix, mrf_loss, mrf_memory_estimate,
+                     style_patches, tv_loss)
 from .methods import TransferParams
 from .methods import preset as make_preset
 from .optimize import _resize as _resize_level
@@ -163,7 +164,7 @@ class _LevelLoss:
         self.norms: dict[str, float] | None = None
         with torch.no_grad():
             tex_layers = list(dict.fromkeys(p.mrf_layers + p.style_layers))
-            fs = self.net.features(s, tex_layers) if tex_layers else {}
+            fs = self._transform(self.net.features(s, tex_layers) if tex_layers else {})
             fc = self.net.features(c, list(p.content_layers)) if p.content_layers else {}
             if builder.style_mask is not None:
                 sm = _resize_level(builder.style_mask, shape)
@@ -190,11 +191,19 @@ class _LevelLoss:
                 self.struct_ms = {l: float(v.square().mean()) + 1e-12 for l, v in fsc.items()}
             self.tv_ref = float(tv_loss(c)) + 1e-12
 
+    def _transform(self, feats: dict) -> dict:
+        """SWAG's channel softmax on the texture layers (MRF and Gram), if asked for."""
+        p = self.p
+        if p.feature_transform != "softmax":
+            return feats
+        tex = set(p.mrf_layers + p.style_layers)
+        return {k: (channel_softmax(v, p.feature_temperature) if k in tex else v) for k, v in feats.items()}
+
     def raw_terms(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
         p = self.p
         xin = apply_facial_prior(x, self.prior) if (p.prior and self.prior is not None) else x
         layers = list(dict.fromkeys(p.mrf_layers + p.style_layers + p.content_layers))
-        f = self.net.features(xin, layers) if layers else {}
+        f = self._transform(self.net.features(xin, layers) if layers else {})
         terms = {}
         for l in p.mrf_layers:  # Eq. 2
             terms[f"mrf:{l}"] = mrf_loss(f[l], self.patches[l], patch_size=p.patch_size,
@@ -293,8 +302,10 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
     an info dict (parameters, timings, per-level loss terms, pre-warp folds, and under
     ``"images"`` the working-region images: content, pre-warped style at native and working
     resolution, skin masks, the optimiser's output). ``progress(n=1, level=, loss=)`` is
-    called per loss evaluation; ``callback(image=, level=, evaluation=)`` every
-    ``save_every`` evaluations and after each level (images of the working region).
+    called per loss evaluation; ``callback(image=, level=, evaluation=, full_image=, box=)``
+    every ``save_every`` evaluations and after each level: ``image`` is the working region at
+    the level's size, ``full_image`` the full-size picture of that step (pasted as the output
+    is, before the detail stage), ``box`` the region in the content.
     ``init``: where the optimisation starts — "content" (FaceTex §2.3), "random" (uniform
     noise in [0, 1], seeded, in the pixels that may change), or an (H, W, 3) image of the
     content's size.
@@ -382,7 +393,13 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
     prior = prior_mask(cpw, wh) if params.prior else None
     style_mask = {"skin": None if skin_sw is None else skin_sw * (skin_cw > 0.05), "face": face,
                   "image": None}[params.style_region]
-    target_mask = skin_cw if params.target_region == "skin" else None
+    target_mask = None
+    if params.target_region == "skin":
+        target_mask = skin_cw
+    elif params.target_region == "face":  # every patch that can change: the face grown by the features' reach
+        r = max(1, int(round(0.05 * max(wh))))
+        target_mask = cv2.dilate((face > 0.01).astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8))
+        target_mask = target_mask.astype(np.float32)
     change_mask = None
     if params.constraint == "skin":
         cm = torch.from_numpy(np.ascontiguousarray(skin_cw))[None, None].to(device)
@@ -404,20 +421,22 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
                                 f"{content.shape[1]}x{content.shape[0]}: it must have the content's size")
         start = _resize(ini[box[1]:box[3], box[0]:box[2]], (wh[1], wh[0]))
     builder = _LossBuilder(params, content_w, style_w, prior, style_mask, target_mask, cpw, device)
+    user_callback = callback
+    if user_callback is not None:
+        def callback(image, level, evaluation):  # noqa: F811 — adds the full-size picture of the step
+            full = _paste(content, region, box, content_w, _resize(image, (wh[1], wh[0])), skin_c, params)
+            user_callback(image=image, level=level, evaluation=evaluation, full_image=full, box=box)
     out_w, info = optimize_image(content_w, builder, levels=params.levels, iters=params.iters,
                                  lbfgs_history=params.lbfgs_history, line_search=params.line_search,
                                  seed=seed, device=device, progress=progress, callback=callback,
                                  save_every=save_every, level_init=params.level_init, change_mask=change_mask,
-                                 start=start)
+                                 start=start, eval_budget=params.eval_budget)
     timings["optimize_s"] = info["seconds"]
 
     # back to the region's full resolution: paste the *change*, so the content's own detail
     # above the working resolution survives instead of being blurred by the resampling
     t0 = time.perf_counter()
-    delta = cv2.resize(out_w - content_w, (rw, rh), interpolation=cv2.INTER_CUBIC)
-    if params.constraint == "skin":
-        delta *= (skin_c > 0)[..., None]  # exactly nothing outside the skin (cubic rings 1–2 px)
-    out_region = np.clip(region + delta, 0.0, 1.0)
+    out_region = _paste_region(region, content_w, out_w, skin_c, params)
     optimised_region = out_region
     detail_info = None
     if params.detail:
@@ -431,12 +450,7 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
                                                        style_energy=energies, face_width=face_width(cpr),
                                                        params=dparams, return_info=True)
     timings["detail_s"] = time.perf_counter() - t0
-    out = content.copy()
-    if params.crop == "face" and params.constraint != "skin":
-        alpha = _edge_feather((rh, rw), box, (H, W))
-        out[box[1]:box[3], box[0]:box[2]] = alpha[..., None] * out_region + (1 - alpha[..., None]) * region
-    else:
-        out[box[1]:box[3], box[0]:box[2]] = out_region
+    out = _compose(content, region, box, out_region, params)
     timings["total_s"] = time.perf_counter() - t_start
     info = {
         "method": params.method, "preset": params.preset, "params": _jsonable(asdict(params)),
@@ -451,6 +465,34 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
                    "optimised_region": optimised_region, "output_region": out_region},
     }
     return out.astype(np.float32), info
+
+
+def _paste_region(region, content_w, out_w, skin_c, params) -> np.ndarray:
+    """The region at its full resolution with the optimiser's *change* pasted in: the
+    content's own detail above the working resolution survives instead of being blurred
+    by the resampling; with the skin constraint nothing changes outside the skin."""
+    rh, rw = region.shape[:2]
+    delta = cv2.resize(out_w - content_w, (rw, rh), interpolation=cv2.INTER_CUBIC)
+    if params.constraint == "skin":
+        delta *= (skin_c > 0)[..., None]  # exactly nothing outside the skin (cubic rings 1–2 px)
+    return np.clip(region + delta, 0.0, 1.0)
+
+
+def _compose(content, region, box, out_region, params) -> np.ndarray:
+    """The full image with the region replaced (feathered at inner crop edges when the whole
+    crop may change)."""
+    out = content.copy()
+    rh, rw = region.shape[:2]
+    if params.crop == "face" and params.constraint != "skin":
+        alpha = _edge_feather((rh, rw), box, content.shape[:2])
+        out[box[1]:box[3], box[0]:box[2]] = alpha[..., None] * out_region + (1 - alpha[..., None]) * region
+    else:
+        out[box[1]:box[3], box[0]:box[2]] = out_region
+    return out
+
+
+def _paste(content, region, box, content_w, out_w, skin_c, params) -> np.ndarray:
+    return _compose(content, region, box, _paste_region(region, content_w, out_w, skin_c, params), params)
 
 
 def _edge_feather(shape, box, full_shape, frac: float = 0.08) -> np.ndarray:

@@ -5,8 +5,8 @@ portrait) cannot be represented, and the pre-warp resamples the style. This stag
 the *style's own* fine detail into the content's skin at the output's resolution:
 
 1. split the optimised output and the aligned style into difference-of-Gaussian bands
-   ``B_k = G_{σ_{k-1}} − G_{σ_k}`` (σ = 0, 1, 2, 4 px at the 330 px reference face width,
-   scaled with the face), the rest of the output (coarser than σ = 4) stays as optimised;
+   ``B_k = G_{σ_{k-1}} − G_{σ_k}`` (σ = 0, 1, 2, 4, 8 px at the 330 px reference face width,
+   scaled with the face), the rest of the output (coarser than σ = 8) stays as optimised;
 2. local band energies ``E_k = G_{2σ_k} * B_k²`` (Shih et al. 2014, "Style Transfer for
    Headshot Portraits", §4: local energy of a Laplacian stack, blurred at twice the band's
    scale). The style's energy is measured in the style photo itself and carried into the
@@ -18,7 +18,9 @@ the *style's own* fine detail into the content's skin at the output's resolution
    aligned style does not (its hair, eyes or a warp's edge land there), the output keeps
    its own band scaled to the style's median skin energy (Shih's gain with a global target),
    so no hair or feature of the style is copied (that gain is capped at 1.25: more turns the
-   optimiser's faint swirls into visible worms).
+   optimiser's faint swirls into visible worms). Style skin whose fine detail is several
+   times rougher than its typical skin (stubble at a beard's edge, stray hairs, a mole's
+   rim: what the colour mask misses) is treated as not skin.
 
 Everything outside the content's skin is returned untouched. Hand-written (no library
 does band-energy transfer between two aligned images).
@@ -44,9 +46,14 @@ REF_FACE_WIDTH = 330.0
 class DetailParams:
     """Parameters of :func:`transfer_skin_detail` (lengths in px at REF_FACE_WIDTH)."""
 
-    sigmas: tuple[float, ...] = (1.0, 2.0, 4.0)  # band edges: [0,1], [1,2], [2,4]
+    # band edges [0,1], [1,2], [2,4], [4,8] px: pores, fine lines, freckles and blemishes; the
+    # [4,8] band moved S(xt,xs) by +0.012 on 5 FRL pairs (identity distance +0.05), coarser
+    # bands carry the face's own shading (docs/facetex-fidelity.md)
+    sigmas: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0)
     energy_scale: float = 2.0  # energy blur = energy_scale × the band's outer sigma
     gain_range: tuple[float, float] = (0.5, 3.0)  # of the style's bands (restores resampling losses)
+    rough_lo: float = 3.0  # style detail up to this × its median skin energy is skin texture
+    rough_hi: float = 8.0  # from this × on it is stubble / hair / an edge: not copied
     own_gain_range: tuple[float, float] = (0.5, 1.25)  # of the output's own bands where the style is not skin:
     # more amplifies the optimiser's faint swirl pattern into visible worms (seen on FRL 083←005)
     eps: float = 1e-6  # energy floor (values in [0, 1]²)
@@ -114,16 +121,20 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
     if style_energy is not None and len(style_energy) != len(sig):
         raise BadInputError(f"style_energy has {len(style_energy)} bands, expected {len(sig)}")
     lo, hi = params.gain_range
+    e_aligned = [band_energy(b, params.energy_scale * s) for b, s in zip(b_sty, sig)]
+    e_targets = e_aligned if style_energy is None else [np.asarray(e, np.float32) for e in style_energy]
+    skin = (mc > 0.5) & (ms > 0.5)
+    ms = ms * _smooth_roughness_gate(e_targets, skin, max(sig), params)
+    skin = (mc > 0.5) & (ms > 0.5)
     both = (mc * ms)[..., None]
     only_content = (mc * (1.0 - ms))[..., None]
-    skin = (mc > 0.5) & (ms > 0.5)
     result = out.copy()
-    info = {"gain_style": [], "gain_own": []}
+    info = {"gain_style": [], "gain_own": [], "style_skin_rough_fraction": float(
+        np.mean(ms[(mc > 0.5)] < 0.5)) if (mc > 0.5).any() else 0.0}
     for k, s in enumerate(sig):
         es = params.energy_scale * s
-        e_aligned = band_energy(b_sty[k], es)
-        e_target = e_aligned if style_energy is None else np.asarray(style_energy[k], np.float32)
-        g_style = np.clip(np.sqrt((e_target + params.eps) / (e_aligned + params.eps)), lo, hi)
+        e_target = e_targets[k]
+        g_style = np.clip(np.sqrt((e_target + params.eps) / (e_aligned[k] + params.eps)), lo, hi)
         # the style's typical skin energy in this band, for places its warped image is not skin
         ref = float(np.median(e_target[skin])) if skin.any() else float(np.median(e_target))
         e_out = band_energy(b_out[k], es)
@@ -137,6 +148,19 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
             info["gain_own"].append(float(np.median(g_own[mc > 0.5])))
     result = np.clip(result, 0.0, 1.0)
     return (result, info) if return_info else result
+
+
+def _smooth_roughness_gate(energies, skin, sigma, params: DetailParams) -> np.ndarray:
+    """(H, W) in [0, 1]: 1 where the style's fine detail is as rough as its typical skin, 0
+    where it is ``rough_hi`` × rougher (stubble, stray hairs, a mole's edge, a warp's tear:
+    things a colour mask misses and that would be copied as speckles), log-linear between
+    ``rough_lo`` and ``rough_hi``, blurred over twice the coarsest band."""
+    total = sum(energies)
+    ref = float(np.median(total[skin])) if skin.any() else float(np.median(total))
+    r = np.log(np.maximum(total, 1e-12) / max(ref, 1e-12))
+    lo, hi = np.log(params.rough_lo), np.log(params.rough_hi)
+    gate = np.clip((hi - r) / (hi - lo), 0.0, 1.0).astype(np.float32)
+    return np.clip(_gauss(gate, 2.0 * sigma), 0.0, 1.0)
 
 
 def style_band_energies(style, *, face_width: float, params: DetailParams = DetailParams()) -> list[np.ndarray]:

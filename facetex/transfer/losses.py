@@ -67,7 +67,7 @@ from ..errors import BadInputError
 __all__ = [
     "StylePatches", "extract_patches", "style_patches", "mrf_match", "mrf_loss",
     "mrf_memory_estimate", "content_loss", "gram_matrix", "gram_loss", "structure_loss",
-    "tv_loss", "MRF_VARIANTS", "MRFLoss",
+    "tv_loss", "channel_softmax", "MRF_VARIANTS", "MRFLoss",
 ]
 
 # Variant defaults for mrf_loss (see the module docstring, items 2, 5 and 6).
@@ -362,6 +362,16 @@ def mrf_memory_estimate(channels: int, target_hw: tuple[int, int], style_hw: tup
                 + 4 * _BLOCK_ELEMENTS + 2 * _SCORE_ELEMENTS  # target-patch block and copies; scores, max
                 + 3 * n_t)  # indices (int64) and NCC
     return int(1.25 * bytes_per_element * elements)  # + allocator slack (measured RSS growth)
+
+
+def channel_softmax(feat: torch.Tensor, temperature: float = 1.0) -> torch.Tensor:
+    """SWAG's feature transform (Wang, Li & Vasconcelos, CVPR 2021): a softmax over the
+    channels at every position, ``exp(f_c / T) / Σ_c' exp(f_c' / T)``. It flattens the peaky,
+    low-entropy activations of residual networks, with which style losses stylise poorly,
+    into distributions whose statistics behave like VGG's. Feature maps (C, H, W) or (N, C, H, W)."""
+    if feat.ndim not in (3, 4):
+        raise BadInputError(f"channel_softmax expects (C, H, W) or (N, C, H, W), got shape {tuple(feat.shape)}")
+    return torch.softmax(feat / float(temperature), dim=-3)
 
 
 def content_loss(a: torch.Tensor, b: torch.Tensor, reduction: str = "sum") -> torch.Tensor:

@@ -6,10 +6,15 @@ builds it from (method, preset, texture network). Two presets:
 - ``paper``: the paper's schedule — whole image at 1000 px long edge, 3 levels × 200
   L-BFGS iterations (Gatys: 1000 iterations at full size), the paper's layers when the
   texture network is VGG-19.
-- ``default``: the best quality we measured in a few minutes on a 2-core CPU — a face
+- ``default``: the best quality we measured in under a minute on a 2-core CPU — a face
   crop (forehead to chin plus margin: FaceTex works on tight head portraits, and hair and
   background caused most artifacts in our measurements) at 384 px, 3 levels × 100
-  iterations (the authors' CNNMRF defaults), EfficientNet-Lite0 texture features.
+  iterations (the authors' CNNMRF defaults), EfficientNet-Lite0 texture features; for
+  FaceTex also: only the content's skin may change (a hard constraint in place of the
+  gradient-scaling prior, see prior.py), style patches come only from the style's skin,
+  the texture loss counts only the content's skin, and a native-resolution detail stage
+  (detail.py) puts the style's own pores and fine wrinkles at the output's resolution
+  (docs/facetex-fidelity.md has the measurements behind each choice).
 
 Loss weights are *normalised* in both presets (``normalize=True``): each MRF and Gram
 term is divided by its value at the start of its level, content and structure terms by
@@ -76,7 +81,7 @@ class TransferParams:
     patch_size: int = 3
     style_stride: int = 2
     style_region: str = "face"  # MRF style patches from: "skin" (the style's skin, warped), "face", "image"
-    target_region: str = "image"  # texture loss over "image" or only the content's "skin"
+    target_region: str = "image"  # texture loss over the "image", the "face" (all it can change) or the "skin"
     constraint: str | None = None  # "skin": x = c + m ⊙ z, only the content's skin can change
     content_layers: tuple[str, ...] = ()
     content_weight: float = 0.0
@@ -90,9 +95,12 @@ class TransferParams:
     align: str | None = "beier-neely"  # style → content pre-warp (Sec. 2.3), None to skip
     align_refine: str | None = "sift-flow"
     align_frame: str = "similarity"  # pre-warp frame pinning (see geometry.morph.align_style_to_content)
+    feature_transform: str | None = None  # "softmax": SWAG's channel softmax on texture features
+    feature_temperature: float = 1.0
     detail: bool = False  # native-resolution skin detail stage (transfer/detail.py)
     detail_strength: float = 1.0
     lbfgs_history: int = 25
+    eval_budget: float = 2.0  # loss evaluations per level ≤ this × iterations (strong-Wolfe uses 1–4 per iteration)
     level_init: str = "residual"  # "upsample" is CNNMRF's (see optimize_image)
     line_search: str | None = "strong_wolfe"
     vgg19_weights: str | None = None
@@ -128,10 +136,14 @@ class TransferParams:
             raise BadInputError(f"size {self.size} px is out of range 32..4096")
         if self.style_region not in ("skin", "face", "image"):
             raise BadInputError(f"style_region must be 'skin', 'face' or 'image', not {self.style_region!r}")
-        if self.target_region not in ("skin", "image"):
-            raise BadInputError(f"target_region must be 'skin' or 'image', not {self.target_region!r}")
+        if self.target_region not in ("skin", "face", "image"):
+            raise BadInputError(f"target_region must be 'skin', 'face' or 'image', not {self.target_region!r}")
         if self.constraint not in (None, "skin"):
             raise BadInputError(f"constraint must be None or 'skin', not {self.constraint!r}")
+        if self.feature_transform not in (None, "softmax"):
+            raise BadInputError(f"feature_transform must be None or 'softmax', not {self.feature_transform!r}")
+        if not self.feature_temperature > 0:
+            raise BadInputError(f"feature_temperature must be > 0, got {self.feature_temperature}")
         if not 0.0 <= self.detail_strength <= 2.0:
             raise BadInputError(f"detail_strength must be in [0, 2], got {self.detail_strength}")
 
@@ -150,6 +162,7 @@ def preset(method: str = "facetex", name: str = "default", texture_net: str | No
     if name == "paper":
         base = replace(base, size=1000, crop="image", levels=3, iters=(200, 200, 200))
     else:
+        base = replace(base, eval_budget=1.25)  # torch's max_eval default: the speed budget holds
         # measured on 10 FRL pairs at 1000 px (benchmarks/geometry_align.py): optical-flow
         # refinement left 2.66 px landmark error vs 2.93 px for SIFT flow, at 1/7 of the time
         base = replace(base, align_refine="optical-flow")
@@ -157,6 +170,10 @@ def preset(method: str = "facetex", name: str = "default", texture_net: str | No
         # texture 2 : structure 1 (docs/texture-nets.md): more texture than MRF-CNN, identity kept
         p = replace(base, mrf_layers=layers["mrf"], mrf_weight=2.0, structure_layers=STRUCTURE_LAYERS,
                     structure_weight=1.0, tv_weight=0.05, prior=True)
+        if name == "paper":
+            # the prior and face mask freeze everything outside the face (§3.1): texture patches
+            # there cannot change, so they are not matched (same optimum, a fraction of the time)
+            p = replace(p, target_region="face")
         if name == "default":
             # only the content's skin changes (hard constraint instead of the gradient-scaling
             # prior, which L-BFGS undoes), texture from the style's skin only, and the style's

@@ -16,6 +16,14 @@ first VGG layer of both networks). Consequences worth keeping:
   65×65 kernel rather than the paper's "Gaussian blur". Its construction belongs to
   ``facetex.geometry.masks``, not here;
 - the paper's contours come from 66 CLM landmarks [19]; the code loads a prepared PNG.
+
+What the prior does *not* do: under L-BFGS a gradient mask > 0 is only a preconditioner —
+the curvature pairs undo a per-pixel scaling (a pixel scaled by 0.05 moved 0.666 against
+0.658 unscaled), so eyes, nose and mouth still change; only pixels with mask exactly 0 stay
+put. The ``paper`` preset keeps this layer as the paper describes it; the ``default`` preset
+instead optimises a masked change ``x = c + m ⊙ z`` over the content's skin
+(``optimize_image(change_mask=...)``), a hard constraint: eyes, brows, lips, nostrils, hair and
+background cannot change at all.
 """
 
 from __future__ import annotations

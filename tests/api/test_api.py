@@ -18,8 +18,8 @@ from PIL import Image
 import facetex
 from facetex._resources import sample_path
 
-PUBLIC = ("transfer", "transfer_with_info", "build_persona", "load_persona", "persona_texture", "persona_average",
-          "persona_mesh", "puppeteer", "as_image", "parse_iters")
+PUBLIC = ("transfer", "transfer_with_info", "build_persona", "load_persona", "persona_texture", "texture_params",
+          "persona_average", "persona_mesh", "puppeteer", "as_image", "parse_iters")
 TRANSFER_KEYWORDS = ("method", "preset", "size", "iters", "texture_net", "mrf_weight", "structure_weight",
                      "content_weight", "style_weight", "tv_weight", "init", "seed", "device", "progress", "callback",
                      "save_every", "max_memory")
@@ -116,6 +116,23 @@ def test_bad_options_fail_before_reading_images(tmp_path):
         facetex.transfer(missing, OTHER, no_such_option=1)
     with pytest.raises(ValueError, match="init must be"):
         facetex.transfer(FACE, OTHER, init="noise")
+
+
+def test_texture_options_are_checked_before_the_persona_is_read(tmp_path):
+    tp = facetex.texture_params()
+    assert tp.weights == "regional" and tp.neighbours == 3
+    assert facetex.texture_params(weights="global", sigma=8).sigma == 8.0
+    assert facetex.texture_params(neighbours=5).neighbours == 5
+    missing = tmp_path / "missing.persona"
+    for kw, match in (({"sigma": 8}, "sigma applies to the paper's global"),
+                      ({"weights": "global", "neighbours": 2}, "neighbours applies to the regional"),
+                      ({"weights": "global", "sigma": -1}, "positive number"),
+                      ({"neighbours": 0}, "positive integer"), ({"weights": "local"}, "weights must be one of")):
+        with pytest.raises(ValueError, match=match) as e:
+            facetex.persona_texture(missing, fiducials=np.zeros((49, 2)), **kw)
+        assert "\n" not in str(e.value)
+    with pytest.raises(FileNotFoundError):
+        facetex.persona_texture(missing, fiducials=np.zeros((49, 2)), weights="global", sigma=6)
 
 
 def test_exceptions_are_the_builtin_ones(tmp_path):

@@ -13,7 +13,7 @@ from facetex.errors import BadInputError, OutputError
 from facetex.io import read_image
 
 PEOPLE = ("003", "004", "005", "008")
-SUMMARY = ("table.md", "table.csv", "grid.png", "scatter.png", "pairs.json")
+SUMMARY = ("table.md", "table.csv", "grid.png", "scatter.png", "results.json")
 
 
 @pytest.fixture(scope="module")
@@ -129,7 +129,8 @@ def test_real_metrics_of_a_content_heavy_blend(data, tmp_path):
 
 def test_pairs_json_and_images(done, data):
     out, _, result, _ = done
-    pj = json.loads((out / "pairs.json").read_text())
+    pj = json.loads((out / "results.json").read_text())
+    assert pj["bench"] == "transfer"
     s = pj["settings"]
     assert s["seed"] == 0 and s["preset"] == "default" and s["methods"] == ["gatys", "facetex"]
     assert "facetex" in s["versions"] and s["data"] == str(data.resolve())

@@ -13,7 +13,7 @@ from facetex.io import read_image, write_image
 from facetex.persona import PersonaParams, average_face, build_persona, load_persona
 from facetex.persona.collection import face_region
 from facetex.persona.mesh_io import read_obj
-from facetex.persona.shape import checked_depth, generic_depth_px
+from facetex.persona.shape import generic_depth_px
 
 SIZE = (96, 120)
 
@@ -39,18 +39,22 @@ def _run(capsys, *argv):
 def test_mesh_from_stored_depth(persona_file, tmp_path, capsys):
     persona = load_persona(persona_file)
     W, H = SIZE
-    assert persona.depth is not None and persona.depth_photos == len(persona) == 8
+    # 8 photos are too few to reconstruct and validate a shape: stored as rejected, with the reason
+    assert persona.depth is not None and np.isnan(persona.depth).all() and persona.depth_photos == 0
+    assert persona.shape_report["accepted"] is False and "too few photos" in persona.shape_report["reason"]
     region = face_region(persona.points68.mean(axis=0), (H, W))
-    want_depth, want_src = checked_depth(persona.depth, region, SIZE)
+    want_depth = generic_depth_px(SIZE)
 
     obj = tmp_path / "face.obj"
     code, rep, _ = _run(capsys, persona_file, "-o", obj)
     assert code == 0
-    assert rep["depth_source"] == want_src and rep["depth_origin"] == "stored" and rep["depth_photos"] == 8
+    assert rep["depth_source"] == "generic" and rep["depth_origin"] == "stored" and rep["depth_photos"] == 0
+    assert "too few photos" in rep["shape_reason"] and rep["shape_validation"]["accepted"] is False
     assert rep["paths"] == {"obj": str(obj), "mtl": str(tmp_path / "face.mtl"), "texture": str(tmp_path / "face.png"),
                             "sidecar": str(tmp_path / "face.obj.json")}
     side = json.loads((tmp_path / "face.obj.json").read_text())
     assert side["command"] == "persona mesh" and side["inputs"]["persona"]["sha256"]
+    assert side["result"]["shape_reason"] == rep["shape_reason"]
     v, f, uv = read_obj(obj)
     assert len(v) == rep["vertices"] == int(region.sum()) and len(f) == rep["faces"] > len(v)
     xs, ys = v[:, 0].astype(int), v[:, 1].astype(int)
@@ -70,18 +74,22 @@ def test_mesh_from_stored_depth(persona_file, tmp_path, capsys):
     assert np.allclose(v2[:, 2], generic_depth_px(SIZE)[v2[:, 1].astype(int), v2[:, 0].astype(int)], atol=1e-5)
 
 
-def test_mesh_uses_a_plausible_stored_depth(persona_file, tmp_path, capsys):
-    # photometric stereo on 8 near-identical lightings is implausible (generic above); a stored depth
-    # close to the template (a 3 px bump, NaN off the face) is used as it is
+def test_mesh_uses_a_validated_stored_depth(persona_file, tmp_path, capsys):
+    # a stored depth that passed its validation (a 3 px bump on the template, NaN off the face) is used
+    # as it is, and the report quotes the validation
     persona = load_persona(persona_file)
     W, H = SIZE
     region = face_region(persona.points68.mean(axis=0), (H, W))
     yy, xx = np.mgrid[0:H, 0:W]
     bumped = generic_depth_px(SIZE) + 3.0 * np.exp(-((xx - W / 2) ** 2 + (yy - H / 2) ** 2) / 200.0)
     persona.depth = np.where(region, bumped, np.nan).astype(np.float32)
+    persona.depth_photos = 8
+    persona.shape_report = {"accepted": True, "reason": "the person's shape explains it better (test)",
+                            "rms_person": 0.05, "rms_generic": 0.06}
     pf = persona.save(tmp_path / "bumped.persona")
     code, rep, _ = _run(capsys, pf, "-o", tmp_path / "b.obj")
     assert code == 0 and rep["depth_source"] == "collection" and rep["depth_origin"] == "stored"
+    assert rep["shape_validation"]["rms_person"] == 0.05 and "(test)" in rep["shape_reason"]
     v, _, _ = read_obj(tmp_path / "b.obj")
     assert np.allclose(v[:, 2], bumped[v[:, 1].astype(int), v[:, 0].astype(int)], atol=1e-4)
 
@@ -97,9 +105,9 @@ def test_mesh_of_version1_persona_computes_depth(persona_file, tmp_path, capsys)
     with open(v1, "wb") as fh:
         np.savez(fh, header=np.frombuffer(json.dumps(head).encode(), np.uint8), **arrays)
     code, rep, _ = _run(capsys, v1, "-o", tmp_path / "v1.obj", "--step", 2)
-    assert code == 0 and rep["depth_origin"] == "computed" and rep["depth_photos"] == 8
+    assert code == 0 and rep["depth_origin"] == "computed" and rep["depth_photos"] == 0
+    assert rep["depth_source"] == "generic" and "too few photos" in rep["shape_reason"]
     region = face_region(persona.points68.mean(axis=0), (SIZE[1], SIZE[0]))
-    assert rep["depth_source"] == checked_depth(persona.depth, region, SIZE)[1]
     assert len(read_obj(tmp_path / "v1.obj")[0]) == rep["vertices"] == int(region[::2, ::2].sum())
 
 

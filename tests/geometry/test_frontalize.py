@@ -27,6 +27,7 @@ from facetex.geometry.frontalize import (
     canonical_points68,
     estimate_head_pose,
     frontalize,
+    symmetry_fill_image,
     rotate_face,
     rotation_from_angles,
 )
@@ -199,12 +200,31 @@ def test_symmetry_fill_uses_the_mirrored_side(turned):
     fill = frontalize(rot, rpts, symmetry_fill=True)
     v, vm = plain.visibility, plain.visibility[:, ::-1]
     np.testing.assert_array_equal(fill.visibility, v)
-    same = v > 0.999
-    np.testing.assert_allclose(fill.image[same], plain.image[same], atol=1e-3)
-    hidden = (v == 0) & (vm > 0.999)
+    # well inside what the photo saw: the photo itself
+    inner = cv2.erode((v > 0.999).astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
+    np.testing.assert_allclose(fill.image[inner], plain.image[inner], atol=1e-3)
+    # well inside the hidden side: the mirrored side, brightness-matched (a smooth gain near 1)
+    hidden = (cv2.dilate((v > 0).astype(np.uint8), np.ones((5, 5), np.uint8)) == 0) & (vm > 0.999)
     assert hidden.sum() > 200
-    np.testing.assert_allclose(fill.image[hidden], plain.image[:, ::-1][hidden], atol=1e-5)
+    gain = fill.image[hidden] / np.maximum(plain.image[:, ::-1][hidden], 1e-3)
+    assert 0.7 < np.median(gain) < 1.4 and np.percentile(np.abs(gain - np.median(gain)), 90) < 0.15
     assert np.abs(fill.image[hidden] - plain.image[hidden]).mean() > 0.01
+
+
+def test_symmetry_fill_matches_brightness_without_a_seam():
+    # a face lit from its left: its right half is brighter (0.5 against 0.3); the right quarter is
+    # unseen. Filled from the darker left half as it is, it would step down from 0.5 to 0.3 at the
+    # edge of what was seen; gain-matched and feathered, the row stays smooth and bright
+    H, W = 240, 192
+    img = np.full((H, W, 3), 0.3, np.float32)
+    img[:, W // 2:] = 0.5
+    vis = np.ones((H, W), np.float32)
+    vis[:, 144:] = 0
+    out = symmetry_fill_image(img, vis)
+    row = out[120, :, 0]
+    assert np.abs(np.diff(row[100:])).max() < 0.02  # no seam where own meets mirrored
+    assert row[170] > 0.42 and abs(row[170] - 0.3) > 0.1  # not the plain (darker) mirror
+    np.testing.assert_allclose(row[:80], 0.3, atol=1e-5)  # the seen side, far from the edge, untouched
 
 
 def test_outputs_shapes_dtypes_and_map(faces):
@@ -255,3 +275,22 @@ def test_bad_image_size_and_focal_raise():
         estimate_head_pose(pts, (480, 400), focal=-1)
     with pytest.raises(BadInputError):
         estimate_head_pose(pts, "shape")
+
+
+def test_fill_confidence_hand_computed():
+    from facetex.geometry.frontalize import fill_confidence
+
+    H, W = 240, 192
+    vis = np.zeros((H, W), np.float32)
+    vis[:, : W // 2 - 20] = 1.0  # the left part seen, its mirror (the right part) not
+    c = fill_confidence(vis, mirror_weight=0.1, floor=0.02, feather=2.0)
+    assert c[100, 10] == pytest.approx(1.02, abs=1e-4)  # seen: 1 + floor
+    assert c[100, W - 11] == pytest.approx(0.1 + 0.02, abs=1e-4)  # mirror-filled: 0.1 + floor
+    assert c[100, W // 2] == pytest.approx(0.02, abs=1e-4)  # neither: the floor
+    assert np.abs(np.diff(c[100])).max() < 0.25  # feathered: no hard edge
+    # outside the photo's own face outline the trust drops to 0.25 of it
+    pts = canonical_points68((W, H))
+    cf = fill_confidence(np.ones((H, W), np.float32), pts, outside_face=0.25, floor=0.0)
+    assert cf[5, 5] == pytest.approx(0.25, abs=1e-3) and cf[120, 96] == pytest.approx(1.0, abs=1e-3)
+    # uint8 visibility (as stored in a persona) and a batch of maps
+    assert fill_confidence(np.stack([(vis * 255).astype(np.uint8)] * 2)).shape == (2, H, W)

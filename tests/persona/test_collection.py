@@ -15,13 +15,22 @@ from facetex.io import read_image, write_image
 from facetex.persona import (
     METHODS,
     PersonaParams,
+    TextureParams,
     average_face,
     build_persona,
     load_persona,
     read_persona_header,
     synthesize_texture,
 )
-from facetex.persona.collection import PERSONA_VERSION, _Pool, _process_star, average_depth, face_region
+from facetex.persona.collection import (
+    PERSONA_VERSION,
+    _Pool,
+    _process_star,
+    average_depth,
+    average_shape,
+    face_region,
+    shape_split,
+)
 
 SIZE = (96, 120)  # small canonical frame: fast flows
 PARAMS = PersonaParams(size=SIZE, min_photos=8)
@@ -152,6 +161,7 @@ def test_corrupt_and_future_files_rejected(persona, tmp_path):
         with pytest.raises(BadPersonaError) as e:
             load_persona(path)
         assert e.value.path == str(path) and words in str(e.value)
+        assert isinstance(e.value, FileNotFoundError) == (words == "not found")
 
 
 def test_too_few_photos_and_empty_folders(photo_dir, tmp_path):
@@ -176,7 +186,11 @@ def _masked_rmse(a, b, points68):
 def test_texture_end_to_end(persona):
     i = persona.photos.index("frl_004_smiling_0.jpg")
     ref = persona.images[i].astype(np.float32) / 255
-    out = synthesize_texture(persona, fiducials=persona.fiducials[i], sigma=10)
+    out = synthesize_texture(persona, fiducials=persona.fiducials[i])
+    paper = synthesize_texture(persona, fiducials=persona.fiducials[i], weights="global", sigma=10)
+    assert not np.allclose(out, paper, atol=1e-3)
+    with pytest.raises(BadInputError, match="sigma applies to the paper"):
+        synthesize_texture(persona, fiducials=persona.fiducials[i], sigma=10)
     W, H = SIZE
     assert out.shape == (H, W, 3) and out.dtype == np.float32
     assert out.min() >= 0 and out.max() <= 1
@@ -199,11 +213,13 @@ def test_all_methods_stages_and_reference(persona, photo_dir):
     assert not np.allclose(outs["ours"], outs["static"], atol=1e-3)
     stages = [average_face(persona, s) for s in "abcd"]
     assert all(s.shape == (H, W, 3) for s in stages)
-    # the multi-scale Laplacian-weighted blend (d) is sharper in the face than the plain aligned mean (c)
-    m = face_mask(persona.points68.mean(axis=0), (H, W))[:, 1:] > 0.5
-    grad = [float(np.abs(np.diff(s.mean(axis=2), axis=1))[m].mean()) for s in stages]
-    assert grad[3] > 1.05 * grad[2]
     assert min(float(np.abs(stages[k] - stages[k + 1]).mean()) for k in range(3)) > 2e-4
+    # with the paper's Eq. 3 (alpha = 1) the multi-scale Laplacian-weighted blend (d) is sharper in
+    # the face than the plain aligned mean (c) (Fig. 6-7)
+    m = face_mask(persona.points68.mean(axis=0), (H, W))[:, 1:] > 0.5
+    grad = [float(np.abs(np.diff(s.mean(axis=2), axis=1))[m].mean())
+            for s in (stages[2], average_face(persona, "d", params=TextureParams.paper()))]
+    assert grad[1] > 1.05 * grad[0]
     by_ref = synthesize_texture(persona, reference=photo_dir / "frl_004_smiling_0.jpg")
     assert by_ref.shape == (H, W, 3)
     exact = synthesize_texture(persona, fiducials=persona.fiducials[i], precomputed=False)
@@ -228,6 +244,21 @@ def test_cli_texture_and_average(persona, tmp_path):
     assert side["params"]["method"] == "prewarp" and side["photos"] == 12 and "timings_s" in side
     assert read_image(out).shape == (SIZE[1], SIZE[0], 3)
     assert main(["persona", "texture", str(pf), "--fiducials", str(pts), "-o", str(out)]) == 2  # exists
+    # the paper's global weights with a sigma; ours with a neighbour count; mixing them is an error
+    g = tmp_path / "g.png"
+    assert main(["persona", "texture", str(pf), "--fiducials", str(pts), "-o", str(g), "--weights", "global",
+                 "--sigma", "8"]) == 0
+    side = json.loads((tmp_path / "g.png.json").read_text())
+    sp = side["params"]
+    assert sp["weights"] == "global" and sp["sigma"] == 8 and sp["neighbours"] is None
+    r = tmp_path / "r.png"
+    assert main(["persona", "texture", str(pf), "--fiducials", str(pts), "-o", str(r), "--neighbours", "2"]) == 0
+    side = json.loads((tmp_path / "r.png.json").read_text())
+    sp = side["params"]
+    assert sp["weights"] == "regional" and sp["neighbours"] == 2 and sp["sigma"] is None
+    assert not np.array_equal(read_image(g), read_image(r))
+    assert main(["persona", "texture", str(pf), "--fiducials", str(pts), "-o", str(tmp_path / "e.png"),
+                 "--sigma", "8"]) == 2 and not (tmp_path / "e.png").exists()
     avg = tmp_path / "avg.png"
     assert main(["persona", "average", str(pf), "-o", str(avg), "--stage", "c"]) == 0 and avg.exists()
     bad = tmp_path / "bad.json"
@@ -236,19 +267,30 @@ def test_cli_texture_and_average(persona, tmp_path):
 
 
 # ------------------------------------------------------------------ average depth (format v2)
-def test_build_stores_the_average_depth(persona):
+def test_build_stores_the_validated_average_shape(persona):
     W, H = SIZE
     region = face_region(persona.points68.mean(axis=0), (H, W))
     assert persona.depth.shape == (H, W) and persona.depth.dtype == np.float32
-    assert persona.depth_photos == 12  # fewer photos than shape_photos: all of them
-    assert np.isfinite(persona.depth[region]).all() and np.isnan(persona.depth[~region]).all()
-    # same photos from the loaded arrays (TPS maps recomputed, not the build's): same depth
-    again, n = average_depth(persona)
-    assert n == 12 and np.allclose(again, persona.depth, atol=0.05, equal_nan=True)
-    # evenly spaced subset: step = ceil(12 / max(4, 5)) = 3 -> photos 0, 3, 6, 9
-    sub, n = average_depth(persona, shape_photos=5)
-    assert n == 4 and np.isfinite(sub[region]).all()
-    assert average_depth(persona, shape_photos=1)[1] == 4  # at least 4 lightings
+    rep = persona.shape_report
+    # 12 photos: 3 evenly spaced ones held out for the photometric validation, 9 reconstruct
+    assert rep["train_photos"] == 9 and rep["heldout_photos"] == 3 and isinstance(rep["accepted"], bool)
+    assert {"rms_person", "rms_generic", "person_wins", "reason"} <= set(rep)
+    if rep["accepted"]:
+        assert persona.depth_photos == 9 and np.isfinite(persona.depth[region]).all()
+    else:  # rejected: all NaN, the generic face is used
+        assert persona.depth_photos == 0 and np.isnan(persona.depth).all()
+    assert np.isnan(persona.depth[~region]).all()
+    # same photos from the loaded arrays (TPS maps recomputed, not the build's): same verdict and depth
+    depth, n, again = average_shape(persona)
+    assert n == 9 and again["accepted"] == rep["accepted"]
+    assert abs(again["rms_person"] - rep["rms_person"]) < 1e-3
+    if rep["accepted"]:
+        assert np.allclose(depth, persona.depth, atol=0.05, equal_nan=True)
+    train, held = shape_split(12, 128)
+    assert list(held) == [0, 6, 11] and list(train) == [1, 2, 3, 4, 5, 7, 8, 9, 10]
+    train, held = shape_split(12, 5)  # evenly spaced subset of the rest: step ceil(9 / 5) = 2
+    assert list(train) == [1, 3, 5, 8, 10]
+    assert len(shape_split(10, 128)[1]) == 0  # too few to validate
 
 
 def test_average_depth_failure_is_all_nan(persona):
@@ -260,8 +302,10 @@ def test_average_depth_failure_is_all_nan(persona):
                                                          "flows")},
                  subspace=persona.subspace, photos=persona.photos[:3], params=flat)
     assert p3.depth is None and p3.depth_photos == 0
-    d, n = average_depth(p3)  # 3 photos < rank 4
+    d, n = average_depth(p3)  # 3 photos: too few to reconstruct and validate
     assert n == 0 and d.shape == (H, W) and d.dtype == np.float32 and np.isnan(d).all()
+    _, _, rep = average_shape(p3)
+    assert rep["accepted"] is False and "too few photos" in rep["reason"]
 
 
 def _npz(path, header, arrays):
@@ -336,7 +380,7 @@ def test_header_reader_does_not_read_arrays(persona, tmp_path):
     for path, words in [(tmp_path / "missing.persona", "not found")]:
         with pytest.raises(BadPersonaError) as e:
             read_persona_header(path)
-        assert words in str(e.value)
+        assert words in str(e.value) and isinstance(e.value, FileNotFoundError)  # what users catch
     junk = tmp_path / "junk.persona"
     junk.write_bytes(b"hello")
     noheader = tmp_path / "nohead.persona"
@@ -360,3 +404,38 @@ def test_large_members_are_stored_uncompressed(persona, tmp_path):
     assert kinds["images.npy"] == kinds["flows.npy"] == zipfile.ZIP_STORED  # loads without inflating
     assert kinds["visibility.npy"] == zipfile.ZIP_DEFLATED
     assert persona.save(tmp_path / "t.persona").read_bytes() == path.read_bytes()  # byte-reproducible
+
+
+def test_segmented_sparse_blend_equals_the_dense_formula(persona, monkeypatch):
+    # the blend over pixel segments with cut-off weights equals, with nothing cut, the per-pixel
+    # formula sum_r m_r(x) (w_r . rows(x)) + m_out(x) static(x), w_r = (s_r + u_l) / sum(s_r + u_l)
+    # (the outside's finest bands left out)
+    import math
+
+    import facetex.persona.texture as tx
+
+    monkeypatch.setattr(tx, "SPARSE_MASS", 1.0)
+    tp = TextureParams(max_photos=None)
+    prep = tx.prepare_persona(persona, tp)
+    S = tx.target_weights(persona, persona.fiducials[[2, 7]], tp)  # (2 targets, 3 regions, n)
+    got = prep.blend_many(S)
+    n, bands = len(persona), []
+    full, masks = prep.pyr, prep.level_masks()
+    for k in range(prep.levels):
+        h, w = prep.level_shapes[k]
+        u = tx._uniform_term(prep.levels - 1 - k, tp.tau, tp.beta)
+        static = prep.static[k].reshape(h, w, 4)
+        if math.isinf(u):
+            r = np.broadcast_to(static, (2, h, w, 4))
+        else:
+            wts = (S + u) / (S + u).sum(axis=-1, keepdims=True)  # (2, 3, n)
+            num = np.einsum("brn,np->brp", wts, full[k]).reshape(2, 3, h, w, 4)
+            outside = static * ([0, 0, 0, 1] if k < tx.OUTSIDE_SMOOTH_LEVELS else 1)  # no fine detail off the face
+            r = (masks[k][:3, ..., None] * num).sum(axis=1) + masks[k][3][..., None] * outside
+        bands.append(r[..., :3] / r[..., 3:])
+    want = np.stack([tx.collapse_pyramid([b[j] for b in bands]) for j in range(2)])
+    np.testing.assert_allclose(got, want, atol=2e-4)
+    # cutting the smallest weights and capping the photos changes the blend only a little
+    monkeypatch.setattr(tx, "SPARSE_MASS", 0.995)
+    cut = tx.prepare_persona(persona, TextureParams(max_photos=6)).blend_many(S)
+    assert 0 < np.abs(cut - got).mean() < 0.02

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import cv2
 import numpy as np
 import pytest
@@ -190,17 +192,29 @@ def test_no_face_video_raises_and_writes_nothing(tmp_path, tiny_persona):
 
 
 def test_neutral_texture_weights_follow_expression(tiny_persona):
-    from facetex.persona.puppet import neutral_texture
+    from facetex.persona import TextureParams, blend_textures
+    from facetex.persona.puppet import PuppetParams, neutral_texture
 
     p = tiny_persona
     smiling = np.array(["smiling" in f for f in p.photos])
-    t_neu = neutral_texture(p, p.fiducials[~smiling].mean(axis=0), sigma=4.0)
-    t_smi = neutral_texture(p, p.fiducials[smiling].mean(axis=0), sigma=4.0)
-    static = neutral_texture(p, p.fiducials[0], method="static")
-    assert t_neu.shape == t_smi.shape == static.shape == (120, 96, 3)
-    # different target expressions blend different photos (the static texture does not change)
-    assert np.abs(t_neu - t_smi).mean() > 1e-3
-    np.testing.assert_array_equal(static, neutral_texture(p, p.fiducials[-1], method="static"))
+    neu, smi = p.fiducials[~smiling].mean(axis=0), p.fiducials[smiling].mean(axis=0)
+    paper = PuppetParams(weights="global", sigma=4.0).texture_params()
+    assert paper.weights == "global" and paper.sigma == 4.0 and paper.alpha_ == 1.0
+    assert PuppetParams().texture_params() == TextureParams()  # the persona texture's regional weights
+    for tp in (TextureParams(), paper):
+        t_neu = neutral_texture(p, neu, params=tp)
+        t_smi = neutral_texture(p, smi, params=tp)
+        static = neutral_texture(p, p.fiducials[0], method="static", params=tp)
+        assert t_neu.shape == t_smi.shape == static.shape == (120, 96, 3)
+        # different target expressions blend different photos (the static texture does not change)
+        assert np.abs(t_neu - t_smi).mean() > 1e-3, tp.weights
+        np.testing.assert_array_equal(static, neutral_texture(p, p.fiducials[-1], method="static", params=tp))
+    # the regional texture is the persona texture's blend in the neutral frame
+    np.testing.assert_allclose(neutral_texture(p, smi), blend_textures(p, smi)[0], atol=1e-6)
+    np.testing.assert_allclose(neutral_texture(p, smi, params=TextureParams.paper(), sigma=4.0),
+                               neutral_texture(p, smi, params=paper), atol=1e-6)
+    with pytest.raises(ValueError, match="unknown puppet texture weights"):
+        PuppetParams(weights="local").texture_params()
 
 
 def test_cli_puppet(tmp_path, driver_video, tiny_persona, capsys):
@@ -213,10 +227,12 @@ def test_cli_puppet(tmp_path, driver_video, tiny_persona, capsys):
     assert code == 0 and out.is_file()
     assert video_info(out)["n_frames"] == 3
     assert '"lost_frames": 0' in capsys.readouterr().out
-    sh = tmp_path / "sh.mp4"  # composite with the spherical-harmonics lighting transfer
+    sh = tmp_path / "sh.mp4"  # composite with the spherical-harmonics lighting, the paper's global weights
     assert main(["puppet", "--driver", str(driver_video), "--puppet", str(persona_file), "-o", str(sh),
-                 "--max-frames", "2", "--size", "96", "--lighting", "sh"]) == 0
+                 "--max-frames", "2", "--size", "96", "--lighting", "sh", "--weights", "global"]) == 0
     assert video_info(sh)["n_frames"] == 2
+    side = json.loads((tmp_path / "sh.mp4.json").read_text())
+    assert side["params"]["weights"] == "global" and side["params"]["puppet_params"]["weights"] == "global"
     # existing output without --overwrite, and a video without faces: one-line errors, non-zero exit
     assert main(["puppet", "--driver", str(driver_video), "--puppet", str(persona_file), "-o", str(out)]) != 0
     blank = tmp_path / "blank.mp4"
@@ -232,10 +248,13 @@ def test_batched_textures_match_per_frame(tiny_persona):
 
     p = tiny_persona
     targets = [p.fiducials[0], p.fiducials[5], p.mean_fiducials]
-    batch = neutral_textures(p, targets, sigma=4.0)
-    for t, b in zip(targets, batch):
-        np.testing.assert_allclose(b, neutral_texture(p, t, sigma=4.0), atol=1e-5)
-    assert np.abs(batch[0] - batch[1]).mean() > 1e-3  # different expressions, different blends
+    from facetex.persona import TextureParams
+
+    for tp in (TextureParams(), TextureParams.paper(sigma=4.0)):
+        batch = neutral_textures(p, targets, params=tp)
+        for t, b in zip(targets, batch):
+            np.testing.assert_allclose(b, neutral_texture(p, t, params=tp), atol=1e-5)
+        assert np.abs(batch[0] - batch[1]).mean() > 1e-3  # different expressions, different blends
 
 
 def test_render_frames_do_not_depend_on_the_batch_size(driver_video, tiny_persona, monkeypatch):

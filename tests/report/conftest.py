@@ -1,6 +1,6 @@
 """Run folders for the report tests: `facetex bench transfer` on the bundled samples with a
 cheap stand-in for the transfer (a content/style blend) and for the metrics, so the folders
-have the real layout (pairs.json, images/, results/, table.md, run.json) in seconds."""
+have the real layout (results.json, images/, results/, table.md, run.json) in seconds."""
 
 from __future__ import annotations
 

@@ -25,6 +25,39 @@ def test_load_bench_transfer_run(runs):
     assert run.provenance["command"] == "bench transfer"
 
 
+def _persona_folder(folder, json_name, bench_key=True):
+    """A bench persona run folder in the layout run_bench_persona writes (per-target columns
+    <row>_<region>_<metric>, px_<region> mask sizes)."""
+    folder.mkdir()
+    rec = {"rows": [], "data": "lfw/x", "holdout": 2, "teeth": [], "held_out": ["a.jpg", "b.jpg"]}
+    (folder / json_name).write_text(json.dumps({**({"bench": "persona"} if bench_key else {}), **rec}))
+    cols = ["file", "yaw", "px_face", "px_mouth"] + [f"{r}_{g}_ssim" for r in ("static", "paper", "ours")
+                                                     for g in ("face", "mouth")] + ["ours_time_s"]
+    lines = [",".join(cols)] + [",".join(["a.jpg", "1.0", "900", "80", "0.5", "0.4", "0.52", "0.43", "0.55",
+                                          "0.47", "0.01"]),
+                                ",".join(["b.jpg", "-2.0", "950", "85", "0.6", "0.5", "0.61", "0.52", "0.63",
+                                          "0.55", "0.02"])]
+    (folder / "per_target.csv").write_text("\n".join(lines) + "\n")
+    (folder / "table.md").write_text("| method |\n|---|\n| ours |\n")
+    return folder
+
+
+def test_load_bench_persona_and_puppet_runs(tmp_path):
+    for name, json_name, key in (("new", "results.json", True), ("old", "summary.json", False)):
+        run = load_run(_persona_folder(tmp_path / name, json_name, key))
+        assert run.kind == "bench persona" and len(run.items) == 2, name
+        assert run.methods == ["ours", "paper", "static"] and "px" not in run.methods
+        assert {"face_ssim", "mouth_ssim"} <= set(run.metric_names)
+        assert run.values("ours", "mouth_ssim") == [0.47, 0.55]
+        assert "bench" not in run.settings and run.settings["holdout"] == 2
+    pup = tmp_path / "puppet"
+    pup.mkdir()
+    (pup / "results.json").write_text(json.dumps({"bench": "puppet", "settings": {"size": 256},
+                                                  "rows": [{"clip": "c1", "mouth_slope": 0.9, "mouth_r": 0.9}]}))
+    run = load_run(pup)  # recognised by its bench key, with or without a table
+    assert run.kind == "bench puppet" and run.values("puppet", "mouth_slope") == [0.9]
+
+
 def test_bench_json_holds_no_image_data(runs):
     for p in (runs[0] / "images").glob("*.json"):
         text = p.read_text()

@@ -20,7 +20,7 @@ import facetex.transfer._pipeline as pipeline
 from _robust import assert_one_error, run_cli, sha1s, snapshot
 from conftest import has_command
 
-T = ["--size", "64", "--iters", "2"]  # 1 level, 3 loss evaluations
+T = ["--size", "64", "--iters", "2"]  # 1 level, 2 loss evaluations (budget 1.25 × 2)
 
 
 def _optimize_then(monkeypatch, action):

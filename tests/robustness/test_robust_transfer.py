@@ -11,7 +11,7 @@ import pytest
 import facetex.transfer._pipeline as pipeline
 from _robust import assert_one_error, run_cli, snapshot
 
-T = ["--size", "64", "--iters", "2"]  # 1 level, 3 loss evaluations
+T = ["--size", "64", "--iters", "3"]  # 1 level, 4 loss evaluations (budget 1.25 × 3)
 
 
 def test_keyboard_interrupt_leaves_nothing(capsys, bad, outdir, monkeypatch):

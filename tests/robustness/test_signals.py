@@ -18,7 +18,7 @@ import facetex.transfer._pipeline as pipeline
 from _robust import assert_one_error, descendants, alive, run_cli, sha1s, snapshot
 from conftest import has_command
 
-T = ["--size", "64", "--iters", "2"]
+T = ["--size", "64", "--iters", "3"]  # 1 level, 4 loss evaluations (budget 1.25 × 3)
 
 
 def _interrupt_at(monkeypatch, n: int, action):

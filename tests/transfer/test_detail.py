@@ -42,10 +42,11 @@ def test_style_energy_gain_restores_a_lost_energy():
     out = np.full((96, 96, 3), 0.5, np.float32)
     style = _noise(3, 0.03)
     ones = np.ones((96, 96), np.float32)
-    b, _ = band_stack(style, (1.0, 2.0, 4.0))
-    target = [4.0 * band_energy(bk, 2.0 * s) for bk, s in zip(b, (1.0, 2.0, 4.0))]  # 2x amplitude
+    sig = DetailParams().sigmas
+    b, _ = band_stack(style, sig)
+    target = [4.0 * band_energy(bk, 2.0 * s) for bk, s in zip(b, sig)]  # 2x amplitude
     res = transfer_skin_detail(out, style, ones, ones, style_energy=target, face_width=330.0)
-    rb, _ = band_stack(res, (1.0, 2.0, 4.0))
+    rb, _ = band_stack(res, sig)
     ratio = rb[0][10:-10, 10:-10].std() / b[0][10:-10, 10:-10].std()
     assert 1.8 < ratio < 2.2
 

@@ -274,3 +274,17 @@ def test_losses_gradcheck_float64():
     assert torch.autograd.gradcheck(lambda v: content_loss(v, y), (x,))
     assert torch.autograd.gradcheck(lambda v: gram_loss(v, y), (x,))
     assert torch.autograd.gradcheck(lambda v: structure_loss({"a": v, "b": v * v}, {"a": y, "b": y}), (x,))
+
+
+def test_channel_softmax_hand_case_and_gradcheck():
+    from facetex.transfer.losses import channel_softmax
+
+    f = torch.tensor([[[0.0]], [[1.0]], [[2.0]]], dtype=D64)  # (3, 1, 1)
+    e = torch.exp(torch.tensor([0.0, 1.0, 2.0], dtype=D64))
+    assert torch.allclose(channel_softmax(f)[:, 0, 0], e / e.sum())
+    assert torch.allclose(channel_softmax(f, 2.0)[:, 0, 0], torch.exp(torch.tensor([0.0, .5, 1.0], dtype=D64)) /
+                          torch.exp(torch.tensor([0.0, .5, 1.0], dtype=D64)).sum())
+    x = torch.randn(1, 4, 3, 3, dtype=D64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda t: channel_softmax(t, 0.7), (x,))
+    with pytest.raises(BadInputError):
+        channel_softmax(torch.zeros(3, 3))

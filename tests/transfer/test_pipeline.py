@@ -38,13 +38,79 @@ def test_methods_run_and_keep_background(faces, method):
     assert info["method"] == method and info["timings"]["total_s"] > 0
 
 
-def test_facetex_prior_freezes_background_of_crop(faces):
+def test_paper_prior_freezes_background_of_crop(faces):
     c, s, pc, ps = faces
-    out, info = transfer_with_info(c, s, method="facetex", content_points=pc, style_points=ps, **FAST)
+    out, info = transfer_with_info(c, s, method="facetex", content_points=pc, style_points=ps, prior=True,
+                                   constraint=None, detail=False, **FAST)
     face = info["images"]["face"]
     w = info["images"]["output_w"] - info["images"]["content_w"]
     # the prior × face mask blocks the network gradients off the face; only TV can act there
     assert np.abs(w[face < 0.01]).mean() < 0.25 * np.abs(w[face > 0.99]).mean()
+
+
+def test_default_facetex_changes_only_the_skin(faces):
+    """The hard constraint: eyes, brows, lips, nostrils, hair and background stay exactly as they were."""
+    from facetex.geometry.skin import protected_mask
+
+    c, s, pc, ps = faces
+    out, info = transfer_with_info(c, s, method="facetex", content_points=pc, style_points=ps, **FAST)
+    x0, y0, x1, y1 = info["region_box"]
+    skin = np.zeros(c.shape[:2], np.float32)
+    skin[y0:y1, x0:x1] = info["images"]["skin_content"]
+    assert np.array_equal(out[skin == 0], c[skin == 0])
+    assert np.abs(out - c)[skin > 0.9].mean() > 2e-3  # and the skin did change
+    assert skin[protected_mask(pc, c.shape)].max() == 0.0
+    assert info["prewarp_folds"] == 0
+
+
+def test_prewarp_of_the_crop_equals_the_full_image_prewarp(faces):
+    """The style the optimiser sees is the same morph the full images would give (no squeezing)."""
+    from facetex.geometry.morph import align_style_to_content
+
+    c, s, pc, ps = faces
+    _, info = transfer_with_info(c, s, content_points=pc, style_points=ps, **FAST)
+    x0, y0, x1, y1 = info["region_box"]
+    full = align_style_to_content(s, c, style_points=ps, content_points=pc, refine="optical-flow",
+                                  interpolation="lanczos").image[y0:y1, x0:x1]
+    crop = info["images"]["style_native"]
+    inner = (slice(20, -20), slice(20, -20))
+    assert np.abs(crop[inner] - full[inner]).mean() < 0.02
+
+
+def test_detail_stage_brings_the_style_detail(faces):
+    """An airbrushed content (blurred, no beard) gets the style's fine detail back."""
+    import cv2
+
+    from facetex.geometry.morph import align_style_to_content
+    from facetex.metrics import skin_detail
+
+    _, s, _, ps = faces
+    c = cv2.GaussianBlur(read_image(sample_path("frl_003_neutral.jpg")), (0, 0), 1.2)
+    pc = detect_face(c).points68
+    aligned = align_style_to_content(s, c, style_points=ps, content_points=pc, refine=None,
+                                     interpolation="lanczos").image
+
+    def cheeks(img):  # both faces' foreheads are under a fringe here: not skin
+        # the metric's σ = 2 px is meant for ~330 px wide faces: these are 130 px wide
+        per = skin_detail(img, pc, sigma=0.8, per_patch=True)[1]
+        return (per["left_cheek"] + per["right_cheek"]) / 2
+
+    target = cheeks(aligned)
+    assert cheeks(c) < 0.8 * target
+    with_d, info = transfer_with_info(c, s, content_points=pc, style_points=ps, **FAST)
+    without, _ = transfer_with_info(c, s, content_points=pc, style_points=ps, detail=False, **FAST)
+    d_with, d_without = cheeks(with_d), cheeks(without)
+    assert d_with > d_without + 0.3 * (target - d_without)
+    assert info["detail"]["gain_style"] and info["images"]["optimised_region"] is not None
+
+
+def test_callback_gets_the_full_size_step(faces):
+    c, s, pc, ps = faces
+    got = []
+    transfer_with_info(c, s, content_points=pc, style_points=ps, size=64, iters=(2, 2), save_every=2,
+                       callback=lambda **kw: got.append(kw))
+    assert got and all(k["full_image"].shape == c.shape for k in got)
+    assert all(len(k["box"]) == 4 for k in got)
 
 
 def test_deterministic_with_seed(faces):

@@ -1,0 +1,59 @@
+"""Pieces of ``facetex bench persona``: region masks and scores, zoom sheets, the teeth score."""
+
+import cv2
+import numpy as np
+
+from facetex.bench.persona import evaluation_masks, region_scores, teeth_score, write_zoom_sheets, zoom_boxes
+from facetex.geometry.frontalize import canonical_points68
+from facetex.io import read_image
+
+W, H = 192, 240
+P68 = canonical_points68((W, H))
+
+
+def test_evaluation_masks_and_region_scores():
+    vis = np.ones((H, W), np.float32)
+    vis[:, : W // 2] = 0  # only the right half seen: the scores ignore the rest
+    m = evaluation_masks(P68, vis)
+    assert set(m) == {"face", "mouth", "eyes"}
+    assert not (m["mouth"] & m["eyes"]).any() and (m["mouth"] <= m["face"]).all() and (m["eyes"] <= m["face"]).all()
+    assert m["mouth"].sum() > 200 and m["eyes"].sum() > 200 and not m["face"][:, : W // 2].any()
+    rng = np.random.default_rng(0)
+    ref = rng.random((H, W, 3)).astype(np.float32)
+    same = region_scores(ref, ref, m)
+    assert all(abs(same[r]["ssim"] - 1) < 1e-6 and same[r]["colour_diff"] < 1e-4 for r in m)
+    # damage only the mouth: the mouth score drops, the eyes' does not
+    bad = ref.copy()
+    bad[m["mouth"]] = 0.5
+    s = region_scores(bad, ref, m)
+    assert s["mouth"]["ssim"] < 0.5 and s["eyes"]["ssim"] > 0.99 and s["face"]["ssim"] < 0.99
+    # an unseen region (too few pixels) gives NaN, not an error
+    assert np.isnan(region_scores(ref, ref, {"none": np.zeros((H, W), bool)})["none"]["ssim"])
+
+
+def test_teeth_score():
+    img = np.full((H, W, 3), 150, np.uint8)
+    closed = teeth_score(img, P68)
+    opened = P68.copy()
+    opened[[65, 66, 67], 1] += 10  # lower inner lip down: the lips apart
+    mouth = np.zeros((H, W), np.uint8)
+    cv2.fillPoly(mouth, [np.round(opened[60:68]).astype(np.int32)], 1)
+    teeth = img.copy()
+    teeth[mouth > 0] = (235, 235, 225)  # bright, unsaturated
+    dark = img.copy()
+    dark[mouth > 0] = (60, 20, 25)
+    assert closed == 0.0 and teeth_score(teeth, opened) > 0.9 and teeth_score(dark, opened) < 0.05
+
+
+def test_zoom_sheets(tmp_path):
+    boxes = zoom_boxes(P68)
+    assert set(boxes) == {"mouth", "eyes", "brow", "chin", "boundary"}
+    for x, y, w, h in boxes.values():
+        assert 0 <= x and x + w <= W and 0 <= y and y + h <= H and w > 10 and h > 10
+    rng = np.random.default_rng(1)
+    imgs = {c: rng.random((H, W, 3)).astype(np.float32) for c in ("reference", "static", "paper", "ours")}
+    files = write_zoom_sheets(tmp_path, [{"points68": P68, "images": imgs}] * 2)
+    assert sorted(files) == sorted(f"zoom_{r}.png" for r in boxes)
+    sheet = read_image(tmp_path / "zoom_mouth.png")
+    x, y, w, h = boxes["mouth"]
+    assert sheet.shape[0] == 28 + 2 * (3 * h + 4) and sheet.shape[1] == 4 * 3 * w + 3 * 4

@@ -1,0 +1,94 @@
+"""Regional expression weights (facetex.persona.weights), on hand-made fiducials."""
+
+import math
+
+import numpy as np
+import pytest
+
+from facetex.errors import BadInputError
+from facetex.geometry.frontalize import canonical_points68
+from facetex.landmarks import POINTS49_INDEX
+from facetex.persona.texture import _cut_small
+from facetex.persona.weights import (
+    RIGID49,
+    adaptive_sigma,
+    face_support,
+    fit_expression_model,
+    iod49,
+    normalised_fiducials,
+    region_masks,
+)
+
+P68 = canonical_points68((192, 240))
+M = P68[POINTS49_INDEX]
+
+
+def test_normalised_fiducials_remove_similarity_and_scale_by_iod():
+    a = math.radians(10)
+    R = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+    moved = 1.3 * M @ R.T + [7.0, -4.0]
+    z0, z1 = normalised_fiducials(M, M), normalised_fiducials(moved, M)
+    np.testing.assert_allclose(z1, z0, atol=1e-9)  # a similarity of M is M
+    np.testing.assert_allclose(z0[RIGID49].mean(axis=0), 0, atol=1e-12)  # origin: rigid centroid
+    assert iod49(z0) == pytest.approx(1.0)  # unit: M's eye-centre distance
+    # an expression change (mouth points only) survives the normalisation
+    smile = M.copy()
+    smile[31:49, 1] += 3.0
+    assert np.abs(normalised_fiducials(smile, M)[31:49] - z0[31:49]).max() > 0.5 * 3.0 / iod49(M)
+
+
+def test_adaptive_sigma_hand_computed():
+    d = np.array([[4.0, 1.0, 3.0, 2.0], [0.0, 0.0, 5.0, 6.0]])
+    np.testing.assert_allclose(adaptive_sigma(d, 2), [1.0, 1e-9])  # 2nd nearest / 2, floored
+    np.testing.assert_allclose(adaptive_sigma(d, 3, floor=0.1), [1.5, 2.5])
+    np.testing.assert_allclose(adaptive_sigma(d, 99), [2.0, 3.0])  # K capped at n
+
+
+def test_mouth_similarities_hand_computed():
+    # five photos that differ only by point 31 (iBUG 48, a mouth corner) moved right by d_i px;
+    # rigid points are identical, so the Procrustes step is the identity. Centring the 18 mouth
+    # points moves that point by d (17/18) and the others by -d/18: the mouth distance between
+    # photos a and b is |d_a - d_b| sqrt(17/18) / IOD
+    d = np.array([0.0, 1.0, 2.0, 4.0, 8.0])
+    F = np.repeat(M[None], 5, axis=0)
+    F[:, 31, 0] += d
+    model = fit_expression_model(F, neighbours=2)
+    iod = iod49(F.mean(axis=0))
+    target = M.copy()
+    target[31, 0] += 1.5
+    s = model.similarities(target)  # (3 regions, 5 photos)
+    dist = np.abs(d - 1.5) * math.sqrt(17 / 18) / iod
+    sigma = np.sort(dist)[1] / 2  # 2nd nearest photo / 2
+    np.testing.assert_allclose(s[0], np.exp(-dist**2 / (2 * sigma**2)), rtol=1e-9)
+    # the eyes did not change: every photo is as similar as the best
+    np.testing.assert_allclose(s[1], 1.0)
+    # batched targets give the same numbers
+    np.testing.assert_allclose(model.similarities(np.stack([target, target]))[1], s)
+    assert model.summary()["mouth"]["neighbours"] == 2
+    with pytest.raises(BadInputError):
+        fit_expression_model(F[:2])
+    with pytest.raises(BadInputError):
+        fit_expression_model(F, neighbours=(2, 3))
+
+
+def test_region_masks_partition_and_feather():
+    m = region_masks(P68, (240, 192))
+    assert m.shape == (3, 240, 192) and m.min() >= 0
+    np.testing.assert_allclose(m.sum(axis=0), 1.0, atol=1e-6)
+    mouth_c = np.round((P68[48] + P68[54]) / 2).astype(int)
+    eye_c = np.round(P68[36:42].mean(axis=0)).astype(int)
+    assert m[0, mouth_c[1], mouth_c[0]] > 0.99 and m[1, mouth_c[1], mouth_c[0]] < 0.01
+    assert m[1, eye_c[1], eye_c[0]] > 0.97 and m[0, eye_c[1], eye_c[0]] < 0.01
+    assert m[2, 5, 5] > 0.99  # far from both: the rest of the face
+    # feathered: no jump between neighbouring pixels larger than a Gaussian edge of 0.12 IOD allows
+    assert max(np.abs(np.diff(m, axis=1)).max(), np.abs(np.diff(m, axis=2)).max()) < 0.1
+    sup = face_support(P68, (240, 192))
+    assert sup[mouth_c[1], mouth_c[0]] > 0.99 and sup[2, 2] < 0.01
+
+
+def test_cut_small_hand_computed():
+    S = np.array([[0.5, 0.05, 0.3, 0.15]])
+    # mass 0.9: the smallest weights holding < 10 % of the total go (0.05; 0.05 + 0.15 = 0.2 stays)
+    np.testing.assert_allclose(_cut_small(S, 0.9), [[0.5, 0.0, 0.3, 0.15]])
+    np.testing.assert_allclose(_cut_small(S, 0.9, max_photos=2), [[0.5, 0.0, 0.3, 0.0]])
+    np.testing.assert_allclose(_cut_small(S, 1.0), S)
