@@ -11,7 +11,11 @@ target <= 0.5 s), the peak resident memory of a worker, and whether the outputs 
 The machine's load average before and after each engine is printed: the speed-up of a shared
 machine is only as good as its idle cores.
 
-    python benchmarks/batch.py [--data FOLDER_OF_PORTRAITS] [--pairs 20] [--size 128] [--iters 10,10,10]
+    python benchmarks/batch.py [--data DATA] [--pairs 20] [--size 128] [--iters 10,10,10]
+
+DATA (or $FACETEX_DATA) is the data root holding ``frl-london/`` or a folder of ``NNN_neutral.jpg``
+portraits: the pairs are of different people, chosen as ``facetex bench transfer`` chooses them.
+Without either, the bundled samples (every image with every other, 30 ordered pairs).
 """
 
 from __future__ import annotations
@@ -30,7 +34,8 @@ def load() -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", help="folder of portraits (default: the bundled samples, 30 ordered pairs)")
+    ap.add_argument("--data", help="data root holding frl-london/, or a folder of NNN_neutral.jpg portraits "
+                                   "(default: $FACETEX_DATA, else the bundled samples)")
     ap.add_argument("--pairs", type=int, default=20)
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--iters", default="10,10,10")
@@ -42,8 +47,18 @@ def main() -> None:
     from facetex._resources import sample_path
     from facetex.batch import LocalEngine, RayEngine, pairs_from_folders, run_batch, transfer_items
 
-    data = Path(args.data) if args.data else sample_path()
-    rows = pairs_from_folders(data, data, args.pairs)
+    if args.data or os.environ.get("FACETEX_DATA"):
+        from facetex.bench._common import data_folder, data_root, list_portraits, select_pairs
+
+        data = data_folder(data_root(args.data), "frl-london")
+        portraits = list_portraits(data, tag="neutral")
+        rows = [{"content": str(portraits[c]), "style": str(portraits[s]), "source": f"{c} x {s}"}
+                for c, s in select_pairs(list(portraits), args.pairs)]
+    else:
+        data = sample_path()
+        rows = pairs_from_folders(data, data, args.pairs)
+    if len(rows) < args.pairs:
+        print(f"only {len(rows)} pairs in {data} (asked {args.pairs})")
     iters = tuple(int(v) for v in args.iters.split(","))
     cpus = available_cpus()
     root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="facetex-batch-bench-"))

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import children
+from _procs import children
 from facetex._resources import sample_path
 from facetex.cli import main
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 import _tasks
-from conftest import HERE
+from _procs import HERE
 from facetex._resources import sample_path
 from facetex.batch import Item, LocalEngine, RayEngine, run_batch, transfer_items, pairs_from_folders
 
@@ -260,7 +260,7 @@ def test_sigterm_stops_a_local_ray_batch_and_its_ray(tmp_path, ray_before):
            str(sample_path()), "--pairs", "3", "--size", "96", "--iters", "2,2,2", "--out", str(out),
            "--engine", "ray", "-q"]
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([REPO] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
-    from conftest import children
+    from _procs import children
     from test_cli_batch import _alive
 
     proc, procs = _start_and_wait_running(cmd, env, out, n_running=1)
