@@ -244,12 +244,11 @@ def _choose_holdout(files: list[Path], holdout: int, seed: int, params, progress
 
 
 def _build_item(p: dict) -> dict:
-    """The persona build as an engine item (a Ray task): what ``facetex.build_persona`` does for a
-    user, saved to the run folder's cache file."""
-    import facetex
+    """The persona build as an engine item (a Ray task): the same build as the local run's,
+    saved to the run folder's cache file."""
+    from ..persona import build_persona
 
-    facetex.build_persona(p["data"], jobs=p["jobs"], files=p["files"], params=p["params"]).save(
-        p["cache"], overwrite=True)
+    build_persona(p["data"], jobs=p["jobs"], files=p["files"], params=p["params"]).save(p["cache"], overwrite=True)
     return {"cache": p["cache"]}
 
 
