@@ -135,6 +135,8 @@ def _run(args, kind: str, items, out: Path) -> int:
         if args.quiet:
             return
         if bar is None:
+            if not remaining:  # all done already (a resume): no empty bar
+                return
             bar = tqdm(total=remaining, desc=f"batch {kind}", unit="item", file=sys.stderr, dynamic_ncols=True)
         post = {"done": done, "failed": failed, "left": remaining}
         if waiting or done_elsewhere:

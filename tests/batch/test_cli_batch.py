@@ -61,8 +61,10 @@ def test_batch_transfer_equals_the_api_and_resumes(tmp_path, capsys, no_leftover
         np.array_equal(np.asarray(facetex.io.read_image_uint8(second)), facetex.io.to_uint8(img))
     # resumed: nothing is computed again
     assert main(["batch", "transfer", str(pairs), "--out", str(out), "--jobs", "2", *SMALL, "--json"]) == 0
-    s = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    s = json.loads(captured.out)
     assert (s["done"], s["skipped_done"], s["failed"]) == (0, 2, 0)
+    assert "batch transfer" not in captured.err  # nothing left to do: no empty progress bar
     # other settings into the same folder: refused before any work
     assert main(["batch", "transfer", str(pairs), "--out", str(out), "--size", "128", "--iters", "2,2,2"]) == 2
     assert "made with other settings" in capsys.readouterr().err
