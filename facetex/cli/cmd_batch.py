@@ -109,24 +109,30 @@ def _argv() -> list[str]:
     return shlex.split(command_line())
 
 
-def _out_dir(args, inputs=()) -> Path:
-    from ..bench._common import check_out_dir
+def _check_out(args, inputs=()) -> Path:
+    """--out, checked without creating it (that happens once the engine has started)."""
     from ..errors import OutputError
 
     out = Path(args.out)
     for d in inputs:
         if d and out.resolve() == Path(d).resolve():
             raise OutputError(f"--out is the input folder {d}: write the outputs to another folder", path=out)
-    return check_out_dir(out)
+    if out.exists() and not out.is_dir():
+        raise OutputError("output path exists and is not a folder: choose another --out", path=out)
+    return out
 
 
-def _run(args, kind: str, items, out: Path) -> int:
+def _run(args, kind: str, items, inputs=()) -> int:
+    """Start the engine, then make the output folder (an engine that cannot start, e.g. Ray
+    unreachable, leaves nothing behind) and run the items."""
     import signal
 
     from tqdm import tqdm
 
     from ..batch import run_batch
+    from ..bench._common import check_out_dir
 
+    out = _check_out(args, inputs)
     engine = _engine(args)
     bar = None
 
@@ -150,6 +156,7 @@ def _run(args, kind: str, items, out: Path) -> int:
 
     try:
         with engine:
+            out = check_out_dir(out)
             summary = run_batch(items, out, engine, retry_failed=args.retry_failed, max_retries=args.max_retries,
                                 claim_timeout=args.claim_timeout, progress=progress,
                                 record={"command": f"batch {kind}", "command_line": " ".join(_argv()),
@@ -215,8 +222,7 @@ def run_transfer(args) -> int:
     _engine(args)  # option errors before any output folder is made
     items = transfer_items(rows, args.out, method=args.method, preset=args.preset, seed=args.seed, size=args.size,
                            iters=args.iters, device=args.device, cpus=args.cpus_per_item, argv=_argv())
-    out = _out_dir(args, [args.contents, args.styles])
-    return _run(args, "transfer", items, out)
+    return _run(args, "transfer", items, [args.contents, args.styles])
 
 
 def run_persona(args) -> int:
@@ -225,11 +231,10 @@ def run_persona(args) -> int:
     _engine(args)
     items, ignored = persona_items(args.people_dir, args.out, min_photos=args.min_photos,
                                    allow_mixed=args.allow_mixed, cpus=args.cpus_per_item, argv=_argv())
-    out = _out_dir(args, [args.people_dir])
     if ignored and not args.quiet:
         print(f"facetex: left out {len(ignored)} subfolder(s) without photos: {', '.join(ignored[:5])}",
               file=sys.stderr)
-    return _run(args, "persona", items, out)
+    return _run(args, "persona", items, [args.people_dir])
 
 
 def run_puppet(args) -> int:
@@ -239,5 +244,4 @@ def run_puppet(args) -> int:
     items = puppet_items(args.drivers, args.puppets, args.out, size=args.size, mode=args.mode,
                          side_by_side=args.side_by_side, lighting=args.lighting, texture=args.texture,
                          weights=args.weights, max_frames=args.max_frames, cpus=args.cpus_per_item, argv=_argv())
-    out = _out_dir(args, [args.drivers, args.puppets])
-    return _run(args, "puppet", items, out)
+    return _run(args, "puppet", items, [args.drivers, args.puppets])

@@ -21,6 +21,7 @@ def test_ray_missing_is_one_line_saying_what_to_install(tmp_path, capsys, monkey
     assert main(_args(tmp_path)) == 2
     err = capsys.readouterr().err.strip()
     assert err == "facetex: error: --engine ray needs Ray: pip install 'facetex[ray]' (or pip install 'ray[client]')"
+    assert not (tmp_path / "o").exists()  # no output folder
 
 
 @pytest.mark.parametrize("scheme", ["", "ray://"])
@@ -34,6 +35,7 @@ def test_unreachable_cluster_is_one_line_naming_the_address(tmp_path, capsys, sc
     err = capsys.readouterr().err.strip()
     assert err == (f"facetex: error: cannot reach the Ray cluster at {address}: Connection refused (is `ray start "
                    "--head` running there, and the port open?)")
+    assert not (tmp_path / "o").exists()  # the engine starts before the output folder is made
 
 
 def test_bad_address_syntax(tmp_path, capsys):
