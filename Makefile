@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml setup.py tools/install_torch.sh
 	python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	bash tools/install_torch.sh $(PY)
-	$(PY) -m pip install -q -e '.[test]'
+	$(PY) -m pip install -q -e '.[test,ray]'
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -243,8 +243,19 @@ def _choose_holdout(files: list[Path], holdout: int, seed: int, params, progress
     return held, rest
 
 
-def load_or_build(data: Path, out: Path, holdout: int, seed: int, jobs: int, progress=None, params=None):
-    """(persona without the held-out photos (cached in ``out``), held-out records, built?, build s)."""
+def _build_item(p: dict) -> dict:
+    """The persona build as an engine item (a Ray task): the same build as the local run's,
+    saved to the run folder's cache file."""
+    from ..persona import build_persona
+
+    build_persona(p["data"], jobs=p["jobs"], files=p["files"], params=p["params"]).save(p["cache"], overwrite=True)
+    return {"cache": p["cache"]}
+
+
+def load_or_build(data: Path, out: Path, holdout: int, seed: int, jobs: int, progress=None, params=None,
+                  engine=None):
+    """(persona without the held-out photos (cached in ``out``), held-out records, built?, build s).
+    ``engine`` (started): the build runs there as one item of ``jobs`` CPUs (e.g. on a Ray cluster)."""
     from ..persona import PersonaParams, build_persona, load_persona
     from ..persona.collection import _list_photos
 
@@ -264,7 +275,14 @@ def load_or_build(data: Path, out: Path, holdout: int, seed: int, jobs: int, pro
         except Exception:  # noqa: BLE001 - a stale cache is rebuilt
             persona = None
     built = persona is None
-    if built:
+    if built and engine is not None:  # the build is one task of ``jobs`` CPUs on the engine (a Ray cluster)
+        from ..batch import Resources, map_items
+
+        map_items(engine, _build_item, [{"data": str(data.resolve()), "jobs": jobs, "cache": str(cache.resolve()),
+                                         "files": [str(f) for f in rest], "params": params}],
+                  resources=Resources(cpus=jobs))
+        persona = load_persona(cache)
+    elif built:
         persona = build_persona(data, files=rest, jobs=jobs, progress=progress, params=params)
         persona.save(cache, overwrite=True)
     return persona, held, built, time.perf_counter() - t0
@@ -338,11 +356,13 @@ COLUMNS = [Column("method", "method"), Column("n", "targets"),
 def run_bench_persona(data, *, holdout: int = 20, seed: int = 0, out="bench_out/persona",
                       jobs: int = 2, sigma: float = 10.0, exact: int = 0, grid_rows: int = 8,
                       weights: str = "regional", neighbours: int | None = None,
-                      progress: Callable | None = None) -> dict:
+                      progress: Callable | None = None, engine=None) -> dict:
     """Run the leave-out evaluation; returns {"rows": per-method means, "targets": per-target
     records, "files": written paths, "table"}. ``weights``/``neighbours``: the "ours" row's
     weights; ``sigma``: the global (paper) weights' sigma. ``exact`` > 0 also runs the paper's
-    per-target pipeline (``precomputed=False``, slow) on that many targets."""
+    per-target pipeline (``precomputed=False``, slow) on that many targets. ``engine``
+    (:mod:`facetex.batch.engines`, started): the build runs as one item of ``jobs`` CPUs there
+    (default: here, on ``jobs`` worker processes)."""
     import dataclasses
 
     from ..persona import TextureParams, synthesize_texture
@@ -352,7 +372,7 @@ def run_bench_persona(data, *, holdout: int = 20, seed: int = 0, out="bench_out/
         raise BadInputError(f"--holdout must be at least 1, got {holdout}")
     out = check_out_dir(out)
     data = Path(data)
-    persona, held, built, t_build = load_or_build(data, out, holdout, seed, jobs, progress)
+    persona, held, built, t_build = load_or_build(data, out, holdout, seed, jobs, progress, engine=engine)
     tp = TextureParams(weights=weights, sigma=sigma)
     if neighbours is not None:
         tp = dataclasses.replace(tp, neighbours=int(neighbours))
@@ -439,6 +459,9 @@ def register_bench(sub) -> None:
                    help="sigma of the paper's global weights (default 10)")
     p.add_argument("--exact", type=bounded_int(0), default=0, metavar="N",
                    help="also run the paper's per-target pipeline on N targets (slow)")
+    from ..cli._common import add_engine_options
+
+    add_engine_options(p, jobs=False)  # --engine ray: the build runs as one task of --jobs CPUs on the cluster
     p.set_defaults(func=_run_cli)
 
 
@@ -454,10 +477,16 @@ def _run_cli(args) -> int:
         raise BadInputError("--neighbours applies to --weights regional (the global weights take --sigma)")
     n = len(_list_photos(data))
     total = args.holdout + 2 * max(0, n - args.holdout) + args.holdout  # hold-out choice, build, targets
-    with progress_bar(total=total, desc="bench persona", unit="step", disable=args.quiet) as update:
+    import contextlib
+
+    from ..cli._common import engine_from_args
+
+    engine = engine_from_args(args) if args.engine == "ray" else None  # local: the build's own --jobs workers
+    with engine or contextlib.nullcontext(), \
+            progress_bar(total=total, desc="bench persona", unit="step", disable=args.quiet) as update:
         res = run_bench_persona(data, holdout=args.holdout, seed=args.seed, out=args.out, jobs=args.jobs,
                                 sigma=args.sigma, exact=args.exact, weights=args.weights,
-                                neighbours=args.neighbours, progress=update)
+                                neighbours=args.neighbours, progress=update, engine=engine)
     finish_bench(args, "persona", args.out, res["files"], inputs={"data": data}, settings={"data": str(data)},
                  summary={"rows": res["rows"]}, table=res["table"])
     return 0

@@ -416,14 +416,38 @@ def _data_paths(data, drivers, puppet) -> tuple[Path, Path]:
     return Path(drivers), Path(puppet)
 
 
+_WORKER_CACHE: dict = {}  # persona file -> (persona, identity reference), per worker process
+
+
+def _bench_item(p: dict):
+    """One item of the benchmark in a worker (``engine``): a clip's evaluation or the partial-face
+    check; the persona is loaded (and its identity reference computed) once per worker."""
+    from ..persona import load_persona
+    from ..persona.puppet import PuppetParams
+
+    if p["kind"] == "partial":
+        return _partial_check(Path(p["clip"]), Path(p["out"]), p["max_frames"])
+    if p["persona_file"] not in _WORKER_CACHE:
+        persona = load_persona(p["persona_file"])
+        _WORKER_CACHE.clear()
+        _WORKER_CACHE[p["persona_file"]] = (persona, _collection_descriptor(persona))
+    persona, ref = _WORKER_CACHE[p["persona_file"]]
+    return _evaluate_clip(Path(p["clip"]), persona, ref, Path(p["out"]), size=p["size"], max_frames=p["max_frames"],
+                          params=PuppetParams(shape=p["shape"], weights=p["weights"]), write_media=p["write_media"],
+                          progress=None)
+
+
 def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, data=None, clips: int | None = None,
                      size: int | None = 256, max_frames: int | None = None, texture_shape: str = "collection",
-                     weights: str = "regional", partial: bool = True, progress: Callable | None = None) -> dict:
+                     weights: str = "regional", partial: bool = True, progress: Callable | None = None,
+                     engine=None) -> dict:
     """Run the puppetry benchmark: every ``*.mpg`` / ``*.mp4`` in ``drivers`` (the first ``clips``)
     drives the persona ``puppet`` (a .persona file, or a photo folder built once and cached in
     ``out``); ``data`` (or FACETEX_DATA) supplies the defaults ``grid/`` and
     ``lfw/George_W_Bush``. Writes table.md, table.csv, results.json, per clip a contact sheet,
     a 100 % sheet and zoomed crops, and for the first clip a side-by-side MP4.
+    ``engine`` (:mod:`facetex.batch.engines`, started): the clips (and the partial-face check)
+    run as its items, in parallel; default: one after another in this process.
     Returns {"out", "rows", "summary", "partial", "files", "targets_met"}."""
     from ..io import write_json
     from ..persona.puppet import PuppetParams
@@ -443,11 +467,31 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, data=
     ref = _collection_descriptor(persona)
     params = PuppetParams(shape=texture_shape, weights=weights)
     params.texture_params()  # unknown weights: an error before any work
-    rows = []
-    for k, clip in enumerate(files):
-        rows.append(_evaluate_clip(clip, persona, ref, out, size=size, max_frames=max_frames, params=params,
-                                   write_media=(k == 0), progress=progress))
-    part = _partial_check(files[0], out, max_frames) if partial else None
+    from ..batch.engines import InlineEngine
+
+    if engine is None or isinstance(engine, InlineEngine):
+        rows = []
+        for k, clip in enumerate(files):
+            rows.append(_evaluate_clip(clip, persona, ref, out, size=size, max_frames=max_frames, params=params,
+                                       write_media=(k == 0), progress=progress))
+        part = _partial_check(files[0], out, max_frames) if partial else None
+    else:
+        from ..batch import map_items
+
+        items = [{"kind": "clip", "clip": str(c), "persona_file": str(Path(persona_file).resolve()),
+                  "out": str(out.resolve()), "size": size, "max_frames": max_frames, "shape": texture_shape,
+                  "weights": weights, "write_media": k == 0} for k, c in enumerate(files)]
+        if partial:
+            items.append({"kind": "partial", "clip": str(files[0]), "out": str(out.resolve()),
+                          "max_frames": max_frames})
+
+        def done(n=1, index=0, result=None):
+            if progress and items[index]["kind"] == "clip":
+                progress(n=int(result.get("frames", 1)), clip=Path(items[index]["clip"]).name)
+
+        results = map_items(engine, _bench_item, items, progress=done)
+        rows = results[: len(files)]
+        part = results[len(files)] if partial else None
     summary = {"clip": "mean"}
     for c in COLUMNS[1:]:
         vals = [r[c.key] for r in rows if isinstance(r.get(c.key), (int, float)) and np.isfinite(r[c.key])]
@@ -520,6 +564,10 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
     p.add_argument("--weights", choices=("regional", "global"), default="regional",
                    help="expression weights of the puppet's texture: regional (default) or the paper's global")
     p.add_argument("--no-partial", action="store_true", help="skip the half-out-of-frame check")
+    from ..cli._common import add_engine_options
+
+    add_engine_options(p, jobs_default=1, jobs_help="local: worker processes, one clip each (default 1: the clips "
+                                                    "one after another in this process); ray: clips in flight")
     p.set_defaults(func=_run)
     return p
 
@@ -542,11 +590,13 @@ def _run(args) -> int:
         except Exception:  # noqa: BLE001 - the run itself reports a bad clip
             n = 0
         total += min(n, args.max_frames) if args.max_frames else n
-    with progress_bar(total=total or None, desc="bench puppet", unit="frame", disable=args.quiet) as bar:
+    from ..cli._common import engine_from_args
+
+    with engine_from_args(args, inline_single=True) as engine, \
+            progress_bar(total=total or None, desc="bench puppet", unit="frame", disable=args.quiet) as bar:
         res = run_bench_puppet(drivers, puppet, args.out, clips=args.clips, size=args.size,
                                max_frames=args.max_frames, texture_shape=args.shape, weights=args.weights,
-                               partial=not args.no_partial,
-                               progress=bar)
+                               partial=not args.no_partial, progress=bar, engine=engine)
     table = Path(res["files"]["table_md"]).read_text(encoding="utf-8")
     finish_bench(args, "puppet", res["out"], res["files"], inputs={"drivers": drivers, "puppet": puppet},
                  settings={"drivers": str(drivers), "puppet": str(puppet)},

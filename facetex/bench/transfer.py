@@ -254,11 +254,64 @@ def _write_grid(path, out, pairs, paths, methods, records) -> Path:
     return write_grid(path, rows, col_titles=titles, cell_labels=labels, cell=256)
 
 
+def _load_pair(content_path, style_path) -> dict:
+    """Content and style images, their landmarks and the style aligned onto the content."""
+    from ..geometry.morph import align_style_to_content
+    from ..landmarks import detect_face
+
+    d = {"content": read_image(content_path), "style": read_image(style_path)}
+    d["points_c"] = detect_face(d["content"], source=content_path).points68
+    d["points_s"] = detect_face(d["style"], source=style_path).points68
+    # one aligned style per pair for every method's detail ratio (same for all)
+    d["aligned"] = align_style_to_content(d["style"], d["content"], style_points=d["points_s"],
+                                          content_points=d["points_c"], refine=None, interpolation="lanczos").image
+    return d
+
+
+def _transfer_item(job: dict) -> dict:
+    """One (pair, method) of the benchmark: transfer, score, write the image, its info and its
+    result record (last). An engine item: run here (``job["load"]`` shares the pair's images
+    between its methods) or in a worker, which gets paths only."""
+    c, s, method, out = job["content"], job["style"], job["method"], Path(job["out"])
+    d = job["load"]() if job.get("load") else _load_pair(job["content_path"], job["style_path"])
+    metrics_fn = job.get("metrics_fn") or _default_metrics
+    transfer_fn = job.get("transfer_fn") or _default_transfer_fn()
+    options, preset, seed, device = job["options"], job["preset"], job["seed"], job["device"]
+    key, image_path = job["key"], out / "images" / f"{job['key']}.png"
+    extra = {"aligned_style": d["aligned"]} if metrics_fn is _default_metrics else {}
+    t0 = time.perf_counter()
+    output, info = transfer_fn(d["content"], d["style"], method=method, preset=preset, seed=seed,
+                               device=device, progress=job.get("progress"), **options)
+    wall = time.perf_counter() - t0
+    info = dict(info or {})
+    images = info.pop("images", None) or {}
+    # score what is saved (8-bit), so re-measuring the PNG gives the same numbers
+    output = to_uint8(np.asarray(output, dtype=np.float32)).astype(np.float32) / 255.0
+    metrics, error = _score(output, d["content"], d["style"], d["points_c"], d["points_s"], metrics_fn, extra)
+    write_image(image_path, output, overwrite=True)
+    if method == "facetex" and images.get("style_native") is not None and info.get("region_box"):
+        # the pre-warped style the optimiser got, in the content's frame
+        x0, y0, x1, y1 = info["region_box"]
+        pre = d["content"].copy()
+        pre[y0:y1, x0:x1] = images["style_native"]
+        write_image(out / "images" / f"{ResultStore.key(c, s, 'prewarp')}.png", pre, overwrite=True)
+    write_json(image_path.with_suffix(".json"), json_safe({
+        "content": job["content_path"], "style": job["style_path"], "method": method,
+        "preset": preset, "seed": int(seed), "device": device, "options": options,
+        "wall_s": wall, **no_image_data(dict(info or {})), "versions": job["versions"]}), overwrite=True)
+    rec = {"content": c, "style": s, "method": method, "config": job["config"], "metrics": metrics,
+           "metrics_error": error, "wall_s": wall, "prewarp_folds": info.get("prewarp_folds"),
+           "timings": dict(info.get("timings", {})),
+           "image": str(image_path.relative_to(out))}
+    ResultStore(out / "results").put(key, rec)  # last: its presence marks the item done
+    return rec
+
+
 def run_bench_transfer(data, out="bench_out/transfer", *, pairs: int = 5,
                        methods: Sequence[str] | str = METHODS, preset: str = "default", seed: int = 0,
                        size: int | None = None, iters=None, device: str = "cpu", overwrite: bool = False,
                        transfer_fn: Callable | None = None, metrics_fn: Callable | None = None,
-                       progress: Callable | None = None) -> dict:
+                       progress: Callable | None = None, engine=None) -> dict:
     """Run the FaceTex §3.1 benchmark and write its tables, figures and per-pair results to ``out``.
 
     ``transfer_fn(content, style, *, method, preset, seed, device, progress, **options)``
@@ -267,6 +320,8 @@ def run_bench_transfer(data, out="bench_out/transfer", *, pairs: int = 5,
     results in ``out`` are reused unless ``overwrite``; a stored result made with other
     settings raises OutputError. ``progress(n, **postfix)`` advances once per (pair,
     method) and gets ``n=0`` updates with the transfer's own iteration count.
+    ``engine`` (:mod:`facetex.batch.engines`, started): the (pair, method) transfers run as its
+    items (``transfer_fn`` / ``metrics_fn`` must then be picklable); default: one after another here.
     Returns the output paths, the Table 1 rows and the counts of run / reused items."""
     methods = parse_methods(methods)
     if preset not in PRESETS:
@@ -292,25 +347,33 @@ def run_bench_transfer(data, out="bench_out/transfer", *, pairs: int = 5,
                 "n_pairs": len(chosen), "pairs_requested": int(pairs), "size": size, "device": device,
                 "versions": versions()}
 
+    from ..batch import map_items
+    from ..batch.engines import InlineEngine
+
     records: dict[tuple[str, str, str], dict] = {}
     n_run = n_reused = 0
+    here = engine is None or isinstance(engine, InlineEngine)
+    jobs: list[dict] = []
+
+    def finished(batch):
+        def done(n=1, index=0, result=None):
+            nonlocal n_run
+            job = batch[index]
+            records[(job["content"], job["style"], job["method"])] = result
+            n_run += 1
+            if progress:
+                progress(n=1, pair=f"{job['content']}/{job['style']}", method=job["method"], done="run")
+        return done
+
     for c, s in chosen:
         loaded: dict = {}
 
         def load():
             if not loaded:
-                from ..geometry.morph import align_style_to_content
-                from ..landmarks import detect_face
-
-                loaded["content"], loaded["style"] = read_image(portraits[c]), read_image(portraits[s])
-                loaded["points_c"] = detect_face(loaded["content"], source=portraits[c]).points68
-                loaded["points_s"] = detect_face(loaded["style"], source=portraits[s]).points68
-                # one aligned style per pair for every method's detail ratio (same for all)
-                loaded["aligned"] = align_style_to_content(
-                    loaded["style"], loaded["content"], style_points=loaded["points_s"],
-                    content_points=loaded["points_c"], refine=None, interpolation="lanczos").image
+                loaded.update(_load_pair(portraits[c], portraits[s]))
             return loaded
 
+        pair_jobs = []
         for method in (NONE,) + tuple(methods):
             key = store.key(c, s, method)
             config = _item_config(method, portraits[c], portraits[s], preset, seed,
@@ -327,9 +390,9 @@ def run_bench_transfer(data, out="bench_out/transfer", *, pairs: int = 5,
                 if progress and method != NONE:
                     progress(n=1, pair=f"{c}/{s}", method=method, done="reused")
                 continue
-            d = load()
-            extra = {"aligned_style": d["aligned"]} if metrics_fn is _default_metrics else {}
             if method == NONE:
+                d = load()
+                extra = {"aligned_style": d["aligned"]} if metrics_fn is _default_metrics else {}
                 metrics, error = _score(d["content"], d["content"], d["style"], d["points_c"], d["points_s"],
                                         metrics_fn, extra)
                 rec = {"content": c, "style": s, "method": NONE, "config": config, "metrics": metrics,
@@ -337,36 +400,21 @@ def run_bench_transfer(data, out="bench_out/transfer", *, pairs: int = 5,
                 store.put(key, rec)
                 records[(c, s, method)] = rec
                 continue
-            t0 = time.perf_counter()
-            output, info = transfer_fn(d["content"], d["style"], method=method, preset=preset, seed=seed,
-                                       device=device, progress=_inner_progress(progress, method), **options)
-            wall = time.perf_counter() - t0
-            info = dict(info or {})
-            images = info.pop("images", None) or {}
-            # score what is saved (8-bit), so re-measuring the PNG gives the same numbers
-            output = to_uint8(np.asarray(output, dtype=np.float32)).astype(np.float32) / 255.0
-            metrics, error = _score(output, d["content"], d["style"], d["points_c"], d["points_s"], metrics_fn, extra)
-            write_image(image_path, output, overwrite=True)
-            if method == "facetex" and images.get("style_native") is not None and info.get("region_box"):
-                # the pre-warped style the optimiser got, in the content's frame
-                x0, y0, x1, y1 = info["region_box"]
-                pre = d["content"].copy()
-                pre[y0:y1, x0:x1] = images["style_native"]
-                write_image(out / "images" / f"{store.key(c, s, 'prewarp')}.png", pre, overwrite=True)
-            write_json(image_path.with_suffix(".json"), json_safe({
-                "content": str(portraits[c]), "style": str(portraits[s]), "method": method,
-                "preset": preset, "seed": int(seed), "device": device, "options": options,
-                "wall_s": wall, **no_image_data(dict(info or {})), "versions": settings["versions"]}), overwrite=True)
-            rec = {"content": c, "style": s, "method": method, "config": config, "metrics": metrics,
-                   "metrics_error": error, "wall_s": wall, "prewarp_folds": info.get("prewarp_folds"),
-                   "timings": dict(info.get("timings", {})),
-                   "image": str(image_path.relative_to(out))}
-            store.put(key, rec)  # last: its presence marks the item done
-            records[(c, s, method)] = rec
-            n_run += 1
-            if progress:
-                progress(n=1, pair=f"{c}/{s}", method=method, done="run")
-        _write_pair_zoom(out, c, s, portraits, methods, records, load)
+            pair_jobs.append({"key": key, "content": c, "style": s, "method": method, "out": str(out.resolve()),
+                              "content_path": str(portraits[c]), "style_path": str(portraits[s]), "preset": preset,
+                              "seed": seed, "device": device, "options": options, "config": config,
+                              "versions": settings["versions"], "transfer_fn": transfer_fn, "metrics_fn": metrics_fn,
+                              **({"load": load, "progress": _inner_progress(progress, method)} if here else {})})
+        if here:  # one after another, as before: the pair's images are loaded once for all its methods
+            map_items(InlineEngine(), _transfer_item, pair_jobs, progress=finished(pair_jobs))
+            _write_pair_zoom(out, c, s, portraits, methods, records, load)
+        else:  # the engine's workers load the pair themselves
+            jobs += pair_jobs
+    if not here:
+        map_items(engine, _transfer_item, jobs, progress=finished(jobs))
+        for c, s in chosen:
+            _write_pair_zoom(out, c, s, portraits, methods, records,
+                             lambda c=c, s=s: _load_pair(portraits[c], portraits[s]))
 
     rows = _summary_rows(records, chosen, (NONE,) + tuple(methods))
     files = {"table_md": out / "table.md", "table_csv": out / "table.csv", "grid": out / "grid.png",
@@ -412,6 +460,10 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
                         "(default: the preset's)")
     add_seed_device(p)
     add_overwrite(p)
+    from ..cli._common import add_engine_options
+
+    add_engine_options(p, jobs_default=1, jobs_help="local: worker processes, one (pair, method) each (default 1: "
+                                                    "one after another in this process); ray: items in flight")
     p.set_defaults(func=run)
     return p
 
@@ -425,10 +477,13 @@ def run(args) -> int:
     data = data_folder(data_root(args.data), DATA_SUBFOLDER)
     n_people = len(list_portraits(data, tag="neutral"))
     total = max(1, min(int(args.pairs), n_people * (n_people - 1))) * len(methods)
-    with progress_bar(total=total, desc="bench transfer", unit="run", disable=args.quiet) as update:
+    from ..cli._common import engine_from_args
+
+    with engine_from_args(args, inline_single=True) as engine, \
+            progress_bar(total=total, desc="bench transfer", unit="run", disable=args.quiet) as update:
         result = run_bench_transfer(data, args.out, pairs=args.pairs, methods=methods, preset=args.preset,
                                     seed=args.seed, size=args.size, iters=args.iters, device=args.device,
-                                    overwrite=args.overwrite, progress=update)
+                                    overwrite=args.overwrite, progress=update, engine=engine)
     table = Path(result["files"]["table_md"]).read_text(encoding="utf-8")
     finish_bench(args, "transfer", result["out"], result["files"], inputs={"data": data},
                  settings={"data": str(data)},

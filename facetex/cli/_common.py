@@ -169,3 +169,34 @@ def progress_bar(total: int | None = None, desc: str = "", unit: str = "it", *, 
             bar.refresh()
     finally:
         bar.close()
+
+
+def add_engine_options(parser: argparse.ArgumentParser, *, jobs: bool = True, jobs_default: int | None = None,
+                       jobs_help: str | None = None) -> None:
+    """``--engine local|ray``, ``--jobs N``, ``--address``, ``--cpus-per-item``: where the items of
+    a batch or a benchmark run (see :mod:`facetex.batch.engines`)."""
+    g = parser.add_argument_group("engine (where the items run)")
+    g.add_argument("--engine", choices=("local", "ray"), default="local",
+                   help="local (default): worker processes on this machine; ray: tasks on a Ray cluster "
+                        "(pip install 'facetex[ray]')")
+    if jobs:
+        g.add_argument("--jobs", type=bounded_int(1, 4096), default=jobs_default, metavar="N",
+                       help=jobs_help or "local: worker processes (default: the available CPUs); ray: items in "
+                                         "flight at once (default: the cluster's CPUs / --cpus-per-item)")
+    g.add_argument("--address", metavar="ADDR",
+                   help="--engine ray: the cluster, auto | HOST:PORT | ray://HOST:PORT (default: start a local Ray "
+                        "on this machine, stopped at the end)")
+    g.add_argument("--cpus-per-item", type=bounded_int(1, 1024), metavar="N",
+                   help="CPUs (torch threads) of one item (default: local, the CPUs / --jobs; ray, 1)")
+
+
+def engine_from_args(args, *, inline_single: bool = False):
+    """The engine the ``--engine`` options ask for (not started)."""
+    from ..batch.engines import make_engine
+    from ..errors import BadInputError
+
+    if args.address and args.engine != "ray":
+        raise BadInputError("--address needs --engine ray")
+    return make_engine(args.engine, jobs=getattr(args, "jobs", None), address=args.address,
+                       cpus_per_item=args.cpus_per_item, device=getattr(args, "device", "cpu"),
+                       inline_single=inline_single)

@@ -90,6 +90,25 @@ def test_outputs_have_table1_structure(done):
     assert "Neural Style" in md and "FaceTex" in md
 
 
+def test_pairs_run_one_after_another_each_loaded_once_with_its_zoom_sheet(data, tmp_path, monkeypatch):
+    """Sequential run: a pair's images are loaded once for all its methods, and its zoom sheet is
+    written before the next pair starts (an intermediate save; memory holds one pair)."""
+    loads, zooms_seen = [], []
+    real = bench._load_pair
+    monkeypatch.setattr(bench, "_load_pair", lambda c, s: loads.append((c, s)) or real(c, s))
+    out = tmp_path / "b"
+    fake = FakeTransfer()
+
+    def watched(*a, **kw):
+        zooms_seen.append(len(list((out / "zoom").glob("*.png"))))
+        return fake(*a, **kw)
+
+    result = _run(data, out, watched)
+    assert result["n_run"] == 4 and len(loads) == 2 and len(set(loads)) == 2
+    assert zooms_seen == [0, 0, 1, 1]
+    assert len(list((out / "zoom").glob("*.png"))) == 2 and (out / "zoom.png").is_file()
+
+
 def test_real_metrics_of_a_content_heavy_blend(data, tmp_path):
     out = tmp_path / "out"
     _run(data, out, FakeTransfer(), pairs=1, methods="facetex", metrics_fn=None)
@@ -310,3 +329,31 @@ def test_image_grid_layout():
     assert g.shape == (20 + 64 + 4, 2 * 64 + 6, 3) and g.dtype == np.uint8
     cell0 = g[22:86, 2:66]
     assert cell0[:, 32].min() == 0 and cell0[:, 0].min() == 128  # fitted, centred on grey
+
+
+@pytest.mark.slow
+def test_engine_gives_the_sequential_results(data, tmp_path):
+    """Two local workers: the same images and numbers as one after another (one torch thread each)."""
+    import torch
+
+    from facetex.batch import LocalEngine
+
+    kw = dict(pairs=2, methods="facetex,mrf", size=96, iters=(2, 2, 2))
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        seq = bench.run_bench_transfer(data, tmp_path / "seq", **kw)
+    finally:
+        torch.set_num_threads(threads)
+    with LocalEngine(2, threads=1) as eng:
+        par = bench.run_bench_transfer(data, tmp_path / "par", engine=eng, **kw)
+    assert (seq["n_run"], par["n_run"]) == (4, 4)
+    for name in sorted(p.name for p in (tmp_path / "seq" / "images").glob("*.png")):
+        assert (tmp_path / "seq" / "images" / name).read_bytes() == (tmp_path / "par" / "images" / name).read_bytes()
+    for a, b in zip(seq["table"], par["table"]):
+        assert {k: v for k, v in a.items() if k != "time_s"} == pytest.approx(
+            {k: v for k, v in b.items() if k != "time_s"}, nan_ok=True)
+    for name in ("zoom.png", "grid.png"):  # the figures, from the same images
+        assert (tmp_path / "seq" / name).read_bytes() == (tmp_path / "par" / name).read_bytes()
+    resumed = bench.run_bench_transfer(data, tmp_path / "par", **kw)
+    assert (resumed["n_run"], resumed["n_reused"]) == (0, 4)

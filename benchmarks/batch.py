@@ -1,0 +1,130 @@
+"""Batch engines on 20 small transfers: local 1 worker, local 2 workers, Ray with 2 CPUs.
+
+The same 20 (content, style) pairs (FaceTex, --size 128, --iters 10,10,10 by default) run through
+``facetex.batch.run_batch`` on each engine, each into a fresh folder. Printed per engine: items
+per minute over the run (worker start-up and model loading included; the engine's own start,
+e.g. ``ray.init``, reported apart), the speed-up over local 1 worker (target >= 1.7 with 2
+workers on a 2-core machine), the first item's time (start-up), the per-item scheduling
+overhead on Ray (time from submit to result minus the time the item ran inside the worker;
+target <= 0.5 s), the peak resident memory of a worker, and whether the outputs equal local
+2 workers' bit for bit. "local 1 worker" gets all CPUs as torch threads (``cpus // workers``).
+The machine's load average before and after each engine is printed: the speed-up of a shared
+machine is only as good as its idle cores.
+
+    python benchmarks/batch.py [--data DATA] [--pairs 20] [--size 128] [--iters 10,10,10]
+
+DATA (or $FACETEX_DATA) is the data root holding ``frl-london/`` or a folder of ``NNN_neutral.jpg``
+portraits: the pairs are of different people, chosen as ``facetex bench transfer`` chooses them.
+Without either, the bundled samples (every image with every other, 30 ordered pairs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+
+def load() -> str:
+    return " ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", help="data root holding frl-london/, or a folder of NNN_neutral.jpg portraits "
+                                   "(default: $FACETEX_DATA, else the bundled samples)")
+    ap.add_argument("--pairs", type=int, default=20)
+    ap.add_argument("--size", type=int, default=128)
+    ap.add_argument("--iters", default="10,10,10")
+    ap.add_argument("--engines", default="local1,local2,ray2", help="comma-separated subset of local1,local2,ray2")
+    ap.add_argument("--keep", help="keep the output folders under this folder")
+    args = ap.parse_args()
+
+    from facetex._parallel import available_cpus
+    from facetex._resources import sample_path
+    from facetex.batch import LocalEngine, RayEngine, pairs_from_folders, run_batch, transfer_items
+
+    if args.data or os.environ.get("FACETEX_DATA"):
+        from facetex.bench._common import data_folder, data_root, list_portraits, select_pairs
+
+        data = data_folder(data_root(args.data), "frl-london")
+        portraits = list_portraits(data, tag="neutral")
+        rows = [{"content": str(portraits[c]), "style": str(portraits[s]), "source": f"{c} x {s}"}
+                for c, s in select_pairs(list(portraits), args.pairs)]
+    else:
+        data = sample_path()
+        rows = pairs_from_folders(data, data, args.pairs)
+    if len(rows) < args.pairs:
+        print(f"only {len(rows)} pairs in {data} (asked {args.pairs})")
+    iters = tuple(int(v) for v in args.iters.split(","))
+    cpus = available_cpus()
+    root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="facetex-batch-bench-"))
+    root.mkdir(parents=True, exist_ok=True)
+    configs = {"local1": ("local, 1 worker", lambda: LocalEngine(1)),
+               "local2": ("local, 2 workers", lambda: LocalEngine(2)),
+               "ray2": ("Ray, 2 CPUs (local Ray)", lambda: RayEngine(num_cpus=2))}
+    results = []
+    print(f"{len(rows)} pairs from {data}, size {args.size}, iters {args.iters}, {cpus} CPUs available; "
+          f"outputs in {root}")
+    for name in args.engines.split(","):
+        title, make = configs[name]
+        out = root / name
+        shutil.rmtree(out, ignore_errors=True)
+        out.mkdir()
+        before = load()
+        t0 = time.perf_counter()
+        engine = make()
+        with engine:
+            t_start = time.perf_counter() - t0
+            s = run_batch(transfer_items(rows, out, size=args.size, iters=iters), out, engine)
+            desc = engine.describe()
+        assert s.ok and s.done == len(rows), s.as_dict()
+        stats = s.item_stats
+        overhead = [r["overhead_s"] for r in stats]
+        results.append({
+            "name": name, "title": title, "slots": desc.get("workers") or desc.get("slots"),
+            "threads": desc.get("threads_per_worker") or desc.get("cpus_per_item"), "start_s": t_start,
+            "wall_s": s.seconds, "per_min": 60.0 * s.done / s.seconds,
+            "first_s": max(r["seconds"] for r in stats), "median_item_s": sorted(r["seconds"] for r in stats)[len(stats) // 2],
+            "overhead_mean": sum(overhead) / len(overhead), "overhead_max": max(overhead),
+            "rss_mb": max(r["peak_rss_mb"] or 0 for r in stats), "workers_seen": len({r["pid"] for r in stats}),
+            "load_before": before, "load_after": load(), "out": out,
+        })
+        print(f"  {title}: {s.seconds:.1f} s, load {before} -> {results[-1]['load_after']}", flush=True)
+
+    base = next((r for r in results if r["name"] == "local1"), None)
+    ref = next((r for r in results if r["name"] == "local2"), None)
+
+    def same(r):
+        if ref is None or r is ref:
+            return "–"
+        a = sorted(p.name for p in ref["out"].glob("*.png"))
+        return "yes" if all((ref["out"] / n).read_bytes() == (r["out"] / n).read_bytes() for n in a) else "no"
+
+    print()
+    print("| engine | workers × threads | engine start s | run s | items / min | speed-up vs local 1 | "
+          "slowest item s (start-up) | median item s | overhead / item s (mean, max) | peak RSS / worker MB | "
+          "outputs = local 2 | load before → after |")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|")
+    for r in results:
+        speed = f"{r['per_min'] / base['per_min']:.2f}×" if base else "–"
+        print(f"| {r['title']} | {r['slots']} × {r['threads']} | {r['start_s']:.1f} | {r['wall_s']:.1f} | "
+              f"{r['per_min']:.1f} | {speed} | {r['first_s']:.1f} | {r['median_item_s']:.2f} | "
+              f"{r['overhead_mean']:.3f}, {r['overhead_max']:.3f} | {r['rss_mb']:.0f} | {same(r)} | "
+              f"{r['load_before']} → {r['load_after']} |")
+    if base and ref:
+        sp = ref["per_min"] / base["per_min"]
+        print(f"\nspeed-up with 2 workers: {sp:.2f}× (target >= 1.7: {'met' if sp >= 1.7 else 'NOT met'})")
+    ray = next((r for r in results if r["name"] == "ray2"), None)
+    if ray:
+        print(f"Ray scheduling overhead per item: mean {ray['overhead_mean']:.3f} s, max {ray['overhead_max']:.3f} s "
+              f"(target <= 0.5 s: {'met' if ray['overhead_mean'] <= 0.5 else 'NOT met'})")
+    if not args.keep:
+        shutil.rmtree(root, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

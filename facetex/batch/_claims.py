@@ -1,0 +1,169 @@
+"""Item claims that hold across processes and hosts sharing an output folder.
+
+A claim is a file ``<folder>/<key>.<generation>`` created with ``O_CREAT | O_EXCL``: of several
+processes (on one host or on several hosts sharing the folder over NFS, which honours
+exclusive creates) exactly one creates it. Its holder refreshes the file's modification time
+while the item runs (:meth:`Claims.heartbeat`); a claim whose time is older than ``timeout``
+seconds, or whose holder is a process of this host that no longer exists, has *expired*.
+An expired claim is never deleted by the next claimer (two claimers could then both
+"take over"): the next claimer exclusively creates the *next generation* ``<key>.<n+1>``
+instead, so there is always exactly one winner. The holder removes its generation and the
+older ones when it is done.
+
+Clocks of the hosts must agree to within ``timeout`` (NTP); the default timeout is generous.
+This is hand-written: file locks (``fcntl``) do not hold across NFS clients reliably and
+leave nothing to inspect after a crash.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import time
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = ["Claims", "Claim", "run_id"]
+
+_HOST = socket.gethostname()
+
+
+def run_id() -> str:
+    """A unique id of this run: UTC time, host, pid, random suffix."""
+    return f"{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}-{_HOST}-{os.getpid()}-{uuid.uuid4().hex[:6]}"
+
+
+def _proc_start(pid: int) -> str | None:
+    """The start time of a process of this host (Linux ``/proc``), to tell a reused pid apart."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            return fh.read().rsplit(b")", 1)[1].split()[19].decode()
+    except (OSError, IndexError):
+        return None
+
+
+def _alive(pid: int, start: str | None) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return start is None or _proc_start(pid) in (None, start)
+
+
+@dataclass
+class Claim:
+    key: str
+    path: Path
+    generation: int
+
+
+class Claims:
+    """Claims of items in ``folder`` by this process (run ``run``)."""
+
+    def __init__(self, folder, *, timeout: float = 300.0, run: str | None = None):
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.timeout = float(timeout)
+        self.run = run or run_id()
+        self._me = {"run": self.run, "host": _HOST, "pid": os.getpid(), "pid_start": _proc_start(os.getpid())}
+        self.held: dict[str, Claim] = {}
+
+    def _path(self, key: str, gen: int) -> Path:
+        return self.folder / f"{key}.{gen}"
+
+    def _current(self, key: str) -> int:
+        """Highest existing generation of ``key`` (-1: none)."""
+        gen = -1
+        while self._path(key, gen + 1).exists():
+            gen += 1
+        # a holder removes its generation and the older ones: look a little past a gap
+        for g in range(gen + 2, gen + 4):
+            if self._path(key, g).exists():
+                return self._current_from(key, g)
+        return gen
+
+    def _current_from(self, key: str, gen: int) -> int:
+        while self._path(key, gen + 1).exists():
+            gen += 1
+        return gen
+
+    def holder(self, key: str) -> dict | None:
+        """Who holds ``key`` now (``{run, host, pid, age_s, expired}``), or None when free."""
+        gen = self._current(key)
+        if gen < 0:
+            return None
+        p = self._path(key, gen)
+        try:
+            st = p.stat()
+            info = json.loads(p.read_text(encoding="utf-8") or "{}")
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError):
+            info = {}
+        info = dict(info, generation=gen, age_s=max(0.0, time.time() - st.st_mtime))
+        info["expired"] = self._expired(info)
+        return info
+
+    def _expired(self, info: dict) -> bool:
+        if info.get("age_s", 0.0) > self.timeout:
+            return True
+        if info.get("host") == _HOST and isinstance(info.get("pid"), int):
+            return not _alive(info["pid"], info.get("pid_start"))
+        return False
+
+    def acquire(self, key: str) -> Claim | None:
+        """Claim ``key``: the Claim, or None when another live process holds it."""
+        if key in self.held:
+            return self.held[key]
+        for _ in range(8):  # a generation may be created between our look and our create
+            gen = self._current(key)
+            if gen >= 0:
+                info = self.holder(key)
+                if info is not None and info["generation"] == gen and not info["expired"]:
+                    return None
+            path = self._path(key, gen + 1)
+            try:
+                fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+            except FileExistsError:
+                continue
+            with os.fdopen(fd, "w", encoding="utf-8") as fh:
+                json.dump(dict(self._me, claimed_utc=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())), fh)
+            claim = Claim(key, path, gen + 1)
+            self.held[key] = claim
+            return claim
+        return None
+
+    def heartbeat(self) -> None:
+        """Refresh every held claim (its modification time), so it does not expire."""
+        for c in list(self.held.values()):
+            try:
+                os.utime(c.path)
+            except FileNotFoundError:  # removed by hand: claim it again
+                try:
+                    fd = os.open(c.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+                    os.close(fd)
+                except OSError:
+                    pass
+            except OSError:
+                pass
+
+    def release(self, key: str) -> None:
+        """Give ``key`` up: remove our generation and the (expired) older ones."""
+        c = self.held.pop(key, None)
+        if c is None:
+            return
+        for g in range(c.generation, -1, -1):
+            try:
+                self._path(key, g).unlink()
+            except FileNotFoundError:
+                pass
+            except OSError:
+                break
+
+    def release_all(self) -> None:
+        for k in list(self.held):
+            self.release(k)

@@ -1,0 +1,297 @@
+"""The three batch workloads: their items (what to compute, where it goes) and the function a
+worker runs for one item.
+
+Each worker function calls the public API (:func:`facetex.transfer_with_info`,
+:func:`facetex.build_persona`, :func:`facetex.puppeteer`) exactly as a user's script would, and
+commits the output together with its provenance sidecar (``OUT.json``, the same record the
+single-item command writes) through :func:`facetex.io.write_files`: both files or neither,
+never replacing an existing file.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import os
+import re
+import time
+from pathlib import Path
+from typing import Sequence
+
+from ..errors import BadInputError, OutputError
+from ._run import Item
+from .engines import Resources
+
+__all__ = ["transfer_items", "persona_items", "puppet_items", "read_pairs_csv", "pairs_from_folders",
+           "run_transfer_item", "run_persona_item", "run_puppet_item", "item_key", "TRANSFER_COLUMNS",
+           "DRIVER_EXTENSIONS"]
+
+TRANSFER_COLUMNS = ("content", "style", "method", "preset", "seed")
+DRIVER_EXTENSIONS = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".mpg", ".mpeg", ".webm")
+_IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".webp", ".bmp")
+
+
+def item_key(*parts) -> str:
+    """A file-name-safe item key (letters, digits, ``_``, ``-``; no dots) from ``parts`` joined by ``__``."""
+    return "__".join(re.sub(r"[^A-Za-z0-9_-]+", "-", str(p)).strip("-") or "x" for p in parts)
+
+
+def _commit(files: dict, inputs=()) -> str | None:
+    """Write ``files`` ({path: bytes or callable(tmp)}) as one (exclusive creates). When all of
+    them already exist (another run computed the item after its claim expired) that is not an
+    error: returns a note instead."""
+    from ..io import write_files
+
+    try:
+        write_files(files, overwrite=False, inputs=inputs)
+    except OutputError:
+        if all(os.path.lexists(p) for p in files):
+            return "written by another run"
+        raise
+    return None
+
+
+def _provenance(command: str, payload: dict, **kw) -> dict:
+    from .._provenance import provenance
+
+    return provenance(command=command, argv=payload.get("argv"), batch=payload.get("batch"), **kw)
+
+
+# ------------------------------------------------------------------------------ transfer
+def run_transfer_item(p: dict) -> dict:
+    """One transfer: ``facetex.transfer_with_info(content, style, ...)`` -> OUT.png + OUT.png.json."""
+    import facetex
+    from ..io import encode_image, encode_json
+
+    t0 = time.perf_counter()
+    options = {k: p[k] for k in ("size", "iters") if p.get(k) is not None}
+    image, info = facetex.transfer_with_info(p["content"], p["style"], method=p["method"], preset=p["preset"],
+                                             seed=int(p["seed"]), device=p["device"], **options)
+    info.pop("images", None)
+    info.setdefault("timings", {})["wall_s"] = time.perf_counter() - t0
+    out = p["output"]
+    sidecar = f"{out}.json"
+    record = _provenance("batch transfer", p, seed=int(p["seed"]),
+                         inputs={"content": p["content"], "style": p["style"]},
+                         params={**(info.get("params") or {}), "method": p["method"], "preset": p["preset"],
+                                 "device": p["device"], "command_line_options": options},
+                         outputs=[out], result=info)
+    note = _commit({out: encode_image(out, image), sidecar: encode_json(record)}, inputs=[p["content"], p["style"]])
+    return {"outputs": [out, sidecar], "note": note, "timings": info.get("timings")}
+
+
+def read_pairs_csv(path) -> list[dict]:
+    """Rows of a pairs CSV: a header with ``content`` and ``style`` (and optionally ``method``,
+    ``preset``, ``seed``), then one pair per line. Relative paths are relative to the CSV's
+    folder. One-line errors name the file and line."""
+    from ..io import check_input_file
+
+    path = check_input_file(path, BadInputError, what="pairs CSV file")
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError:
+        raise BadInputError("not a UTF-8 text file: give a CSV file with columns content,style", path=path) from None
+    reader = csv.DictReader(text.splitlines())
+    cols = [c.strip().lower() for c in (reader.fieldnames or [])]
+    if "content" not in cols or "style" not in cols:
+        raise BadInputError(f"the first line must name the columns: content,style[,method,preset,seed] (got "
+                            f"{','.join(cols) or 'nothing'})", path=path)
+    unknown = [c for c in cols if c not in TRANSFER_COLUMNS]
+    if unknown:
+        raise BadInputError(f"unknown column {unknown[0]!r}: the columns are {', '.join(TRANSFER_COLUMNS)}", path=path)
+    reader.fieldnames = cols
+    rows = []
+    for row in reader:
+        line = reader.line_num
+        r = {k: (v or "").strip() for k, v in row.items() if k is not None}
+        if not any(r.values()):
+            continue
+        if None in row:
+            raise BadInputError(f"line {line} has more fields than the header", path=path)
+        for k in ("content", "style"):
+            if not r.get(k):
+                raise BadInputError(f"line {line}: the {k} image is missing", path=path)
+            p = Path(r[k]).expanduser()
+            r[k] = str(p if p.is_absolute() else (path.parent / p))
+        r["source"] = f"{path}:{line}"
+        rows.append(r)
+    if not rows:
+        raise BadInputError("no pairs in the file (only a header?)", path=path)
+    return rows
+
+
+def _images(folder, what: str) -> list[Path]:
+    from ..io import check_input_dir
+
+    d = check_input_dir(folder, BadInputError, what=what)
+    files = sorted(p for p in d.iterdir() if p.is_file() and p.suffix.lower() in _IMAGE_EXTS
+                   and not p.name.startswith("."))
+    if not files:
+        raise BadInputError(f"no images ({', '.join(_IMAGE_EXTS)}) in the {what}", path=d)
+    return files
+
+
+def pairs_from_folders(contents, styles, pairs: int | str = "all", *, seed: int = 0) -> list[dict]:
+    """(content, style) rows: every image of ``contents`` with every image of ``styles`` (not
+    with itself), or ``pairs`` of them ranked by a hash of the two names and ``seed`` (adding
+    images keeps the other pairs' order)."""
+    cs, ss = _images(contents, "contents folder"), _images(styles, "styles folder")
+    combos = [(c, s) for c in cs for s in ss if os.path.abspath(c) != os.path.abspath(s)]
+    if not combos:
+        raise BadInputError("no (content, style) pair of two different images", path=contents)
+    if pairs != "all":
+        n = int(pairs)
+        if n < 1:
+            raise BadInputError(f"--pairs must be 'all' or at least 1, not {pairs}")
+
+        def rank(cs):
+            return hashlib.sha256(f"{int(seed)}\0{cs[0].name}\0{cs[1].name}".encode()).hexdigest()
+
+        combos = sorted(combos, key=rank)[:n]
+    return [{"content": str(c), "style": str(s), "source": f"{c.name} x {s.name}"} for c, s in combos]
+
+
+def transfer_items(rows: Sequence[dict], out, *, method: str = "facetex", preset: str = "default", seed: int = 0,
+                   size: int | None = None, iters=None, device: str = "cpu", cpus: int | None = None,
+                   argv=None) -> list[Item]:
+    """Items of ``facetex batch transfer``: per row ``OUT/<content>__<style>__<method>[__<preset>]
+    [__seed<N>].png`` (+ ``.png.json``). A row's method / preset / seed override the defaults."""
+    from ..io import check_input_file
+    from ..transfer.methods import METHODS, PRESETS
+
+    out = Path(out).resolve()
+    items = []
+    checked: set[str] = set()
+    for r in rows:
+        where = r.get("source", "")
+        m = (r.get("method") or method).lower()
+        pr = (r.get("preset") or preset).lower()
+        if m not in METHODS:
+            raise BadInputError(f"{where}: unknown method {m!r}: use one of {', '.join(METHODS)}")
+        if pr not in PRESETS:
+            raise BadInputError(f"{where}: unknown preset {pr!r}: use one of {', '.join(PRESETS)}")
+        try:
+            sd = int(r["seed"]) if r.get("seed") not in (None, "") else int(seed)
+        except ValueError:
+            raise BadInputError(f"{where}: seed must be an integer, not {r['seed']!r}") from None
+        for k in ("content", "style"):
+            if r[k] not in checked:
+                try:
+                    check_input_file(r[k], BadInputError, what=f"{k} image")
+                except BadInputError as e:
+                    raise type(e)(f"{e.message} ({where})" if where else e.message, path=e.path) from None
+                checked.add(r[k])
+        content, style = str(Path(r["content"]).resolve()), str(Path(r["style"]).resolve())
+        parts = [Path(content).stem, Path(style).stem, m] + ([pr] if pr != "default" else []) + \
+            ([f"seed{sd}"] if sd != 0 else [])
+        key = item_key(*parts)
+        output = str(out / f"{key}.png")
+        config = {"content": content, "style": style, "method": m, "preset": pr, "seed": sd, "size": size,
+                  "iters": list(iters) if iters is not None else None, "device": device}
+        payload = dict(config, output=output, argv=argv, source=where)
+        items.append(Item(key, "transfer", run_transfer_item, payload, (output, f"{output}.json"), config,
+                          Resources(cpus=cpus or 0, gpus=1.0 if device.startswith("cuda") else 0.0)))
+    return items
+
+
+# ------------------------------------------------------------------------------- persona
+def run_persona_item(p: dict) -> dict:
+    """One persona: ``facetex.build_persona(folder, ...)`` -> NAME.persona + NAME.persona.json."""
+    import facetex
+    from ..io import encode_json
+
+    t0 = time.perf_counter()
+    jobs = int(p.get("jobs") or os.environ.get("OMP_NUM_THREADS") or 1)  # the item's CPU budget
+    persona = facetex.build_persona(p["photo_dir"], jobs=jobs, min_photos=int(p["min_photos"]),
+                                    allow_mixed=bool(p["allow_mixed"]))
+    out = p["output"]
+    record = _provenance("batch persona", p, inputs={"photo_dir": p["photo_dir"]},
+                         params={"jobs": jobs, "min_photos": p["min_photos"], "allow_mixed": p["allow_mixed"],
+                                 "persona_params": persona.params},
+                         outputs=[out], photos_used=len(persona), skipped=persona.skipped,
+                         seconds=time.perf_counter() - t0)
+    note = _commit({out: lambda tmp: persona.save(tmp, overwrite=True), f"{out}.json": encode_json(record)})
+    return {"outputs": [out, f"{out}.json"], "note": note, "photos_used": len(persona),
+            "skipped": len(persona.skipped)}
+
+
+def persona_items(people_dir, out, *, min_photos: int = 10, allow_mixed: bool = False, cpus: int | None = None,
+                  argv=None) -> tuple[list[Item], list[str]]:
+    """Items of ``facetex batch persona``: one ``OUT/<name>.persona`` per subfolder of
+    ``people_dir`` that holds photos. Returns (items, names of subfolders left out)."""
+    from ..io import check_input_dir
+
+    root = check_input_dir(people_dir, BadInputError, what="people folder")
+    out = Path(out).resolve()
+    items, ignored = [], []
+    for d in sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith(".")):
+        if not any(f.is_file() and f.suffix.lower() in _IMAGE_EXTS for f in d.iterdir()):
+            ignored.append(d.name)
+            continue
+        key = item_key(d.name)
+        output = str(out / f"{key}.persona")
+        config = {"photo_dir": str(d.resolve()), "min_photos": int(min_photos), "allow_mixed": bool(allow_mixed)}
+        payload = dict(config, output=output, jobs=cpus, argv=argv, source=str(d))
+        items.append(Item(key, "persona", run_persona_item, payload, (output, f"{output}.json"), config,
+                          Resources(cpus=cpus or 0)))
+    if not items:
+        raise BadInputError("no subfolder with photos: give a folder with one subfolder of photos per person",
+                            path=root)
+    return items, ignored
+
+
+# -------------------------------------------------------------------------------- puppet
+def run_puppet_item(p: dict) -> dict:
+    """One puppet video: ``facetex.puppeteer(driver, persona, ...)`` -> OUT.mp4 + OUT.mp4.json."""
+    import facetex
+    from ..io import encode_json
+
+    out = p["output"]
+    report: dict = {}
+    opts = {k: p[k] for k in ("side_by_side", "size", "mode", "lighting", "texture", "weights", "max_frames")}
+
+    def video(tmp):
+        report.update(facetex.puppeteer(p["driver"], p["puppet"], tmp, overwrite=True, **opts))
+        report["output"] = out
+
+    def sidecar(tmp):
+        Path(tmp).write_bytes(encode_json(_provenance(
+            "batch puppet", p, inputs={"driver": p["driver"], "puppet": p["puppet"]}, params=opts,
+            outputs=[out], result=report)))
+
+    note = _commit({out: video, f"{out}.json": sidecar}, inputs=[p["driver"], p["puppet"]])
+    return {"outputs": [out, f"{out}.json"], "note": note, "frames": report.get("frames"),
+            "lost_frames": report.get("lost_frames")}
+
+
+def puppet_items(drivers, puppets, out, *, size: int | None = None, mode: str = "composite",
+                 side_by_side: bool = False, lighting: str = "stats", texture: str = "ours",
+                 weights: str = "regional", max_frames: int | None = None, cpus: int | None = None,
+                 argv=None) -> list[Item]:
+    """Items of ``facetex batch puppet``: every driver video of ``drivers`` with every
+    ``.persona`` of ``puppets`` -> ``OUT/<driver>__<puppet>.mp4``."""
+    from ..io import check_input_dir
+
+    ddir = check_input_dir(drivers, BadInputError, what="drivers folder")
+    pdir = check_input_dir(puppets, BadInputError, what="puppets folder")
+    clips = sorted(f for f in ddir.iterdir() if f.is_file() and f.suffix.lower() in DRIVER_EXTENSIONS
+                   and not f.name.startswith("."))
+    if not clips:
+        raise BadInputError(f"no driver videos ({', '.join(DRIVER_EXTENSIONS)})", path=ddir)
+    personas = sorted(f for f in pdir.iterdir() if f.is_file() and f.suffix.lower() == ".persona"
+                      and not f.name.startswith("."))
+    if not personas:
+        raise BadInputError("no .persona files (build them with `facetex batch persona`)", path=pdir)
+    out = Path(out).resolve()
+    items = []
+    for c in clips:
+        for pp in personas:
+            key = item_key(c.stem, pp.stem)
+            output = str(out / f"{key}.mp4")
+            config = {"driver": str(c.resolve()), "puppet": str(pp.resolve()), "size": size, "mode": mode,
+                      "side_by_side": bool(side_by_side), "lighting": lighting, "texture": texture,
+                      "weights": weights, "max_frames": max_frames}
+            payload = dict(config, output=output, argv=argv, source=f"{c.name} x {pp.name}")
+            items.append(Item(key, "puppet", run_puppet_item, payload, (output, f"{output}.json"), config,
+                              Resources(cpus=cpus or 0)))
+    return items

@@ -1,0 +1,357 @@
+"""Running a batch: claim, schedule, retry, record; and ``map_items`` for the benches.
+
+:func:`run_batch` runs every item of a list on an engine, with the output folder as the only
+shared state: finished items (outputs present, record "done") are skipped, failed items are
+skipped unless ``retry_failed``, items claimed by another live run are left to it (and waited
+for), and a worker that dies fails only its item, which is run again up to ``max_retries``
+times. An interrupt (Ctrl-C, SIGTERM) cancels the running items (their temporary files are
+removed), puts them back to "pending", releases the claims and re-raises.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Sequence
+
+from ..errors import BadInputError, OutputError
+from ._claims import Claims
+from ._state import BatchState, config_hash, utc_now
+from .engines import Engine, Outcome, Resources
+
+__all__ = ["Item", "BatchSummary", "run_batch", "map_items", "remove_item_temporaries"]
+
+_HOST = socket.gethostname()
+
+
+@dataclass
+class Item:
+    """One unit of work: ``fn(payload)`` writes ``outputs`` (absolute paths, the first one's
+    stem is ``key``) atomically with their sidecar. ``config`` is what makes the outputs what
+    they are: a finished item made with another config is an error, not a skip."""
+
+    key: str
+    kind: str
+    fn: Callable[[dict], Any]
+    payload: dict
+    outputs: tuple[str, ...]
+    config: dict
+    resources: Resources = Resources()
+
+
+@dataclass
+class BatchSummary:
+    run: str
+    out: str
+    manifest: str
+    engine: dict
+    total: int = 0
+    skipped_done: int = 0  # finished before this run
+    skipped_failed: int = 0  # failed before, not retried
+    done: int = 0  # computed by this run
+    done_elsewhere: int = 0  # computed by another run meanwhile
+    failed: int = 0
+    retried: int = 0  # worker deaths that were retried
+    remaining: int = 0
+    seconds: float = 0.0
+    computed: list = field(default_factory=list)  # keys computed by this run
+    failures: list = field(default_factory=list)  # (key, error)
+    item_stats: list = field(default_factory=list)  # per computed item: key, seconds, overhead_s, host, pid, rss
+
+    @property
+    def ok(self) -> bool:
+        return self.failed == 0 and self.skipped_failed == 0 and self.remaining == 0
+
+    def as_dict(self) -> dict:
+        d = {k: getattr(self, k) for k in ("run", "out", "manifest", "engine", "total", "skipped_done",
+                                           "skipped_failed", "done", "done_elsewhere", "failed", "retried",
+                                           "remaining", "seconds", "computed")}
+        d["failures"] = [{"item": k, "error": e} for k, e in self.failures]
+        d["rate_per_min"] = 60.0 * self.done / self.seconds if self.seconds > 0 else None
+        return d
+
+
+def remove_item_temporaries(folder: Path, key: str) -> list[Path]:
+    """Remove the temporary files an interrupted or killed item left in ``folder``: facetex's
+    atomic writers name them ``.<output name>.<random><ext>`` (and a writer nested in another
+    ``..<output name>...``), and item keys contain no dots, so ``.`` + key + ``.`` is the item's."""
+    removed = []
+    prefix = f"{key}."
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for e in entries:
+        if e.name.startswith(".") and e.name.lstrip(".").startswith(prefix) and e.is_file(follow_symlinks=False):
+            try:
+                os.unlink(e.path)
+                removed.append(Path(e.path))
+            except OSError:
+                pass
+    return removed
+
+
+def _outputs_exist(item: Item) -> list[bool]:
+    return [os.path.lexists(p) for p in item.outputs]
+
+
+def _describe_settings_change(old: dict | None, new: dict) -> str:
+    if not isinstance(old, dict):
+        return "other settings"
+    diff = [f"{k}: {old.get(k)!r} -> {new.get(k)!r}" for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
+    return "; ".join(diff[:3]) or "other settings"
+
+
+def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool = False, max_retries: int = 2,
+              claim_timeout: float = 300.0, progress: Callable[..., None] | None = None, poll: float = 1.0,
+              record: dict | None = None, wait_for_others: bool = True) -> BatchSummary:
+    """Run ``items`` on ``engine`` (started by the caller), with ``out`` as the shared state
+    (see the module docstring and :mod:`facetex.batch._state`). ``progress(**counts)`` is
+    called after every change with the counts done, failed, remaining, running, waiting (items
+    another run is computing) and done_elsewhere.
+    ``record``: extra fields for the run's record (command line, settings). Returns the
+    summary; raises OutputError before any work when a finished item was made with other
+    settings, and re-raises KeyboardInterrupt after cleaning up."""
+    out = Path(out)
+    items = list(items)
+    seen: dict[str, Item] = {}
+    for it in items:
+        if it.key in seen:
+            raise BadInputError(f"two items would write the same output {it.outputs[0]} "
+                                f"({seen[it.key].payload.get('source')} and {it.payload.get('source')})")
+        if "." in it.key:
+            raise BadInputError(f"item key {it.key!r} contains a dot")
+        seen[it.key] = it
+    state = BatchState(out)
+    claims = Claims(state.claims, timeout=claim_timeout)
+    summary = BatchSummary(run=claims.run, out=str(out), manifest=str(state.manifest), engine=engine.describe(),
+                           total=len(items))
+    hashes = {it.key: config_hash(it.config) for it in items}
+    t_start = time.perf_counter()
+
+    # -- what is left to do (checked before any work)
+    todo: deque[Item] = deque()
+    known: dict[str, dict] = {}
+    clashes = []
+    for it in items:
+        rec = state.get(it.key)
+        exists = _outputs_exist(it)
+        if rec is not None and rec.get("config_hash") not in (None, hashes[it.key]) and (
+                rec.get("state") == "done" or all(exists)):
+            clashes.append((it, rec))
+            continue
+        holder = claims.holder(it.key) if all(exists) else None
+        if all(exists) and ((rec is not None and rec.get("state") == "done") or holder is None or holder["expired"]):
+            summary.skipped_done += 1
+            if rec is None or rec.get("state") != "done":  # outputs whose record was lost: record them
+                state.put(it.key, {"kind": it.kind, "state": "done", "config_hash": hashes[it.key],
+                                   "outputs": list(it.outputs), "host": None, "note": "outputs found"})
+            continue
+        if rec is not None and rec.get("state") == "failed" and not retry_failed and \
+                rec.get("config_hash") in (None, hashes[it.key]):  # failed with other settings: try the new ones
+            summary.skipped_failed += 1
+            summary.failures.append((it.key, rec.get("error")))
+            continue
+        todo.append(it)
+        if rec is None:
+            known[it.key] = {"kind": it.kind, "state": "pending"}
+    if clashes:
+        it, rec = clashes[0]
+        raise OutputError(f"holds {len(clashes)} item(s) made with other settings (e.g. {it.key}: "
+                          f"{_describe_settings_change(rec.get('config'), it.config)}): choose another --out, or "
+                          "remove those outputs", path=out)
+
+    running: dict[int, dict] = {}  # handle -> {item, attempt, submitted}
+    elsewhere: dict[str, Item] = {}  # claimed by another run
+    attempts: dict[str, int] = {}
+    heartbeat_every = max(1.0, min(30.0, claim_timeout / 5.0))
+    last_beat = last_look = time.monotonic()
+
+    def report():
+        summary.remaining = len(todo) + len(running) + len(elsewhere)
+        if progress:
+            progress(done=summary.done, failed=summary.failed, remaining=summary.remaining,
+                     running=len(running), waiting=len(elsewhere), done_elsewhere=summary.done_elsewhere)
+
+    def base(it: Item) -> dict:
+        return {"kind": it.kind, "config_hash": hashes[it.key], "config": it.config, "run": claims.run,
+                "outputs": list(it.outputs), "attempts": attempts.get(it.key, 0)}
+
+    def start(it: Item) -> None:
+        attempts[it.key] = attempts.get(it.key, 0) + 1
+        folder = Path(it.outputs[0]).parent
+        remove_item_temporaries(folder, it.key)
+        present = [p for p, e in zip(it.outputs, _outputs_exist(it)) if e]
+        for p in present:  # a commit cut short (killed between its renames): never half an item
+            try:
+                os.unlink(p)
+            except OSError:
+                pass
+        payload = dict(it.payload, batch={"run": claims.run, "item": it.key, "attempt": attempts[it.key],
+                                          "engine": engine.name})
+        h = engine.submit(it.fn, payload, it.resources)
+        running[h] = {"item": it, "submitted": time.time()}
+        state.put(it.key, dict(base(it), state="running", host=_HOST, pid=os.getpid(), started=utc_now(),
+                               worker_pid=engine.worker_pid(h)))
+
+    def fill() -> None:
+        while todo and len(running) < engine.slots:
+            it = todo.popleft()
+            if claims.acquire(it.key) is None:
+                elsewhere[it.key] = it
+                continue
+            rec = state.get(it.key)  # re-read under the claim: another run may have finished it
+            if rec is not None and rec.get("config_hash") == hashes[it.key]:
+                if rec.get("state") == "done" and all(_outputs_exist(it)):
+                    claims.release(it.key)
+                    summary.done_elsewhere += 1
+                    continue
+                if rec.get("state") == "failed" and rec.get("run") != claims.run and not retry_failed \
+                        and it.key not in attempts:
+                    claims.release(it.key)
+                    summary.failed += 1
+                    summary.failures.append((it.key, rec.get("error")))
+                    continue
+            start(it)
+
+    def finish(o: Outcome) -> None:
+        entry = running.pop(o.handle)
+        it: Item = entry["item"]
+        stats = o.stats or {}
+        host = stats.get("host", _HOST)
+        if o.ok:
+            value = o.value if isinstance(o.value, dict) else {}
+            state.put(it.key, dict(base(it), state="done", host=host, worker_pid=stats.get("pid"),
+                                   seconds=stats.get("seconds"), peak_rss_mb=stats.get("peak_rss_mb"),
+                                   note=value.get("note")))
+            claims.release(it.key)
+            if value.get("note") == "written by another run":
+                summary.done_elsewhere += 1
+            else:
+                summary.done += 1
+                summary.computed.append(it.key)
+                wall = (stats.get("returned") or time.time()) - entry["submitted"]
+                summary.item_stats.append({"item": it.key, "seconds": stats.get("seconds"), "wall_s": wall,
+                                           "overhead_s": wall - (stats.get("seconds") or 0.0), "host": host,
+                                           "pid": stats.get("pid"), "peak_rss_mb": stats.get("peak_rss_mb")})
+            return
+        remove_item_temporaries(Path(it.outputs[0]).parent, it.key)
+        if o.died and attempts.get(it.key, 0) <= max_retries:
+            summary.retried += 1
+            state.put(it.key, dict(base(it), state="pending", host=host, error=f"retrying: {o.error}"))
+            start(it)  # the claim is still ours
+            return
+        error = o.error or "failed"
+        if o.died:
+            error = f"{error} (attempt {attempts.get(it.key, 1)} of {max_retries + 1})"
+        state.put(it.key, dict(base(it), state="failed", host=host, error=error, error_type=o.error_type,
+                               worker_pid=stats.get("pid")))
+        claims.release(it.key)
+        summary.failed += 1
+        summary.failures.append((it.key, error))
+
+    def look_elsewhere() -> None:
+        for key in list(elsewhere):
+            it = elsewhere[key]
+            rec = state.get(key)
+            if rec is not None and rec.get("state") in ("done", "failed") and claims.holder(key) is None:
+                del elsewhere[key]
+                if rec["state"] == "done" and all(_outputs_exist(it)):
+                    summary.done_elsewhere += 1
+                elif rec["state"] == "failed" and not (retry_failed and rec.get("run") == claims.run):
+                    summary.failed += 1
+                    summary.failures.append((key, rec.get("error")))
+                else:
+                    todo.append(it)
+                continue
+            info = claims.holder(key)
+            if info is None or info["expired"]:
+                del elsewhere[key]
+                todo.appendleft(it)
+
+    try:
+        report()
+        state.write_manifest(known)
+        while todo or running or elsewhere:
+            fill()
+            report()
+            if running:
+                for o in engine.wait(timeout=poll):
+                    finish(o)
+                    report()
+            elif elsewhere and not todo:
+                if not wait_for_others:
+                    break
+                time.sleep(poll)
+            now = time.monotonic()
+            if now - last_beat >= heartbeat_every:
+                claims.heartbeat()
+                last_beat = now
+            if elsewhere and now - last_look >= max(poll, 2.0):
+                look_elsewhere()
+                last_look = now
+            state.write_manifest(known, every=2.0)
+    except BaseException:
+        engine.cancel()
+        for entry in running.values():
+            it = entry["item"]
+            remove_item_temporaries(Path(it.outputs[0]).parent, it.key)
+            try:
+                state.put(it.key, dict(base(it), state="pending", host=_HOST, error="interrupted"))
+            except OSError:
+                pass
+        summary.remaining = len(todo) + len(running) + len(elsewhere)
+        claims.release_all()
+        try:
+            state.write_manifest(known)
+        except OSError:
+            pass
+        raise
+    finally:
+        summary.seconds = time.perf_counter() - t_start
+    summary.remaining = len(todo) + len(elsewhere)
+    state.write_manifest(known)
+    state.write_run(claims.run, {**(record or {}), "run": claims.run, "host": _HOST, "pid": os.getpid(),
+                                 "finished_utc": utc_now(), "summary": summary.as_dict(),
+                                 "items": summary.item_stats})
+    report()
+    return summary
+
+
+def map_items(engine: Engine, fn: Callable, payloads: Iterable, *, resources: Resources = Resources(),
+              max_retries: int = 2, progress: Callable[..., None] | None = None) -> list:
+    """``[fn(p) for p in payloads]`` on ``engine`` (results in order), for the benches: no
+    claims and no manifest (their own result stores resume them). A worker that dies is
+    retried up to ``max_retries`` times; an item's error is raised as it was (its one line) after
+    the running items are cancelled. ``progress(n=1, index=i, result=r)`` per finished item."""
+    from ..errors import FacetexError
+
+    payloads = list(payloads)
+    results: list = [None] * len(payloads)
+    todo = deque(range(len(payloads)))
+    running: dict[int, int] = {}
+    tries = [0] * len(payloads)
+    try:
+        while todo or running:
+            while todo and len(running) < max(1, engine.slots):
+                i = todo.popleft()
+                tries[i] += 1
+                running[engine.submit(fn, payloads[i], resources)] = i
+            for o in engine.wait(timeout=1.0):
+                i = running.pop(o.handle)
+                if o.ok:
+                    results[i] = o.value
+                    if progress:
+                        progress(n=1, index=i, result=o.value)
+                elif o.died and tries[i] <= max_retries:
+                    todo.appendleft(i)
+                else:
+                    raise FacetexError(o.error or "an item failed")
+    except BaseException:
+        engine.cancel()
+        raise
+    return results

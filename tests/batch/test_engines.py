@@ -1,0 +1,88 @@
+"""The local engine: worker processes with their own thread budget; a dead worker fails only its
+item; cancel and close leave no process."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+import _tasks
+from facetex.batch.engines import InlineEngine, LocalEngine, Resources, make_engine
+
+
+def _drain(engine, n):
+    out = []
+    while len(out) < n:
+        got = engine.wait(timeout=60)
+        assert got, "the engine returned nothing within 60 s"
+        out += got
+    return {o.handle: o for o in out}
+
+
+def test_local_workers_run_items_with_their_thread_budget(no_leftover_processes):
+    with LocalEngine(2, threads=1) as eng:
+        hs = [eng.submit(_tasks.square, {"x": x}) for x in range(6)]
+        res = _drain(eng, 6)
+    assert [res[h].value["value"] for h in hs] == [x * x for x in range(6)]
+    assert {res[h].value["threads"] for h in hs} == {"1"}  # OMP_NUM_THREADS = cpus // workers
+    assert len({res[h].value["pid"] for h in hs}) == 2 and os.getpid() not in {res[h].value["pid"] for h in hs}
+    assert all(res[h].stats["seconds"] >= 0 and res[h].stats["peak_rss_mb"] > 0 for h in hs)
+
+
+def test_item_errors_are_one_line_and_do_not_stop_the_worker(no_leftover_processes):
+    with LocalEngine(1, threads=1) as eng:
+        h1, h2, h3 = eng.submit(_tasks.fail, {}), eng.submit(_tasks.crash, {}), eng.submit(_tasks.square, {"x": 3})
+        res = _drain(eng, 3)
+    assert not res[h1].ok and not res[h1].died and res[h1].error == "in.jpg: this item is bad second line"
+    assert res[h1].error_type == "BadInputError"
+    assert res[h2].error == "ZeroDivisionError: division by zero in the item"
+    assert res[h3].ok and res[h3].value["value"] == 9
+
+
+def test_a_dead_worker_fails_only_its_item_and_is_replaced(no_leftover_processes):
+    with LocalEngine(2, threads=1) as eng:
+        hs = [eng.submit(_tasks.square, {"x": 1}), eng.submit(_tasks.always_die, {}),
+              eng.submit(_tasks.square, {"x": 2}), eng.submit(_tasks.square, {"x": 3})]
+        res = _drain(eng, 4)
+    dead = res[hs[1]]
+    assert not dead.ok and dead.died and "SIGKILL" in dead.error
+    assert [res[h].value["value"] for h in (hs[0], hs[2], hs[3])] == [1, 4, 9]
+
+
+def test_cancel_stops_running_items_and_removes_their_temporary_files(tmp_path, no_leftover_processes):
+    eng = LocalEngine(2, threads=1).start()
+    try:
+        for k in range(2):
+            eng.submit(_tasks.slow_write, {"output": str(tmp_path / f"out{k}.txt"),
+                                           "started": str(tmp_path / f"started{k}")})
+        import time
+
+        t0 = time.monotonic()
+        while not all((tmp_path / f"started{k}").exists() for k in range(2)):
+            assert time.monotonic() - t0 < 60
+            time.sleep(0.1)
+        assert any(p.name.startswith(".out") for p in tmp_path.iterdir())  # the writers' temporary files
+        eng.cancel()
+    finally:
+        eng.close()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["started0", "started1"]
+
+
+def test_make_engine_choices():
+    assert isinstance(make_engine("local", jobs=1, inline_single=True), InlineEngine)
+    e = make_engine("local", jobs=2, cpus_per_item=1)
+    assert isinstance(e, LocalEngine) and e.slots == 2 and e.threads == 1
+    from facetex.errors import BadInputError
+
+    with pytest.raises(BadInputError, match="--address"):
+        make_engine("local", address="auto")
+    with pytest.raises(BadInputError, match="unknown engine"):
+        make_engine("dask")
+
+
+def test_inline_engine_runs_in_this_process():
+    eng = InlineEngine()
+    h = eng.submit(_tasks.square, {"x": 4}, Resources())
+    (o,) = eng.wait()
+    assert o.handle == h and o.value["pid"] == os.getpid() and o.value["value"] == 16
