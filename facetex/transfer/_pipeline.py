@@ -430,7 +430,7 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
                                  lbfgs_history=params.lbfgs_history, line_search=params.line_search,
                                  seed=seed, device=device, progress=progress, callback=callback,
                                  save_every=save_every, level_init=params.level_init, change_mask=change_mask,
-                                 start=start, eval_budget=params.eval_budget)
+                                 start=start, eval_budget=params.eval_budget, converge=params.converge)
     timings["optimize_s"] = info["seconds"]
 
     # back to the region's full resolution: paste the *change*, so the content's own detail

@@ -101,6 +101,7 @@ class TransferParams:
     detail_strength: float = 1.0
     lbfgs_history: int = 25
     eval_budget: float = 2.0  # loss evaluations per level ≤ this × iterations (strong-Wolfe uses 1–4 per iteration)
+    converge: tuple[int, float] | None = None  # (k, rtol): a level ends when its loss fell < rtol in k iterations
     level_init: str = "residual"  # "upsample" is CNNMRF's (see optimize_image)
     line_search: str | None = "strong_wolfe"
     vgg19_weights: str | None = None
@@ -144,6 +145,9 @@ class TransferParams:
             raise BadInputError(f"feature_transform must be None or 'softmax', not {self.feature_transform!r}")
         if not self.feature_temperature > 0:
             raise BadInputError(f"feature_temperature must be > 0, got {self.feature_temperature}")
+        if self.converge is not None and (len(self.converge) != 2 or int(self.converge[0]) < 1
+                                          or not float(self.converge[1]) >= 0):
+            raise BadInputError(f"converge must be (iterations >= 1, relative tolerance >= 0), got {self.converge!r}")
         if not 0.0 <= self.detail_strength <= 2.0:
             raise BadInputError(f"detail_strength must be in [0, 2], got {self.detail_strength}")
 

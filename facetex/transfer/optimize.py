@@ -17,8 +17,10 @@ Choices and how they differ from the authors' code (``mylib/myoptimizer.lua``):
   ``iters`` iterations (within ``eval_budget`` × iters loss evaluations; 2 by default, the
   default preset keeps torch's 1.25): when LBFGS stops early it is restarted
   with an empty history (a steepest-descent step); the level ends early only on the
-  documented convergence test: max |gradient| ≤ ``tolerance_grad`` (1e-7), or two restarts
-  in a row that lower the loss by less than 1e-7 relative (``info["levels"][k]["stop"]``).
+  documented convergence test: max |gradient| ≤ ``tolerance_grad`` (1e-7), two restarts
+  in a row that lower the loss by less than 1e-7 relative, or (``converge=(k, rtol)``, the
+  paper preset) a best loss that fell by less than ``rtol`` over the last ``k`` iterations
+  (``info["levels"][k]["stop"]``).
 - ``change_mask``: optimise ``z`` with ``x = x₀ + m ⊙ z`` instead of ``x`` (a hard
   constraint: pixels with m = 0 never change, whatever the curvature pairs do — a gradient
   mask > 0 alone is only a preconditioner under L-BFGS; findings: a pixel scaled by 0.05
@@ -88,7 +90,7 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
                    save_every: int | None = None, level_init: str = "upsample",
                    change_mask: Callable[[tuple[int, int]], torch.Tensor] | None = None,
                    tolerance_grad: float = 1e-7, start: np.ndarray | None = None,
-                   eval_budget: float = 2.0) -> tuple[np.ndarray, dict]:
+                   eval_budget: float = 2.0, converge: tuple[int, float] | None = None) -> tuple[np.ndarray, dict]:
     """Minimise Σ of the loss terms over the image pixels, coarse to fine (FaceTex Eq. 5).
 
     ``loss_builder(level, scale, (h, w))`` prepares that level's targets and returns a callable
@@ -104,6 +106,9 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
     docstring); the level init is then always "residual". ``start``: the image the first
     level starts from (default ``init``; ``init`` stays the anchor of the residual init and
     of the masked change, so only the mask's pixels start from ``start``).
+    ``converge=(k, rtol)``: a level also ends when its best loss fell by less than ``rtol``
+    (relative) over its last ``k`` iterations (checked every ``k`` iterations; L-BFGS keeps its
+    history across the checks); None: run the iterations (module docstring).
 
     Returns the final image (H, W, 3) float32 and ``info``: per-level scale, shape, seconds,
     evaluations, iterations and final value of every term; the total-loss history; settings.
@@ -188,17 +193,35 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
                 if optimizer == "lbfgs":
                     budget = max(1, int(round(eval_budget * n_iter)))
                     stalls, last = 0, None
+                    first = len(info["loss_history"])
+                    chunk = n_iter if converge is None else max(1, int(converge[0]))
+                    best_before = None  # best loss of the level at the previous convergence check
+                    opt = None
                     while iterations < n_iter:
-                        opt = torch.optim.LBFGS([var], lr=1.0 if lr is None else lr, max_iter=n_iter - iterations,
-                                                max_eval=max(1, budget - evals), history_size=lbfgs_history,
-                                                tolerance_grad=tolerance_grad, line_search_fn=line_search)
+                        ask = min(chunk, n_iter - iterations)
+                        if opt is None:
+                            opt = torch.optim.LBFGS([var], lr=1.0 if lr is None else lr, max_iter=ask,
+                                                    max_eval=max(1, budget - evals), history_size=lbfgs_history,
+                                                    tolerance_grad=tolerance_grad, line_search_fn=line_search)
+                        else:  # the next chunk of the same L-BFGS run (its history is kept)
+                            opt.param_groups[0].update(max_iter=ask, max_eval=max(1, budget - evals))
+                        done_before = int(opt.state[var].get("n_iter", 0))
                         opt.step(closure)
-                        iterations += int(opt.state[var].get("n_iter", 0))
+                        done = int(opt.state[var].get("n_iter", 0)) - done_before
+                        iterations += done
                         if iterations >= n_iter:
                             break
                         if evals >= budget:
                             stop = "evaluations"
                             break
+                        if done >= ask and converge is not None:  # the chunk ran through: convergence check
+                            best = min(info["loss_history"][first:])
+                            if best_before is not None and best_before - best <= converge[1] * abs(best_before):
+                                stop = f"converged: < {converge[1]:g} in {chunk} iterations"
+                                break
+                            best_before = best
+                            continue
+                        opt = None  # L-BFGS stopped early: restart with an empty history
                         if var.grad is not None and float(var.grad.abs().max()) <= tolerance_grad:
                             stop = "converged: gradient"
                             break

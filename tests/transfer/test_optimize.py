@@ -104,3 +104,34 @@ def test_level_init_residual_keeps_init_detail():
     assert np.allclose(res, init, atol=1e-6)  # init + upsampled (zero) change
     assert not np.allclose(up, init, atol=1e-2)  # the half-size image, upsampled: blurred
     assert info["level_init"] == "residual"
+
+
+def test_convergence_test_ends_a_level_whose_loss_stopped_falling():
+    # an ill-conditioned quadratic (weights 1e-6..1): L-BFGS keeps lowering it by tiny amounts
+    target = _target()
+    w = torch.logspace(-6, 0, target.size).reshape(1, 3, *target.shape[:2])
+    t = to_tensor(target)
+
+    def build(level, scale, shape):
+        return lambda x: {"q": (w * (x - t) ** 2).sum()}
+
+    init = np.zeros_like(target)
+    out, info = optimize_image(init, build, levels=1, iters=400, converge=(10, 0.1), clamp=False)
+    lv = info["levels"][0]
+    assert lv["stop"] == "converged: < 0.1 in 10 iterations"
+    assert 20 <= lv["iterations"] < 400 and lv["iterations"] % 10 == 0
+    h = info["loss_history"]
+    assert min(h) < 0.01 * h[0]
+    # the same level without the test runs longer
+    _, full = optimize_image(init, build, levels=1, iters=400, clamp=False)
+    assert full["levels"][0]["iterations"] > lv["iterations"]
+
+
+def test_convergence_checks_keep_the_lbfgs_history():
+    """Chunks of one L-BFGS run (a check that never fires) give the result of one uninterrupted run."""
+    target = _target(12, 12)
+    init = np.random.default_rng(1).random((12, 12, 3)).astype(np.float32)
+    a, ia = optimize_image(init, _l2_tv_builder(target), levels=1, iters=30)
+    b, ib = optimize_image(init, _l2_tv_builder(target), levels=1, iters=30, converge=(7, -1.0))
+    assert ib["levels"][0]["iterations"] == ia["levels"][0]["iterations"]
+    np.testing.assert_allclose(a, b, atol=1e-6)
