@@ -31,6 +31,10 @@ def register(sub) -> None:
                    help="expression weights of the texture: regional (default; mouth, eyes and the rest of the "
                         "face each weighted by their own fiducials, as `persona texture`) or global (the paper's "
                         "Eq. 2/3, sigma 10)")
+    p.add_argument("--correspondence", choices=("landmarks", "flow"), default="landmarks",
+                   help="driver-to-puppet correspondence of the deformation transfer: landmarks (default; a "
+                        "thin-plate spline between the two mean landmark sets) or flow (the paper's optical flow "
+                        "from the puppet's projection onto the driver's appearance subspace)")
     p.add_argument("--max-frames", type=positive_int, help="use only the first N frames")
     add_overwrite(p)
     add_quiet(p)
@@ -59,7 +63,7 @@ def run(args) -> int:
     n = video_info(args.driver)["n_frames"]
     if args.max_frames is not None:
         n = min(n, max(0, args.max_frames))
-    params = PuppetParams(texture=args.texture, weights=args.weights,
+    params = PuppetParams(texture=args.texture, weights=args.weights, correspondence=args.correspondence,
                           composite=CompositeParams(lighting=args.lighting))
     with progress_bar(2 * n, desc="puppet", unit="frame", disable=args.quiet) as bar:
         report = puppeteer(args.driver, args.puppet, args.output, driver_photos=args.driver_photos,
@@ -68,7 +72,7 @@ def run(args) -> int:
     write_json(sidecar, provenance(
         command="puppet", inputs={"driver": args.driver, "puppet": args.puppet, "driver_photos": args.driver_photos},
         params={"side_by_side": args.side_by_side, "size": args.size, "mode": args.mode, "texture": args.texture,
-                "weights": args.weights, "lighting": args.lighting, "max_frames": args.max_frames,
+                "weights": args.weights, "correspondence": args.correspondence, "lighting": args.lighting, "max_frames": args.max_frames,
                 "puppet_params": params},
         outputs=[out], result=report), overwrite=args.overwrite, inputs=inputs)
     if report["lost_frames"] and not args.quiet:

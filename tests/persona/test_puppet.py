@@ -307,3 +307,24 @@ def test_puppet_lips_open_and_close_with_the_drivers(driver_video, tiny_persona)
     assert drv.std() > 0.5  # the driver does open its mouth
     assert np.polyfit(drv, pp, 1)[0] == pytest.approx(1.0, abs=0.1)
     assert pp.mean() == pytest.approx(drv.mean(), abs=0.15 * drv.std() + 0.3)
+
+
+def test_landmark_correspondence_is_exact_at_the_landmarks_and_does_not_fold(tiny_persona):
+    from facetex.persona.puppet import landmark_correspondence
+
+    P = tiny_persona.points68.mean(axis=0)
+    c0 = P.mean(axis=0)
+    D = c0 + (P - c0) * [1.04, 0.96]  # another person's mean landmarks: a wider, shorter face
+    D[48:68, 1] += 1.5  # with a lower mouth
+    W, H = tiny_persona.size
+    c = landmark_correspondence(D, P, (H, W), smoothing=0.0)
+    at = np.stack([cv2.remap(c[..., k], D[:, :1].T.astype(np.float32), D[:, 1:].T.astype(np.float32),
+                             cv2.INTER_LINEAR)[0] for k in range(2)], -1)
+    assert np.abs(at - P).max() < 0.3
+    jy, jx = np.gradient(c, axis=(0, 1))
+    det = jx[..., 0] * jy[..., 1] - jy[..., 0] * jx[..., 1]
+    face = np.zeros((H, W), np.uint8)
+    cv2.fillConvexPoly(face, cv2.convexHull(P.astype(np.int32)), 1)
+    assert det[face > 0].min() > 0.2
+    with pytest.raises(Exception, match="68, 2"):
+        landmark_correspondence(D[:49], P, (H, W))
