@@ -27,7 +27,13 @@ Per driver video (see :mod:`facetex.persona.driver` for the motion):
    target fiducials F^T = M_P + k (F_D^i − M̄_D) (k: ratio of the eye distances): the
    persona's regional expression weights by default (:mod:`facetex.persona.weights`, the
    same blend as ``facetex persona texture``), or the paper's global Eq. 2/3 weights
-   (``weights="global"``: sigma, Laplacian exponent 1).
+   (``weights="global"``: sigma, Laplacian exponent 1). Beyond the paper, the regional weights of
+   the whole clip are made temporally coherent before blending: each frame's photo weights are
+   averaged with those of the frames within ~0.1 s that show the same expression (a bilateral
+   filter, :func:`facetex.persona.weights.temporal_weights`). Per frame, the few nearest photos
+   swap with the landmarks' jitter and a still face shimmered (bench flicker 1.3-1.7 against
+   1.2 with the global weights); the filter leaves a mouth opening alone (its frames are far
+   apart in the mouth region's coordinates).
 5. **Rendering** with the driver's head pose (orthographic, z-buffered, 2x supersampled).
    ``mode="composite"``: put into the driver's frame (:mod:`facetex.persona.composite`:
    the driver's face outline as mask, SH lighting and colour transfer, Poisson blending, the
@@ -88,7 +94,10 @@ class PuppetParams:
     texture "ours" (expression-dependent) or "static" (the average texture); weights of the
     expression-dependent texture: "regional" (ours, ``neighbours`` K of the per-region
     adaptive sigma) or "global" (the paper's Eq. 2/3 with ``sigma`` and alpha 1), see
-    :meth:`texture_params`;
+    :meth:`texture_params`; weight_smoothing: the regional weights are made temporally coherent by a
+    bilateral filter over frames (Gaussian of this many seconds) and expression distance
+    (``weight_range`` x each frame's adaptive sigma), 0 = per frame
+    (:func:`facetex.persona.weights.temporal_weights`; module doc, 4);
     plain: background colour of ``mode="face"``; composite: how the puppet is put into the
     driver's frame; supersample / supersample_composite: rasterization samples per pixel and
     axis in face / composite mode (anti-aliased silhouette; in composite mode the feathered
@@ -113,6 +122,8 @@ class PuppetParams:
     texture: str = "ours"
     weights: str = "regional"
     neighbours: int = 3
+    weight_smoothing: float = 0.12
+    weight_range: float = 1.0
     plain: tuple[float, float, float] = (0.5, 0.5, 0.5)
     composite: CompositeParams = field(default_factory=CompositeParams)
     supersample: int = 2
@@ -291,6 +302,7 @@ class Puppeteer:
         from .texture import average_face
 
         self.persona, self.motion, self.params, self.track = persona, motion, params, track
+        self._sequence_weights = None
         st = motion.grid_step
         W, H = persona.size
         if (W, H) != tuple(params.driver.size):
@@ -399,9 +411,28 @@ class Puppeteer:
 
     def textures(self, frames, method: str | None = None) -> list[np.ndarray]:
         """Textures of several frames, blended as one batch (faster per frame)."""
+        method = method or self.params.texture
+        frames = list(frames)
+        tp = self.params.texture_params()
+        if method == "ours" and tp.weights == "regional" and self.params.weight_smoothing > 0:
+            from .texture import blend_weights
+
+            return list(blend_weights(self.persona, self.sequence_weights()[frames], params=tp))
         f = [target_fiducials(self.persona, self.motion, i) for i in frames]
-        return neutral_textures(self.persona, f, method=method or self.params.texture,
-                                params=self.params.texture_params())
+        return neutral_textures(self.persona, f, method=method, params=tp)
+
+    def sequence_weights(self) -> np.ndarray:
+        """(N, R, n) temporally coherent regional weights of every frame of the clip (computed once;
+        :func:`facetex.persona.texture.sequence_weights`)."""
+        if self._sequence_weights is None:
+            from .texture import sequence_weights
+
+            fps = float(self.track.fps) if self.track is not None and self.track.fps else 25.0
+            f = np.stack([target_fiducials(self.persona, self.motion, i) for i in range(len(self.motion))])
+            self._sequence_weights = sequence_weights(self.persona, f, self.params.texture_params(),
+                                                      sigma_frames=self.params.weight_smoothing * fps,
+                                                      range_scale=self.params.weight_range)
+        return self._sequence_weights
 
     def pose(self, i: int, scale: float) -> tuple[np.ndarray, np.ndarray]:
         """(A, b): output-panel pixel = A X + b of a canonical point X in frame i (driver pixels
