@@ -32,8 +32,8 @@ Per driver video (see :mod:`facetex.persona.driver` for the motion):
    averaged with those of the frames within ~0.1 s that show the same expression (a bilateral
    filter, :func:`facetex.persona.weights.temporal_weights`). Per frame, the few nearest photos
    swap with the landmarks' jitter and a still face shimmered (bench flicker 1.3-1.7 against
-   1.2 with the global weights); the filter leaves a mouth opening alone (its frames are far
-   apart in the mouth region's coordinates).
+   1.2 with the global weights; 1.0-1.4 with the filter on 11 Bush/Blair x GRID runs); the filter
+   leaves a mouth opening alone (its frames are far apart in the mouth region's coordinates).
 5. **Rendering** with the driver's head pose (orthographic, z-buffered, 2x supersampled).
    ``mode="composite"``: put into the driver's frame (:mod:`facetex.persona.composite`:
    the driver's face outline as mask, SH lighting and colour transfer, Poisson blending, the
