@@ -433,14 +433,16 @@ def _bench_item(p: dict):
         _WORKER_CACHE[p["persona_file"]] = (persona, _collection_descriptor(persona))
     persona, ref = _WORKER_CACHE[p["persona_file"]]
     return _evaluate_clip(Path(p["clip"]), persona, ref, Path(p["out"]), size=p["size"], max_frames=p["max_frames"],
-                          params=PuppetParams(shape=p["shape"], weights=p["weights"]), write_media=p["write_media"],
+                          params=PuppetParams(shape=p["shape"], weights=p["weights"],
+                                              weight_smoothing=p["weight_smoothing"]),
+                          write_media=p["write_media"],
                           progress=None)
 
 
 def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, data=None, clips: int | None = None,
                      size: int | None = 256, max_frames: int | None = None, texture_shape: str = "collection",
-                     weights: str = "regional", partial: bool = True, progress: Callable | None = None,
-                     engine=None) -> dict:
+                     weights: str = "regional", weight_smoothing: float | None = None, partial: bool = True,
+                     progress: Callable | None = None, engine=None) -> dict:
     """Run the puppetry benchmark: every ``*.mpg`` / ``*.mp4`` in ``drivers`` (the first ``clips``)
     drives the persona ``puppet`` (a .persona file, or a photo folder built once and cached in
     ``out``); ``data`` (or FACETEX_DATA) supplies the defaults ``grid/`` and
@@ -449,6 +451,8 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, data=
     ``engine`` (:mod:`facetex.batch.engines`, started): the clips (and the partial-face check)
     run as its items, in parallel; default: one after another in this process.
     Returns {"out", "rows", "summary", "partial", "files", "targets_met"}."""
+    from dataclasses import replace
+
     from ..io import write_json
     from ..persona.puppet import PuppetParams
 
@@ -466,6 +470,10 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, data=
     persona, persona_file = _load_or_build_persona(puppet, out, progress)
     ref = _collection_descriptor(persona)
     params = PuppetParams(shape=texture_shape, weights=weights)
+    if weight_smoothing is not None:
+        if not weight_smoothing >= 0:
+            raise BadInputError(f"weight smoothing must be >= 0 seconds, got {weight_smoothing}")
+        params = replace(params, weight_smoothing=float(weight_smoothing))
     params.texture_params()  # unknown weights: an error before any work
     from ..batch.engines import InlineEngine
 
@@ -480,7 +488,8 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, data=
 
         items = [{"kind": "clip", "clip": str(c), "persona_file": str(Path(persona_file).resolve()),
                   "out": str(out.resolve()), "size": size, "max_frames": max_frames, "shape": texture_shape,
-                  "weights": weights, "write_media": k == 0} for k, c in enumerate(files)]
+                  "weights": weights, "weight_smoothing": params.weight_smoothing,
+                  "write_media": k == 0} for k, c in enumerate(files)]
         if partial:
             items.append({"kind": "partial", "clip": str(files[0]), "out": str(out.resolve()),
                           "max_frames": max_frames})
@@ -500,7 +509,7 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, data=
     table_rows = rows + [summary]
     head = (f"# Puppetry benchmark\n\nPuppet: `{puppet}` ({len(persona)} photos); drivers: {len(files)} clip(s) "
             f"from `{drivers}`; panel size {size or 'native'}; puppet shape: {rows[0]['shape']}; texture "
-            f"weights: {weights}.\n\n"
+            f"weights: {weights}; weight smoothing: {params.weight_smoothing:g} s.\n\n"
             f"Targets per clip: mouth slope >= {SLOPE_TARGET} and r >= {CORR_TARGET}; edge ΔE ratio (composite "
             f"/ driver's own) <= {STEP_RATIO_TARGET}; id dist to the puppet < {ID_THRESHOLD} on >= "
             f"{ID_FRACTION_TARGET:.0%} of frames and smaller than to the driver; partial faces rejected.\n\n")
@@ -542,7 +551,7 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, data=
 # --------------------------------------------------------------------------- CLI
 def register_bench(bench_subparsers) -> argparse.ArgumentParser:
     """Add the ``puppet`` sub-parser to ``facetex bench``."""
-    from ..cli._common import bounded_int, positive_int
+    from ..cli._common import bounded_int, finite_float, positive_int
     from ._common import add_bench_options
 
     p = bench_subparsers.add_parser(
@@ -563,6 +572,9 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
                    help="puppet average shape: photometric stereo (falls back to generic) or the generic face")
     p.add_argument("--weights", choices=("regional", "global"), default="regional",
                    help="expression weights of the puppet's texture: regional (default) or the paper's global")
+    p.add_argument("--weight-smoothing", type=finite_float(0.0, 10.0), metavar="SECONDS",
+                   help="temporal coherence of the regional weights (bilateral filter over this many seconds; "
+                        "0 = per frame; default: the puppet's default)")
     p.add_argument("--no-partial", action="store_true", help="skip the half-out-of-frame check")
     from ..cli._common import add_engine_options
 
@@ -596,7 +608,8 @@ def _run(args) -> int:
             progress_bar(total=total or None, desc="bench puppet", unit="frame", disable=args.quiet) as bar:
         res = run_bench_puppet(drivers, puppet, args.out, clips=args.clips, size=args.size,
                                max_frames=args.max_frames, texture_shape=args.shape, weights=args.weights,
-                               partial=not args.no_partial, progress=bar, engine=engine)
+                               weight_smoothing=args.weight_smoothing, partial=not args.no_partial,
+                               progress=bar, engine=engine)
     table = Path(res["files"]["table_md"]).read_text(encoding="utf-8")
     finish_bench(args, "puppet", res["out"], res["files"], inputs={"drivers": drivers, "puppet": puppet},
                  settings={"drivers": str(drivers), "puppet": str(puppet)},

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import sys
 
-from ._common import add_json, add_overwrite, add_quiet, bounded_int, positive_int, print_json, progress_bar, wrote
+from ._common import (add_json, add_overwrite, add_quiet, bounded_int, finite_float, positive_int, print_json,
+                      progress_bar, wrote)
 
 MAX_SIZE = 4096  # longer side of an output panel (px)
 
@@ -31,6 +32,15 @@ def register(sub) -> None:
                    help="expression weights of the texture: regional (default; mouth, eyes and the rest of the "
                         "face each weighted by their own fiducials, as `persona texture`) or global (the paper's "
                         "Eq. 2/3, sigma 10)")
+    p.add_argument("--correspondence", choices=("landmarks", "flow"), default="landmarks",
+                   help="driver-to-puppet correspondence of the deformation transfer: landmarks (default; a "
+                        "thin-plate spline between the two mean landmark sets) or flow (the paper's optical flow "
+                        "from the puppet's projection onto the driver's appearance subspace)")
+    p.add_argument("--weight-smoothing", type=finite_float(0.0, 10.0), default=0.12,
+                   metavar="SECONDS",
+                   help="regional weights made temporally coherent over this many seconds (a bilateral filter over "
+                        "frames and expression: a still face does not shimmer, a mouth opening is kept; default "
+                        "%(default)s; 0 = per frame)")
     p.add_argument("--max-frames", type=positive_int, help="use only the first N frames")
     add_overwrite(p)
     add_quiet(p)
@@ -59,8 +69,8 @@ def run(args) -> int:
     n = video_info(args.driver)["n_frames"]
     if args.max_frames is not None:
         n = min(n, max(0, args.max_frames))
-    params = PuppetParams(texture=args.texture, weights=args.weights,
-                          composite=CompositeParams(lighting=args.lighting))
+    params = PuppetParams(texture=args.texture, weights=args.weights, correspondence=args.correspondence,
+                          weight_smoothing=args.weight_smoothing, composite=CompositeParams(lighting=args.lighting))
     with progress_bar(2 * n, desc="puppet", unit="frame", disable=args.quiet) as bar:
         report = puppeteer(args.driver, args.puppet, args.output, driver_photos=args.driver_photos,
                            side_by_side=args.side_by_side, size=args.size, mode=args.mode,
@@ -68,7 +78,7 @@ def run(args) -> int:
     write_json(sidecar, provenance(
         command="puppet", inputs={"driver": args.driver, "puppet": args.puppet, "driver_photos": args.driver_photos},
         params={"side_by_side": args.side_by_side, "size": args.size, "mode": args.mode, "texture": args.texture,
-                "weights": args.weights, "lighting": args.lighting, "max_frames": args.max_frames,
+                "weights": args.weights, "weight_smoothing": args.weight_smoothing, "correspondence": args.correspondence, "lighting": args.lighting, "max_frames": args.max_frames,
                 "puppet_params": params},
         outputs=[out], result=report), overwrite=args.overwrite, inputs=inputs)
     if report["lost_frames"] and not args.quiet:

@@ -140,44 +140,128 @@ def _fill_nan(a: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return a[iy, ix]
 
 
-def invert_map(forward, mask, shape, *, iters: int = 10) -> np.ndarray:
+def _masked_gradient(a: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(d/dy, d/dx) of (H, W, C) ``a`` from its values inside ``mask`` only: central differences
+    where both neighbours are inside, one-sided where one is, 0 where none (np.gradient on a
+    nearest-filled array halves the derivative at the mask's edge: its tangent maps there
+    doubled the motion of the face outline)."""
+    a = np.asarray(a, np.float64)
+    m = np.asarray(mask, bool)
+    out = []
+    for ax in (0, 1):
+        n = a.shape[ax]
+        lo = [slice(None)] * 2
+        hi = [slice(None)] * 2
+        lo[ax], hi[ax] = slice(0, n - 1), slice(1, n)
+        lo, hi = tuple(lo), tuple(hi)
+        step = a[hi] - a[lo]  # a[i + 1] - a[i], at i
+        ok = m[hi] & m[lo]
+        fwd = np.zeros_like(a)
+        bwd = np.zeros_like(a)
+        has_f = np.zeros(m.shape, bool)
+        has_b = np.zeros(m.shape, bool)
+        fwd[lo] = np.where(ok[..., None], step, 0.0)
+        has_f[lo] = ok
+        bwd[hi] = np.where(ok[..., None], step, 0.0)
+        has_b[hi] = ok
+        cnt = has_f.astype(np.float64) + has_b
+        out.append((fwd + bwd) / np.maximum(cnt, 1.0)[..., None])
+    return out[0], out[1]
+
+
+def _splat_inverse(fwd: np.ndarray, mask: np.ndarray, shape, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """(inverse (H', W', 2) float64, covered (H', W') bool) by normalised convolution: every source
+    pixel of ``mask`` puts its own (x, y) at its forward position (bilinear splat), numerator and
+    weight are Gaussian-blurred (``sigma`` target px) and divided; target pixels no source reaches
+    (weight < 0.05) take the value of the nearest covered one. Continuous wherever the map folds."""
+    from scipy import ndimage
+
+    hh, ww = shape
+    ys, xs = np.nonzero(mask)
+    p = fwd[ys, xs].astype(np.float64)
+    src = np.stack([xs, ys], axis=1).astype(np.float64)
+    x0, y0 = np.floor(p[:, 0]).astype(np.int64), np.floor(p[:, 1]).astype(np.int64)
+    fx, fy = p[:, 0] - x0, p[:, 1] - y0
+    num = np.zeros((hh * ww, 2))
+    den = np.zeros(hh * ww)
+    for dy in (0, 1):
+        for dx in (0, 1):
+            wgt = (fx if dx else 1 - fx) * (fy if dy else 1 - fy)
+            xi, yi = x0 + dx, y0 + dy
+            ok = (xi >= 0) & (xi < ww) & (yi >= 0) & (yi < hh)
+            idx = yi[ok] * ww + xi[ok]
+            den += np.bincount(idx, wgt[ok], minlength=hh * ww)
+            for c in range(2):
+                num[:, c] += np.bincount(idx, wgt[ok] * src[ok, c], minlength=hh * ww)
+    num = num.reshape(hh, ww, 2)
+    den = den.reshape(hh, ww)
+    if sigma > 0:
+        num = np.stack([cv2.GaussianBlur(num[..., c], (0, 0), sigma, borderType=cv2.BORDER_CONSTANT)
+                        for c in range(2)], axis=-1)
+        den = cv2.GaussianBlur(den, (0, 0), sigma, borderType=cv2.BORDER_CONSTANT)
+    covered = den > 0.05
+    b = num / np.maximum(den, 1e-12)[..., None]
+    if not covered.any():
+        return np.zeros((hh, ww, 2)), covered
+    if not covered.all():
+        _, (iy, ix) = ndimage.distance_transform_edt(~covered, return_indices=True)
+        b = b[iy, ix]
+    return b, covered
+
+
+def invert_map(forward, mask, shape, *, iters: int = 10, splat_sigma: float = 1.0, max_move: float = 1.5
+               ) -> np.ndarray:
     """Inverse of a sampling map: ``forward`` (H, W, 2) gives for each source pixel (trusted
     inside ``mask``) its (x, y) position on a target grid of ``shape`` (H', W'); returns
     (H', W', 2) float32, the source position of every target pixel.
 
-    Newton iterations on F(B(y)) = y from the inverse of F's least-squares affine fit
-    (F extended off the mask by its nearest value; B clipped to the source grid). Accurate to
-    ~1/32 px, the precision of cv2.remap.
-    Hand-written: scattered-data interpolation (scipy LinearNDInterpolator) is slow on
-    the degenerate Delaunay triangulation of a regular grid.
+    Start: the forward map splatted backwards (normalised convolution, :func:`_splat_inverse`;
+    target pixels outside the forward image take the nearest one's source). Then Newton
+    iterations on F(B(y)) = y (F extended off the mask by its nearest value; steps of at most
+    1 px), kept per pixel only where they lower the residual |F(B(y)) - y| and stay within
+    ``max_move`` px of the start: where F is smooth this is accurate to ~1/32 px (the precision
+    of cv2.remap); where it folds (a dense correspondence between two faces has small folds at
+    flow discontinuities) F has no inverse, Newton wanders off (it used to end on the grid's
+    corner, giving puppet vertices there zero motion: spikes in the mesh), and the splat's
+    continuous average is kept. Hand-written: scattered-data interpolation (scipy
+    LinearNDInterpolator) bridges concave gaps of the forward image with long triangles.
     """
     fwd = np.asarray(forward, dtype=np.float32)
-    mask = np.asarray(mask, dtype=bool)
+    mask = np.asarray(mask, dtype=bool) & np.isfinite(fwd).all(axis=2)
     h, w = fwd.shape[:2]
     hh, ww = (int(v) for v in shape)
-    f = _fill_nan(fwd, mask & np.isfinite(fwd).all(axis=2)).astype(np.float32)
-    ys, xs = np.nonzero(mask)
-    design = np.stack([xs, ys, np.ones_like(xs)], axis=1).astype(np.float64)
-    aff, *_ = np.linalg.lstsq(design, f[ys, xs].astype(np.float64), rcond=None)  # (3, 2)
+    f = _fill_nan(fwd, mask).astype(np.float32)
+    b0, _ = _splat_inverse(f, mask, (hh, ww), splat_sigma)
+    b0[..., 0] = np.clip(b0[..., 0], 0, w - 1)
+    b0[..., 1] = np.clip(b0[..., 1], 0, h - 1)
     gy, gx = np.mgrid[0:hh, 0:ww].astype(np.float64)
     target = np.stack([gx, gy], axis=-1)
-    b = (target - aff[2]) @ np.linalg.inv(aff[:2])
     jy, jx = np.gradient(f, axis=(0, 1))  # (H, W, 2) each: dF/dy, dF/dx
     jac = np.concatenate([jx, jy], axis=2).astype(np.float32)  # Fx_x, Fy_x, Fx_y, Fy_y
+
+    def residual(b):
+        fb = cv2.remap(f, b[..., 0].astype(np.float32), b[..., 1].astype(np.float32), cv2.INTER_LINEAR,
+                       borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+        return target - fb
+
+    b = b0.copy()
     for _ in range(int(iters)):
-        bx = np.clip(b[..., 0], 0, w - 1).astype(np.float32)
-        by = np.clip(b[..., 1], 0, h - 1).astype(np.float32)
-        fb = cv2.remap(f, bx, by, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+        bx, by = b[..., 0].astype(np.float32), b[..., 1].astype(np.float32)
         j = cv2.remap(jac, bx, by, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
-        r = target - fb
+        r = residual(b)
         a11, a21, a12, a22 = j[..., 0], j[..., 1], j[..., 2], j[..., 3]
         det = a11 * a22 - a12 * a21
         det = np.where(np.abs(det) < 1e-6, 1e-6, det)
-        b = np.stack([bx, by], axis=-1) + np.stack(
-            [(a22 * r[..., 0] - a12 * r[..., 1]) / det, (a11 * r[..., 1] - a21 * r[..., 0]) / det], axis=-1)
-    b[..., 0] = np.clip(b[..., 0], 0, w - 1)
-    b[..., 1] = np.clip(b[..., 1], 0, h - 1)
-    return b.astype(np.float32)
+        step = np.stack([(a22 * r[..., 0] - a12 * r[..., 1]) / det, (a11 * r[..., 1] - a21 * r[..., 0]) / det],
+                        axis=-1)
+        n = np.linalg.norm(step, axis=-1, keepdims=True)
+        b = b + step * np.minimum(1.0, 1.0 / np.maximum(n, 1e-12))
+        b[..., 0] = np.clip(b[..., 0], 0, w - 1)
+        b[..., 1] = np.clip(b[..., 1], 0, h - 1)
+    r0 = np.linalg.norm(residual(b0), axis=-1)
+    r1 = np.linalg.norm(residual(b), axis=-1)
+    keep = (r1 < r0) & (np.linalg.norm(b - b0, axis=-1) <= max_move)
+    return np.where(keep[..., None], b, b0).astype(np.float32)
 
 
 class DeformationTransfer:
@@ -225,8 +309,11 @@ class DeformationTransfer:
                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
         self.puppet_at_driver = grid[dmask]
         # tangent maps: residual r ≈ [D_u D_v] a on the driver  ->  [P_u P_v] a on the puppet
-        d_v, d_u = np.gradient(_fill_nan(md, dmask), axis=(0, 1))
-        p_v, p_u = np.gradient(grid, axis=(0, 1))
+        inside_all = cv2.remap(pmask.astype(np.float32), np.ascontiguousarray(corr[..., 0]),
+                               np.ascontiguousarray(corr[..., 1]), cv2.INTER_LINEAR,
+                               borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 0.5
+        d_v, d_u = _masked_gradient(_fill_nan(md, dmask), dmask)
+        p_v, p_u = _masked_gradient(grid, inside_all)
         jd = np.stack([d_u[dmask], d_v[dmask]], axis=2)  # (K, 3, 2)
         jp = np.stack([p_u[dmask], p_v[dmask]], axis=2)  # (K, 3, 2)
         self.tangent_map = jp @ np.linalg.pinv(jd)  # (K, 3, 3)
@@ -236,6 +323,9 @@ class DeformationTransfer:
         inv = invert_map(corr, dmask, mp.shape[:2]) if inverse is None else np.asarray(inverse, dtype=np.float32)
         if inv.shape != mp.shape[:2] + (2,):
             raise BadInputError(f"inverse must be (H', W', 2) = {mp.shape[:2] + (2,)}, got {inv.shape}")
+        from scipy import ndimage
+
+        _, (self._near_y, self._near_x) = ndimage.distance_transform_edt(~dmask, return_indices=True)
         self.inv_x = np.ascontiguousarray(inv[..., 0])
         self.inv_y = np.ascontiguousarray(inv[..., 1])
         self.puppet_mesh = mp
@@ -277,8 +367,11 @@ class DeformationTransfer:
         disp = np.zeros(self.shape_driver + (3,), dtype=np.float32)
         disp.reshape(-1, 3)[self.flat] = dhat * fstar.ravel()[self.flat, None]
         # M_P^i = M_P + Δ̂ f*, carried to the puppet grid through the inverse correspondence
-        moved = cv2.remap(disp, self.inv_x, self.inv_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                          borderValue=0)
+        # off the driver's mask (puppet vertices beyond the driver's face: jaw line, forehead) the
+        # nearest driver vertex's motion, so the puppet's outline moves with the face instead of
+        # staying behind
+        disp = disp[self._near_y, self._near_x]
+        moved = cv2.remap(disp, self.inv_x, self.inv_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         out = self.puppet_mesh.copy()
         out[self.puppet_mask] += moved[self.puppet_mask]
         return out

@@ -447,7 +447,8 @@ class DriverMotion:
     fiducials (N, 49, 2) canonical expression fiducials, mean_fiducials (49, 2);
     grid: :class:`GridInterpolator` onto the depth-map grid, grid_mesh (h, w, 3) the mean
     mesh on it (NaN outside), grid_step; found (N,) as tracked; opening (N,) mouth opening
-    of the (filled, unsmoothed) tracked landmarks."""
+    of the (filled, unsmoothed) tracked landmarks; frontal_mean68 (68, 2): the mean frontalized
+    landmarks the canonical frame is fitted to."""
 
     pose_A: np.ndarray
     pose_b: np.ndarray
@@ -465,6 +466,7 @@ class DriverMotion:
     mouth: "MouthCorrection | None" = field(repr=False, default=None)
     fiducials68: np.ndarray | None = field(repr=False, default=None)
     triangles: np.ndarray | None = field(repr=False, default=None)
+    frontal_mean68: np.ndarray | None = field(repr=False, default=None)
 
     def __len__(self) -> int:
         return len(self.found)
@@ -672,4 +674,4 @@ def driver_motion(track: DriverTrack, params: DriverParams = DriverParams(), *, 
     return DriverMotion(pose_A=A, pose_b=b, mean_mesh=mean_c, deltas=deltas, fiducials=fid,
                         mean_fiducials=fid[found].mean(axis=0), grid=grid, grid_mesh=gm, grid_step=st,
                         found=found.copy(), opening=mouth_opening(p68), points68=p68, anchors=anchors,
-                        mouth=mouth, fiducials68=fid68, triangles=triangles)
+                        mouth=mouth, fiducials68=fid68, triangles=triangles, frontal_mean68=fid_mean)

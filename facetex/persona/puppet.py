@@ -8,10 +8,18 @@ Per driver video (see :mod:`facetex.persona.driver` for the motion):
    :func:`facetex.persona.shape.checked_depth`). Driver: from
    ``driver_photos`` the same way; from the video alone the tracked mean mesh is used
    instead (a video has one lighting, so photometric stereo on its frames is degenerate).
-2. **Correspondence** (§4, §6): the puppet's 2D average is projected onto the driver's
-   rank-4 appearance subspace and the optical flow (α, ratio, minWidth, outer, inner, SOR)
-   = (0.02, 0.85, 20, 4, 1, 40) from the projection to the puppet's average gives, for
-   every driver pixel, its puppet pixel (collection flow).
+2. **Correspondence** (§4, §6): for every driver pixel of the canonical frame, its puppet
+   pixel. The paper (``correspondence="flow"``): the puppet's 2D average is projected onto the
+   driver's rank-4 appearance subspace and the optical flow (α, ratio, minWidth, outer, inner,
+   SOR) = (0.02, 0.85, 20, 4, 1, 40) from the projection to the puppet's average. Ours (default,
+   ``"landmarks"``): the thin-plate spline (Eq. 1, λ = 10) from the driver's mean frontal
+   landmarks to the puppet's. Measured on the GRID clips with the LFW Bush and Blair personas:
+   the projection of the puppet onto a video's subspace is the driver's own face (one lighting,
+   one identity), and the flow between two people's faces at α = 0.02 tears: it misses the
+   landmarks by 3-12 px median (the identity map by 1-4 px, the spline by < 0.5 px), folds over
+   on 10-13 % of the grid, and the deformation transfer's tangent maps turn its tears into 5-18x
+   magnified motions (puppet vertices jumping 10-15 px for a 1 px driver motion) and its folds
+   into a broken inverse (vertices that never move: the notch in Blair's lower lip).
 3. **Deformation transfer** per frame with magnitude adjustment and Huber-ROF
    (:class:`facetex.persona.deform.DeformationTransfer`) on a depth-map grid of 2 px.
 4. **Texture** per frame (§6, Figs. 8-9): synthesized *in the neutral frame* of the
@@ -19,7 +27,13 @@ Per driver video (see :mod:`facetex.persona.driver` for the motion):
    target fiducials F^T = M_P + k (F_D^i − M̄_D) (k: ratio of the eye distances): the
    persona's regional expression weights by default (:mod:`facetex.persona.weights`, the
    same blend as ``facetex persona texture``), or the paper's global Eq. 2/3 weights
-   (``weights="global"``: sigma, Laplacian exponent 1).
+   (``weights="global"``: sigma, Laplacian exponent 1). Beyond the paper, the regional weights of
+   the whole clip are made temporally coherent before blending: each frame's photo weights are
+   averaged with those of the frames within ~0.1 s that show the same expression (a bilateral
+   filter, :func:`facetex.persona.weights.temporal_weights`). Per frame, the few nearest photos
+   swap with the landmarks' jitter and a still face shimmered (bench flicker 1.3-1.7 against
+   1.2 with the global weights; 1.0-1.4 with the filter on 11 Bush/Blair x GRID runs); the filter
+   leaves a mouth opening alone (its frames are far apart in the mouth region's coordinates).
 5. **Rendering** with the driver's head pose (orthographic, z-buffered, 2x supersampled).
    ``mode="composite"``: put into the driver's frame (:mod:`facetex.persona.composite`:
    the driver's face outline as mask, SH lighting and colour transfer, Poisson blending, the
@@ -55,6 +69,8 @@ __all__ = [
     "puppet_average_shape",
     "driver_collection",
     "collection_correspondence",
+    "landmark_correspondence",
+    "CORRESPONDENCES",
     "target_fiducials",
     "neutral_texture",
     "neutral_textures",
@@ -67,15 +83,21 @@ __all__ = [
 
 MODES = ("composite", "face")
 TEXTURES = ("ours", "static")
+CORRESPONDENCES = ("landmarks", "flow")
 
 
 @dataclass(frozen=True)
 class PuppetParams:
-    """Driver-puppet flow (Tom Hanks §6): alpha, ratio, minWidth, outer, inner, SOR iterations;
+    """Driver-puppet correspondence: "landmarks" (ours, the default: a thin-plate spline between
+    the two mean landmark sets) or "flow" (the paper's collection flow, Tom Hanks §6, with alpha,
+    ratio, minWidth, outer, inner, SOR iterations; module doc, 2);
     texture "ours" (expression-dependent) or "static" (the average texture); weights of the
     expression-dependent texture: "regional" (ours, ``neighbours`` K of the per-region
     adaptive sigma) or "global" (the paper's Eq. 2/3 with ``sigma`` and alpha 1), see
-    :meth:`texture_params`;
+    :meth:`texture_params`; weight_smoothing: the regional weights are made temporally coherent by a
+    bilateral filter over frames (Gaussian of this many seconds) and expression distance
+    (``weight_range`` x each frame's adaptive sigma), 0 = per frame
+    (:func:`facetex.persona.weights.temporal_weights`; module doc, 4);
     plain: background colour of ``mode="face"``; composite: how the puppet is put into the
     driver's frame; supersample / supersample_composite: rasterization samples per pixel and
     axis in face / composite mode (anti-aliased silhouette; in composite mode the feathered
@@ -95,10 +117,13 @@ class PuppetParams:
     flow_outer: int = 4
     flow_inner: int = 1
     flow_sor: int = 40
+    correspondence: str = "landmarks"
     sigma: float = 10.0
     texture: str = "ours"
     weights: str = "regional"
     neighbours: int = 3
+    weight_smoothing: float = 0.12
+    weight_range: float = 1.0
     plain: tuple[float, float, float] = (0.5, 0.5, 0.5)
     composite: CompositeParams = field(default_factory=CompositeParams)
     supersample: int = 2
@@ -198,6 +223,19 @@ def collection_correspondence(driver_subspace: np.ndarray, driver_region: np.nda
     return map_from_flow(flow)
 
 
+def landmark_correspondence(driver_points68, puppet_points68, shape, smoothing: float = 10.0) -> np.ndarray:
+    """(H, W, 2) puppet-frame (x, y) of every driver-frame pixel: the thin-plate spline (Eq. 1,
+    ``smoothing`` λ) that maps the driver's mean landmarks (68, 2) onto the puppet's (both in the
+    canonical frame). Smooth and fold-free, exact at the landmarks (module doc, 2)."""
+    from .collection import tps_map
+
+    d = np.asarray(driver_points68, np.float64)
+    p = np.asarray(puppet_points68, np.float64)
+    if d.shape != (68, 2) or p.shape != (68, 2) or not (np.isfinite(d).all() and np.isfinite(p).all()):
+        raise BadInputError(f"landmark correspondence needs two finite (68, 2) landmark sets, got {d.shape}, {p.shape}")
+    return tps_map(d, p, shape, smoothing)
+
+
 # ----------------------------------------------------------------------------- texture
 def target_fiducials(persona, motion: DriverMotion, i: int) -> np.ndarray:
     """F^T (49, 2) for frame i: the puppet's mean fiducials plus the driver's expression
@@ -264,6 +302,7 @@ class Puppeteer:
         from .texture import average_face
 
         self.persona, self.motion, self.params, self.track = persona, motion, params, track
+        self._sequence_weights = None
         st = motion.grid_step
         W, H = persona.size
         if (W, H) != tuple(params.driver.size):
@@ -285,7 +324,14 @@ class Puppeteer:
             dmask &= collection.region[::st, ::st]
         t0 = time.perf_counter()
         self.puppet_average = average_face(persona, "d", params=params.texture_params())
-        corr = collection_correspondence(collection.subspace, collection.region, self.puppet_average, params)
+        if params.correspondence not in CORRESPONDENCES:
+            raise BadInputError(f"unknown puppet correspondence {params.correspondence!r}: use one of "
+                                f"{', '.join(CORRESPONDENCES)}")
+        if params.correspondence == "flow" or motion.frontal_mean68 is None:
+            corr = collection_correspondence(collection.subspace, collection.region, self.puppet_average, params)
+        else:  # the mesh's canonical frame is fitted to the driver's mean frontal landmarks
+            corr = landmark_correspondence(motion.frontal_mean68, persona.points68.mean(axis=0),
+                                           (H, W), persona.params.tps_smoothing)
         self.correspondence = corr
         corr_grid = (corr[::st, ::st] / st).astype(np.float32)
         self.timings["correspondence_s"] = time.perf_counter() - t0
@@ -365,9 +411,28 @@ class Puppeteer:
 
     def textures(self, frames, method: str | None = None) -> list[np.ndarray]:
         """Textures of several frames, blended as one batch (faster per frame)."""
+        method = method or self.params.texture
+        frames = list(frames)
+        tp = self.params.texture_params()
+        if method == "ours" and tp.weights == "regional" and self.params.weight_smoothing > 0:
+            from .texture import blend_weights
+
+            return list(blend_weights(self.persona, self.sequence_weights()[frames], params=tp))
         f = [target_fiducials(self.persona, self.motion, i) for i in frames]
-        return neutral_textures(self.persona, f, method=method or self.params.texture,
-                                params=self.params.texture_params())
+        return neutral_textures(self.persona, f, method=method, params=tp)
+
+    def sequence_weights(self) -> np.ndarray:
+        """(N, R, n) temporally coherent regional weights of every frame of the clip (computed once;
+        :func:`facetex.persona.texture.sequence_weights`)."""
+        if self._sequence_weights is None:
+            from .texture import sequence_weights
+
+            fps = float(self.track.fps) if self.track is not None and self.track.fps else 25.0
+            f = np.stack([target_fiducials(self.persona, self.motion, i) for i in range(len(self.motion))])
+            self._sequence_weights = sequence_weights(self.persona, f, self.params.texture_params(),
+                                                      sigma_frames=self.params.weight_smoothing * fps,
+                                                      range_scale=self.params.weight_range)
+        return self._sequence_weights
 
     def pose(self, i: int, scale: float) -> tuple[np.ndarray, np.ndarray]:
         """(A, b): output-panel pixel = A X + b of a canonical point X in frame i (driver pixels

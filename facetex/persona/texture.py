@@ -96,6 +96,8 @@ __all__ = [
     "target_weights",
     "blend_textures",
     "expression_model",
+    "sequence_weights",
+    "blend_weights",
 ]
 
 METHODS = ("ours", "static", "weighted", "prewarp")
@@ -309,6 +311,12 @@ def _pyramid_stack(aligned: np.ndarray, conf: np.ndarray, levels: int, tp: Textu
     return stacks
 
 
+def _photo_rows(aligned: np.ndarray, conf: np.ndarray, levels: int, tp: TextureParams) -> list[np.ndarray]:
+    """One photo's rows of :func:`_pyramid_stack`: per level (finest first) (h_k * w_k * 4,)
+    float32 [L' band (3 ch), L'] (the same operations, so the same values)."""
+    return [r[0] for r in _pyramid_stack(aligned[None], conf[None], levels, tp)]
+
+
 def _single_stack(images: np.ndarray, conf: np.ndarray, tp: TextureParams) -> np.ndarray:
     """(n, H * W * 4) float32 [L' image, L'] at full resolution (single-scale baselines)."""
     n = len(images)
@@ -383,39 +391,54 @@ class _Prepared:
         built = persona._cache.pop("tps_maps", None)  # left by build_persona; dropped after use
         if built is not None and built.shape[0] != n:
             built = None
+        self._persona_ref = persona  # for the lazily computed stage b
 
         def chunk(i0: int, i1: int):
+            # one photo at a time through alignment, pyramid, segment gather and the static sums:
+            # its rows (~1 MB) stay in cache (a whole chunk's full-frame rows, ~30 MB, did not)
             if built is not None:
                 maps = built[i0:i1]
             else:
                 maps = tps_maps(persona.fiducials[i0:i1], self.M, self.shape, persona.params.tps_smoothing)
             align = compose_map_flow(maps, persona.flows[i0:i1])
-            self.aligned[i0:i1] = remap_stack(persona.images[i0:i1], align)
-            self.conf_aligned[i0:i1] = remap_stack(self.conf_frontal[i0:i1], align)
-            full = _pyramid_stack(self.aligned[i0:i1], self.conf_aligned[i0:i1], self.levels, tp)
-            sums = []
-            for k, rows in enumerate(full):
-                sums.append(rows.sum(axis=0, dtype=np.float64))
-                r4 = rows.reshape(len(rows), -1, 4)
-                for seg in self.segments[k]:  # gathered straight into the segment's rows
-                    np.take(r4, seg.pixels, axis=1, out=seg.stack[i0:i1].reshape(len(rows), -1, 4))
-            # Fig. 6 b needs the TPS alone: its sum is kept, the maps are not
-            return remap_stack(persona.images[i0:i1], maps).sum(axis=0, dtype=np.float64), sums
+            sums = [np.zeros(h * w * 4, np.float64) for h, w in self.level_shapes]
+            for i in range(i0, i1):
+                self.aligned[i] = remap_stack(persona.images[i:i + 1], align[i - i0:i - i0 + 1])[0]
+                self.conf_aligned[i] = remap_stack(self.conf_frontal[i:i + 1], align[i - i0:i - i0 + 1])[0]
+                for k, row in enumerate(_photo_rows(self.aligned[i], self.conf_aligned[i], self.levels, tp)):
+                    sums[k] += row  # the same sequential float64 sum as rows.sum(axis=0) over the chunk
+                    r4 = row.reshape(-1, 4)
+                    for seg in self.segments[k]:  # gathered straight into the segment's rows
+                        np.take(r4, seg.pixels, axis=0, out=seg.stack[i].reshape(-1, 4))
+            return sums
 
         # photos are independent: chunks run on a thread pool (OpenCV and numpy release the
         # GIL); results do not depend on the thread count (partial sums are added in order)
         bounds = [(i, min(i + self.CHUNK, n)) for i in range(0, n, self.CHUNK)]
+        self._bounds = bounds
         with ThreadPoolExecutor(max(1, min(len(bounds), available_cpus()))) as pool:
             results = list(pool.map(lambda b: chunk(*b), bounds))
-        for _, sums in results:
+        for sums in results:
             for k in range(self.levels):
                 self.static[k] += sums[k]
         self.static = [(x / max(n, 1)).astype(np.float32) for x in self.static]  # uniform weights
-        self._stage = {"b": np.clip(np.sum([r[0] for r in results], axis=0) / max(n, 1), 0, 1).astype(np.float32)}
+        self._stage = {}
         self._single = {}
         self._outside_cache = {}
         if progress:
             progress(n=1, stage="precompute")
+
+    def stage_b(self) -> np.ndarray:
+        """Fig. 6 b: the mean of the photos TPS-warped to the mean fiducials (the TPS alone),
+        computed on first use (the TPS maps are recomputed; chunk sums added in order)."""
+        if "b" not in self._stage:
+            persona = self._persona_ref
+            sums = []
+            for i0, i1 in self._bounds:
+                maps = tps_maps(persona.fiducials[i0:i1], self.M, self.shape, persona.params.tps_smoothing)
+                sums.append(remap_stack(persona.images[i0:i1], maps).sum(axis=0, dtype=np.float64))
+            self._stage["b"] = np.clip(np.sum(sums, axis=0) / max(self.n, 1), 0, 1).astype(np.float32)
+        return self._stage["b"]
 
     def _layout(self, regions) -> None:
         """Region masks per level (the face support's complement = the static average) and the
@@ -613,6 +636,42 @@ def blend_textures(persona: Persona, fiducials, *, params: TextureParams | None 
     return np.clip(prepare_persona(persona, tp).blend_many(S), 0, 1).astype(np.float32)
 
 
+def sequence_weights(persona: Persona, fiducials, params: TextureParams | None = None, *,
+                     sigma_frames: float = 0.0, range_scale: float = 1.0) -> np.ndarray:
+    """(N, R, n) regional weights of a sequence of N target fiducials (N, 49 or 68, 2) for
+    :func:`blend_weights`: each frame's weights as :func:`blend_textures` would use them (the
+    smallest cut, at most ``params.max_photos`` per region), then, with ``sigma_frames`` > 0,
+    made temporally coherent (:func:`facetex.persona.weights.temporal_weights`: a bilateral filter
+    over frames and expression distance, ``range_scale`` x the frame's sigma)."""
+    from .weights import temporal_weights
+
+    tp = params or TextureParams()
+    if tp.weights != "regional":
+        raise BadInputError("sequence weights are the regional weights: use TextureParams(weights='regional')")
+    f = np.asarray(fiducials, np.float64)
+    f = np.stack([_fiducials49(x) for x in f.reshape((-1,) + f.shape[-2:])])
+    S = target_weights(persona, f, tp)  # (N, R, n)
+    W = np.stack([_cut_small(S[:, j], SPARSE_MASS, tp.max_photos) for j in range(S.shape[1])], axis=1)
+    if sigma_frames <= 0:
+        return W
+    model = expression_model(persona, tp)
+    return temporal_weights(W, model.coordinates(f), model.sigmas(f), sigma_frames=sigma_frames,
+                            range_scale=range_scale)
+
+
+def blend_weights(persona: Persona, weights, *, params: TextureParams | None = None) -> np.ndarray:
+    """(B, H, W, 3) float32 textures in the persona's neutral frame for B targets' (B, R, n)
+    regional weights as made by :func:`sequence_weights` (no further cut to ``max_photos``; the
+    blend's sparse cut of the smallest 0.5 % of the mass still applies)."""
+    import dataclasses
+
+    tp = dataclasses.replace(params or TextureParams(), max_photos=None)
+    W = np.asarray(weights, np.float64)
+    if W.ndim == 2:
+        W = W[None]
+    return np.clip(prepare_persona(persona, tp).blend_many(W), 0, 1).astype(np.float32)
+
+
 # ------------------------------------------------------------------ synthesis
 def _fiducials49(fiducials) -> np.ndarray:
     from ..landmarks import POINTS49_INDEX
@@ -802,6 +861,8 @@ def average_face(persona: Persona, stage: str = "d", *, params: TextureParams | 
 
     tp = dataclasses.replace(tp, weights="global", alpha=tp.alpha_)
     prep = prepare_persona(persona, tp)
+    if stage == "b":
+        return prep.stage_b().copy()
     key = stage if stage in "bc" else (stage, tp)
     if key not in prep._stage:
         if stage == "c":

@@ -50,6 +50,7 @@ K-th-neighbour distance (weights too flat for common expressions).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -67,6 +68,7 @@ __all__ = [
     "global_similarity",
     "face_support",
     "iod49",
+    "temporal_weights",
 ]
 
 #: 49-point indices (Tom Hanks / SDM layout: iBUG 17..67 without 60, 64) of each region.
@@ -276,3 +278,50 @@ def global_similarity(target, fiducials, sigma: float = 10.0, *, scale: float = 
     f = np.asarray(fiducials, np.float64)
     d2 = ((f - t) ** 2).sum(axis=(-2, -1)) * scale**2
     return np.exp(-d2 / (2.0 * sigma**2))
+
+
+def temporal_weights(weights, coordinates, sigmas, *, sigma_frames: float, range_scale: float = 1.0
+                     ) -> np.ndarray:
+    """Expression weights of a frame sequence made temporally coherent (puppetry, beyond the paper).
+
+    ``weights`` (N, R, n): each frame's per-region photo weights as its blend would use them;
+    ``coordinates``: per region, (N, D_r) the frames' normalised region coordinates
+    (:meth:`ExpressionModel.coordinates`); ``sigmas`` (N, R) their adaptive sigmas. Each frame's
+    normalised weights become the average of its neighbours' (N, R, n), weighted by a Gaussian in
+    time (``sigma_frames``, cut at 3 sigma) times a Gaussian in expression distance (the region's
+    coordinates, scale ``range_scale`` x the frame's own sigma): a bilateral filter. Why: the
+    regional weights pick each frame's few nearest photos, and landmark jitter of a still face
+    swaps them from frame to frame (the texture shimmers); frames with the same expression now
+    share one blend, while frames with another expression (a mouth opening) are not mixed in,
+    so the expression stays. Each frame keeps its total weight (the uniform term of Eq. 3 is
+    relative to it). Frames are filtered in a band (cost O(N x window x n))."""
+    W = np.asarray(weights, np.float64)
+    if W.ndim != 3:
+        raise BadInputError(f"temporal weights need (frames, regions, photos) weights, got {W.shape}")
+    N, R, n = W.shape
+    sig = np.asarray(sigmas, np.float64).reshape(N, R)
+    if len(coordinates) != R or sigma_frames <= 0 or N < 2:
+        if len(coordinates) != R:
+            raise BadInputError(f"{len(coordinates)} coordinate sets for {R} regions")
+        return W.copy()
+    half = int(math.ceil(3.0 * sigma_frames))
+    out = np.empty_like(W)
+    for j in range(R):
+        tot = W[:, j].sum(axis=-1)
+        P = W[:, j] / np.maximum(tot, 1e-300)[:, None]
+        c = np.asarray(coordinates[j], np.float64).reshape(N, -1)
+        s2 = 2.0 * (range_scale * np.maximum(sig[:, j], 1e-12)) ** 2 if range_scale > 0 else None
+        acc = np.zeros((N, n))
+        norm = np.zeros(N)
+        for o in range(-half, half + 1):
+            lo, hi = max(0, -o), min(N, N - o)  # frames t with t + o inside
+            if hi <= lo:
+                continue
+            k = np.full(hi - lo, math.exp(-(o * o) / (2.0 * sigma_frames**2)))
+            if s2 is not None and o:
+                d2 = ((c[lo:hi] - c[lo + o:hi + o]) ** 2).sum(axis=-1)
+                k *= np.exp(-d2 / s2[lo:hi])
+            acc[lo:hi] += k[:, None] * P[lo + o:hi + o]
+            norm[lo:hi] += k
+        out[:, j] = acc / norm[:, None] * tot[:, None]
+    return out

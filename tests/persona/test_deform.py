@@ -109,6 +109,46 @@ def test_invert_map_of_a_scaling():
     np.testing.assert_allclose(back[1][inner], yy[inner], atol=0.05)
 
 
+def test_invert_map_of_a_folded_map_is_continuous():
+    """A map that folds over (a torn correspondence) has no inverse: the result must still be a
+    continuous source position near the fold (it used to end on the grid's corner: puppet
+    vertices that never move), and exact where the map is smooth."""
+    xx, yy = _grid()
+    fwd = np.stack([xx.copy(), yy.copy()], -1)
+    band = (xx >= 20) & (xx < 26)
+    fwd[..., 0] = np.where(band, 20 + 2.0 * (25 - xx), xx)  # columns 20..25 run backwards: a fold
+    inv = invert_map(fwd, np.ones((H, W), bool), (H, W))
+    assert np.isfinite(inv).all()
+    assert inv[..., 0].min() >= 0 and inv[..., 0].max() <= W - 1
+    # no jumps: neighbouring targets have nearby sources (the fold spans 6 columns)
+    assert np.abs(np.diff(inv[..., 0], axis=1)).max() < 6.0
+    assert np.abs(np.diff(inv[..., 1], axis=0)).max() < 1.5
+    # rows are never mixed up (the first and last one a little pulled inwards by the splat where
+    # the map folds), and far from the fold the inverse is the identity
+    np.testing.assert_allclose(inv[1:-1, :, 1], yy[1:-1], atol=0.2)
+    far = (xx < 12) | (xx > 36)
+    np.testing.assert_allclose(inv[..., 0][far], xx[far], atol=0.05)
+
+
+def test_invert_map_outside_the_forward_image_takes_the_nearest_source():
+    xx, yy = _grid()
+    fwd = np.stack([xx + 10.0, yy], -1)  # the source covers target columns 10..59 of 70
+    inv = invert_map(fwd, np.ones((H, W), bool), (H, 70))
+    assert np.abs(inv[:, :8, 0]).max() < 0.6  # left of the image: the first source column
+    np.testing.assert_allclose(inv[:, 12:58, 0], xx[:, 2:48], atol=0.05)
+
+
+def test_puppet_beyond_the_drivers_mask_moves_with_the_nearest_driver_vertex():
+    xx, yy = _grid()
+    mesh = np.stack([xx, yy, np.zeros_like(xx)], -1)
+    dmask = (xx >= 10) & (xx < 40) & (yy >= 10) & (yy < 50)
+    delta = np.zeros_like(mesh)
+    delta[..., 1] = 2.0  # everything moves down by 2 px
+    corr = np.stack([xx, yy], -1)
+    out = DeformationTransfer(mesh, mesh, corr, driver_mask=dmask, inverse=corr)(delta) - mesh
+    assert np.allclose(out[..., 1], 2.0, atol=0.05)  # also the puppet's vertices off the driver's mask
+
+
 def test_rejects_mismatched_shapes():
     xx, yy = _grid()
     mesh = np.stack([xx, yy, 0 * xx], -1)

@@ -280,7 +280,7 @@ def test_texture_precomputation_does_not_depend_on_threads(tiny_persona, monkeyp
         monkeypatch.setattr(tx, "available_cpus", lambda t=threads: t)
         monkeypatch.setattr(tx._Prepared, "CHUNK", 3)  # 8 photos: chunks 3 + 3 + 2
         prep = tx.prepare_persona(p)
-        results.append((prep.aligned, prep.pyr[0], prep.pyr[-1], prep._stage["b"]))
+        results.append((prep.aligned, prep.pyr[0], prep.pyr[-1], prep.stage_b()))
     for a, b in zip(*results):
         np.testing.assert_array_equal(a, b)
 
@@ -307,3 +307,73 @@ def test_puppet_lips_open_and_close_with_the_drivers(driver_video, tiny_persona)
     assert drv.std() > 0.5  # the driver does open its mouth
     assert np.polyfit(drv, pp, 1)[0] == pytest.approx(1.0, abs=0.1)
     assert pp.mean() == pytest.approx(drv.mean(), abs=0.15 * drv.std() + 0.3)
+
+
+def test_landmark_correspondence_is_exact_at_the_landmarks_and_does_not_fold(tiny_persona):
+    from facetex.persona.puppet import landmark_correspondence
+
+    P = tiny_persona.points68.mean(axis=0)
+    c0 = P.mean(axis=0)
+    D = c0 + (P - c0) * [1.04, 0.96]  # another person's mean landmarks: a wider, shorter face
+    D[48:68, 1] += 1.5  # with a lower mouth
+    W, H = tiny_persona.size
+    c = landmark_correspondence(D, P, (H, W), smoothing=0.0)
+    at = np.stack([cv2.remap(c[..., k], D[:, :1].T.astype(np.float32), D[:, 1:].T.astype(np.float32),
+                             cv2.INTER_LINEAR)[0] for k in range(2)], -1)
+    assert np.abs(at - P).max() < 0.3
+    jy, jx = np.gradient(c, axis=(0, 1))
+    det = jx[..., 0] * jy[..., 1] - jy[..., 0] * jx[..., 1]
+    face = np.zeros((H, W), np.uint8)
+    cv2.fillConvexPoly(face, cv2.convexHull(P.astype(np.int32)), 1)
+    assert det[face > 0].min() > 0.2
+    with pytest.raises(Exception, match="68, 2"):
+        landmark_correspondence(D[:49], P, (H, W))
+
+
+def test_stage_b_is_the_tps_alone_computed_on_first_use(tiny_persona):
+    import dataclasses
+
+    import facetex.persona.texture as tx
+    from facetex.persona.collection import remap_stack, tps_maps
+
+    p = dataclasses.replace(tiny_persona, _cache={})
+    prep = tx.prepare_persona(p)
+    assert "b" not in prep._stage  # not computed by the precomputation
+    W, H = p.size
+    maps = tps_maps(p.fiducials, p.mean_fiducials, (H, W), p.params.tps_smoothing)
+    want = np.clip(remap_stack(p.images, maps).mean(axis=0), 0, 1)
+    np.testing.assert_allclose(tx.average_face(p, "b"), want, atol=1e-6)
+
+
+def test_sequence_weights_blend_like_per_frame_textures_and_keep_totals(tiny_persona):
+    from facetex.persona import TextureParams
+    from facetex.persona.texture import blend_textures, blend_weights, sequence_weights, target_weights
+
+    p, tp = tiny_persona, TextureParams()
+    f = np.stack([p.fiducials[i] for i in (0, 0, 1, 5, 5, 6)])
+    raw = sequence_weights(p, f, tp)
+    smooth = sequence_weights(p, f, tp, sigma_frames=1.0)
+    assert raw.shape == smooth.shape == target_weights(p, f, tp).shape
+    np.testing.assert_allclose(smooth.sum(axis=-1), raw.sum(axis=-1), rtol=1e-9)
+    # unsmoothed: the same textures as blend_textures (up to the second 0.5 % mass cut)
+    np.testing.assert_allclose(blend_weights(p, raw, params=tp), blend_textures(p, f, params=tp), atol=2e-3)
+    assert np.abs(smooth - raw).max() > 1e-3  # frames 1 -> 5 change expression: smoothing acts
+
+
+def test_puppeteer_weight_smoothing_zero_is_per_frame(driver_video, tiny_persona):
+    import dataclasses
+
+    import facetex.persona.puppet as pp
+
+    session = pp.prepare_puppetry(driver_video, tiny_persona, params=pp.PuppetParams(weight_smoothing=0.0))
+    pup = session.puppeteer
+    frames = [0, 3, 7]
+    per_frame = pp.neutral_textures(tiny_persona, [pp.target_fiducials(tiny_persona, pup.motion, i) for i in frames],
+                                    params=pup.params.texture_params())
+    for a, b in zip(pup.textures(frames), per_frame):
+        np.testing.assert_array_equal(a, b)
+    pup.params = dataclasses.replace(pup.params, weight_smoothing=0.3)
+    W = pup.sequence_weights()
+    assert W.shape[0] == len(pup.motion)
+    smoothed = pup.textures(frames)
+    assert all(np.isfinite(t).all() and t.shape == per_frame[0].shape for t in smoothed)

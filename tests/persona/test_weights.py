@@ -92,3 +92,75 @@ def test_cut_small_hand_computed():
     np.testing.assert_allclose(_cut_small(S, 0.9), [[0.5, 0.0, 0.3, 0.15]])
     np.testing.assert_allclose(_cut_small(S, 0.9, max_photos=2), [[0.5, 0.0, 0.3, 0.0]])
     np.testing.assert_allclose(_cut_small(S, 1.0), S)
+
+
+# ------------------------------------------------------------------ temporal coherence
+def _still_coords(N, value=0.0):
+    return [np.full((N, 4), value)]
+
+
+def test_temporal_weights_hand_computed_three_frames():
+    """sigma_frames = 1, one region, equal expressions: frame t's normalised weights become the
+    Gaussian-in-time average exp(-o^2/2) over frames t+o (|o| <= 3), times frame t's own total."""
+    from facetex.persona.weights import temporal_weights
+
+    W = np.array([[[2.0, 0.0]], [[0.0, 1.0]], [[1.0, 1.0]]])  # (N=3, R=1, n=2), totals 2, 1, 2
+    P = np.array([[1.0, 0.0], [0.0, 1.0], [0.5, 0.5]])
+    e1, e2 = math.exp(-0.5), math.exp(-2.0)
+    k = np.array([[1, e1, e2], [e1, 1, e1], [e2, e1, 1]])
+    want = (k @ P) / k.sum(axis=1, keepdims=True) * np.array([2.0, 1.0, 2.0])[:, None]
+    out = temporal_weights(W, _still_coords(3), np.ones((3, 1)), sigma_frames=1.0)
+    np.testing.assert_allclose(out[:, 0], want, rtol=1e-12)
+    np.testing.assert_allclose(out.sum(axis=-1), W.sum(axis=-1), rtol=1e-12)  # totals kept
+
+
+def test_temporal_weights_still_sequence_gets_constant_weights():
+    """A still face whose nearest photos swap with landmark jitter (photo 0 or 1 alternately)
+    gets one blend: interior frames all ~[0.5, 0.5] x their total; a still face that already
+    picks the same photos is left exactly as it is."""
+    from facetex.persona.weights import temporal_weights
+
+    N = 40
+    W = np.zeros((N, 1, 3))
+    W[0::2, 0, 0] = 1.0
+    W[1::2, 0, 1] = 1.0
+    out = temporal_weights(W, _still_coords(N), np.ones((N, 1)), sigma_frames=3.0)
+    mid = out[10:-10, 0]
+    np.testing.assert_allclose(mid[:, :2], 0.5, atol=2e-3)
+    assert np.abs(np.diff(mid, axis=0)).max() < 3e-3  # per-frame swaps of 1.0 before
+    assert np.all(mid[:, 2] == 0)  # no photo appears that no frame had
+    same = np.repeat(np.array([[[0.2, 0.7, 0.1], [0.0, 0.5, 0.5]]]), N, axis=0) * np.linspace(1, 2, N)[:, None, None]
+    out2 = temporal_weights(same, _still_coords(N) * 2, np.ones((N, 2)), sigma_frames=3.0)
+    np.testing.assert_allclose(out2, same, rtol=1e-12)
+
+
+def test_temporal_weights_keep_a_frame_far_in_expression():
+    """A frame whose region coordinates are far (many sigmas) from its neighbours' (a mouth
+    opening) keeps its own weights, and is not mixed into theirs; another region where it is
+    still is smoothed as usual."""
+    from facetex.persona.weights import temporal_weights
+
+    N = 9
+    W = np.zeros((N, 2, 3))
+    W[:, :, 0] = 1.0
+    W[4, :, :] = [0.0, 0.0, 3.0]  # frame 4: photo 2 only (in both regions)
+    mouth = np.zeros((N, 4))
+    mouth[4] = 10.0  # 20 sigmas away in the mouth region
+    coords = [mouth, np.zeros((N, 4))]
+    out = temporal_weights(W, coords, np.full((N, 2), 1.0), sigma_frames=1.5)
+    np.testing.assert_allclose(out[4, 0], [0, 0, 3.0], atol=1e-12)  # mouth: its own weights
+    assert np.all(out[[3, 5], 0, 2] < 1e-12)  # neighbours' mouth: not mixed with frame 4
+    assert out[3, 1, 2] > 0.05 and out[4, 1, 0] > 0.5  # the still region: smoothed
+    np.testing.assert_allclose(out.sum(axis=-1), W.sum(axis=-1), rtol=1e-12)
+
+
+def test_temporal_weights_off_and_bad_input():
+    from facetex.persona.weights import temporal_weights
+
+    W = np.random.default_rng(0).random((5, 2, 4))
+    c = _still_coords(5) * 2
+    np.testing.assert_array_equal(temporal_weights(W, c, np.ones((5, 2)), sigma_frames=0.0), W)
+    with pytest.raises(BadInputError):
+        temporal_weights(W[0], c, np.ones((5, 2)), sigma_frames=1.0)
+    with pytest.raises(BadInputError):
+        temporal_weights(W, c[:1], np.ones((5, 2)), sigma_frames=1.0)
