@@ -418,12 +418,31 @@ class _Pool:
         return self
 
     def __exit__(self, *exc):
-        if self.pool is not None:
-            if exc[0] is not None:  # interrupted or failed: stop the workers now, then reap them
-                from .._parallel import terminate_workers
+        if self.pool is None:
+            return
+        if exc[0] is None:
+            self.pool.shutdown(wait=True)
+            return
+        # interrupted or failed: stop the workers now, then reap them. CPython 3.11's executor
+        # thread may then set an exception on a future that was just cancelled and print an
+        # InvalidStateError traceback from its thread (a race fixed in 3.12): not ours to show
+        import threading
+        from concurrent.futures import InvalidStateError
 
-                terminate_workers(self.pool)
-            self.pool.shutdown(wait=True, cancel_futures=exc[0] is not None)
+        from .._parallel import terminate_workers
+
+        previous = threading.excepthook
+
+        def quiet(args):
+            if not issubclass(args.exc_type, InvalidStateError):
+                previous(args)
+
+        threading.excepthook = quiet
+        try:
+            terminate_workers(self.pool)
+            self.pool.shutdown(wait=True, cancel_futures=True)
+        finally:
+            threading.excepthook = previous
 
     def map(self, func, items, *, progress: Callable | None = None, **postfix) -> list:
         """``[func(x) for x in items]`` in order; progress(n=1, **postfix) per item."""

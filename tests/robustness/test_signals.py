@@ -108,7 +108,10 @@ def test_signal_to_persona_build_reaps_every_child(many_photos, tmp_path, sig, c
     out = tmp_path / "p.persona"
     p = subprocess.Popen([sys.executable, "-m", "facetex.cli", "persona", "build", str(many_photos), "-o", str(out),
                           "--jobs", "2", "--min-photos", "3", "--allow-mixed"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                         # a shell's background job inherits SIGINT ignored (Python then installs no
+                         # KeyboardInterrupt handler); the target of a terminal's Ctrl-C has it default
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     seen: set[int] = set()
     t0 = time.monotonic()
     while time.monotonic() - t0 < 90:  # until the two workers run
