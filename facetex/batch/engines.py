@@ -597,13 +597,16 @@ class RayEngine(Engine):
                 ray.cancel(ref, force=False)
             except Exception:  # noqa: BLE001 - already finished
                 pass
-        ray.wait(refs, num_returns=len(refs), timeout=_CANCEL_GRACE_S)
-        for ref in refs:
+        _, left = ray.wait(refs, num_returns=len(refs), timeout=_CANCEL_GRACE_S)
+        # force only the tasks still running: force-cancelling a task whose reply is already on
+        # its way can abort the driver inside Ray (task_manager.cc "unexpected system state")
+        for ref in left:
             try:
                 ray.cancel(ref, force=True)
             except Exception:  # noqa: BLE001
                 pass
-        ray.wait(refs, num_returns=len(refs), timeout=5.0)
+        if left:
+            ray.wait(left, num_returns=len(left), timeout=5.0)
         self._refs.clear()
 
     def close(self) -> None:
