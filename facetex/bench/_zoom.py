@@ -46,10 +46,12 @@ def _u8(img) -> np.ndarray:
     return a if a.ndim == 3 else np.repeat(a[..., None], 3, 2)
 
 
-def _crop(img: np.ndarray, box, zoom: int) -> np.ndarray:
+def crop_padded(img: np.ndarray, box, zoom: int, fill=127) -> np.ndarray:
+    """The (x, y, w, h) ``box`` of an (H, W, 3) image, ``fill`` where it leaves the image,
+    enlarged ``zoom`` times with nearest neighbours (pixels stay visible at 100 %)."""
     x, y, w, h = box
     H, W = img.shape[:2]
-    pad = np.full((h, w, 3), 127, np.uint8)
+    pad = np.full((h, w, 3), fill, img.dtype)
     x0, y0, x1, y1 = max(0, x), max(0, y), min(W, x + w), min(H, y + h)
     if x1 > x0 and y1 > y0:
         pad[y0 - y:y1 - y, x0 - x:x1 - x] = img[y0:y1, x0:x1]
@@ -76,14 +78,14 @@ def zoom_sheet(columns: Sequence[tuple[str, np.ndarray]], points68, *,
     gap, left, top = 4, 90, 22 + (20 if title else 0)
     rows = []
     for r in regions:
-        cells = [_crop(im, boxes[r], zoom) for im in imgs]
+        cells = [crop_padded(im, boxes[r], zoom) for im in imgs]
         rows.append((r, np.concatenate([np.pad(c, ((0, 0), (0, gap), (0, 0)), constant_values=255) for c in cells], 1)))
     width = left + max(row.shape[1] for _, row in rows)
     height = top + sum(row.shape[0] + gap for _, row in rows)
     sheet = np.full((height, width, 3), 255, np.uint8)
     if title:
         _text(sheet, title, (4, 16), 0.55)
-    cw = _crop(imgs[0], boxes[regions[0]], zoom).shape[1] + gap
+    cw = crop_padded(imgs[0], boxes[regions[0]], zoom).shape[1] + gap
     for i, (label, _) in enumerate(columns):
         _text(sheet, label[:28], (left + i * cw + 2, top - 6), 0.45)
     y = top

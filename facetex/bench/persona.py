@@ -34,6 +34,7 @@ import numpy as np
 
 from ..errors import BadInputError
 from ._common import Column, check_out_dir, csv_table, markdown_table, versions, write_grid, write_text
+from ._zoom import crop_padded
 
 __all__ = ["run_bench_persona", "register_bench", "masked_metrics", "evaluation_masks", "region_scores",
            "zoom_boxes"]
@@ -126,13 +127,7 @@ def zoom_boxes(points68: np.ndarray) -> dict:
 
 
 def _crop(img: np.ndarray, box, zoom: int = 3) -> np.ndarray:
-    x, y, w, h = box
-    H, W = img.shape[:2]
-    pad = np.full((h, w, 3), 0.5, np.float32)
-    x0, y0, x1, y1 = max(0, x), max(0, y), min(W, x + w), min(H, y + h)
-    if x1 > x0 and y1 > y0:
-        pad[y0 - y:y1 - y, x0 - x:x1 - x] = img[y0:y1, x0:x1]
-    return cv2.resize(pad, (w * zoom, h * zoom), interpolation=cv2.INTER_NEAREST)
+    return crop_padded(np.asarray(img, np.float32), box, zoom, fill=0.5)
 
 
 def write_zoom_sheets(out: Path, items: list[dict], columns=("reference",) + ZOOM_COLUMNS) -> dict:

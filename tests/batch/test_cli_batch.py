@@ -217,20 +217,15 @@ def test_a_killed_batch_leaves_no_worker_and_the_next_run_takes_over_at_once(tmp
 @pytest.mark.slow  # a persona build and a puppet render
 def test_batch_persona_then_puppet(tmp_path, capsys, no_leftover_processes):
     import cv2
+    from _photos import write_jittered_copies
 
-    from facetex.io import read_image, write_image, write_video
+    from facetex.io import read_image, write_video
 
     people = tmp_path / "people"
     rng = np.random.default_rng(0)
     for person, n in (("alice", 4), ("bob", 1)):
         (people / person).mkdir(parents=True)
-        for name in ("frl_004_neutral", "frl_004_smiling"):
-            img = read_image(sample_path(f"{name}.jpg"))
-            h, w = img.shape[:2]
-            for k in range(n):
-                m = cv2.getRotationMatrix2D((w / 2, h / 2), rng.uniform(-6, 6), rng.uniform(0.92, 1.05))
-                j = cv2.warpAffine(img, m, (w, h), borderMode=cv2.BORDER_REPLICATE)
-                write_image(people / person / f"{name}_{k}.png", np.clip(j * rng.uniform(0.85, 1.1), 0, 1))
+        write_jittered_copies(people / person, n, rng)
     (people / "empty").mkdir()
     personas = tmp_path / "personas"
     code = main(["batch", "persona", str(people), "--out", str(personas), "--min-photos", "6", "--jobs", "2"])

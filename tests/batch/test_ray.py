@@ -228,22 +228,14 @@ def test_a_gpu_item_on_a_cluster_without_gpus_is_refused(local_ray):
 
 
 def test_bench_persona_builds_on_ray_with_the_same_numbers(tmp_path, local_ray):
-    import cv2
     import numpy as np
+    from _photos import write_jittered_copies
 
     from facetex.bench.persona import run_bench_persona
-    from facetex.io import read_image, write_image
 
     photos = tmp_path / "photos"
     photos.mkdir()
-    rng = np.random.default_rng(1)
-    for name in ("frl_004_neutral", "frl_004_smiling"):
-        img = read_image(sample_path(f"{name}.jpg"))
-        h, w = img.shape[:2]
-        for k in range(7):
-            m = cv2.getRotationMatrix2D((w / 2, h / 2), rng.uniform(-6, 6), rng.uniform(0.92, 1.05))
-            j = cv2.warpAffine(img, m, (w, h), borderMode=cv2.BORDER_REPLICATE)
-            write_image(photos / f"{name}_{k}.png", np.clip(j * rng.uniform(0.85, 1.1), 0, 1))
+    write_jittered_copies(photos, 7, np.random.default_rng(1))
     local = run_bench_persona(photos, holdout=2, out=tmp_path / "local", jobs=1, grid_rows=1)
     with RayEngine() as eng:
         remote = run_bench_persona(photos, holdout=2, out=tmp_path / "ray", jobs=1, grid_rows=1, engine=eng)

@@ -7,9 +7,10 @@ import math
 import cv2
 import numpy as np
 import pytest
+from _photos import write_jittered_copies
 
 from facetex._resources import sample_path
-from facetex.io import read_image, write_image, write_video
+from facetex.io import read_image, write_video
 
 pytestmark = pytest.mark.slow
 
@@ -20,14 +21,7 @@ def puppet_data(tmp_path_factory):
     from facetex.persona import PersonaParams, build_persona
 
     photos = tmp_path_factory.mktemp("photos")
-    rng = np.random.default_rng(0)
-    for name in ("frl_004_neutral", "frl_004_smiling"):
-        img = read_image(sample_path(f"{name}.jpg"))
-        h, w = img.shape[:2]
-        for k in range(4):
-            m = cv2.getRotationMatrix2D((w / 2, h / 2), rng.uniform(-6, 6), rng.uniform(0.92, 1.05))
-            j = cv2.warpAffine(img, m, (w, h), borderMode=cv2.BORDER_REPLICATE)
-            write_image(photos / f"{name}_{k}.png", np.clip(j * rng.uniform(0.85, 1.1), 0, 1))
+    write_jittered_copies(photos, 4, np.random.default_rng(0))
     persona_file = tmp_path_factory.mktemp("persona") / "p.persona"
     build_persona(photos, jobs=1, params=PersonaParams(min_photos=6, size=(96, 120))).save(persona_file)
     drivers = tmp_path_factory.mktemp("drivers")
