@@ -15,6 +15,7 @@ from .frontalize import (
     canonical_points68,
     estimate_head_pose,
     frontalize,
+    pose_corrected_points68,
     rotate_face,
     rotation_from_angles,
 )
@@ -39,7 +40,8 @@ __all__ = [
     "piecewise_affine_map", "piecewise_affine_warp", "remap", "compose_maps",
     "warp_with_flow", "compose_flows", "invert_flow", "flow_from_map", "map_from_flow", "flow_epe", "optical_flow",
     "sift_flow",
-    "HeadPose", "Frontalized", "estimate_head_pose", "frontalize", "canonical_points68", "rotate_face",
+    "HeadPose", "Frontalized", "estimate_head_pose", "frontalize", "pose_corrected_points68", "canonical_points68",
+    "rotate_face",
     "rotation_from_angles", "CANONICAL_SIZE",
     "REF_FACE_WIDTH", "face_mask", "face_outline", "face_width", "facial_prior_mask", "prior_mask",
 ]

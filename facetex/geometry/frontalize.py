@@ -336,6 +336,16 @@ def _sample(img: np.ndarray, mp: np.ndarray, pixels_per_canonical: float) -> np.
     return out.astype(np.float32)
 
 
+def pose_corrected_points68(image_shape, points68, *, size=CANONICAL_SIZE, focal: float | None = None,
+                             pose: HeadPose | None = None) -> np.ndarray:
+    """(68, 2) pose-corrected landmarks in the canonical frame of ``size``: the ``points68`` of
+    :func:`frontalize` without sampling the image (cheap: for trackers that need only these)."""
+    p = _check_points(points68)
+    if pose is None:
+        pose = estimate_head_pose(p, image_shape, focal=focal)
+    return _pose_corrected_points(p, pose, canonical_frame(size))
+
+
 def frontalize(
     image: np.ndarray,
     points68,

@@ -230,8 +230,8 @@ class DriverTrack:
     """Raw per-frame tracking of a driver video (N frames).
 
     points68 (N, 68, 2) and mesh (N, 468, 3) in image pixels (NaN where lost); found (N,)
-    bool; score (N,) mesh face score; frontal (K, H, W, 3) float32 frontalized frames and
-    frontal_points68 (K, 68, 2) their pose-corrected landmarks (every ``stride``-th tracked
+    bool; score (N,) mesh face score; frontal (K, H, W, 3) float32 frontalized frames (K = 0 when
+    tracked without frontal images) and frontal_points68 (K, 68, 2) their pose-corrected landmarks (every ``stride``-th tracked
     frame, K <= subspace_frames); frame_size (W, H); fps; path; lost_reason (N,) why each
     lost frame was rejected ("" where found; see :data:`LOST_REASONS`)."""
 
@@ -364,10 +364,12 @@ def _track_frame(frame, prev, params: DriverParams, detect: bool):
 
 
 def track_driver(path, *, max_frames: int | None = None, params: DriverParams = DriverParams(),
-                 progress: Callable | None = None) -> DriverTrack:
+                 progress: Callable | None = None, frontal_images: bool = True) -> DriverTrack:
     """Track the face through a driver video (first pass). NoFaceError naming the file
-    when no frame has a face."""
-    from ..geometry.frontalize import frontalize
+    when no frame has a face. Without ``frontal_images`` only the sampled frames'
+    pose-corrected landmarks are kept (``frontal`` is empty): enough for the landmark
+    correspondence, and the frontalization's sampling and symmetry fill are skipped."""
+    from ..geometry.frontalize import frontalize, pose_corrected_points68
     from ..io import iter_video_frames, video_info
 
     path = Path(path)
@@ -399,11 +401,14 @@ def track_driver(path, *, max_frames: int | None = None, params: DriverParams = 
             found.append(True)
             scores.append(score)
             reasons.append("")
-            if i % stride == 0 and len(frontal) < params.subspace_frames:
+            if i % stride == 0 and len(frontal_p) < params.subspace_frames:
                 try:
-                    fr = frontalize(frame, p68, size=params.size)
-                    frontal.append(fr.image)
-                    frontal_p.append(fr.points68)
+                    if frontal_images:
+                        fr = frontalize(frame, p68, size=params.size)
+                        frontal.append(fr.image)
+                        frontal_p.append(fr.points68)
+                    else:
+                        frontal_p.append(pose_corrected_points68(frame.shape, p68, size=params.size))
                     frontal_i.append(i)
                 except FacetexError:
                     pass
@@ -417,17 +422,18 @@ def track_driver(path, *, max_frames: int | None = None, params: DriverParams = 
             found_a[i], reasons[i] = False, "implausible shape"
             p68a[i], mesha[i] = np.nan, np.nan
         keep = [k for k, i in enumerate(frontal_i) if found_a[i]]
-        frontal, frontal_p = [frontal[k] for k in keep], [frontal_p[k] for k in keep]
+        frontal_p = [frontal_p[k] for k in keep]
+        frontal = [frontal[k] for k in keep] if frontal_images else []
     if not found_a.any():
         why = max(set(reasons), key=reasons.count) if reasons else "no face"
         hint = {"partly outside the frame": "the face is never whole inside the frame"}.get(why, why)
         raise NoFaceError(f"no usable face in any frame of the driver video ({hint}): use a video showing one "
                           "face frontally, at least ~80 px wide", path=path)
-    if not frontal:  # every sampled frame failed to frontalize: take any tracked one
+    if not frontal_p:  # every sampled frame failed to frontalize: take any tracked one
         j = int(np.flatnonzero(found_a)[0])
         frame = next(f for k, f in enumerate(iter_video_frames(path, max_frames=j + 1)) if k == j)
         fr = frontalize(frame, p68a[j], size=params.size)
-        frontal, frontal_p = [fr.image], [fr.points68]
+        frontal, frontal_p = ([fr.image] if frontal_images else []), [fr.points68]
     W, H = params.size
     return DriverTrack(
         points68=p68a, mesh=mesha, found=found_a, score=np.array(scores),

@@ -50,7 +50,9 @@ motion then opens and closes it like the driver's.
 
 from __future__ import annotations
 
+import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field, replace
 from typing import Callable, Iterator
 
@@ -176,7 +178,7 @@ class DriverCollection:
     """The driver's canonical-frame collection data: subspace (1 + rank, H, W, 3) (mean first),
     region (H, W) bool, depth (H, W) or None (use the tracked mean mesh), source text."""
 
-    subspace: np.ndarray
+    subspace: np.ndarray | None  # None: tracked without frontal images (landmark correspondence)
     region: np.ndarray
     depth: np.ndarray | None
     source: str
@@ -199,6 +201,10 @@ def driver_collection(track: DriverTrack, *, driver_photos=None, params: PuppetP
         region = face_region(dp.points68.mean(axis=0), (H, W))
         depth, src = checked_depth(dp.depth, region, (W, H), params.max_depth_error)
         return DriverCollection(dp.subspace, region, depth, f"photos ({len(dp)}, shape: {src})")
+    if len(track.frontal) == 0:  # tracked for the landmark correspondence: no appearance subspace
+        region = face_region(track.frontal_points68.mean(axis=0), (H, W))
+        return DriverCollection(None, region, None, f"video frames ({len(track.frontal_points68)} landmark sets, "
+                                                    "shape: tracked mean mesh)")
     fid = track.frontal_points68[:, POINTS49_INDEX]
     M = fid.mean(axis=0)
     maps = tps_maps(fid, M, (H, W), 10.0)
@@ -299,7 +305,6 @@ class Puppeteer:
     def __init__(self, persona, motion: DriverMotion, collection: DriverCollection,
                  params: PuppetParams = PuppetParams(), track: DriverTrack | None = None):
         from .mesh_io import depth_to_mesh
-        from .texture import average_face
 
         self.persona, self.motion, self.params, self.track = persona, motion, params, track
         self._sequence_weights = None
@@ -323,11 +328,13 @@ class Puppeteer:
             dmesh[..., 2] = collection.depth[::st, ::st]
             dmask &= collection.region[::st, ::st]
         t0 = time.perf_counter()
-        self.puppet_average = average_face(persona, "d", params=params.texture_params())
         if params.correspondence not in CORRESPONDENCES:
             raise BadInputError(f"unknown puppet correspondence {params.correspondence!r}: use one of "
                                 f"{', '.join(CORRESPONDENCES)}")
         if params.correspondence == "flow" or motion.frontal_mean68 is None:
+            if collection.subspace is None:
+                raise BadInputError("the flow correspondence needs the driver's frontalized frames: track the driver "
+                                    "with frontal_images=True")
             corr = collection_correspondence(collection.subspace, collection.region, self.puppet_average, params)
         else:  # the mesh's canonical frame is fitted to the driver's mean frontal landmarks
             corr = landmark_correspondence(motion.frontal_mean68, persona.points68.mean(axis=0),
@@ -352,6 +359,14 @@ class Puppeteer:
             self.lip_fields = LipFields(self.mean68, self.puppet_grid[..., :2])
             self.lip_scale = _iod49(persona.mean_fiducials) / max(motion.iod, 1e-9)
         self.rest_move = self._rest_motion() if params.mouth_rest and self.lip_fields is not None else None
+
+    @property
+    def puppet_average(self) -> np.ndarray:
+        """The persona's average face (Fig. 6 d; cached on the persona): computed when first
+        needed (the flow correspondence, the static texture), not for every puppet."""
+        from .texture import average_face
+
+        return average_face(self.persona, "d", params=self.params.texture_params())
 
     def _rest_motion(self) -> np.ndarray:
         """(68, 2) constant motion of the puppet's lip landmarks that makes its mean inner-lip gap
@@ -540,7 +555,8 @@ def _prepare_puppet_side(persona, params: PuppetParams, timings: dict):
     t2 = time.perf_counter()
     puppet_average_shape(persona, params)
     t3 = time.perf_counter()
-    average_face(persona, "d", params=tp)
+    if params.texture == "static" or params.correspondence == "flow":
+        average_face(persona, "d", params=tp)
     t4 = time.perf_counter()
     timings.update(persona_load_s=t1 - t0, persona_prepare_s=t2 - t1, puppet_shape_s=t3 - t2,
                    puppet_average_s=t4 - t3)
@@ -567,7 +583,9 @@ def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | N
         puppet_side = pool.submit(_prepare_puppet_side, persona, params, puppet_timings)
         try:
             t0 = time.perf_counter()
-            track = track_driver(driver, max_frames=max_frames, params=params.driver, progress=progress)
+            # the frontalized frames feed only the flow correspondence's appearance subspace
+            track = track_driver(driver, max_frames=max_frames, params=params.driver, progress=progress,
+                                 frontal_images=driver_photos is None and params.correspondence == "flow")
             timings["track_s"] = time.perf_counter() - t0
             t0 = time.perf_counter()
             coll = driver_collection(track, driver_photos=driver_photos, params=params)
@@ -606,6 +624,10 @@ def output_size(frame_size, size: int | None) -> tuple[int, int, float]:
 
 #: frames whose textures are blended together (a batch reads the precomputed stack once)
 TEXTURE_BATCH = 32
+#: frames of the first batch (rendering waits for it)
+FIRST_BATCH = 8
+#: frames rendered ahead of the one being written
+IN_FLIGHT = 4
 
 
 def _check_mode(mode: str) -> None:
@@ -633,46 +655,79 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
     for key in ("mesh_s", "texture_s", "render_s"):
         tm.setdefault(key, 0.0)
 
-    def meshes_and_textures(i0: int) -> list:
-        frames = range(i0, min(i0 + TEXTURE_BATCH, n))
+    lock = threading.Lock()
+
+    def add_time(key: str, dt: float) -> None:
+        with lock:
+            tm[key] += dt
+
+    def meshes_and_textures(i0: int, i1: int) -> list:
+        frames = range(i0, i1)
         t0 = time.perf_counter()
         verts = [pup.grid(i) for i in frames]
         t1 = time.perf_counter()
         tex = pup.textures(frames, texture)
-        tm["mesh_s"] += t1 - t0
-        tm["texture_s"] += time.perf_counter() - t1
+        add_time("mesh_s", t1 - t0)
+        add_time("texture_s", time.perf_counter() - t1)
         return list(zip(verts, tex))
 
-    # the next batch of meshes and textures is computed on a second thread while this
-    # batch is rendered and encoded (frames still come out in order)
-    with ThreadPoolExecutor(1, thread_name_prefix="facetex-puppet-frame") as pool:
-        ahead = pool.submit(meshes_and_textures, 0) if n else None
-        batch: list = []
+    def render_one(i: int, grid, tex, drv):
+        t0 = time.perf_counter()
+        out = pup.render(i, grid, tex, drv, scale, mode)
+        add_time("render_s", time.perf_counter() - t0)
+        return out
+
+    # batches of frames whose meshes and textures are computed together (a short first batch:
+    # rendering starts early); frames are rendered on a 2-thread pool, each batch's textures
+    # computed there ahead of its frames (OpenCV and numpy release the GIL); frames come out in
+    # order, each the same as rendered alone
+    starts = [0] + list(range(min(FIRST_BATCH, n), n, TEXTURE_BATCH)) if n else []
+    bounds = list(zip(starts, starts[1:] + [n]))
+    pool = ThreadPoolExecutor(2, thread_name_prefix="facetex-puppet-frame")
+    try:
+        ahead = {b: pool.submit(meshes_and_textures, *bounds[b]) for b in range(min(2, len(bounds)))}
+        pending: deque = deque()
+        batch, b = [], -1
+
+        def finished(rec_fut):
+            rec, fut = rec_fut
+            if fut is not None:
+                img, alpha = fut.result()
+                rec.update(puppet=img, alpha=alpha)
+            drv, img = rec["driver"], rec["puppet"]
+            rec["frame"] = np.concatenate([drv, img], axis=1) if side_by_side else img
+            if progress:
+                progress(n=1, stage="render", lost=session.track.n_lost)
+            if not keep:
+                rec.pop("grid"), rec.pop("texture")
+            return rec
+
         for i, frame in enumerate(iter_video_frames(session.track.path, max_frames=n)):
             if i >= n:
                 break
             drv = cv2.resize(frame, (W, H), interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
-            if i % TEXTURE_BATCH == 0:
-                batch = ahead.result()
-                if i + TEXTURE_BATCH < n:
-                    ahead = pool.submit(meshes_and_textures, i + TEXTURE_BATCH)
-            grid, tex = batch[i % TEXTURE_BATCH]
+            if b + 1 < len(bounds) and i == bounds[b + 1][0]:
+                b += 1
+                batch = ahead.pop(b).result()
+                if b + 2 < len(bounds):
+                    ahead[b + 2] = pool.submit(meshes_and_textures, *bounds[b + 2])
+            grid, tex = batch[i - bounds[b][0]]
             lost = not bool(session.track.found[i])
-            t2 = time.perf_counter()
+            rec = {"index": i, "driver": drv, "lost": lost, "grid": grid, "texture": tex}
+            fut = None
             if lost:  # no puppet where the driver's face is not seen whole
-                img = drv.copy() if mode == "composite" else np.broadcast_to(
+                rec["puppet"] = drv.copy() if mode == "composite" else np.broadcast_to(
                     np.asarray(pup.params.plain, np.float32), drv.shape).copy()
-                alpha = np.zeros((H, W), np.float32)
+                rec["alpha"] = np.zeros((H, W), np.float32)
             else:
-                img, alpha = pup.render(i, grid, tex, drv, scale, mode)
-            tm["render_s"] += time.perf_counter() - t2
-            out = np.concatenate([drv, img], axis=1) if side_by_side else img
-            if progress:
-                progress(n=1, stage="render", lost=session.track.n_lost)
-            rec = {"index": i, "driver": drv, "puppet": img, "frame": out, "alpha": alpha, "lost": lost}
-            if keep:
-                rec.update(grid=grid, texture=tex)
-            yield rec
+                fut = pool.submit(render_one, i, grid, tex, drv)
+            pending.append((rec, fut))
+            while pending and (len(pending) > IN_FLIGHT or pending[0][1] is None or pending[0][1].done()):
+                yield finished(pending.popleft())
+        while pending:
+            yield finished(pending.popleft())
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool = False, size: int | None = None,

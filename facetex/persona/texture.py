@@ -269,16 +269,16 @@ def blend_pyramids(pyramids: list[list[np.ndarray]], weights: list[list[np.ndarr
 
 
 # ------------------------------------------------------------------ precomputation
-def _confidence(persona: Persona, tp: TextureParams) -> np.ndarray:
-    """(n, H, W) float32 confidence of the symmetry-filled frontal images
-    (:func:`facetex.geometry.frontalize.fill_confidence`)."""
+def _confidence(persona: Persona, tp: TextureParams, photos: slice = slice(None)) -> np.ndarray:
+    """(n, H, W) float32 confidence of the symmetry-filled frontal images ``photos``
+    (:func:`facetex.geometry.frontalize.fill_confidence`; per photo)."""
     from ..geometry.frontalize import fill_confidence
 
-    vis = persona.visibility
+    vis = persona.visibility[photos]
     if not tp.use_visibility:
         return np.ones(vis.shape, np.float32)
-    return fill_confidence(vis, persona.points68 if tp.face_support < 1 else None, mirror_weight=tp.mirror_weight,
-                           outside_face=tp.face_support, floor=tp.visibility_floor)
+    return fill_confidence(vis, persona.points68[photos] if tp.face_support < 1 else None,
+                           mirror_weight=tp.mirror_weight, outside_face=tp.face_support, floor=tp.visibility_floor)
 
 
 def _pyramid_stack(aligned: np.ndarray, conf: np.ndarray, levels: int, tp: TextureParams,
@@ -294,7 +294,8 @@ def _pyramid_stack(aligned: np.ndarray, conf: np.ndarray, levels: int, tp: Textu
         c = conf[i]
         for k in range(levels):
             if k > 0:
-                g = cv2.pyrDown(g)
+                if tp.alpha_ != 0:  # the image itself is needed only for the response
+                    g = cv2.pyrDown(g)
                 c = cv2.pyrDown(c)
             if tp.alpha_ == 0:  # L^0 = 1: the response is not needed
                 L = np.array(c, np.float32)
@@ -383,29 +384,29 @@ class _Prepared:
         self.points68 = persona.points68.mean(axis=0)
         self.region = face_region(self.points68, self.shape)
         self.level_shapes = [p.shape[:2] for p in laplacian_pyramid(np.zeros((H, W, 3), np.float32), self.levels)]
-        self.aligned = np.empty((n, H, W, 3), np.float32)
-        self.conf_frontal = _confidence(persona, tp)
-        self.conf_aligned = np.empty((n, H, W), np.float32)
         self._layout(tp.regions)
         self.static = [np.zeros(h * w * 4, np.float64) for h, w in self.level_shapes]
         built = persona._cache.pop("tps_maps", None)  # left by build_persona; dropped after use
         if built is not None and built.shape[0] != n:
             built = None
-        self._persona_ref = persona  # for the lazily computed stage b
+        self._persona_ref = persona  # for the lazily computed stages and full-frame stacks
+        self._full: dict = {}
 
         def chunk(i0: int, i1: int):
             # one photo at a time through alignment, pyramid, segment gather and the static sums:
-            # its rows (~1 MB) stay in cache (a whole chunk's full-frame rows, ~30 MB, did not)
-            if built is not None:
-                maps = built[i0:i1]
-            else:
-                maps = tps_maps(persona.fiducials[i0:i1], self.M, self.shape, persona.params.tps_smoothing)
-            align = compose_map_flow(maps, persona.flows[i0:i1])
+            # its rows (~1 MB) stay in cache (a whole chunk's full-frame rows, ~30 MB, did not);
+            # the aligned images are not kept (recomputed by the properties that need them)
+            align, conf = self._align_maps(i0, i1, None if built is None else built[i0:i1])
             sums = [np.zeros(h * w * 4, np.float64) for h, w in self.level_shapes]
             for i in range(i0, i1):
-                self.aligned[i] = remap_stack(persona.images[i:i + 1], align[i - i0:i - i0 + 1])[0]
-                self.conf_aligned[i] = remap_stack(self.conf_frontal[i:i + 1], align[i - i0:i - i0 + 1])[0]
-                for k, row in enumerate(_photo_rows(self.aligned[i], self.conf_aligned[i], self.levels, tp)):
+                # image and confidence through one 4-channel remap (per channel the same values)
+                ic = np.empty(self.shape + (4,), np.float32)
+                np.multiply(persona.images[i], np.float32(1 / 255.0), out=ic[..., :3], casting="unsafe")
+                ic[..., 3] = conf[i - i0]
+                m = align[i - i0]
+                ic = cv2.remap(ic, m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+                aligned, conf_aligned = ic[..., :3], ic[..., 3]
+                for k, row in enumerate(_photo_rows(aligned, conf_aligned, self.levels, tp)):
                     sums[k] += row  # the same sequential float64 sum as rows.sum(axis=0) over the chunk
                     r4 = row.reshape(-1, 4)
                     for seg in self.segments[k]:  # gathered straight into the segment's rows
@@ -427,6 +428,44 @@ class _Prepared:
         self._outside_cache = {}
         if progress:
             progress(n=1, stage="precompute")
+
+    def _align_maps(self, i0: int, i1: int, maps: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Photos i0..i1's sampling maps into the neutral frame (TPS composed with the collection
+        flow) and their frontal-frame confidences."""
+        persona = self._persona_ref
+        if maps is None:
+            maps = tps_maps(persona.fiducials[i0:i1], self.M, self.shape, persona.params.tps_smoothing)
+        return compose_map_flow(maps, persona.flows[i0:i1]), _confidence(persona, self.tp, slice(i0, i1))
+
+    def _aligned_stacks(self) -> None:
+        if "aligned" not in self._full:
+            persona = self._persona_ref
+            H, W = self.shape
+            aligned = np.empty((self.n, H, W, 3), np.float32)
+            conf = np.empty((self.n, H, W), np.float32)
+            for i0, i1 in self._bounds:
+                align, c = self._align_maps(i0, i1)
+                aligned[i0:i1] = remap_stack(persona.images[i0:i1], align)
+                conf[i0:i1] = remap_stack(c, align)
+            self._full["aligned"], self._full["conf_aligned"] = aligned, conf
+        return self._full["aligned"], self._full["conf_aligned"]
+
+    @property
+    def aligned(self) -> np.ndarray:
+        """(n, H, W, 3) float32 photos aligned to the neutral frame (computed on first use)."""
+        return self._aligned_stacks()[0]
+
+    @property
+    def conf_aligned(self) -> np.ndarray:
+        """(n, H, W) float32 their confidences (computed on first use)."""
+        return self._aligned_stacks()[1]
+
+    @property
+    def conf_frontal(self) -> np.ndarray:
+        """(n, H, W) float32 confidences of the frontal photos (computed on first use)."""
+        if "conf_frontal" not in self._full:
+            self._full["conf_frontal"] = _confidence(self._persona_ref, self.tp)
+        return self._full["conf_frontal"]
 
     def stage_b(self) -> np.ndarray:
         """Fig. 6 b: the mean of the photos TPS-warped to the mean fiducials (the TPS alone),
@@ -570,7 +609,7 @@ class _Prepared:
         return out
 
     def nbytes(self) -> int:
-        arrs = [self.aligned, self.conf_frontal, self.conf_aligned, *self.static,
+        arrs = [*self._full.values(), *self.static,
                 *(seg.stack for segs in self.segments for seg in segs), *self._single.values()]
         return int(sum(a.nbytes for a in arrs))
 

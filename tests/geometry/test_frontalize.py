@@ -140,6 +140,17 @@ def test_pose_corrected_points_of_a_posed_generic_face_are_canonical():
     np.testing.assert_allclose(fr.points68, canonical_points68(), atol=0.05)
 
 
+def test_pose_corrected_points68_are_frontalizes_without_the_image(faces):
+    from facetex.geometry import pose_corrected_points68
+
+    for img, pts in faces.values():
+        for size in ((192, 240), (96, 120)):
+            want = frontalize(img, pts, size=size).points68
+            np.testing.assert_array_equal(pose_corrected_points68(img.shape, pts, size=size), want)
+    with pytest.raises(BadInputError):
+        pose_corrected_points68((480, 400, 3), np.zeros((5, 2)))
+
+
 # --- real faces -------------------------------------------------------------------
 
 

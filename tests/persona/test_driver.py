@@ -120,6 +120,15 @@ def test_track_counts_lost_frames(tracked):
     assert tr.frontal.shape[1:] == (240, 192, 3)
 
 
+def test_tracking_without_frontal_images_keeps_the_landmarks(tracked):
+    tr = tracked[0]
+    lean = track_driver(tr.path, frontal_images=False)
+    assert lean.frontal.shape == (0, 240, 192, 3) and len(tr.frontal) > 0
+    np.testing.assert_array_equal(lean.found, tr.found)
+    np.testing.assert_array_equal(lean.points68, tr.points68)
+    np.testing.assert_array_equal(lean.frontal_points68, tr.frontal_points68)
+
+
 def test_mouth_opening_follows_neutral_to_smiling(tracked):
     tr, n_morph, _ = tracked
     m = driver_motion(tr)

@@ -269,6 +269,23 @@ def test_render_frames_do_not_depend_on_the_batch_size(driver_video, tiny_person
         np.testing.assert_allclose(a, b, atol=1e-4)
 
 
+def test_render_frames_equal_frames_rendered_alone_in_order(session):
+    """Frames are rendered on a thread pool: each equals its own render, in the video's order."""
+    import facetex.persona.puppet as pp
+
+    recs = list(pp.render_frames(session, size=96, keep=True))
+    assert [r["index"] for r in recs] == list(range(session.track.n_frames))
+    pup = session.puppeteer
+    for r in recs:
+        if r["lost"]:
+            np.testing.assert_array_equal(r["puppet"], r["driver"])
+            continue
+        assert np.array_equal(r["grid"], pup.grid(r["index"]), equal_nan=True)
+        img, alpha = pup.render(r["index"], r["grid"], r["texture"], r["driver"], 96 / max(session.track.frame_size))
+        np.testing.assert_array_equal(r["puppet"], img)
+        np.testing.assert_array_equal(r["alpha"], alpha)
+
+
 def test_texture_precomputation_does_not_depend_on_threads(tiny_persona, monkeypatch):
     import dataclasses
 
