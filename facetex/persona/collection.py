@@ -252,11 +252,13 @@ def load_persona(path) -> Persona:
     names = list(_ARRAYS) + (["depth"] if depth_photos is not None else [])
     _check_members(path, header, params, photos)  # declared sizes and shapes, before decompressing
     try:
-        with np.load(path, allow_pickle=False) as z:
-            missing = [k for k in names if k not in z.files]
+        with zipfile.ZipFile(path) as zf, open(path, "rb") as raw:
+            files = {i.filename[:-4]: i for i in zf.infolist() if i.filename.endswith(".npy")}
+            missing = [k for k in names if k not in files]
             if missing:
                 raise _bad(path, f"persona file lacks arrays {missing}")
-            arrays = {k: z[k] for k in names}
+            arrays = {k: _read_stored(raw, files[k], path) if files[k].compress_type == zipfile.ZIP_STORED
+                      else _read_member(zf, files[k]) for k in names}
         bad = [k for k, a in arrays.items() if not isinstance(a, np.ndarray)]  # npz members that are not .npy
         if bad:
             raise _bad(path, f"corrupt persona file (members {bad} are not arrays)")
@@ -277,7 +279,7 @@ def load_persona(path) -> Persona:
         a = arrays[k]
         if a.dtype != dtype or a.shape != want:
             raise _bad(path, f"array {k!r} has {a.dtype} {a.shape}, expected {np.dtype(dtype)} {want}")
-    if not all(np.all(np.isfinite(arrays[k])) for k in ("fiducials", "points68", "poses", "flows", "subspace")):
+    if not all(_all_finite(arrays[k]) for k in ("fiducials", "points68", "poses", "flows", "subspace")):
         raise _bad(path, "persona arrays contain NaN or infinite values")
     if depth_photos is not None and np.isinf(arrays["depth"]).any():
         raise _bad(path, "persona depth contains infinite values")
@@ -286,6 +288,44 @@ def load_persona(path) -> Persona:
         raise _bad(path, "corrupt persona header (shape report is not an object)")
     return Persona(photos=photos, skipped=skipped, params=params, source=str(header.get("source", "")),
                    depth_photos=int(depth_photos or 0), shape_report=shape_report, **arrays)
+
+
+def _read_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo) -> np.ndarray:
+    with zf.open(info) as fh:
+        return np.lib.format.read_array(fh, allow_pickle=False)
+
+
+def _read_stored(raw, info: zipfile.ZipInfo, path: Path) -> np.ndarray:
+    """An uncompressed .npy member read straight into its array (one copy; file reads and the
+    CRC check release the GIL, so a load overlaps other work): the zip's CRC-32 is checked."""
+    raw.seek(info.header_offset)
+    local = raw.read(30)
+    if len(local) != 30 or local[:4] != b"PK\x03\x04":
+        raise zipfile.BadZipFile(f"bad local header of {info.filename}")
+    name_len, extra_len = struct.unpack("<HH", local[26:30])
+    start = info.header_offset + 30 + name_len + extra_len
+    raw.seek(start)
+    version = np.lib.format.read_magic(raw)
+    read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+    shape, fortran, dtype = read(raw, max_header_size=10_000)
+    if dtype.hasobject:
+        raise ValueError(f"member {info.filename} holds Python objects")
+    head = raw.tell() - start
+    arr = np.empty(shape, dtype, order="F" if fortran else "C")
+    buf = memoryview(arr.reshape(-1, order="A")).cast("B") if arr.size else memoryview(b"")
+    if head + buf.nbytes != info.file_size or raw.readinto(buf) != buf.nbytes:
+        raise EOFError(f"member {info.filename} is truncated")
+    raw.seek(start)
+    crc = zlib.crc32(buf, zlib.crc32(raw.read(head)))
+    if crc != info.CRC:
+        raise zipfile.BadZipFile(f"bad CRC-32 for {info.filename}")
+    return arr
+
+
+def _all_finite(a: np.ndarray) -> bool:
+    if a.dtype == np.float16:  # exponent bits all set = inf or NaN (an integer test: no float conversion)
+        return not np.any((a.view(np.uint16) & 0x7C00) == 0x7C00)
+    return bool(np.all(np.isfinite(a)))
 
 
 def _check_members(path: Path, header: dict, params: PersonaParams, photos: list) -> None:

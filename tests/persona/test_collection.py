@@ -127,6 +127,25 @@ def _rewrite(src, dst, change):
             zout.writestr(item, change(item.filename, data))
 
 
+def test_flipped_byte_in_an_uncompressed_member_is_caught_by_its_crc(persona, tmp_path):
+    """images/flows are stored uncompressed and read straight into their arrays: the zip's
+    CRC-32 still guards them (a flipped pixel byte is not loaded silently)."""
+    import zipfile
+
+    good = persona.save(tmp_path / "good.persona")
+    with zipfile.ZipFile(good) as zf:
+        info = zf.getinfo("images.npy")
+        assert info.compress_type == zipfile.ZIP_STORED
+    data = bytearray(good.read_bytes())
+    at = info.header_offset + 30 + len(info.filename) + 200  # inside the pixels
+    data[at] ^= 0x10
+    bad = tmp_path / "flipped.persona"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(BadPersonaError, match="corrupt.*CRC"):
+        load_persona(bad)
+    np.testing.assert_array_equal(load_persona(good).images, persona.images)
+
+
 def test_corrupt_and_future_files_rejected(persona, tmp_path):
     good = persona.save(tmp_path / "good.persona")
     trunc = tmp_path / "trunc.persona"
