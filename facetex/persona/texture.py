@@ -318,6 +318,30 @@ def _photo_rows(aligned: np.ndarray, conf: np.ndarray, levels: int, tp: TextureP
     return [r[0] for r in _pyramid_stack(aligned[None], conf[None], levels, tp)]
 
 
+def _photo_rows_rgbc(image_conf: np.ndarray, levels: int, tp: TextureParams) -> list[np.ndarray]:
+    """:func:`_photo_rows` of a (H, W, 4) float32 [image, confidence] for alpha = 0 (L' = the
+    confidence): one 4-channel Gaussian pyramid gives the image's and the confidence's levels
+    (the separate pyramids' values up to float rounding, < 1e-6)."""
+    if tp.alpha_ != 0:
+        return _photo_rows(image_conf[..., :3], image_conf[..., 3], levels, tp)
+    g = [np.ascontiguousarray(image_conf, np.float32)]
+    for _ in range(levels - 1):
+        g.append(cv2.pyrDown(g[-1]))
+    rows = []
+    for k in range(levels):
+        h, w = g[k].shape[:2]
+        row = np.empty((h, w, 4), np.float32)
+        c = g[k][..., 3:]
+        if k < levels - 1:
+            band = g[k][..., :3] - cv2.pyrUp(np.ascontiguousarray(g[k + 1][..., :3]), dstsize=(w, h))
+        else:
+            band = g[k][..., :3]
+        np.multiply(band, c, out=row[..., :3])
+        row[..., 3] = c[..., 0]
+        rows.append(row.reshape(-1))
+    return rows
+
+
 def _single_stack(images: np.ndarray, conf: np.ndarray, tp: TextureParams) -> np.ndarray:
     """(n, H * W * 4) float32 [L' image, L'] at full resolution (single-scale baselines)."""
     n = len(images)
@@ -405,8 +429,7 @@ class _Prepared:
                 ic[..., 3] = conf[i - i0]
                 m = align[i - i0]
                 ic = cv2.remap(ic, m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-                aligned, conf_aligned = ic[..., :3], ic[..., 3]
-                for k, row in enumerate(_photo_rows(aligned, conf_aligned, self.levels, tp)):
+                for k, row in enumerate(_photo_rows_rgbc(ic, self.levels, tp)):
                     sums[k] += row  # the same sequential float64 sum as rows.sum(axis=0) over the chunk
                     r4 = row.reshape(-1, 4)
                     for seg in self.segments[k]:  # gathered straight into the segment's rows
