@@ -42,6 +42,9 @@ def main() -> None:
     ap.add_argument("--iters", default="10,10,10")
     ap.add_argument("--engines", default="local1x1,local1,local2,ray2",
                     help="comma-separated subset of local1x1,local1,local2,ray2")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="run the engines this many times, interleaved (the run with the median time is reported: "
+                         "a shared machine's speed drifts)")
     ap.add_argument("--keep", help="keep the output folders under this folder")
     args = ap.parse_args()
 
@@ -72,9 +75,9 @@ def main() -> None:
     results = []
     print(f"{len(rows)} pairs from {data}, size {args.size}, iters {args.iters}, {cpus} CPUs available; "
           f"outputs in {root}")
-    for name in args.engines.split(","):
+    for rep, name in [(r, n) for r in range(max(1, args.repeat)) for n in args.engines.split(",")]:
         title, make = configs[name]
-        out = root / name
+        out = root / f"{name}-{rep}"
         shutil.rmtree(out, ignore_errors=True)
         out.mkdir()
         before = load()
@@ -94,10 +97,18 @@ def main() -> None:
             "first_s": max(r["seconds"] for r in stats), "median_item_s": sorted(r["seconds"] for r in stats)[len(stats) // 2],
             "overhead_mean": sum(overhead) / len(overhead), "overhead_max": max(overhead),
             "rss_mb": max(r["peak_rss_mb"] or 0 for r in stats), "workers_seen": len({r["pid"] for r in stats}),
-            "load_before": before, "load_after": load(), "out": out,
+            "load_before": before, "load_after": load(), "out": out, "rep": rep,
         })
         print(f"  {title}: {s.seconds:.1f} s, load {before} -> {results[-1]['load_after']}", flush=True)
 
+    if args.repeat > 1:  # per engine the run with the median time
+        runs = {}
+        for r in results:
+            runs.setdefault(r["name"], []).append(r)
+        for name, rs in runs.items():
+            walls = ", ".join(f"{r['wall_s']:.1f}" for r in rs)
+            print(f"  {name}: run s {walls}")
+        results = [sorted(rs, key=lambda r: r["wall_s"])[(len(rs) - 1) // 2] for rs in runs.values()]
     base = next((r for r in results if r["name"] == "local1"), None)
     ref = next((r for r in results if r["name"] == "local2"), None)
 
