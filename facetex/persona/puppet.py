@@ -429,12 +429,18 @@ class Puppeteer:
         method = method or self.params.texture
         frames = list(frames)
         tp = self.params.texture_params()
-        if method == "ours" and tp.weights == "regional" and self.params.weight_smoothing > 0:
+        if self.uses_sequence_weights(method):
             from .texture import blend_weights
 
             return list(blend_weights(self.persona, self.sequence_weights()[frames], params=tp))
         f = [target_fiducials(self.persona, self.motion, i) for i in frames]
         return neutral_textures(self.persona, f, method=method, params=tp)
+
+    def uses_sequence_weights(self, method: str | None = None) -> bool:
+        """Whether ``method``'s textures (default: the puppet's) blend the clip's temporally
+        smoothed regional weights (:meth:`sequence_weights`)."""
+        return ((method or self.params.texture) == "ours" and self.params.texture_params().weights == "regional"
+                and self.params.weight_smoothing > 0)
 
     def sequence_weights(self) -> np.ndarray:
         """(N, R, n) temporally coherent regional weights of every frame of the clip (computed once;
@@ -542,25 +548,26 @@ def _persona_size(persona) -> tuple[int, int]:
     return tuple(read_persona_header(persona)["size"])
 
 
-def _prepare_puppet_side(persona, params: PuppetParams, timings: dict):
-    """Everything of the puppet that does not depend on the driver: load, the synthesis
-    precomputation, the average shape and the average texture (all cached on the persona)."""
-    from .texture import average_face, prepare_persona
-
-    tp = params.texture_params()
+def _load_puppet(persona, timings: dict):
     t0 = time.perf_counter()
     persona = _load(persona)
-    t1 = time.perf_counter()
+    timings["persona_load_s"] = time.perf_counter() - t0
+    return persona
+
+
+def _prepare_puppet_texture(loaded, params: PuppetParams, timings: dict) -> None:
+    """The texture synthesis precomputation (and, for the flow correspondence or the static
+    texture, the average face), cached on the persona."""
+    from .texture import average_face, prepare_persona
+
+    persona = loaded.result()
+    tp = params.texture_params()
+    t0 = time.perf_counter()
     prepare_persona(persona, tp)
-    t2 = time.perf_counter()
-    puppet_average_shape(persona, params)
-    t3 = time.perf_counter()
+    t1 = time.perf_counter()
     if params.texture == "static" or params.correspondence == "flow":
         average_face(persona, "d", params=tp)
-    t4 = time.perf_counter()
-    timings.update(persona_load_s=t1 - t0, persona_prepare_s=t2 - t1, puppet_shape_s=t3 - t2,
-                   puppet_average_s=t4 - t3)
-    return persona
+    timings.update(persona_prepare_s=t1 - t0, puppet_average_s=time.perf_counter() - t1)
 
 
 def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | None = None,
@@ -579,8 +586,10 @@ def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | N
     if tuple(params.driver.size) != size:  # work in the persona's canonical frame
         params = replace(params, driver=replace(params.driver, size=size))
     timings, puppet_timings = {}, {}
+    # one worker thread: the persona load, then the texture precomputation (cached on the persona)
     with ThreadPoolExecutor(1, thread_name_prefix="facetex-puppet") as pool:
-        puppet_side = pool.submit(_prepare_puppet_side, persona, params, puppet_timings)
+        loaded = pool.submit(_load_puppet, persona, puppet_timings)
+        prepared = pool.submit(_prepare_puppet_texture, loaded, params, puppet_timings)
         try:
             t0 = time.perf_counter()
             # the frontalized frames feed only the flow correspondence's appearance subspace
@@ -591,14 +600,28 @@ def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | N
             coll = driver_collection(track, driver_photos=driver_photos, params=params)
             motion = driver_motion(track, params.driver)
             timings["motion_s"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            persona = loaded.result()
+            wait = time.perf_counter() - t0
+            if params.texture == "static" or params.correspondence == "flow":  # they need the average face
+                t0 = time.perf_counter()
+                prepared.result()
+                wait += time.perf_counter() - t0
+            # the puppet's shape, correspondence and deformation transfer, and the clip's expression
+            # weights, while the texture precomputation runs on the other thread
+            pup = Puppeteer(persona, motion, coll, params, track)
+            if pup.uses_sequence_weights():
+                t0 = time.perf_counter()
+                pup.sequence_weights()
+                timings["sequence_weights_s"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            prepared.result()
+            timings["puppet_wait_s"] = wait + time.perf_counter() - t0
         except BaseException:
-            puppet_side.cancel()
+            loaded.cancel()
+            prepared.cancel()
             raise
-        t0 = time.perf_counter()
-        persona = puppet_side.result()
-        timings["puppet_wait_s"] = time.perf_counter() - t0
     timings.update(puppet_timings)
-    pup = Puppeteer(persona, motion, coll, params, track)
     timings.update({k: v for k, v in pup.timings.items() if k not in timings})  # not the cached look-ups
     return PuppetSession(track, motion, coll, pup, timings)
 
