@@ -687,6 +687,15 @@ def write_json(path, obj, *, overwrite: bool = True, inputs=()) -> Path:
 
 
 # ------------------------------------------------------------------------------- npz
+def read_npy_header(fh) -> tuple[tuple[int, ...], bool, np.dtype]:
+    """(shape, fortran order, dtype) of the .npy header at ``fh``'s position (left just after
+    it); a header over 10 kB is refused (numpy's ValueError)."""
+    version = np.lib.format.read_magic(fh)
+    read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+    shape, fortran, dtype = read(fh, max_header_size=10_000)
+    return tuple(int(s) for s in shape), bool(fortran), dtype
+
+
 def npz_members(path, error: type = BadInputError, *, what: str = "file") -> dict[str, dict]:
     """What every member of an ``.npz`` (zip) declares, read from the zip directory and the
     first bytes of each ``.npy`` member (nothing else is decompressed): name (without
@@ -707,14 +716,11 @@ def npz_members(path, error: type = BadInputError, *, what: str = "file") -> dic
                        "compress_size": int(info.compress_size)}
                 if info.filename.endswith(".npy"):
                     with zf.open(info) as fh:
-                        version = np.lib.format.read_magic(fh)
-                        read = (np.lib.format.read_array_header_1_0 if version == (1, 0)
-                                else np.lib.format.read_array_header_2_0)
-                        shape, fortran, dtype = read(fh, max_header_size=10_000)
+                        shape, fortran, dtype = read_npy_header(fh)
                     if dtype.hasobject:
                         raise error(f"corrupt {what}: member {name!r} holds Python objects (never loaded)",
                                     path=path)
-                    rec.update(dtype=dtype, shape=tuple(int(s) for s in shape), fortran=bool(fortran))
+                    rec.update(dtype=dtype, shape=shape, fortran=fortran)
                 out[name] = rec
     except FacetexError:
         raise

@@ -78,7 +78,8 @@ def run(args) -> int:
     write_json(sidecar, provenance(
         command="puppet", inputs={"driver": args.driver, "puppet": args.puppet, "driver_photos": args.driver_photos},
         params={"side_by_side": args.side_by_side, "size": args.size, "mode": args.mode, "texture": args.texture,
-                "weights": args.weights, "weight_smoothing": args.weight_smoothing, "correspondence": args.correspondence, "lighting": args.lighting, "max_frames": args.max_frames,
+                "weights": args.weights, "weight_smoothing": args.weight_smoothing,
+                "correspondence": args.correspondence, "lighting": args.lighting, "max_frames": args.max_frames,
                 "puppet_params": params},
         outputs=[out], result=report), overwrite=args.overwrite, inputs=inputs)
     if report["lost_frames"] and not args.quiet:

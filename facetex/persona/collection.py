@@ -257,7 +257,7 @@ def load_persona(path) -> Persona:
             missing = [k for k in names if k not in files]
             if missing:
                 raise _bad(path, f"persona file lacks arrays {missing}")
-            arrays = {k: _read_stored(raw, files[k], path) if files[k].compress_type == zipfile.ZIP_STORED
+            arrays = {k: _read_stored(raw, files[k]) if files[k].compress_type == zipfile.ZIP_STORED
                       else _read_member(zf, files[k]) for k in names}
         bad = [k for k, a in arrays.items() if not isinstance(a, np.ndarray)]  # npz members that are not .npy
         if bad:
@@ -295,9 +295,11 @@ def _read_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo) -> np.ndarray:
         return np.lib.format.read_array(fh, allow_pickle=False)
 
 
-def _read_stored(raw, info: zipfile.ZipInfo, path: Path) -> np.ndarray:
+def _read_stored(raw, info: zipfile.ZipInfo) -> np.ndarray:
     """An uncompressed .npy member read straight into its array (one copy; file reads and the
     CRC check release the GIL, so a load overlaps other work): the zip's CRC-32 is checked."""
+    from ..io import read_npy_header
+
     raw.seek(info.header_offset)
     local = raw.read(30)
     if len(local) != 30 or local[:4] != b"PK\x03\x04":
@@ -305,9 +307,7 @@ def _read_stored(raw, info: zipfile.ZipInfo, path: Path) -> np.ndarray:
     name_len, extra_len = struct.unpack("<HH", local[26:30])
     start = info.header_offset + 30 + name_len + extra_len
     raw.seek(start)
-    version = np.lib.format.read_magic(raw)
-    read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-    shape, fortran, dtype = read(raw, max_header_size=10_000)
+    shape, fortran, dtype = read_npy_header(raw)
     if dtype.hasobject:
         raise ValueError(f"member {info.filename} holds Python objects")
     head = raw.tell() - start

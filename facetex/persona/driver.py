@@ -230,9 +230,9 @@ class DriverTrack:
     """Raw per-frame tracking of a driver video (N frames).
 
     points68 (N, 68, 2) and mesh (N, 468, 3) in image pixels (NaN where lost); found (N,)
-    bool; score (N,) mesh face score; frontal (K, H, W, 3) float32 frontalized frames (K = 0 when
-    tracked without frontal images) and frontal_points68 (K, 68, 2) their pose-corrected landmarks (every ``stride``-th tracked
-    frame, K <= subspace_frames); frame_size (W, H); fps; path; lost_reason (N,) why each
+    bool; score (N,) mesh face score; frontal (K, H, W, 3) float32 frontalized frames (none when
+    tracked without frontal images) and frontal_points68 (K, 68, 2) their pose-corrected
+    landmarks (every ``stride``-th tracked frame, K <= subspace_frames); frame_size (W, H); fps; path; lost_reason (N,) why each
     lost frame was rejected ("" where found; see :data:`LOST_REASONS`)."""
 
     points68: np.ndarray
@@ -372,6 +372,13 @@ def track_driver(path, *, max_frames: int | None = None, params: DriverParams = 
     from ..geometry.frontalize import frontalize, pose_corrected_points68
     from ..io import iter_video_frames, video_info
 
+    def frontal_sample(frame, p68) -> tuple[np.ndarray | None, np.ndarray]:
+        """(frontalized image, or None without frontal images; pose-corrected landmarks)."""
+        if frontal_images:
+            fr = frontalize(frame, p68, size=params.size)
+            return fr.image, fr.points68
+        return None, pose_corrected_points68(frame.shape, p68, size=params.size)
+
     path = Path(path)
     info = video_info(path)
     n_est = info["n_frames"] if max_frames is None else min(info["n_frames"], int(max_frames))
@@ -403,13 +410,11 @@ def track_driver(path, *, max_frames: int | None = None, params: DriverParams = 
             reasons.append("")
             if i % stride == 0 and len(frontal_p) < params.subspace_frames:
                 try:
-                    if frontal_images:
-                        fr = frontalize(frame, p68, size=params.size)
-                        frontal.append(fr.image)
-                        frontal_p.append(fr.points68)
-                    else:
-                        frontal_p.append(pose_corrected_points68(frame.shape, p68, size=params.size))
+                    img, pts = frontal_sample(frame, p68)
+                    frontal_p.append(pts)
                     frontal_i.append(i)
+                    if img is not None:
+                        frontal.append(img)
                 except FacetexError:
                     pass
         if progress:
@@ -432,8 +437,8 @@ def track_driver(path, *, max_frames: int | None = None, params: DriverParams = 
     if not frontal_p:  # every sampled frame failed to frontalize: take any tracked one
         j = int(np.flatnonzero(found_a)[0])
         frame = next(f for k, f in enumerate(iter_video_frames(path, max_frames=j + 1)) if k == j)
-        fr = frontalize(frame, p68a[j], size=params.size)
-        frontal, frontal_p = ([fr.image] if frontal_images else []), [fr.points68]
+        img, pts = frontal_sample(frame, p68a[j])
+        frontal, frontal_p = ([] if img is None else [img]), [pts]
     W, H = params.size
     return DriverTrack(
         points68=p68a, mesh=mesha, found=found_a, score=np.array(scores),

@@ -138,6 +138,12 @@ class PuppetParams:
     deform: DeformParams = field(default_factory=DeformParams)
     driver: DriverParams = field(default_factory=DriverParams)
 
+    @property
+    def needs_average_face(self) -> bool:
+        """Whether the puppet needs the persona's average face (Fig. 6 d): the flow
+        correspondence projects it, the static texture is it."""
+        return self.texture == "static" or self.correspondence == "flow"
+
     def texture_params(self):
         """The :class:`facetex.persona.TextureParams` of the puppet's textures: the persona
         texture's defaults with the regional weights, :meth:`TextureParams.paper` with the
@@ -147,6 +153,8 @@ class PuppetParams:
 
         if self.weights not in WEIGHTS:
             raise BadInputError(f"unknown puppet texture weights {self.weights!r}: use one of {', '.join(WEIGHTS)}")
+        if not self.weight_smoothing >= 0:
+            raise BadInputError(f"weight smoothing must be >= 0 seconds, got {self.weight_smoothing}")
         if self.weights == "global":
             return TextureParams.paper(sigma=self.sigma)
         return TextureParams(neighbours=self.neighbours)
@@ -565,7 +573,7 @@ def _prepare_puppet_texture(loaded, params: PuppetParams, timings: dict) -> None
     t0 = time.perf_counter()
     prepare_persona(persona, tp)
     t1 = time.perf_counter()
-    if params.texture == "static" or params.correspondence == "flow":
+    if params.needs_average_face:
         average_face(persona, "d", params=tp)
     timings.update(persona_prepare_s=t1 - t0, puppet_average_s=time.perf_counter() - t1)
 
@@ -603,7 +611,7 @@ def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | N
             t0 = time.perf_counter()
             persona = loaded.result()
             wait = time.perf_counter() - t0
-            if params.texture == "static" or params.correspondence == "flow":  # they need the average face
+            if params.needs_average_face:  # the puppeteer needs it: wait for the precomputation
                 t0 = time.perf_counter()
                 prepared.result()
                 wait += time.perf_counter() - t0
@@ -721,8 +729,6 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
             rec["frame"] = np.concatenate([drv, img], axis=1) if side_by_side else img
             if progress:
                 progress(n=1, stage="render", lost=session.track.n_lost)
-            if not keep:
-                rec.pop("grid"), rec.pop("texture")
             return rec
 
         for i, frame in enumerate(iter_video_frames(session.track.path, max_frames=n)):
@@ -736,7 +742,9 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
                     ahead[b + 2] = pool.submit(meshes_and_textures, *bounds[b + 2])
             grid, tex = batch[i - bounds[b][0]]
             lost = not bool(session.track.found[i])
-            rec = {"index": i, "driver": drv, "lost": lost, "grid": grid, "texture": tex}
+            rec = {"index": i, "driver": drv, "lost": lost}
+            if keep:
+                rec.update(grid=grid, texture=tex)
             fut = None
             if lost:  # no puppet where the driver's face is not seen whole
                 rec["puppet"] = drv.copy() if mode == "composite" else np.broadcast_to(

@@ -86,6 +86,7 @@ __all__ = [
     "prepare_persona",
     "expression_similarity",
     "eq3_weights",
+    "gaussian_pyramid",
     "laplacian_pyramid",
     "collapse_pyramid",
     "blend_pyramids",
@@ -164,11 +165,17 @@ def pyramid_levels(shape, min_side: int = 8) -> int:
     return max(1, int(math.floor(math.log2(max(s, 1) / min_side))) + 1)
 
 
-def laplacian_pyramid(image: np.ndarray, levels: int) -> list[np.ndarray]:
-    """Laplacian pyramid (cv2.pyrDown / pyrUp), finest band first, Gaussian residual last."""
+def gaussian_pyramid(image: np.ndarray, levels: int) -> list[np.ndarray]:
+    """Gaussian pyramid (cv2.pyrDown), finest (the image as float32) first."""
     g = [np.asarray(image, np.float32)]
     for _ in range(levels - 1):
         g.append(cv2.pyrDown(g[-1]))
+    return g
+
+
+def laplacian_pyramid(image: np.ndarray, levels: int) -> list[np.ndarray]:
+    """Laplacian pyramid (cv2.pyrDown / pyrUp), finest band first, Gaussian residual last."""
+    g = gaussian_pyramid(image, levels)
     pyr = [g[k] - cv2.pyrUp(g[k + 1], dstsize=(g[k].shape[1], g[k].shape[0])) for k in range(levels - 1)]
     pyr.append(g[-1])
     return pyr
@@ -324,9 +331,7 @@ def _photo_rows_rgbc(image_conf: np.ndarray, levels: int, tp: TextureParams) -> 
     (the separate pyramids' values up to float rounding, < 1e-6)."""
     if tp.alpha_ != 0:
         return _photo_rows(image_conf[..., :3], image_conf[..., 3], levels, tp)
-    g = [np.ascontiguousarray(image_conf, np.float32)]
-    for _ in range(levels - 1):
-        g.append(cv2.pyrDown(g[-1]))
+    g = gaussian_pyramid(image_conf, levels)
     rows = []
     for k in range(levels):
         h, w = g[k].shape[:2]
@@ -460,7 +465,7 @@ class _Prepared:
             maps = tps_maps(persona.fiducials[i0:i1], self.M, self.shape, persona.params.tps_smoothing)
         return compose_map_flow(maps, persona.flows[i0:i1]), _confidence(persona, self.tp, slice(i0, i1))
 
-    def _aligned_stacks(self) -> None:
+    def _aligned_stacks(self) -> tuple[np.ndarray, np.ndarray]:
         if "aligned" not in self._full:
             persona = self._persona_ref
             H, W = self.shape

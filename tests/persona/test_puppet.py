@@ -215,6 +215,8 @@ def test_neutral_texture_weights_follow_expression(tiny_persona):
                                neutral_texture(p, smi, params=paper), atol=1e-6)
     with pytest.raises(ValueError, match="unknown puppet texture weights"):
         PuppetParams(weights="local").texture_params()
+    with pytest.raises(ValueError, match="weight smoothing must be >= 0"):
+        PuppetParams(weight_smoothing=-0.1).texture_params()
 
 
 def test_cli_puppet(tmp_path, driver_video, tiny_persona, capsys):
