@@ -300,9 +300,9 @@ def temporal_weights(weights, coordinates, sigmas, *, sigma_frames: float, range
         raise BadInputError(f"temporal weights need (frames, regions, photos) weights, got {W.shape}")
     N, R, n = W.shape
     sig = np.asarray(sigmas, np.float64).reshape(N, R)
-    if len(coordinates) != R or sigma_frames <= 0 or N < 2:
-        if len(coordinates) != R:
-            raise BadInputError(f"{len(coordinates)} coordinate sets for {R} regions")
+    if len(coordinates) != R:
+        raise BadInputError(f"{len(coordinates)} coordinate sets for {R} regions")
+    if sigma_frames <= 0 or N < 2:
         return W.copy()
     half = int(math.ceil(3.0 * sigma_frames))
     out = np.empty_like(W)
