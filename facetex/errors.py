@@ -26,6 +26,9 @@ class FacetexError(Exception):
         self.message = message
         super().__init__(f"{self.path}: {message}" if self.path else message)
 
+    def __reduce__(self):  # pickled with its path (errors cross process boundaries)
+        return self.__class__, (self.message, self.path)
+
 
 class BadInputError(FacetexError, ValueError):
     """Any other invalid argument (empty folder, bad landmark file, bad option value)."""

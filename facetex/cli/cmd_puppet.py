@@ -52,29 +52,35 @@ def run(args) -> int:
     from ..errors import BadInputError
     from ..io import VIDEO_EXTENSIONS, check_input_dir, check_output_path, video_info
     from ..persona import read_persona_header
-    from ..persona.composite import CompositeParams
-    from ..persona.puppet import PuppetParams, puppeteer
 
     # everything checked before the work: output, inputs, the driver's size
-    from .._provenance import provenance
-    from ..io import write_json
-
     inputs = [args.driver, args.puppet]
     out = check_output_path(args.output, overwrite=args.overwrite, inputs=inputs, extensions=VIDEO_EXTENSIONS,
                             what="video")
     sidecar = check_output_path(f"{out}.json", overwrite=args.overwrite, inputs=inputs)
     if args.driver_photos:
         check_input_dir(args.driver_photos, BadInputError, what="driver photo folder")
-    read_persona_header(args.puppet)  # fail fast on a wrong file; the arrays load while the driver is tracked
+    # fail fast on a wrong file; the arrays load while the driver is tracked
+    size = tuple(read_persona_header(args.puppet)["size"])
     n = video_info(args.driver)["n_frames"]
     if args.max_frames is not None:
         n = min(n, max(0, args.max_frames))
-    params = PuppetParams(texture=args.texture, weights=args.weights, correspondence=args.correspondence,
-                          weight_smoothing=args.weight_smoothing, composite=CompositeParams(lighting=args.lighting))
-    with progress_bar(2 * n, desc="puppet", unit="frame", disable=args.quiet) as bar:
-        report = puppeteer(args.driver, args.puppet, args.output, driver_photos=args.driver_photos,
-                           side_by_side=args.side_by_side, size=args.size, mode=args.mode,
-                           overwrite=args.overwrite, max_frames=args.max_frames, params=params, progress=bar)
+    tracker = _start_tracking(args, size)
+    try:
+        from .._provenance import provenance
+        from ..io import write_json
+        from ..persona.composite import CompositeParams
+        from ..persona.puppet import PuppetParams, puppeteer
+
+        params = PuppetParams(texture=args.texture, weights=args.weights, correspondence=args.correspondence,
+                              weight_smoothing=args.weight_smoothing, composite=CompositeParams(lighting=args.lighting))
+        with progress_bar(2 * n, desc="puppet", unit="frame", disable=args.quiet) as bar:
+            report = puppeteer(args.driver, args.puppet, args.output, driver_photos=args.driver_photos,
+                               side_by_side=args.side_by_side, size=args.size, mode=args.mode,
+                               overwrite=args.overwrite, max_frames=args.max_frames, params=params, progress=bar,
+                               tracking=tracker)
+    finally:
+        tracker.cancel()  # a no-op once its result was taken
     write_json(sidecar, provenance(
         command="puppet", inputs={"driver": args.driver, "puppet": args.puppet, "driver_photos": args.driver_photos},
         params={"side_by_side": args.side_by_side, "size": args.size, "mode": args.mode, "texture": args.texture,
@@ -89,3 +95,14 @@ def run(args) -> int:
         print_json(report)
     wrote(args, out, sidecar)
     return 0
+
+
+def _start_tracking(args, size):
+    """The driver's tracking, started in a child process before this process imports the puppet
+    code and loads the persona (both then overlap it); the parameters are those
+    :func:`~facetex.persona.puppet.prepare_puppetry` derives (it checks them)."""
+    from ..persona._tracking import DriverTracking
+    from ..persona.driver import DriverParams
+
+    return DriverTracking(args.driver, max_frames=args.max_frames, params=DriverParams(size=size),
+                          frontal_images=args.driver_photos is None and args.correspondence == "flow")

@@ -7,7 +7,9 @@
 - :mod:`.masks`: the FaceTex facial prior mask and the face-region mask
 """
 
-from .flow import compose_flows, flow_epe, flow_from_map, invert_flow, map_from_flow, optical_flow, sift_flow, warp_with_flow
+import importlib as _importlib
+
+# eager: the function `frontalize` must win over its submodule of the same name
 from .frontalize import (
     CANONICAL_SIZE,
     Frontalized,
@@ -19,20 +21,52 @@ from .frontalize import (
     rotate_face,
     rotation_from_angles,
 )
-from .masks import REF_FACE_WIDTH, face_mask, face_outline, face_width, facial_prior_mask, prior_mask
-from .morph import (
-    AlignParams,
-    AlignResult,
-    BeierNeelyParams,
-    align_style_to_content,
-    beier_neely_map,
-    beier_neely_warp,
-    compose_maps,
-    piecewise_affine_map,
-    piecewise_affine_warp,
-    remap,
-)
-from .tps import ThinPlateSpline, tps_evaluate_many, tps_warp
+
+#: public name -> the private module that defines it (imported on first use: importing one
+#: submodule, e.g. the driver tracker in its own process, does not load them all)
+_LAZY = {
+    "compose_flows": "flow",
+    "flow_epe": "flow",
+    "flow_from_map": "flow",
+    "invert_flow": "flow",
+    "map_from_flow": "flow",
+    "optical_flow": "flow",
+    "sift_flow": "flow",
+    "warp_with_flow": "flow",
+    "REF_FACE_WIDTH": "masks",
+    "face_mask": "masks",
+    "face_outline": "masks",
+    "face_width": "masks",
+    "facial_prior_mask": "masks",
+    "prior_mask": "masks",
+    "AlignParams": "morph",
+    "AlignResult": "morph",
+    "BeierNeelyParams": "morph",
+    "align_style_to_content": "morph",
+    "beier_neely_map": "morph",
+    "beier_neely_warp": "morph",
+    "compose_maps": "morph",
+    "piecewise_affine_map": "morph",
+    "piecewise_affine_warp": "morph",
+    "remap": "morph",
+    "ThinPlateSpline": "tps",
+    "tps_evaluate_many": "tps",
+    "tps_warp": "tps",
+}
+
+
+def __getattr__(name: str):
+    mod = _LAZY.get(name)
+    if mod is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(_importlib.import_module(f".{mod}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
+
 
 __all__ = [
     "ThinPlateSpline", "tps_evaluate_many", "tps_warp",

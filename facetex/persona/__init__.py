@@ -2,35 +2,55 @@
 collection, expression-dependent textures (global and regional weights), the average 3D face,
 and puppet compositing into a driver's frame."""
 
-from .collection import Persona, PersonaParams, build_persona, load_persona, read_persona_header
-from .composite import (
-    FACE_OVAL,
-    CompositeParams,
-    boundary_color_step,
-    composite_face,
-    feature_mask,
-    fit_sh_lighting,
-    inner_feather,
-    linear_to_srgb,
-    match_color_statistics,
-    mouth_interior,
-    poisson_blend,
-    polygon_mask,
-    relight,
-    sh_basis,
-    sh_shading,
-    srgb_to_linear,
-)
-from .texture import (
-    METHODS,
-    STAGES,
-    WEIGHTS,
-    TextureParams,
-    average_face,
-    blend_textures,
-    prepare_persona,
-    synthesize_texture,
-)
+import importlib as _importlib
+
+#: public name -> the private module that defines it (imported on first use: importing one
+#: submodule, e.g. the driver tracker in its own process, does not load them all)
+_LAZY = {
+    "Persona": "collection",
+    "PersonaParams": "collection",
+    "build_persona": "collection",
+    "load_persona": "collection",
+    "read_persona_header": "collection",
+    "FACE_OVAL": "composite",
+    "CompositeParams": "composite",
+    "boundary_color_step": "composite",
+    "composite_face": "composite",
+    "feature_mask": "composite",
+    "fit_sh_lighting": "composite",
+    "inner_feather": "composite",
+    "linear_to_srgb": "composite",
+    "match_color_statistics": "composite",
+    "mouth_interior": "composite",
+    "poisson_blend": "composite",
+    "polygon_mask": "composite",
+    "relight": "composite",
+    "sh_basis": "composite",
+    "sh_shading": "composite",
+    "srgb_to_linear": "composite",
+    "METHODS": "texture",
+    "STAGES": "texture",
+    "WEIGHTS": "texture",
+    "TextureParams": "texture",
+    "average_face": "texture",
+    "blend_textures": "texture",
+    "prepare_persona": "texture",
+    "synthesize_texture": "texture",
+}
+
+
+def __getattr__(name: str):
+    mod = _LAZY.get(name)
+    if mod is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(_importlib.import_module(f".{mod}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
+
 
 __all__ = [
     "Persona",

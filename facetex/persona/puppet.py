@@ -54,6 +54,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Callable, Iterator
 
 import cv2
@@ -579,13 +580,17 @@ def _prepare_puppet_texture(loaded, params: PuppetParams, timings: dict) -> None
 
 
 def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | None = None,
-                     params: PuppetParams = PuppetParams(), progress: Callable | None = None) -> PuppetSession:
+                     params: PuppetParams = PuppetParams(), progress: Callable | None = None,
+                     tracking="process") -> PuppetSession:
     """Track the driver video and set up the puppet (everything before the per-frame rendering).
 
-    ``persona``: a Persona or a .persona path. The puppet side (loading, precomputation,
-    average shape) runs on a second thread while the driver is tracked: neither needs the
-    other, and OpenCV, numpy, zlib and BLAS release the GIL."""
+    ``persona``: a Persona or a .persona path. The driver is tracked in a child process
+    (``tracking="process"``; ``"thread"``: in this one; or a :class:`DriverTracking` already
+    started with the same arguments) while a second thread loads the persona and precomputes
+    its texture stacks: neither needs the other, and dlib holds the GIL."""
     from concurrent.futures import ThreadPoolExecutor
+
+    from ._tracking import DriverTracking
 
     if params.texture not in TEXTURES:
         raise BadInputError(f"unknown puppet texture {params.texture!r}: use one of {', '.join(TEXTURES)}")
@@ -594,15 +599,26 @@ def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | N
     if tuple(params.driver.size) != size:  # work in the persona's canonical frame
         params = replace(params, driver=replace(params.driver, size=size))
     timings, puppet_timings = {}, {}
+    t0 = time.perf_counter()
+    # the frontalized frames feed only the flow correspondence's appearance subspace
+    job = dict(max_frames=max_frames, params=params.driver,
+               frontal_images=driver_photos is None and params.correspondence == "flow")
+    if isinstance(tracking, DriverTracking):  # started earlier by the caller (the CLI, before its imports)
+        if (Path(tracking.path), tracking.kwargs) != (Path(driver), job):
+            tracking.cancel()
+            raise BadInputError(f"the driver tracking was started for {tracking.path} with {tracking.kwargs}, "
+                                f"but this puppetry needs {driver} with {job}")
+        tracker = tracking
+    elif tracking in ("process", "thread"):
+        tracker = DriverTracking(driver, process=tracking == "process", **job)
+    else:
+        raise BadInputError(f"unknown tracking {tracking!r}: use 'process', 'thread' or a DriverTracking")
     # one worker thread: the persona load, then the texture precomputation (cached on the persona)
     with ThreadPoolExecutor(1, thread_name_prefix="facetex-puppet") as pool:
         loaded = pool.submit(_load_puppet, persona, puppet_timings)
         prepared = pool.submit(_prepare_puppet_texture, loaded, params, puppet_timings)
         try:
-            t0 = time.perf_counter()
-            # the frontalized frames feed only the flow correspondence's appearance subspace
-            track = track_driver(driver, max_frames=max_frames, params=params.driver, progress=progress,
-                                 frontal_images=driver_photos is None and params.correspondence == "flow")
+            track = tracker.result(progress)
             timings["track_s"] = time.perf_counter() - t0
             t0 = time.perf_counter()
             coll = driver_collection(track, driver_photos=driver_photos, params=params)
@@ -626,6 +642,7 @@ def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | N
             prepared.result()
             timings["puppet_wait_s"] = wait + time.perf_counter() - t0
         except BaseException:
+            tracker.cancel()
             loaded.cancel()
             prepared.cancel()
             raise
@@ -764,14 +781,15 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
 def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool = False, size: int | None = None,
               mode: str = "composite", overwrite: bool = False, max_frames: int | None = None,
               params: PuppetParams = PuppetParams(), progress: Callable | None = None,
-              on_frame: Callable | None = None) -> dict:
+              on_frame: Callable | None = None, tracking="process") -> dict:
     """Render ``driver`` (a video) performed by ``persona`` (a Persona or .persona path) to
     ``output`` (H.264 MP4, written atomically, the driver's audio passed through).
 
     Frames where the driver's face is lost (not found, partly outside the frame, implausible)
     show the driver's frame and are counted and reported with their causes; a video without
     any face raises NoFaceError naming it (nothing is written).
-    ``on_frame(record)`` receives each frame record of :func:`render_frames`.
+    ``on_frame(record)`` receives each frame record of :func:`render_frames`; ``tracking``: see
+    :func:`prepare_puppetry`.
     Returns a report dict (frames, lost frames, timings, shape/collection sources)."""
     from ..io import check_output_path, video_info, write_video
 
@@ -781,7 +799,7 @@ def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool
     output_size((1, 1), size)  # a bad size fails before the work
     t_start = time.perf_counter()
     session = prepare_puppetry(driver, persona, driver_photos=driver_photos, max_frames=max_frames, params=params,
-                               progress=progress)
+                               progress=progress, tracking=tracking)
 
     def frames():
         for rec in render_frames(session, size=size, mode=mode, side_by_side=side_by_side,
