@@ -36,7 +36,7 @@ __all__ = [
     "read_image", "read_image_reduced", "read_image_uint8", "to_uint8", "to_float32",
     "check_input_file", "check_input_dir", "atomic_path", "check_output_path", "check_outputs",
     "write_files", "encode_image", "encode_json", "write_image", "write_json", "committed_outputs",
-    "video_info", "iter_video_frames", "read_video", "write_video", "npz_members",
+    "video_info", "iter_video_frames", "read_video", "write_video", "transcode_audio", "npz_members",
     "MAX_IMAGE_PIXELS", "DETECT_MAX_PIXELS", "IMAGE_MEMORY_BUDGET", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS",
 ]
 
@@ -857,6 +857,27 @@ def _audio_packets(src, out):
             yield float(p.pts * p.time_base) if p.pts is not None else t, p
     for p in o.encode(None):
         yield float(p.pts * p.time_base) if p.pts is not None else 0.0, p
+
+
+def transcode_audio(src, dst) -> Path | None:
+    """Write the first audio stream of video ``src`` to ``dst`` (.m4a) as AAC (remuxed if it
+    is AAC already), for :func:`write_video` to remux later: the encoding can then run
+    while nothing else does. None (and no file) if ``src`` has no decodable audio; the
+    caller then passes ``src`` itself, whose problems :func:`write_video` reports."""
+    src, dst = Path(src), Path(dst)
+    try:
+        with av.open(os.fspath(src)) as c:
+            if not c.streams.audio:
+                return None
+        if _audio_error(src) is not None:
+            return None
+        with atomic_path(dst, inputs=(src,)) as tmp, av.open(os.fspath(src)) as c, \
+                av.open(os.fspath(tmp), "w", format="mp4") as out:
+            for _, packet in _audio_packets(c, out):
+                out.mux(packet)
+    except (*_AV_ERRORS, FacetexError):
+        return None
+    return dst
 
 
 def _prep_frame(f, shape) -> np.ndarray:

@@ -579,6 +579,12 @@ def _prepare_puppet_texture(loaded, params: PuppetParams, timings: dict) -> None
     timings.update(persona_prepare_s=t1 - t0, puppet_average_s=time.perf_counter() - t1)
 
 
+def _puppet_shape(loaded, params: PuppetParams, timings: dict) -> None:
+    t0 = time.perf_counter()
+    puppet_average_shape(loaded.result(), params)  # cached on the persona
+    timings["puppet_shape_s"] = time.perf_counter() - t0
+
+
 def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | None = None,
                      params: PuppetParams = PuppetParams(), progress: Callable | None = None,
                      tracking="process") -> PuppetSession:
@@ -616,6 +622,7 @@ def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | N
     # one worker thread: the persona load, then the texture precomputation (cached on the persona)
     with ThreadPoolExecutor(1, thread_name_prefix="facetex-puppet") as pool:
         loaded = pool.submit(_load_puppet, persona, puppet_timings)
+        shaped = pool.submit(_puppet_shape, loaded, params, puppet_timings)
         prepared = pool.submit(_prepare_puppet_texture, loaded, params, puppet_timings)
         try:
             track = tracker.result(progress)
@@ -626,13 +633,14 @@ def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | N
             timings["motion_s"] = time.perf_counter() - t0
             t0 = time.perf_counter()
             persona = loaded.result()
+            shaped.result()
             wait = time.perf_counter() - t0
             if params.needs_average_face:  # the puppeteer needs it: wait for the precomputation
                 t0 = time.perf_counter()
                 prepared.result()
                 wait += time.perf_counter() - t0
-            # the puppet's shape, correspondence and deformation transfer, and the clip's expression
-            # weights, while the texture precomputation runs on the other thread
+            # the correspondence and deformation transfer, and the clip's expression weights, while
+            # the texture precomputation runs on the other thread
             pup = Puppeteer(persona, motion, coll, params, track)
             if pup.uses_sequence_weights():
                 t0 = time.perf_counter()
@@ -643,8 +651,8 @@ def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | N
             timings["puppet_wait_s"] = wait + time.perf_counter() - t0
         except BaseException:
             tracker.cancel()
-            loaded.cancel()
-            prepared.cancel()
+            for fut in (loaded, shaped, prepared):
+                fut.cancel()
             raise
     timings.update(puppet_timings)
     timings.update({k: v for k, v in pup.timings.items() if k not in timings})  # not the cached look-ups
@@ -791,15 +799,31 @@ def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool
     ``on_frame(record)`` receives each frame record of :func:`render_frames`; ``tracking``: see
     :func:`prepare_puppetry`.
     Returns a report dict (frames, lost frames, timings, shape/collection sources)."""
-    from ..io import check_output_path, video_info, write_video
+    import tempfile
+    from concurrent.futures import ThreadPoolExecutor
+
+    from ..io import check_output_path, transcode_audio
 
     _check_mode(mode)
     inputs = [driver] + ([] if hasattr(persona, "images") else [persona])
     out = check_output_path(output, overwrite=overwrite, inputs=inputs)
     output_size((1, 1), size)  # a bad size fails before the work
     t_start = time.perf_counter()
-    session = prepare_puppetry(driver, persona, driver_photos=driver_photos, max_frames=max_frames, params=params,
-                               progress=progress, tracking=tracking)
+    with tempfile.TemporaryDirectory(prefix="facetex-puppet-") as tmp, ThreadPoolExecutor(1) as audio_pool:
+        # the driver's audio is encoded during the setup, not beside the rendering
+        audio = audio_pool.submit(transcode_audio, driver, Path(tmp) / "audio.m4a")
+        session = prepare_puppetry(driver, persona, driver_photos=driver_photos, max_frames=max_frames,
+                                   params=params, progress=progress, tracking=tracking)
+        return _render_video(session, out, audio, driver=driver, inputs=inputs, size=size, mode=mode,
+                             side_by_side=side_by_side, overwrite=overwrite, progress=progress, on_frame=on_frame,
+                             t_start=t_start)
+
+
+def _render_video(session: PuppetSession, out, audio, *, driver, inputs, size, mode, side_by_side, overwrite,
+                  progress, on_frame, t_start: float) -> dict:
+    """The second pass of :func:`puppeteer`: frames rendered and encoded (``audio``: the future
+    of the driver's transcoded audio file, or of None), and the report."""
+    from ..io import video_info, write_video
 
     def frames():
         for rec in render_frames(session, size=size, mode=mode, side_by_side=side_by_side,
@@ -809,8 +833,8 @@ def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool
             yield rec["frame"]
 
     t0 = time.perf_counter()
-    write_video(out, frames(), session.track.fps, audio_from=driver if session.track.has_audio else None,
-                overwrite=overwrite, inputs=inputs)
+    audio_from = (audio.result() or driver) if session.track.has_audio else None
+    write_video(out, frames(), session.track.fps, audio_from=audio_from, overwrite=overwrite, inputs=inputs)
     tm = session.timings
     tm["render_pass_s"] = time.perf_counter() - t0
     tm["total_s"] = time.perf_counter() - t_start

@@ -404,6 +404,23 @@ def test_audio_reencoded_from_pcm(tmp_path):
     assert np.abs(samples).max() > 0.5  # the sine survived
 
 
+def test_transcoded_audio_remuxes_into_the_output(tmp_path, clip):
+    src = _make_clip(tmp_path / "src.mkv", "pcm_s16le")
+    m4a = fio.transcode_audio(src, tmp_path / "a.m4a")
+    with av.open(str(m4a)) as c:
+        assert [s.codec_context.name for s in c.streams] == ["aac"]
+        assert float(c.streams.audio[0].duration * c.streams.audio[0].time_base) == pytest.approx(2.0, abs=0.1)
+    out = fio.write_video(tmp_path / "o.mp4", _pattern(10), 25, audio_from=m4a)
+    with av.open(str(out)) as c:
+        samples = np.concatenate([f.to_ndarray().ravel() for f in c.decode(c.streams.audio[0])])
+    assert np.abs(samples).max() > 0.5
+    # no audio, or no readable file: None and nothing written
+    assert fio.transcode_audio(clip, tmp_path / "b.m4a") is None
+    (tmp_path / "junk.mp4").write_bytes(b"not a video" * 10)
+    assert fio.transcode_audio(tmp_path / "junk.mp4", tmp_path / "c.m4a") is None
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.m4a", "junk.mp4", "o.mp4", "src.mkv"]
+
+
 def test_audio_from_silent_video_adds_no_audio(tmp_path, clip):
     out = fio.write_video(tmp_path / "o.mp4", _pattern(3), 25, audio_from=clip)
     assert not fio.video_info(out)["has_audio"]
