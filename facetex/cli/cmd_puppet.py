@@ -49,6 +49,16 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    # the driver's tracking starts first, in a child process: this one then checks the arguments,
+    # imports the puppet code and loads the persona beside it (nothing is written before the checks)
+    tracker = _start_tracking(args)
+    try:
+        return _run(args, tracker)
+    finally:
+        tracker.cancel()  # a no-op once its result was taken
+
+
+def _run(args, tracker) -> int:
     from ..errors import BadInputError
     from ..io import VIDEO_EXTENSIONS, check_input_dir, check_output_path, video_info
     from ..persona import read_persona_header
@@ -60,27 +70,22 @@ def run(args) -> int:
     sidecar = check_output_path(f"{out}.json", overwrite=args.overwrite, inputs=inputs)
     if args.driver_photos:
         check_input_dir(args.driver_photos, BadInputError, what="driver photo folder")
-    # fail fast on a wrong file; the arrays load while the driver is tracked
-    size = tuple(read_persona_header(args.puppet)["size"])
+    read_persona_header(args.puppet)  # fail fast on a wrong file; the arrays load while the driver is tracked
     n = video_info(args.driver)["n_frames"]
     if args.max_frames is not None:
         n = min(n, max(0, args.max_frames))
-    tracker = _start_tracking(args, size)
-    try:
-        from .._provenance import provenance
-        from ..io import write_json
-        from ..persona.composite import CompositeParams
-        from ..persona.puppet import PuppetParams, puppeteer
+    from .._provenance import provenance
+    from ..io import write_json
+    from ..persona.composite import CompositeParams
+    from ..persona.puppet import PuppetParams, puppeteer
 
-        params = PuppetParams(texture=args.texture, weights=args.weights, correspondence=args.correspondence,
-                              weight_smoothing=args.weight_smoothing, composite=CompositeParams(lighting=args.lighting))
-        with progress_bar(2 * n, desc="puppet", unit="frame", disable=args.quiet) as bar:
-            report = puppeteer(args.driver, args.puppet, args.output, driver_photos=args.driver_photos,
-                               side_by_side=args.side_by_side, size=args.size, mode=args.mode,
-                               overwrite=args.overwrite, max_frames=args.max_frames, params=params, progress=bar,
-                               tracking=tracker)
-    finally:
-        tracker.cancel()  # a no-op once its result was taken
+    params = PuppetParams(texture=args.texture, weights=args.weights, correspondence=args.correspondence,
+                          weight_smoothing=args.weight_smoothing, composite=CompositeParams(lighting=args.lighting))
+    with progress_bar(2 * n, desc="puppet", unit="frame", disable=args.quiet) as bar:
+        report = puppeteer(args.driver, args.puppet, args.output, driver_photos=args.driver_photos,
+                           side_by_side=args.side_by_side, size=args.size, mode=args.mode,
+                           overwrite=args.overwrite, max_frames=args.max_frames, params=params, progress=bar,
+                           tracking=tracker)
     write_json(sidecar, provenance(
         command="puppet", inputs={"driver": args.driver, "puppet": args.puppet, "driver_photos": args.driver_photos},
         params={"side_by_side": args.side_by_side, "size": args.size, "mode": args.mode, "texture": args.texture,
@@ -97,12 +102,12 @@ def run(args) -> int:
     return 0
 
 
-def _start_tracking(args, size):
-    """The driver's tracking, started in a child process before this process imports the puppet
-    code and loads the persona (both then overlap it); the parameters are those
-    :func:`~facetex.persona.puppet.prepare_puppetry` derives (it checks them)."""
+def _start_tracking(args):
+    """The driver's tracking in a child process, with the parameters
+    :func:`~facetex.persona.puppet.prepare_puppetry` derives (it checks them): the default
+    DriverParams in the persona's canonical frame (read by the child: nothing heavy is imported
+    here)."""
     from ..persona._tracking import DriverTracking
-    from ..persona.driver import DriverParams
 
-    return DriverTracking(args.driver, max_frames=args.max_frames, params=DriverParams(size=size),
+    return DriverTracking(args.driver, size_of=args.puppet, max_frames=args.max_frames, params=None,
                           frontal_images=args.driver_photos is None and args.correspondence == "flow")

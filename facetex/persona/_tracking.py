@@ -6,7 +6,7 @@ own interpreter. It is a plain ``python -m facetex.persona._tracking`` subproces
 multiprocessing): it does not re-import the caller's ``__main__``, and unlike ``fork`` it is
 safe after OpenCV's thread pool has run (a forked child hangs in OpenCV's parallel code).
 
-Protocol (pickle over pipes): the parent writes ``{"args": ..., "kwargs": ...}`` of
+Protocol (pickle over pipes): the parent writes ``{"path", "size_of", "kwargs"}`` of
 :func:`~facetex.persona.driver.track_driver` to the child's stdin; the child writes
 ``("progress", lost)`` per frame, then ``("done", DriverTrack)`` or ``("error", exception)``
 to its stdout (library output in the child goes to stderr)."""
@@ -29,16 +29,25 @@ _MODULE = "facetex.persona._tracking"
 class DriverTracking:
     """:func:`~facetex.persona.driver.track_driver` of one video, started now and collected by
     :meth:`result`. ``process``: in a child process (the default), else on the caller's thread
-    when :meth:`result` is called (also the fallback when no child process can be started)."""
+    when :meth:`result` is called (also the fallback when no child process can be started).
 
-    def __init__(self, path, *, process: bool = True, **kwargs):
-        self.path, self.kwargs = path, kwargs
+    ``size_of``: a .persona path whose canonical frame replaces ``params.size`` (``params``
+    None: the default DriverParams); it is read in the child, so a caller can start the
+    tracking before it has imported numpy."""
+
+    def __init__(self, path, *, process: bool = True, size_of=None, **kwargs):
+        self.path, self._kwargs, self._size_of = path, kwargs, size_of
         self._proc = None
         if process:
             try:
-                self._proc = _start_child(path, kwargs)
+                self._proc = _start_child(path, size_of, kwargs)
             except OSError:  # no usable interpreter for a child (embedded Python): track in-thread
                 self._proc = None
+
+    @property
+    def kwargs(self) -> dict:
+        """The keyword arguments of track_driver (the persona's size resolved)."""
+        return _resolved(self._size_of, self._kwargs)
 
     def result(self, progress: Callable | None = None):
         """The DriverTrack (errors of the tracking re-raised here, e.g. NoFaceError naming the video)."""
@@ -79,7 +88,25 @@ def _stop(proc) -> None:
     proc.stdout.close()
 
 
-def _start_child(path, kwargs) -> subprocess.Popen:
+def _resolved(size_of, kwargs) -> dict:
+    if size_of is None:
+        return kwargs if kwargs.get("params", True) is not None else dict(kwargs, params=_default_params())
+    from dataclasses import replace
+
+    from .collection import read_persona_header
+    from .driver import DriverParams
+
+    size = tuple(read_persona_header(size_of)["size"])
+    return dict(kwargs, params=replace(kwargs.get("params") or DriverParams(), size=size))
+
+
+def _default_params():
+    from .driver import DriverParams
+
+    return DriverParams()
+
+
+def _start_child(path, size_of, kwargs) -> subprocess.Popen:
     root = str(Path(__file__).resolve().parents[2])  # the folder holding this facetex package
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([root] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
@@ -87,7 +114,7 @@ def _start_child(path, kwargs) -> subprocess.Popen:
     env.update(OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
     proc = subprocess.Popen([sys.executable, "-m", _MODULE], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                             env=env)
-    job = pickle.dumps({"path": path, "kwargs": kwargs}, protocol=pickle.HIGHEST_PROTOCOL)
+    job = pickle.dumps({"path": path, "size_of": size_of, "kwargs": kwargs}, protocol=pickle.HIGHEST_PROTOCOL)
     # written from a thread: a child that dies at start must not block the caller on a full pipe
     threading.Thread(target=_feed, args=(proc.stdin, job), daemon=True).start()
     return proc
@@ -126,7 +153,7 @@ def _child_main() -> int:
         from .driver import track_driver
 
         track = track_driver(job["path"], progress=lambda n=1, lost=0, **_: send(("progress", lost)),
-                             **job["kwargs"])
+                             **_resolved(job["size_of"], job["kwargs"]))
         send(("done", track))
     except (KeyboardInterrupt, BrokenPipeError):  # Ctrl-C reaches the whole process group; the parent reports
         return 130

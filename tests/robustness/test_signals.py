@@ -70,22 +70,31 @@ def test_interrupted_save_every_keeps_and_names_step_files(capsys, bad, outdir, 
 
 @pytest.mark.skipif(not has_command("puppet"), reason="no puppet command")
 def test_sigterm_puppet_in_process(capsys, videos, outdir, persona_file, monkeypatch):
-    import facetex.persona.driver as driver
+    """SIGTERM while the driver is tracked (in its child process): no output, the child stopped."""
+    from facetex.persona._tracking import DriverTracking
 
-    real = driver._track_frame
-    calls = []
+    real = DriverTracking.result
+    children = []
 
-    def track(*a, **k):
-        calls.append(1)
-        if len(calls) == 2:
-            os.kill(os.getpid(), signal.SIGTERM)
-        return real(*a, **k)
+    def result(self, progress=None):
+        children.append(self._proc)
+        calls = []
 
-    monkeypatch.setattr(driver, "_track_frame", track)
+        def tick(**k):  # the second frame's progress message from the child
+            calls.append(1)
+            if len(calls) == 2:
+                os.kill(os.getpid(), signal.SIGTERM)
+            if progress:
+                progress(**k)
+
+        return real(self, tick)
+
+    monkeypatch.setattr(DriverTracking, "result", result)
     run = run_cli(capsys, "puppet", "--driver", videos["face.mp4"], "--puppet", persona_file, "-o",
                   outdir / "o.mp4", "--size", "64")
     assert_one_error(run, code=143, prefix="facetex:", cause=r"interrupted by SIGTERM; no partial output")
     assert snapshot(outdir) == {}
+    assert children and children[0] is not None and children[0].poll() is not None
     time.sleep(0.2)
     assert not [t for t in threading.enumerate() if t.name.startswith("facetex-puppet")]
 
