@@ -63,7 +63,7 @@ import numpy as np
 from ..errors import BadInputError
 from .composite import FACE_OVAL, INNER_LIPS, CompositeParams, composite_face, mouth_interior
 from .deform import DeformationTransfer, DeformParams
-from .driver import DriverMotion, DriverParams, DriverTrack, driver_motion, track_driver
+from .driver import DriverMotion, DriverParams, DriverTrack, driver_motion
 
 __all__ = [
     "PuppetParams",
@@ -198,7 +198,8 @@ def driver_collection(track: DriverTrack, *, driver_photos=None, params: PuppetP
     """The driver's 2D average, appearance subspace and (with photos) average shape.
 
     From ``driver_photos`` (a folder): a persona build of it (fewest photos 4). Otherwise the
-    frontalized video frames kept by :func:`track_driver`, TPS-aligned to their mean fiducials."""
+    frontalized video frames kept by :func:`~facetex.persona.driver.track_driver`, TPS-aligned to
+    their mean fiducials."""
     from ..landmarks import POINTS49_INDEX
     from .collection import PersonaParams, appearance_subspace, build_persona, face_region, remap_stack, tps_maps
     from .shape import checked_depth
