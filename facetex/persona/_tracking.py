@@ -18,6 +18,7 @@ import pickle
 import subprocess
 import sys
 import threading
+import weakref
 from pathlib import Path
 from typing import Callable
 
@@ -43,6 +44,8 @@ class DriverTracking:
                 self._proc = _start_child(path, size_of, kwargs)
             except OSError:  # no usable interpreter for a child (embedded Python): track in-thread
                 self._proc = None
+            else:  # a tracking dropped unread must not leave its child blocked on a full pipe
+                weakref.finalize(self, _stop, self._proc)
 
     @property
     def kwargs(self) -> dict:
@@ -85,7 +88,8 @@ def _stop(proc) -> None:
     if proc.poll() is None:
         proc.kill()
     proc.wait()
-    proc.stdout.close()
+    if not proc.stdout.closed:
+        proc.stdout.close()
 
 
 def _resolved(size_of, kwargs) -> dict:

@@ -58,6 +58,16 @@ def test_cancel_stops_the_child(driver):
     job.cancel()  # twice is harmless
 
 
+def test_a_dropped_tracking_stops_its_child(driver):
+    import gc
+
+    job = DriverTracking(driver)
+    proc = job._proc
+    del job
+    gc.collect()
+    assert proc.wait(timeout=10) is not None
+
+
 def test_errors_pickle_with_their_path():
     e = pickle.loads(pickle.dumps(NoFaceError("no face", path="/x/y.mp4")))
     assert type(e) is NoFaceError and e.path == "/x/y.mp4" and str(e) == "/x/y.mp4: no face"
