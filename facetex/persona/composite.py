@@ -295,7 +295,7 @@ def _lip_arcs(lips: np.ndarray, R: np.ndarray, c: np.ndarray):
 
 def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float = 0.9,
                    closed: float = 0.04, soft: float = 0.15,
-                   lip_key: tuple[float, float] | None = (10.0, 28.0)) -> tuple[np.ndarray, np.ndarray]:
+                   lip_key: tuple[float, float] | None = (4.0, 12.0)) -> tuple[np.ndarray, np.ndarray]:
     """The driver's mouth interior moved into the puppet's mouth: (image (H, W, 3), alpha (H, W)).
 
     ``driver_lips``, ``puppet_lips`` (8, 2): iBUG inner-lip points 60-67 in ``frame`` px (driver)
@@ -307,12 +307,16 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     driver's interior, not its lips). Alpha: 0 outside the puppet's inner lips, rising to 1 over
     ``soft`` x the local lip gap inside them (the puppet's lips overlap the interior: no polygon
     edge), faded out as the driver's lip gap falls from 2 x ``closed`` to ``closed`` times its
-    mouth width (closed lips have no interior to show). ``lip_key`` (ΔE lo, hi): the driver's
-    own lip colour is keyed out of the interior (alpha x 0 at a CIELAB distance <= lo from it,
-    x 1 at >= hi; None: off): dlib's inner-lip points of a slightly open mouth sit on the lips,
-    whose red, stretched over the puppet's opening, drew a flat red polygon; what is left is
-    what differs from lips: the dark cavity, teeth, tongue. The lip colour is the median of the
-    driver's frame just outside its inner-lip contour."""
+    mouth width (closed lips have no interior to show). ``lip_key`` (lo, hi): the driver's own
+    lips are keyed out of the interior (None: off): dlib's inner-lip points of a slightly open
+    mouth sit on the lips, whose red, stretched over the puppet's opening, drew a flat red
+    polygon. A pixel counts as lip unless its colour (CIELAB a, b) differs from the lips' or
+    it is lighter (alpha x 0 when the larger of the two differences is <= lo, x 1 when >= hi):
+    the inner lip surface has the lips' colour, only darker, while the cavity and tongue in
+    shadow lose it and teeth lose it and gain light (measured on GRID clips with the Bush and
+    Blair puppets: median a-b distance 3-4 on the inner lip surface of slightly open mouths,
+    14-25 in open mouths with teeth).
+    The lip colour is the median of the driver's frame just outside its inner-lip contour."""
     f = np.asarray(frame, np.float32)
     h, w = _shape2(f.shape if shape is None else shape)
     dp = np.asarray(driver_lips, np.float64)
@@ -345,7 +349,9 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     gap = np.maximum(b - a, 0.0)
     # depth inside the lips (px): to the nearer lip across the mouth, to the nearer corner along it
     depth = np.minimum(np.minimum(v - a, b - v), np.minimum(u - pu0, pu1 - u))
-    width = np.maximum(soft * gap, 1.0)
+    # one ramp width for the whole mouth (its widest gap's): the thin parts towards the corners
+    # fade instead of ending in hard tips
+    width = max(soft * float(gap.max()), 1.0)
     r = np.clip(depth / width, 0.0, 1.0)  # 0 on the lips' edge: closed lips (no gap) show nothing
     alpha = np.zeros((h, w), np.float32)
     alpha[y0:y1, x0:x1] = (r * r * (3 - 2 * r)) * fade
@@ -367,11 +373,16 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
         lip = cv2.remap(f, ring[None, :, 0].astype(np.float32), ring[None, :, 1].astype(np.float32), cv2.INTER_LINEAR,
                         borderMode=cv2.BORDER_REPLICATE)
         lip_lab = np.median(_lab(lip)[0], axis=0)
-        dist = np.linalg.norm(_lab(warped) - lip_lab, axis=-1)
+        lab = _lab(warped)
+        unlike = np.maximum(np.linalg.norm(lab[..., 1:] - lip_lab[1:], axis=-1), lab[..., 0] - lip_lab[0])
         lo, hi = lip_key
-        k = np.clip((dist - lo) / max(hi - lo, 1e-6), 0.0, 1.0)
-        k = cv2.GaussianBlur((k * k * (3 - 2 * k)).astype(np.float32), (0, 0), 1.0)
-        alpha[y0:y1, x0:x1] *= k
+        k = np.clip((unlike - lo) / max(hi - lo, 1e-6), 0.0, 1.0)
+        k = (k * k * (3 - 2 * k)).astype(np.float32)
+        # smoothed over the mouth opening only (normalized convolution): the box's pixels outside
+        # the lips sample the driver's lips and would darken a thin opening's key
+        inside = (alpha[y0:y1, x0:x1] > 0).astype(np.float32)
+        k = cv2.GaussianBlur(k * inside, (0, 0), 1.0) / np.maximum(cv2.GaussianBlur(inside, (0, 0), 1.0), 1e-6)
+        alpha[y0:y1, x0:x1] *= np.clip(k, 0.0, 1.0)
     img = np.zeros((h, w, 3), np.float32)
     img[y0:y1, x0:x1] = warped
     return img, alpha
