@@ -352,9 +352,11 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     # one ramp width for the whole mouth (its widest gap's): the thin parts towards the corners
     # fade instead of ending in hard tips
     width = max(soft * float(gap.max()), 1.0)
-    r = np.clip(depth / width, 0.0, 1.0)  # 0 on the lips' edge: closed lips (no gap) show nothing
+    # a pixel's centre half a pixel inside the lips is half covered (as an anti-aliased polygon's
+    # edge); an opening thinner than a pixel is covered by its thickness (closed lips: nothing)
+    r = np.clip((depth + 0.5) / width, 0.0, 1.0)
     alpha = np.zeros((h, w), np.float32)
-    alpha[y0:y1, x0:x1] = (r * r * (3 - 2 * r)) * fade
+    alpha[y0:y1, x0:x1] = (r * r * (3 - 2 * r)) * np.clip(gap, 0.0, 1.0) * fade
     if alpha.max() <= 0:
         return none
     # the same place in the driver's mouth: fraction along the corner line and across the gap

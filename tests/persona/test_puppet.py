@@ -161,9 +161,7 @@ def test_open_mouth_shows_the_drivers_mouth_interior(session):
     finally:
         pup.params = saved
     diff = np.abs(r["puppet"] - without).max(axis=2)
-    # the interior replaced the stretched lip texture (partly: on this 20 px mouth the driver's
-    # teeth are blurred into its lips, and lip-coloured interior pixels are keyed out)
-    assert diff[inside].mean() > 0.01
+    assert diff[inside].mean() > 0.02  # the interior replaced the stretched lip texture
     ring = (polygon_mask(lips * 1.0, r["alpha"].shape, samples=1) == 0)
     assert diff[ring].mean() < 0.1 * diff[inside].mean()  # and nothing else
 
