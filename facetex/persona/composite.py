@@ -18,9 +18,11 @@ looks pasted on unless its colour, lighting and outline come from the frame it s
 * **gradient-domain blending**: the puppet's gradients with the driver's values on the mask
   border (Pérez et al. 2003, OpenCV's ``seamlessClone``), so the colour is continuous across
   the border;
-* **mouth interior**: the driver's own mouth interior (teeth, tongue, dark cavity), warped by
-  the map between the two mouths' axes (corner line and lip opening), drawn inside the
-  puppet's inner lips while the driver's lips are apart.
+* **mouth interior**: the driver's own mouth interior (teeth, tongue, dark cavity), each
+  puppet pixel taking the driver's pixel at the same place between the mouth corners and
+  between the upper and lower inner lip (smooth curves through the landmarks), drawn inside the
+  puppet's inner lips with a soft edge while the driver's lips are apart, the driver's lip
+  colour keyed out.
 
 Plus the measure of the result: :func:`boundary_color_step` (ΔE between bands just inside and
 just outside the mask edge).

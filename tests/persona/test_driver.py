@@ -216,7 +216,8 @@ def _flipped(rest, g):
 
     def det(v):
         c = v.reshape(-1, 3)[faces][:, :, :2]
-        return (c[:, 1, 0] - c[:, 0, 0]) * (c[:, 2, 1] - c[:, 0, 1]) - (c[:, 1, 1] - c[:, 0, 1]) * (c[:, 2, 0] - c[:, 0, 0])
+        e1, e2 = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]
+        return e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
 
     return int((np.sign(det(g)) != np.sign(det(rest))).sum())
 
