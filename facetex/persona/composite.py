@@ -270,13 +270,46 @@ def _mouth_frame(lips: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float
     return c, R, width, gap
 
 
+def _pchip(x: np.ndarray, y: np.ndarray):
+    """Monotone piecewise-cubic Hermite interpolant of the points (x, y) (x increasing, >= 2
+    points; Fritsch-Carlson slopes with the end rule of scipy's PchipInterpolator, the end cubics
+    continued beyond the ends). Written out because scipy's PchipInterpolator spends ~1 ms
+    checking its input, four times a frame; tested against it."""
+    h = np.diff(x)
+    d = np.diff(y) / h
+    m = np.zeros_like(y)
+    if len(x) == 2:
+        m[:] = d[0]
+    else:
+        w1, w2 = 2 * h[1:] + h[:-1], h[1:] + 2 * h[:-1]
+        same = (np.sign(d[1:]) == np.sign(d[:-1])) & (d[1:] != 0) & (d[:-1] != 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            hm = (w1 + w2) / (w1 / d[:-1] + w2 / d[1:])
+        m[1:-1] = np.where(same, hm, 0.0)
+        for end, (h0, h1, d0, d1) in ((0, (h[0], h[1], d[0], d[1])), (-1, (h[-1], h[-2], d[-1], d[-2]))):
+            e = ((2 * h0 + h1) * d0 - h0 * d1) / (h0 + h1)
+            if np.sign(e) != np.sign(d0):
+                e = 0.0
+            elif np.sign(d0) != np.sign(d1) and abs(e) > abs(3 * d0):
+                e = 3 * d0
+            m[end] = e
+
+    def f(t):
+        t = np.asarray(t, np.float64)
+        k = np.clip(np.searchsorted(x, t) - 1, 0, len(x) - 2)
+        s = (t - x[k]) / h[k]
+        s2, s3 = s * s, s * s * s
+        return ((2 * s3 - 3 * s2 + 1) * y[k] + (s3 - 2 * s2 + s) * h[k] * m[k] + (-2 * s3 + 3 * s2) * y[k + 1]
+                + (s3 - s2) * h[k] * m[k + 1])
+
+    return f
+
+
 def _lip_arcs(lips: np.ndarray, R: np.ndarray, c: np.ndarray):
     """(upper, lower, u0, u1): the inner-lip contour 60-67 in its mouth frame (u along the corner
     line, v across it, v growing towards the lower lip) as two smooth curves v(u) through the
     points (monotone cubic, PCHIP: no overshoot between the landmarks), upper 60-64 and lower
     64-67-60, over the corners' u range [u0, u1]; None when the contour is degenerate."""
-    from scipy.interpolate import PchipInterpolator
-
     q = (lips - c) @ R.T
     u0, u1 = float(q[0, 0]), float(q[4, 0])
     if not u1 - u0 > 1e-3:
@@ -291,7 +324,7 @@ def _lip_arcs(lips: np.ndarray, R: np.ndarray, c: np.ndarray):
         u, v = u[keep], v[keep]
         if len(u) < 2:
             return None
-        arcs.append(PchipInterpolator(u, v, extrapolate=True))
+        arcs.append(_pchip(u, v))
     return arcs[0], arcs[1], u0, u1
 
 

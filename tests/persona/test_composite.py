@@ -188,6 +188,20 @@ def test_mouth_interior_moves_the_drivers_mouth_into_the_puppets_lips():
     assert mouth_interior(frame, shut, p_lips)[1].max() == 0
 
 
+def test_pchip_matches_scipy():
+    from scipy.interpolate import PchipInterpolator
+
+    from facetex.persona.composite import _pchip
+
+    rng = np.random.default_rng(0)
+    for n in (2, 3, 5, 8):
+        for _ in range(20):
+            x = np.sort(rng.uniform(-10, 10, n)) + np.arange(n) * 0.1  # strictly increasing
+            y = rng.normal(0, 3, n)
+            t = np.linspace(x[0] - 1, x[-1] + 1, 101)
+            np.testing.assert_allclose(_pchip(x, y)(t), PchipInterpolator(x, y)(t), atol=1e-6)
+
+
 def _mouths():
     """A driver frame with a wide-open mouth (inner lips 60-67) whose interior is white teeth in
     the upper third, a dark cavity below; lips around it; and a puppet mouth elsewhere, wider and
