@@ -18,9 +18,11 @@ looks pasted on unless its colour, lighting and outline come from the frame it s
 * **gradient-domain blending**: the puppet's gradients with the driver's values on the mask
   border (Pérez et al. 2003, OpenCV's ``seamlessClone``), so the colour is continuous across
   the border;
-* **mouth interior**: the driver's own mouth interior (teeth, tongue, dark cavity), warped by
-  the map between the two mouths' axes (corner line and lip opening), drawn inside the
-  puppet's inner lips while the driver's lips are apart.
+* **mouth interior**: the driver's own mouth interior (teeth, tongue, dark cavity), each
+  puppet pixel taking the driver's pixel at the same place between the mouth corners and
+  between the upper and lower inner lip (smooth curves through the landmarks), drawn inside the
+  puppet's inner lips with a soft edge while the driver's lips are apart, the driver's lip
+  colour keyed out.
 
 Plus the measure of the result: :func:`boundary_color_step` (ΔE between bands just inside and
 just outside the mask edge).
@@ -268,40 +270,158 @@ def _mouth_frame(lips: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float
     return c, R, width, gap
 
 
-def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float = 0.85,
-                   closed: float = 0.04) -> tuple[np.ndarray, np.ndarray]:
+def _pchip(x: np.ndarray, y: np.ndarray):
+    """Monotone piecewise-cubic Hermite interpolant of the points (x, y) (x increasing, >= 2
+    points; Fritsch-Carlson slopes with the end rule of scipy's PchipInterpolator, the end cubics
+    continued beyond the ends). Written out because scipy's PchipInterpolator spends ~1 ms
+    checking its input, four times a frame; tested against it."""
+    h = np.diff(x)
+    d = np.diff(y) / h
+    m = np.zeros_like(y)
+    if len(x) == 2:
+        m[:] = d[0]
+    else:
+        w1, w2 = 2 * h[1:] + h[:-1], h[1:] + 2 * h[:-1]
+        same = (np.sign(d[1:]) == np.sign(d[:-1])) & (d[1:] != 0) & (d[:-1] != 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            hm = (w1 + w2) / (w1 / d[:-1] + w2 / d[1:])
+        m[1:-1] = np.where(same, hm, 0.0)
+        for end, (h0, h1, d0, d1) in ((0, (h[0], h[1], d[0], d[1])), (-1, (h[-1], h[-2], d[-1], d[-2]))):
+            e = ((2 * h0 + h1) * d0 - h0 * d1) / (h0 + h1)
+            if np.sign(e) != np.sign(d0):
+                e = 0.0
+            elif np.sign(d0) != np.sign(d1) and abs(e) > abs(3 * d0):
+                e = 3 * d0
+            m[end] = e
+
+    def f(t):
+        t = np.asarray(t, np.float64)
+        k = np.clip(np.searchsorted(x, t) - 1, 0, len(x) - 2)
+        s = (t - x[k]) / h[k]
+        s2, s3 = s * s, s * s * s
+        return ((2 * s3 - 3 * s2 + 1) * y[k] + (s3 - 2 * s2 + s) * h[k] * m[k] + (-2 * s3 + 3 * s2) * y[k + 1]
+                + (s3 - s2) * h[k] * m[k + 1])
+
+    return f
+
+
+def _lip_arcs(lips: np.ndarray, R: np.ndarray, c: np.ndarray):
+    """(upper, lower, u0, u1): the inner-lip contour 60-67 in its mouth frame (u along the corner
+    line, v across it, v growing towards the lower lip) as two smooth curves v(u) through the
+    points (monotone cubic, PCHIP: no overshoot between the landmarks), upper 60-64 and lower
+    64-67-60, over the corners' u range [u0, u1]; None when the contour is degenerate."""
+    q = (lips - c) @ R.T
+    u0, u1 = float(q[0, 0]), float(q[4, 0])
+    if not u1 - u0 > 1e-3:
+        return None
+    arcs = []
+    for idx in ((0, 1, 2, 3, 4), (0, 7, 6, 5, 4)):
+        u, v = q[list(idx), 0], q[list(idx), 1]
+        u = np.clip(u, u0, u1)  # points beyond a corner (noisy landmarks) are held at it
+        order = np.argsort(u, kind="stable")
+        u, v = u[order], v[order]
+        keep = np.r_[True, np.diff(u) > 1e-3 * (u1 - u0)]
+        u, v = u[keep], v[keep]
+        if len(u) < 2:
+            return None
+        arcs.append(_pchip(u, v))
+    return arcs[0], arcs[1], u0, u1
+
+
+def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float = 0.9,
+                   closed: float = 0.04, soft: float = 0.15,
+                   lip_key: tuple[float, float] | None = (4.0, 12.0)) -> tuple[np.ndarray, np.ndarray]:
     """The driver's mouth interior moved into the puppet's mouth: (image (H, W, 3), alpha (H, W)).
 
     ``driver_lips``, ``puppet_lips`` (8, 2): iBUG inner-lip points 60-67 in ``frame`` px (driver)
-    and output px (puppet). The driver's frame is warped by the map that takes the puppet's
-    mouth axes onto the driver's: rotation and translation of the corner line, its length ratio
-    along it and the ratio of the lip openings across it (a least-squares affine map is
-    unstable when the lips nearly close), both times ``inset`` (< 1: the polygon's edge samples
-    the driver's interior, not its lips). Alpha: the anti-aliased puppet polygon, faded out as the
-    driver's lip gap falls from 2 x ``closed`` to ``closed`` times its mouth width."""
+    and output px (puppet). Both inner-lip contours are drawn as smooth curves (:func:`_lip_arcs`),
+    and every puppet pixel takes the driver's pixel at the same place between the corners (along
+    the corner line) and between the upper and lower lip (across it): teeth, tongue and the dark
+    cavity land where they are in the driver's mouth, whatever the two mouths' shapes. Both
+    coordinates are pulled towards the mouth's centre by ``inset`` (< 1: the edge samples the
+    driver's interior, not its lips). Alpha: 0 outside the puppet's inner lips, rising to 1 over
+    ``soft`` x the local lip gap inside them (the puppet's lips overlap the interior: no polygon
+    edge), faded out as the driver's lip gap falls from 2 x ``closed`` to ``closed`` times its
+    mouth width (closed lips have no interior to show). ``lip_key`` (lo, hi): the driver's own
+    lips are keyed out of the interior (None: off): dlib's inner-lip points of a slightly open
+    mouth sit on the lips, whose red, stretched over the puppet's opening, drew a flat red
+    polygon. A pixel counts as lip unless its colour (CIELAB a, b) differs from the lips' or
+    it is lighter (alpha x 0 when the larger of the two differences is <= lo, x 1 when >= hi):
+    the inner lip surface has the lips' colour, only darker, while the cavity and tongue in
+    shadow lose it and teeth lose it and gain light (measured on GRID clips with the Bush and
+    Blair puppets: median a-b distance 3-4 on the inner lip surface of slightly open mouths,
+    14-25 in open mouths with teeth).
+    The lip colour is the median of the driver's frame just outside its inner-lip contour."""
     f = np.asarray(frame, np.float32)
     h, w = _shape2(f.shape if shape is None else shape)
     dp = np.asarray(driver_lips, np.float64)
     pp = np.asarray(puppet_lips, np.float64)
     if dp.shape != (8, 2) or pp.shape != (8, 2):
         raise BadInputError(f"inner lips must be (8, 2) points 60-67, got {dp.shape} and {pp.shape}")
+    none = np.zeros((h, w, 3), np.float32), np.zeros((h, w), np.float32)
     if not (np.isfinite(dp).all() and np.isfinite(pp).all()):
-        return np.zeros((h, w, 3), np.float32), np.zeros((h, w), np.float32)
+        return none
     cd, Rd, wd, gd = _mouth_frame(dp)
     cp, Rp, wp, gp = _mouth_frame(pp)
     # closed driver lips have no interior to show (their sliver would draw a red line): fade out
     t = float(np.clip((gd / max(wd, 1e-6) - closed) / closed, 0.0, 1.0))
-    alpha = polygon_mask(pp, (h, w)) * (t * t * (3 - 2 * t))
+    fade = t * t * (3 - 2 * t)
+    arcs_p, arcs_d = _lip_arcs(pp, Rp, cp), _lip_arcs(dp, Rd, cd)
+    if fade <= 0 or arcs_p is None or arcs_d is None:
+        return none
+    # the puppet's mouth box (the corners and the contour's extent, plus a pixel)
+    x0, y0 = (max(0, int(np.floor(v)) - 1) for v in pp.min(axis=0))
+    x1, y1 = min(w, int(np.ceil(pp[:, 0].max())) + 2), min(h, int(np.ceil(pp[:, 1].max())) + 2)
+    if x1 <= x0 or y1 <= y0:
+        return none
+    yy, xx = np.mgrid[y0:y1, x0:x1].astype(np.float64)
+    q = np.stack([xx - cp[0], yy - cp[1]], axis=-1) @ Rp.T
+    u, v = q[..., 0], q[..., 1]
+    up_p, lo_p, pu0, pu1 = arcs_p
+    up_d, lo_d, du0, du1 = arcs_d
+    uc = np.clip(u, pu0, pu1)
+    a, b = up_p(uc), lo_p(uc)
+    gap = np.maximum(b - a, 0.0)
+    # depth inside the lips (px): to the nearer lip across the mouth, to the nearer corner along it
+    depth = np.minimum(np.minimum(v - a, b - v), np.minimum(u - pu0, pu1 - u))
+    # one ramp width for the whole mouth (its widest gap's): the thin parts towards the corners
+    # fade instead of ending in hard tips
+    width = max(soft * float(gap.max()), 1.0)
+    # a pixel's centre half a pixel inside the lips is half covered (as an anti-aliased polygon's
+    # edge); an opening thinner than a pixel is covered by its thickness (closed lips: nothing)
+    r = np.clip((depth + 0.5) / width, 0.0, 1.0)
+    alpha = np.zeros((h, w), np.float32)
+    alpha[y0:y1, x0:x1] = (r * r * (3 - 2 * r)) * np.clip(gap, 0.0, 1.0) * fade
     if alpha.max() <= 0:
-        return np.zeros((h, w, 3), np.float32), alpha
-    floor = 0.05 * max(wp, 1.0)
-    # the puppet's polygon is mapped onto a slightly smaller one inside the driver's lips, so
-    # that its anti-aliased edge samples the interior, not the driver's lip colour
-    su = inset * wd / max(wp, 1e-6)
-    sv = inset * float(np.clip(max(gd, 0.05 * max(wd, 1.0)) / max(gp, floor), 0.2, 5.0))
-    L = Rd.T @ np.diag([su, sv]) @ Rp  # puppet px -> driver px (linear part)
-    M = np.c_[L, cd - L @ cp]
-    img = cv2.warpAffine(f, M, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+        return none
+    # the same place in the driver's mouth: fraction along the corner line and across the gap
+    su = 0.5 + inset * ((uc - pu0) / (pu1 - pu0) - 0.5)
+    sv = 0.5 + inset * (np.clip((v - a) / np.maximum(gap, 1e-6), 0.0, 1.0) - 0.5)
+    ud = du0 + su * (du1 - du0)
+    vd = up_d(ud) + sv * (lo_d(ud) - up_d(ud))
+    xy = np.stack([ud, vd], axis=-1) @ Rd + cd
+    warped = cv2.remap(f, xy[..., 0].astype(np.float32), xy[..., 1].astype(np.float32), cv2.INTER_LINEAR,
+                       borderMode=cv2.BORDER_REPLICATE)
+    if lip_key is not None:
+        # the driver's lips: just above its upper and below its lower inner-lip curve, middle 60 %
+        us = du0 + np.linspace(0.2, 0.8, 9) * (du1 - du0)
+        off = 0.04 * wd + 1.0
+        ring = np.concatenate([np.stack([us, up_d(us) - off], -1), np.stack([us, lo_d(us) + off], -1)]) @ Rd + cd
+        lip = cv2.remap(f, ring[None, :, 0].astype(np.float32), ring[None, :, 1].astype(np.float32), cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_REPLICATE)
+        lip_lab = np.median(_lab(lip)[0], axis=0)
+        lab = _lab(warped)
+        unlike = np.maximum(np.linalg.norm(lab[..., 1:] - lip_lab[1:], axis=-1), lab[..., 0] - lip_lab[0])
+        lo, hi = lip_key
+        k = np.clip((unlike - lo) / max(hi - lo, 1e-6), 0.0, 1.0)
+        k = (k * k * (3 - 2 * k)).astype(np.float32)
+        # smoothed over the mouth opening only (normalized convolution): the box's pixels outside
+        # the lips sample the driver's lips and would darken a thin opening's key
+        inside = (alpha[y0:y1, x0:x1] > 0).astype(np.float32)
+        k = cv2.GaussianBlur(k * inside, (0, 0), 1.0) / np.maximum(cv2.GaussianBlur(inside, (0, 0), 1.0), 1e-6)
+        alpha[y0:y1, x0:x1] *= np.clip(k, 0.0, 1.0)
+    img = np.zeros((h, w, 3), np.float32)
+    img[y0:y1, x0:x1] = warped
     return img, alpha
 
 

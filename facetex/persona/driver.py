@@ -69,6 +69,7 @@ __all__ = [
     "mouth_opening",
     "GridInterpolator",
     "LipFields",
+    "unfold_columns",
     "MouthCorrection",
 ]
 
@@ -561,6 +562,37 @@ class LipFields:
         r = np.asarray(motion68, np.float32)
         up, lo = ou @ r[mu], ol @ r[ml]
         return (up + self.side[:, None] * (lo - up)).reshape(self.shape + (2,))
+
+
+def unfold_columns(grid: np.ndarray, mask: np.ndarray, min_spacing: float = 0.1) -> np.ndarray:
+    """The grid mesh (h, w, 3) with the y of its vertices made increasing down every column, rows
+    at least ``min_spacing`` x their rest spacing apart (rest spacing: the first valid column's
+    row step, ``mask`` (h, w) the valid vertices; x and z unchanged).
+
+    Closing a puppet's lips squeezes the band between its inner-lip contours; where the driver's
+    landmarks close further than that band (they meet or cross), the lower lip's rows pass above
+    the upper lip's: the grid folds over, and the z-buffer then shows whichever sheet is nearer,
+    cut along the grid's triangles (a stair-stepped lip line of grid-cell steps). The fix moves
+    both sides of a fold to meet: the mean of the smallest increasing sequence above (a running
+    maximum from the top) and the largest below (a running minimum from the bottom), so the
+    lips meet in the middle and the squeezed band stays a thin line. A no-op where the grid
+    does not fold."""
+    g = np.array(grid, np.float64, copy=True)
+    m = np.asarray(mask, bool) & np.isfinite(g[..., 1])
+    if not m.any():
+        return g
+    h = g.shape[0]
+    ys = np.where(m, g[..., 1], np.nan)
+    d = np.diff(ys, axis=0)
+    step = float(np.nanmedian(d)) if np.isfinite(d).any() else 1.0
+    off = min_spacing * step * np.arange(h, dtype=np.float64)[:, None]
+    z = ys - off
+    top = np.maximum.accumulate(np.where(m, z, -np.inf), axis=0)
+    bottom = np.minimum.accumulate(np.where(m, z, np.inf)[::-1], axis=0)[::-1]
+    with np.errstate(invalid="ignore"):  # +-inf above/below a column's valid rows; never used
+        fixed = np.where(top == bottom, ys, 0.5 * (top + bottom) + off)  # untouched where no fold
+    g[..., 1] = np.where(m, fixed, g[..., 1])
+    return g
 
 
 class MouthCorrection:

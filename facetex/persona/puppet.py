@@ -63,7 +63,7 @@ import numpy as np
 from ..errors import BadInputError
 from .composite import FACE_OVAL, INNER_LIPS, CompositeParams, composite_face, mouth_interior
 from .deform import DeformationTransfer, DeformParams
-from .driver import DriverMotion, DriverParams, DriverTrack, driver_motion
+from .driver import DriverMotion, DriverParams, DriverTrack, driver_motion, unfold_columns
 
 __all__ = [
     "PuppetParams",
@@ -410,7 +410,9 @@ class Puppeteer:
         Beyond the paper: its lip and jaw landmarks then move exactly as the driver's
         (scaled by the ratio of eye distances; :class:`facetex.persona.driver.LipFields`), on top of
         the constant rest motion (module doc): the deformation transfer's magnitude adjustment and
-        Huber-ROF smoothing shrink the thin, fast lip motion by 10-25 % on GRID clips."""
+        Huber-ROF smoothing shrink the thin, fast lip motion by 10-25 % on GRID clips. Lips that
+        close further than the puppet's mouth band is tall meet instead of folding the grid over
+        (:func:`facetex.persona.driver.unfold_columns`)."""
         g = self.transfer(self.motion.delta_field(i))
         if self.lip_fields is None:
             return g
@@ -424,7 +426,8 @@ class Puppeteer:
             move += self.rest_move
         g = g.copy()
         g[..., :2] += self.lip_fields(move) * self.puppet_mask[..., None]
-        return g
+        # lips that meet (or whose landmarks cross) must not fold the grid over: stair steps
+        return unfold_columns(g, self.puppet_mask)
 
     def mesh(self, i: int) -> np.ndarray:
         """Puppet vertices (V, 3) in its canonical frame for frame i (the grid's mask vertices)."""

@@ -188,6 +188,84 @@ def test_mouth_interior_moves_the_drivers_mouth_into_the_puppets_lips():
     assert mouth_interior(frame, shut, p_lips)[1].max() == 0
 
 
+def test_pchip_matches_scipy():
+    from scipy.interpolate import PchipInterpolator
+
+    from facetex.persona.composite import _pchip
+
+    rng = np.random.default_rng(0)
+    for n in (2, 3, 5, 8):
+        for _ in range(20):
+            x = np.sort(rng.uniform(-10, 10, n)) + np.arange(n) * 0.1  # strictly increasing
+            y = rng.normal(0, 3, n)
+            t = np.linspace(x[0] - 1, x[-1] + 1, 101)
+            np.testing.assert_allclose(_pchip(x, y)(t), PchipInterpolator(x, y)(t), atol=1e-6)
+
+
+def _mouths():
+    """A driver frame with a wide-open mouth (inner lips 60-67) whose interior is white teeth in
+    the upper third, a dark cavity below; lips around it; and a puppet mouth elsewhere, wider and
+    opened less."""
+    h, w = 120, 160
+    frame = np.full((h, w, 3), (0.8, 0.6, 0.5), np.float32)  # skin
+    d = np.array([[30, 40], [45, 30], [60, 28], [75, 30], [90, 40], [75, 52], [60, 54], [45, 52]], float)
+    outer = d.copy()
+    outer[:, 1] = 40 + (d[:, 1] - 40) * 1.8
+    outer[:, 0] = 60 + (d[:, 0] - 60) * 1.15
+    cv2.fillPoly(frame, [np.round(outer).astype(np.int32)], (0.75, 0.3, 0.3))  # red lips
+    inner = np.zeros((h, w), np.uint8)
+    cv2.fillPoly(inner, [np.round(d).astype(np.int32)], 1)
+    yy = np.mgrid[0:h, 0:w][0]
+    frame[(inner > 0) & (yy < 35)] = (0.95, 0.95, 0.9)  # teeth
+    frame[(inner > 0) & (yy >= 35)] = (0.1, 0.02, 0.05)  # cavity
+    p = np.empty_like(d)
+    p[:, 0] = 100 + (d[:, 0] - 60) * 1.4
+    p[:, 1] = 90 + (d[:, 1] - 40) * 0.8
+    return frame, d, p
+
+
+def test_mouth_interior_puts_teeth_and_cavity_where_they_are_in_the_drivers_mouth():
+    frame, d, p = _mouths()
+    img, alpha = mouth_interior(frame, d, p)
+    core = alpha > 0.9
+    assert core.sum() > 100
+    lum = img[:, 100].mean(axis=1)  # the middle column, top to bottom
+    rows = np.nonzero(alpha[:, 100] > 0.5)[0]
+    a, b = rows.min(), rows.max()
+    assert lum[a: a + 2].mean() > 0.8  # the upper teeth under the puppet's upper lip
+    assert lum[b - 6: b + 1].mean() < 0.15  # the dark cavity above its lower lip
+    assert alpha[:70].max() == 0  # nothing outside the puppet's mouth
+
+
+def test_mouth_interior_alpha_is_soft_and_smooth_under_the_puppets_lips():
+    frame, d, p = _mouths()
+    _, alpha = mouth_interior(frame, d, p)
+    # soft: across the mouth's middle column alpha rises over several pixels, not one
+    col = alpha[:, 100]
+    ramp = (col > 0.02) & (col < 0.98)
+    assert ramp.sum() >= 4
+    assert np.all(np.diff(col[: int(np.argmax(col)) + 1]) >= -1e-6)  # rising from the upper lip
+    # smooth: the lens follows curves through the landmarks, not straight polygon edges:
+    # the alpha-weighted upper edge has no kink at landmark 62's column
+    xs = np.arange(85, 116)
+    edge = np.array([np.argmax(alpha[:, x] > 0.5) for x in xs], float)
+    second = np.abs(np.diff(edge, 2))
+    assert second.max() <= 1.0
+
+
+def test_mouth_interior_keys_out_the_drivers_lip_colour():
+    frame, d, p = _mouths()
+    lipped = frame.copy()
+    inner = np.zeros(frame.shape[:2], np.uint8)
+    cv2.fillPoly(inner, [np.round(d).astype(np.int32)], 1)
+    lipped[inner > 0] = (0.75, 0.3, 0.3)  # dlib's inner contour on the lips: only lip inside
+    _, alpha = mouth_interior(lipped, d, p)
+    _, open_alpha = mouth_interior(frame, d, p)
+    assert alpha.max() < 0.05 < 0.9 < open_alpha.max()  # no red polygon; the real interior is drawn
+    _, off = mouth_interior(lipped, d, p, lip_key=None)
+    assert off.max() > 0.9
+
+
 # ----------------------------------------------------------------------------- the whole composite
 @pytest.mark.parametrize("lighting", ["stats", "sh"])
 def test_composite_sits_in_the_frame_and_never_leaves_the_drivers_outline(lighting):

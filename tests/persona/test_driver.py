@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -185,6 +186,119 @@ def test_lip_fields_let_the_lips_part():
         assert np.abs(at(p[still])).max() < 0.3
     # a single smooth field would have dragged both lips towards their average
     assert at(mid - [0, gap * 0.8 + 1])[1] < -2.0
+
+
+def _lip_grid():
+    """A 2 px grid mesh (h, w, 3) over a face with parted lips (the generic face's, tilted by 8
+    degrees: its lip line slopes across the grid's rows) and the motion of lips that close past
+    each other: the lower inner lip rises 2 px above the upper one."""
+    from facetex.persona.driver import LipFields
+
+    p = _generic68()
+    p[[65, 66, 67, 55, 56, 57, 58, 59]] += [0, 10.0]  # parted lips: a mouth band ~10 px tall
+    a = np.deg2rad(8.0)
+    p = (p - 200.0) @ np.array([[np.cos(a), np.sin(a)], [-np.sin(a), np.cos(a)]]) + 200.0
+    gy, gx = np.mgrid[0:400:2, 0:400:2].astype(float)
+    grid = np.stack([gx, gy, np.zeros_like(gx)], axis=-1)
+    gap = p[[65, 66, 67], 1].mean() - p[[61, 62, 63], 1].mean()
+    move = np.zeros((68, 2))
+    move[[65, 66, 67, 55, 56, 57, 58, 59, 7, 8, 9], 1] = -(gap + 2.0)  # lower lip and jaw up, past the upper lip
+    g = grid.copy()
+    g[..., :2] += LipFields(p, grid[..., :2])(move)
+    return p, grid, g
+
+
+def _flipped(rest, g):
+    from facetex.persona.mesh_io import depth_to_mesh
+
+    mask = np.ones(rest.shape[:2], bool)
+    _, faces, _ = depth_to_mesh(np.zeros(rest.shape[:2]), mask)
+
+    def det(v):
+        c = v.reshape(-1, 3)[faces][:, :, :2]
+        e1, e2 = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]
+        return e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+
+    return int((np.sign(det(g)) != np.sign(det(rest))).sum())
+
+
+def test_unfold_columns_lets_crossing_lips_meet_without_folding_the_grid():
+    from facetex.persona.driver import unfold_columns
+
+    p, rest, g = _lip_grid()
+    mask = np.ones(rest.shape[:2], bool)
+    assert _flipped(rest, g) > 20  # the old behaviour: the lower lip's rows fold over the upper lip's
+    fixed = unfold_columns(g, mask)
+    assert _flipped(rest, fixed) == 0
+    dy = np.diff(fixed[..., 1], axis=0)
+    assert dy.min() >= 0.1 * 1.99  # rows stay >= 0.1 x their spacing apart: the lips meet as a thin line
+    # they meet in the middle: the upper lip is pushed up about as far as the lower lip is pushed down
+    c = int(round(p[62, 0] / 2))
+    moved = fixed[:, c, 1] - g[:, c, 1]
+    assert moved.min() < -0.2 and moved.max() > 0.2
+    # nothing changes away from the mouth, nor anywhere on an unfolded grid
+    far = (np.abs(rest[..., 1] - p[62, 1]) > 40) | (np.abs(rest[..., 0] - p[62, 0]) > 80)
+    np.testing.assert_array_equal(fixed[far], g[far])
+    np.testing.assert_allclose(unfold_columns(rest, mask), rest)
+    np.testing.assert_array_equal(fixed[..., [0, 2]], g[..., [0, 2]])
+
+
+def test_closed_lips_render_as_a_smooth_line():
+    """The closed lips' line, rendered: a texture whose mouth band (between the inner lips) is
+    dark, closed past itself by the lip fields. Folded, the z-buffer cuts the line along the
+    grid's triangles (steps of a grid cell); unfolded it is a smooth thin line."""
+    from facetex.persona.driver import unfold_columns
+    from facetex.persona.mesh_io import depth_to_mesh
+    from facetex.persona.render import render_layers
+
+    p, rest, g = _lip_grid()
+    tex = np.full((400, 400, 3), 0.8, np.float32)
+    yy, xx = np.mgrid[0:400, 0:400]
+    up = np.interp(xx, p[[60, 61, 62, 63, 64], 0], p[[60, 61, 62, 63, 64], 1])
+    lo = np.interp(xx, p[[60, 67, 66, 65, 64], 0], p[[60, 67, 66, 65, 64], 1])
+    tex[(yy >= up) & (yy <= lo)] = 0.1
+    tex = cv2.GaussianBlur(tex, (0, 0), 1.0)
+    mask = np.ones(rest.shape[:2], bool)
+    _, faces, _ = depth_to_mesh(np.zeros(rest.shape[:2]), mask)
+    uv = (rest[..., :2].reshape(-1, 2) + 0.5) / 400.0
+    g = g.copy()
+    g[..., 2] = -0.01 * rest[..., 1]  # lower rows nearer: a fold shows the lower sheet on top
+
+    def line_rows(grid):  # rendered at 2x (a puppet's canonical px is ~2 output px at 720 px)
+        lay = render_layers(grid.reshape(-1, 3), faces, uv, tex, rotation=2 * np.eye(3), translation=np.zeros(3),
+                            size=(800, 800), supersample=1, normals=False)
+        dark = np.clip(0.8 - lay.image.mean(axis=2), 0, None)
+        w = p[64, 0] - p[60, 0]
+        xs = np.arange(int(2 * (p[60, 0] + 0.15 * w)), int(2 * (p[64, 0] - 0.15 * w)))  # the mouth but its corners
+        y0 = int(2 * p[60:68, 1].min()) - 20
+        band = dark[y0: int(2 * p[60:68, 1].max()) + 20, xs]
+        return (band * np.arange(len(band))[:, None]).sum(0) / np.maximum(band.sum(0), 1e-6), band.max(0)
+
+    def steps(rows):  # the line's largest deviation from itself smoothed over ~2 grid cells
+        k = np.ones(9) / 9
+        return np.abs(rows - np.convolve(np.pad(rows, 4, mode="edge"), k, mode="valid")).max()
+
+    rows_folded, strength_folded = line_rows(g)
+    rows, strength = line_rows(unfold_columns(g, mask))
+    # the old behaviour: the lower lip's sheet cuts the line along the grid's triangles (broken,
+    # from nearly gone to full strength within a few pixels)
+    assert strength_folded.min() < 0.1 and strength_folded.max() > 0.4
+    # unfolded: one even, unbroken line, with no steps off its smooth course
+    assert strength.min() > 0.4 and np.ptp(strength) < 0.25
+    assert steps(rows) < 0.5
+
+
+def test_unfold_columns_ignores_invalid_vertices():
+    from facetex.persona.driver import unfold_columns
+
+    _, rest, g = _lip_grid()
+    mask = np.ones(rest.shape[:2], bool)
+    mask[:, :60] = False
+    g2 = g.copy()
+    g2[~mask] = np.nan
+    out = unfold_columns(g2, mask)
+    assert np.isnan(out[~mask]).all()
+    np.testing.assert_allclose(out[mask], unfold_columns(g, np.ones_like(mask))[mask], atol=1e-3)
 
 
 def test_mouth_correction_follows_the_landmarks(tracked):
