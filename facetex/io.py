@@ -860,10 +860,12 @@ def _audio_packets(src, out):
 
 
 def transcode_audio(src, dst) -> Path | None:
-    """Write the first audio stream of video ``src`` to ``dst`` (.m4a) as AAC (remuxed if it
-    is AAC already), for :func:`write_video` to remux later: the encoding can then run
-    while nothing else does. None (and no file) if ``src`` has no decodable audio; the
-    caller then passes ``src`` itself, whose problems :func:`write_video` reports."""
+    """Write the first audio stream of video ``src`` to the scratch file ``dst`` (.m4a) as
+    AAC (remuxed if it is AAC already), for :func:`write_video` to remux later: the encoding
+    can then run while nothing else does. ``dst`` is an intermediate, not an output (not
+    listed by :func:`committed_outputs`; removed if the transcoding fails or is interrupted).
+    None if ``src`` has no decodable audio; the caller then passes ``src`` itself, whose
+    problems :func:`write_video` reports."""
     src, dst = Path(src), Path(dst)
     try:
         with av.open(os.fspath(src)) as c:
@@ -871,12 +873,14 @@ def transcode_audio(src, dst) -> Path | None:
                 return None
         if _audio_error(src) is not None:
             return None
-        with atomic_path(dst, inputs=(src,)) as tmp, av.open(os.fspath(src)) as c, \
-                av.open(os.fspath(tmp), "w", format="mp4") as out:
+        with av.open(os.fspath(src)) as c, av.open(os.fspath(dst), "w", format="mp4") as out:
             for _, packet in _audio_packets(c, out):
                 out.mux(packet)
-    except (*_AV_ERRORS, FacetexError):
-        return None
+    except BaseException as e:
+        dst.unlink(missing_ok=True)
+        if isinstance(e, (*_AV_ERRORS, FacetexError)):
+            return None
+        raise
     return dst
 
 

@@ -419,6 +419,7 @@ def test_transcoded_audio_remuxes_into_the_output(tmp_path, clip):
     (tmp_path / "junk.mp4").write_bytes(b"not a video" * 10)
     assert fio.transcode_audio(tmp_path / "junk.mp4", tmp_path / "c.m4a") is None
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.m4a", "junk.mp4", "o.mp4", "src.mkv"]
+    assert m4a not in fio.committed_outputs()  # a scratch file, not an output
 
 
 def test_audio_from_silent_video_adds_no_audio(tmp_path, clip):
