@@ -566,8 +566,8 @@ class LipFields:
 
 def unfold_columns(grid: np.ndarray, mask: np.ndarray, min_spacing: float = 0.1) -> np.ndarray:
     """The grid mesh (h, w, 3) with the y of its vertices made increasing down every column, rows
-    at least ``min_spacing`` x their rest spacing apart (rest spacing: the first valid column's
-    row step, ``mask`` (h, w) the valid vertices; x and z unchanged).
+    at least ``min_spacing`` x the median row step apart (``mask`` (h, w): the valid vertices;
+    x and z unchanged).
 
     Closing a puppet's lips squeezes the band between its inner-lip contours; where the driver's
     landmarks close further than that band (they meet or cross), the lower lip's rows pass above
