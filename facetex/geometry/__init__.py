@@ -7,7 +7,7 @@
 - :mod:`.masks`: the FaceTex facial prior mask and the face-region mask
 """
 
-import importlib as _importlib
+from .._lazy import lazy_attributes as _lazy_attributes
 
 # eager: the function `frontalize` must win over its submodule of the same name
 from .frontalize import (
@@ -54,18 +54,7 @@ _LAZY = {
     "tps_warp": "tps",
 }
 
-
-def __getattr__(name: str):
-    mod = _LAZY.get(name)
-    if mod is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(_importlib.import_module(f".{mod}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = _lazy_attributes(__name__, globals(), _LAZY)
 
 
 __all__ = [

@@ -2,7 +2,7 @@
 collection, expression-dependent textures (global and regional weights), the average 3D face,
 and puppet compositing into a driver's frame."""
 
-import importlib as _importlib
+from .._lazy import lazy_attributes as _lazy_attributes
 
 #: public name -> the private module that defines it (imported on first use: importing one
 #: submodule, e.g. the driver tracker in its own process, does not load them all)
@@ -38,18 +38,7 @@ _LAZY = {
     "synthesize_texture": "texture",
 }
 
-
-def __getattr__(name: str):
-    mod = _LAZY.get(name)
-    if mod is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(_importlib.import_module(f".{mod}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = _lazy_attributes(__name__, globals(), _LAZY)
 
 
 __all__ = [

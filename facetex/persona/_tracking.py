@@ -93,21 +93,19 @@ def _stop(proc) -> None:
 
 
 def _resolved(size_of, kwargs) -> dict:
-    if size_of is None:
-        return kwargs if kwargs.get("params", True) is not None else dict(kwargs, params=_default_params())
+    """track_driver's keyword arguments: ``params=None`` is the default DriverParams, and with
+    ``size_of`` its size is that persona's canonical frame."""
+    if size_of is None and kwargs.get("params", True) is not None:
+        return kwargs
     from dataclasses import replace
 
     from .collection import read_persona_header
     from .driver import DriverParams
 
-    size = tuple(read_persona_header(size_of)["size"])
-    return dict(kwargs, params=replace(kwargs.get("params") or DriverParams(), size=size))
-
-
-def _default_params():
-    from .driver import DriverParams
-
-    return DriverParams()
+    params = kwargs.get("params") or DriverParams()
+    if size_of is not None:
+        params = replace(params, size=tuple(read_persona_header(size_of)["size"]))
+    return dict(kwargs, params=params)
 
 
 def _start_child(path, size_of, kwargs) -> subprocess.Popen:
