@@ -95,6 +95,11 @@ def polygon_mask(points, shape, *, samples: int = 8) -> np.ndarray:
     return out
 
 
+def _smoothstep(t):
+    """3t² − 2t³ of ``t`` in [0, 1] (clipped by the caller): a ramp with flat ends."""
+    return t * t * (3 - 2 * t)
+
+
 def inner_feather(mask, width: float) -> np.ndarray:
     """Alpha (H, W) float32 rising from 0 at the border of the bool ``mask`` to 1 at ``width``
     px inside it (smoothstep of the distance); 0 outside: the feather never leaves the mask."""
@@ -103,7 +108,7 @@ def inner_feather(mask, width: float) -> np.ndarray:
         return m.astype(np.float32)
     d = cv2.distanceTransform(np.pad(m, 1).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
     t = np.clip((d - 0.5) / float(width), 0.0, 1.0)
-    return (t * t * (3 - 2 * t)).astype(np.float32)
+    return _smoothstep(t).astype(np.float32)
 
 
 def feature_mask(points68, shape, *, dilate: float = 0.06) -> np.ndarray:
@@ -365,7 +370,7 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     cp, Rp, wp, gp = _mouth_frame(pp)
     # closed driver lips have no interior to show (their sliver would draw a red line): fade out
     t = float(np.clip((gd / max(wd, 1e-6) - closed) / closed, 0.0, 1.0))
-    fade = t * t * (3 - 2 * t)
+    fade = _smoothstep(t)
     arcs_p, arcs_d = _lip_arcs(pp, Rp, cp), _lip_arcs(dp, Rd, cd)
     if fade <= 0 or arcs_p is None or arcs_d is None:
         return none
@@ -391,7 +396,7 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     # edge); an opening thinner than a pixel is covered by its thickness (closed lips: nothing)
     r = np.clip((depth + 0.5) / width, 0.0, 1.0)
     alpha = np.zeros((h, w), np.float32)
-    alpha[y0:y1, x0:x1] = (r * r * (3 - 2 * r)) * np.clip(gap, 0.0, 1.0) * fade
+    alpha[y0:y1, x0:x1] = _smoothstep(r) * np.clip(gap, 0.0, 1.0) * fade
     if alpha.max() <= 0:
         return none
     # the same place in the driver's mouth: fraction along the corner line and across the gap
@@ -414,7 +419,7 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
         unlike = np.maximum(np.linalg.norm(lab[..., 1:] - lip_lab[1:], axis=-1), lab[..., 0] - lip_lab[0])
         lo, hi = lip_key
         k = np.clip((unlike - lo) / max(hi - lo, 1e-6), 0.0, 1.0)
-        k = (k * k * (3 - 2 * k)).astype(np.float32)
+        k = _smoothstep(k).astype(np.float32)
         # smoothed over the mouth opening only (normalized convolution): the box's pixels outside
         # the lips sample the driver's lips and would darken a thin opening's key
         inside = (alpha[y0:y1, x0:x1] > 0).astype(np.float32)
