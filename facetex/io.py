@@ -774,8 +774,8 @@ def video_info(path) -> dict:
                     duration=duration)
 
 
-def iter_video_frames(path, *, max_frames: int | None = None) -> Iterator[np.ndarray]:
-    """Yield frames as float32 RGB (H, W, 3) in [0, 1].
+def iter_video_frames(path, *, max_frames: int | None = None, uint8: bool = False) -> Iterator[np.ndarray]:
+    """Yield frames as float32 RGB (H, W, 3) in [0, 1] (``uint8``: as decoded, uint8 RGB).
 
     A damaged file that still decodes some frames yields those, then warns
     (UserWarning) and stops; one that decodes none raises BadVideoError."""
@@ -807,7 +807,8 @@ def iter_video_frames(path, *, max_frames: int | None = None) -> Iterator[np.nda
                     if max_frames is not None and n >= max_frames:
                         return
                     n += 1
-                    yield frame.to_ndarray(format="rgb24").astype(np.float32) / 255.0
+                    rgb = frame.to_ndarray(format="rgb24")
+                    yield rgb if uint8 else rgb.astype(np.float32) / 255.0
             if not error or threads == "SLICE":
                 break
         finally:

@@ -376,7 +376,7 @@ def track_driver(path, *, max_frames: int | None = None, params: DriverParams = 
     def frontal_sample(frame, p68) -> tuple[np.ndarray | None, np.ndarray]:
         """(frontalized image, or None without frontal images; pose-corrected landmarks)."""
         if frontal_images:
-            fr = frontalize(frame, p68, size=params.size)
+            fr = frontalize(frame.astype(np.float32) / 255.0, p68, size=params.size)
             return fr.image, fr.points68
         return None, pose_corrected_points68(frame.shape, p68, size=params.size)
 
@@ -388,7 +388,8 @@ def track_driver(path, *, max_frames: int | None = None, params: DriverParams = 
     prev = None
     size = None
     last_detect = -(10**9)
-    for i, frame in enumerate(iter_video_frames(path, max_frames=max_frames)):
+    # uint8 frames: dlib and the mesh network take them as they are (no conversion per call)
+    for i, frame in enumerate(iter_video_frames(path, max_frames=max_frames, uint8=True)):
         size = (frame.shape[1], frame.shape[0])
         detect = prev is None or i - last_detect >= params.redetect_every
         last_detect = i if detect else last_detect
@@ -437,7 +438,7 @@ def track_driver(path, *, max_frames: int | None = None, params: DriverParams = 
                           "face frontally, at least ~80 px wide", path=path)
     if not frontal_p:  # every sampled frame failed to frontalize: take any tracked one
         j = int(np.flatnonzero(found_a)[0])
-        frame = next(f for k, f in enumerate(iter_video_frames(path, max_frames=j + 1)) if k == j)
+        frame = next(f for k, f in enumerate(iter_video_frames(path, max_frames=j + 1, uint8=True)) if k == j)
         img, pts = frontal_sample(frame, p68a[j])
         frontal, frontal_p = ([] if img is None else [img]), [pts]
     W, H = params.size

@@ -372,6 +372,13 @@ def test_video_roundtrip(clip):
     assert len(fio.read_video(clip, max_frames=3)[0]) == 3
 
 
+def test_uint8_frames_are_the_decoded_values(clip):
+    u8 = list(fio.iter_video_frames(clip, max_frames=4, uint8=True))
+    f32 = list(fio.iter_video_frames(clip, max_frames=4))
+    assert len(u8) == 4 and all(u.dtype == np.uint8 and u.shape == (48, 64, 3) for u in u8)
+    assert all(np.array_equal(u.astype(np.float32) / 255.0, f) for u, f in zip(u8, f32))
+
+
 def test_odd_size_is_padded(tmp_path):
     frames = [np.full((47, 63, 3), 0.5, np.float32)] * 3
     frames = [f.copy() for f in frames]
