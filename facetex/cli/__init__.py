@@ -61,7 +61,15 @@ def _signals_as_interrupts():
             signal.signal(s, h)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _command_of(argv) -> str | None:
+    """The sub-command named in ``argv`` (the first word that is not an option), or None."""
+    return next((a for a in argv if not a.startswith("-")), None) if argv else None
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The CLI parser; with ``command``, only that sub-command's parser when it has its own
+    ``cmd_<command>`` module (the others import numpy, PyAV and the benches' modules: ~0.4 s,
+    which a ``facetex puppet`` run spends before its driver tracking starts)."""
     from .. import __version__
 
     parser = _Parser(
@@ -72,9 +80,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
-        if info.name.startswith("cmd_"):
-            importlib.import_module(f"{__name__}.{info.name}").register(sub)
+    names = sorted(m.name for m in pkgutil.iter_modules(__path__) if m.name.startswith("cmd_"))
+    if command is not None and f"cmd_{command}" in names:
+        importlib.import_module(f"{__name__}.cmd_{command}").register(sub)
+        if command not in sub.choices:  # the module registers other names: the whole parser
+            return build_parser()
+    else:
+        for name in names:
+            importlib.import_module(f"{__name__}.{name}").register(sub)
     _accept_debug_anywhere(parser)
     return parser
 
@@ -164,7 +177,7 @@ def _run(argv: list[str], debug: bool) -> int:
     set_command(argv)
     args = None
     try:
-        args = build_parser().parse_args(argv)
+        args = build_parser(_command_of(argv)).parse_args(argv)
         try:
             result = args.func(args)
         finally:

@@ -17,7 +17,9 @@ Synthesis for a target F^T then composes one TPS M -> F^T with these alignments
 robust photometric stereo on (at most ``shape_photos``) aligned photos, accepted only when it
 passes a photometric validation on held-out photos, see :func:`average_shape`.
 ``.persona`` files are ``.npz`` zips with a JSON header, loaded with ``allow_pickle=False``;
-version 2 adds the average depth (version 1 files load with ``depth=None``).
+version 2 adds the average depth (version 1 files load with ``depth=None``); version 3 the
+texture synthesis's precomputed stacks (float16, :func:`facetex.persona.texture.stored_stacks`;
+older files compute them when a texture is first synthesized).
 """
 
 from __future__ import annotations
@@ -54,7 +56,7 @@ __all__ = [
 ]
 
 PERSONA_FORMAT = "facetex-persona"
-PERSONA_VERSION = 2
+PERSONA_VERSION = 3
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 
 
@@ -97,6 +99,8 @@ class Persona:
     depth (H, W) float32: the raw photometric-stereo average depth (canonical px, NaN off
     the face region; all NaN when the reconstruction failed) or None (version-1 file, not
     computed); depth_photos: photos that fed it (0 when it failed or is absent).
+    texture_stacks: {"meta", "arrays"} as read from a version-3 file (or None): the texture
+    synthesis's precomputed stacks, handed to it on first use.
     """
 
     images: np.ndarray
@@ -113,6 +117,7 @@ class Persona:
     depth: np.ndarray | None = None
     depth_photos: int = 0
     shape_report: dict | None = None
+    texture_stacks: dict | None = field(default=None, repr=False)
     _cache: dict = field(default_factory=dict, repr=False)
 
     def __len__(self) -> int:
@@ -144,27 +149,42 @@ class Persona:
             "shape": self.shape_report,
         }
 
-    def save(self, path, *, overwrite: bool = False) -> Path:
-        """Write the persona atomically as one ``.persona`` file (npz zip + JSON header)."""
+    def save(self, path, *, overwrite: bool = False, texture_stacks: bool = True) -> Path:
+        """Write the persona atomically as one ``.persona`` file (npz zip + JSON header).
+
+        ``texture_stacks``: also store the texture synthesis's precomputed stacks (~0.5 MB per
+        photo; computed now if needed): puppetry and texture synthesis then start without
+        aligning every photo again."""
         from ..io import atomic_path, check_output_path
 
         path = check_output_path(path, overwrite=overwrite)
-        head = np.frombuffer(json.dumps(self.header()).encode("utf-8"), dtype=np.uint8)
+        header = self.header()
         arrays = {k: getattr(self, k) for k in _ARRAYS}
         if self.depth is not None:
             arrays["depth"] = np.asarray(self.depth, np.float32)
+        if texture_stacks:
+            from .texture import stored_stacks
+
+            stacks = self.texture_stacks or stored_stacks(self)
+            meta = stacks["meta"]
+            header["texture_stacks"] = {**meta, "static": [int(stacks["arrays"][f"texture_static_{k}"].size)
+                                                           for k in range(len(meta["columns"]))]}
+            arrays.update(stacks["arrays"])
+        head = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
         with atomic_path(path, overwrite=overwrite) as tmp:
             with open(tmp, "wb") as fh, zipfile.ZipFile(fh, "w", allowZip64=True) as z:
                 for name, arr in {"header": head, **arrays}.items():
                     info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-                    info.compress_type = zipfile.ZIP_STORED if name in _STORED else zipfile.ZIP_DEFLATED
+                    stored = name in _STORED or name.startswith("texture_")
+                    info.compress_type = zipfile.ZIP_STORED if stored else zipfile.ZIP_DEFLATED
                     with z.open(info, "w", force_zip64=True) as f:
                         np.lib.format.write_array(f, np.ascontiguousarray(arr), allow_pickle=False)
         return path
 
 
 #: members written uncompressed (an npz is a zip: np.load reads both kinds). Deflate saved
-#: 20-27 % of these two but cost 1.7 s of every load of a 519-photo persona (measured).
+#: 20-27 % of these two but cost 1.7 s of every load of a 519-photo persona (measured); the
+#: texture stacks (texture_*) are stored too.
 _STORED = ("images", "flows")
 
 
@@ -230,9 +250,29 @@ def _read_header(path: Path) -> tuple[dict, PersonaParams, list[str]]:
         dp = header.get("depth_photos") if version >= 2 else None
         if dp is not None and (not isinstance(dp, int) or dp < 0):
             raise ValueError(f"depth_photos {dp!r}")
+        _stack_members(header, len(photos))  # checks the stacks' description
     except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as e:
         raise _bad(path, f"corrupt persona header ({type(e).__name__}: {e})") from None
     return header, params, photos
+
+
+def _stack_members(header: dict, n: int) -> dict:
+    """name -> (dtype, shape) of the texture stacks a (version-3) header declares; ValueError
+    for a malformed description."""
+    meta = header.get("texture_stacks") if header.get("version", 0) >= 3 else None
+    if meta is None:
+        return {}
+    cols, static = meta.get("columns") if isinstance(meta, dict) else None, meta.get("static")
+    ok = (isinstance(cols, list) and isinstance(static, list) and len(cols) == len(static) <= 32
+          and isinstance(meta.get("key"), list)
+          and all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 2**26 for v in cols + static))
+    if not ok:
+        raise ValueError("texture_stacks")
+    out = {}
+    for k, (c, m) in enumerate(zip(cols, static)):
+        out[f"texture_stack_{k}"] = (np.float16, (n, c))
+        out[f"texture_static_{k}"] = (np.float32, (m,))
+    return out
 
 
 def read_persona_header(path) -> dict:
@@ -249,7 +289,8 @@ def load_persona(path) -> Persona:
     path = Path(path)
     header, params, photos = _read_header(path)
     depth_photos = header.get("depth_photos") if header["version"] >= 2 else None
-    names = list(_ARRAYS) + (["depth"] if depth_photos is not None else [])
+    stack_shapes = _stack_members(header, len(photos))
+    names = list(_ARRAYS) + (["depth"] if depth_photos is not None else []) + list(stack_shapes)
     _check_members(path, header, params, photos)  # declared sizes and shapes, before decompressing
     try:
         with zipfile.ZipFile(path) as zf, open(path, "rb") as raw:
@@ -275,6 +316,7 @@ def load_persona(path) -> Persona:
     want_shapes = {k: (dtype, shape(n, H, W, params.subspace_rank)) for k, (dtype, shape) in _ARRAYS.items()}
     if depth_photos is not None:
         want_shapes["depth"] = (np.float32, (H, W))
+    want_shapes.update(stack_shapes)
     for k, (dtype, want) in want_shapes.items():
         a = arrays[k]
         if a.dtype != dtype or a.shape != want:
@@ -286,8 +328,14 @@ def load_persona(path) -> Persona:
     shape_report = header.get("shape") if header["version"] >= 2 else None
     if shape_report is not None and not isinstance(shape_report, dict):
         raise _bad(path, "corrupt persona header (shape report is not an object)")
+    stacks = None
+    if stack_shapes:
+        if not all(_all_finite(arrays[k]) for k in stack_shapes):
+            raise _bad(path, "persona texture stacks contain NaN or infinite values")
+        stacks = {"meta": dict(header["texture_stacks"]), "arrays": {k: arrays.pop(k) for k in stack_shapes}}
     return Persona(photos=photos, skipped=skipped, params=params, source=str(header.get("source", "")),
-                   depth_photos=int(depth_photos or 0), shape_report=shape_report, **arrays)
+                   depth_photos=int(depth_photos or 0), shape_report=shape_report, texture_stacks=stacks,
+                   **arrays)
 
 
 def _read_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo) -> np.ndarray:
@@ -341,6 +389,7 @@ def _check_members(path: Path, header: dict, params: PersonaParams, photos: list
     want = {k: (np.dtype(dtype), shape(n, H, W, r)) for k, (dtype, shape) in _ARRAYS.items()}
     if header["version"] >= 2 and header.get("depth_photos") is not None:
         want["depth"] = (np.dtype(np.float32), (H, W))
+    want.update({k: (np.dtype(dt), shape) for k, (dt, shape) in _stack_members(header, n).items()})
     members = npz_members(path, BadPersonaError, what="persona file")
     total = 0
     for name, m in members.items():

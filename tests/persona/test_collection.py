@@ -338,7 +338,7 @@ _BASE = ("images", "visibility", "fiducials", "points68", "poses", "flows", "sub
 
 
 def test_version1_file_loads_without_depth(persona, tmp_path):
-    assert PERSONA_VERSION == 2
+    assert PERSONA_VERSION == 3
     head = persona.header()
     head["version"] = 1
     del head["depth_photos"]
@@ -349,12 +349,75 @@ def test_version1_file_loads_without_depth(persona, tmp_path):
     assert np.array_equal(q.flows, persona.flows)
     h = read_persona_header(v1)
     assert h["version"] == 1 and h["n_photos"] == 12 and h["size"] == SIZE
-    # a v1 file saved again becomes v2 without depth; with a depth it keeps it
+    # a v1 file saved again becomes v3 without depth; with a depth it keeps it
     q.save(tmp_path / "v2none.persona")
     assert load_persona(tmp_path / "v2none.persona").depth is None
     q.depth, q.depth_photos = persona.depth, 7
     r = load_persona(q.save(tmp_path / "v2.persona"))
     assert r.depth_photos == 7 and np.array_equal(r.depth, persona.depth, equal_nan=True)
+
+
+def _texture(p, **kw):
+    from facetex.persona.texture import TextureParams, synthesize_texture
+
+    return synthesize_texture(p, fiducials=p.fiducials[3], params=TextureParams(**kw))
+
+
+def test_texture_stacks_stored_and_used(persona, tmp_path):
+    from facetex.persona import texture as T
+
+    with_stacks = persona.save(tmp_path / "s.persona")
+    without = persona.save(tmp_path / "n.persona", texture_stacks=False)
+    assert with_stacks.stat().st_size > without.stat().st_size + 0.2 * len(persona) * 2**20 / 4
+    q, r = load_persona(with_stacks), load_persona(without)
+    assert r.texture_stacks is None and q.texture_stacks is not None
+    assert q.texture_stacks["meta"]["key"] == T._stored_key(T.TextureParams())
+    calls = []
+    real = T._Prepared._compute
+    T._Prepared._compute = lambda self, *a: (calls.append(1), real(self, *a))[1]
+    try:
+        tq = _texture(q)  # from the stored stacks: nothing computed
+        assert calls == [] and q.texture_stacks is None  # handed over to the cache
+        tr = _texture(r)
+        assert calls == [1]
+    finally:
+        T._Prepared._compute = real
+    assert np.array_equal(tq, tr)  # stored or computed: the same texture (same precision)
+    assert np.array_equal(_texture(persona), tr)
+    # other stack parameters: computed, equal to a fresh computation
+    assert np.array_equal(_texture(load_persona(with_stacks), alpha=1.0), _texture(r, alpha=1.0))
+    # saved again from the cache (no recomputation): the same stored arrays
+    again = load_persona(q.save(tmp_path / "again.persona"))
+    a, b = again.texture_stacks["arrays"], load_persona(with_stacks).texture_stacks["arrays"]
+    assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+
+def test_stale_texture_stacks_are_recomputed(persona, tmp_path, monkeypatch):
+    from facetex.persona import texture as T
+
+    path = persona.save(tmp_path / "s.persona")
+    monkeypatch.setattr(T, "STACKS_VERSION", T.STACKS_VERSION + 1)  # a later facetex computes them otherwise
+    q = load_persona(path)
+    q.texture_stacks["arrays"]["texture_stack_0"][:] = 0  # would show if they were used
+    assert np.array_equal(_texture(q), _texture(persona))
+
+
+def test_bad_texture_stacks_refused(persona, tmp_path):
+    good = load_persona(persona.save(tmp_path / "s.persona"))
+    head = good.header()
+    meta = {**good.texture_stacks["meta"],
+            "static": [int(a.size) for k, a in sorted(good.texture_stacks["arrays"].items()) if "static" in k]}
+    arrays = {**{k: getattr(good, k) for k in _BASE}, "depth": good.depth, **good.texture_stacks["arrays"]}
+    nan = dict(arrays, texture_stack_0=np.full_like(arrays["texture_stack_0"], np.nan))
+    cases = [
+        ("columns", {**meta, "columns": [-1] + meta["columns"][1:]}, arrays, "corrupt persona header"),
+        ("shape", {**meta, "columns": [meta["columns"][0] + 4] + meta["columns"][1:]}, arrays, "texture_stack_0"),
+        ("nan", meta, nan, "NaN or infinite"),
+    ]
+    for name, m, arrs, words in cases:
+        path = _npz(tmp_path / f"{name}.persona", {**head, "texture_stacks": m}, arrs)
+        with pytest.raises(BadPersonaError, match=words):
+            load_persona(path)
 
 
 def test_bad_depth_refused(persona, tmp_path):
