@@ -19,8 +19,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
-__all__ = ["provenance", "sidecar_path", "sha256_file", "library_versions", "command_line", "hash_inputs",
-           "LIBRARIES", "SCHEMA"]
+__all__ = ["provenance", "sidecar_path", "sha256_file", "hash_in_background", "library_versions", "command_line",
+           "hash_inputs", "LIBRARIES", "SCHEMA"]
 
 #: identifies a facetex sidecar record (bumped when its layout changes)
 SCHEMA = "facetex.provenance/1"
@@ -62,6 +62,24 @@ def sha256_file(path) -> str:
                 h.update(block)
         _HASH_CACHE[key] = h.hexdigest()
     return _HASH_CACHE[key]
+
+
+def hash_in_background(paths: Iterable) -> "threading.Thread":
+    """Start hashing the files ``paths`` on a daemon thread (sha256 releases the GIL): the
+    provenance written after a long run then finds them in the cache. Join it before."""
+    import threading
+
+    def work():
+        for p in paths:
+            try:
+                if p is not None and Path(p).is_file():
+                    sha256_file(p)
+            except OSError:
+                pass  # reported by the provenance record itself
+
+    t = threading.Thread(target=work, name="facetex-hash", daemon=True)
+    t.start()
+    return t
 
 
 def library_versions() -> dict[str, str | None]:

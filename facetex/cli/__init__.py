@@ -169,11 +169,11 @@ def _interrupted(exc: KeyboardInterrupt) -> int:
 
 
 def _run(argv: list[str], debug: bool) -> int:
-    from ..io import committed_outputs
-
     from .._provenance import set_command
 
-    committed_outputs(reset=True)
+    io = sys.modules.get(f"{__package__.rpartition('.')[0]}.io")
+    if io is not None:  # not imported yet: nothing committed (and numpy/OpenCV not loaded before a
+        io.committed_outputs(reset=True)  # puppet run starts its driver tracking: ~0.35 s)
     set_command(argv)
     args = None
     try:

@@ -74,8 +74,10 @@ def _run(args, tracker) -> int:
     n = video_info(args.driver)["n_frames"]
     if args.max_frames is not None:
         n = min(n, max(0, args.max_frames))
-    from .._provenance import provenance
+    from .._provenance import hash_in_background, provenance
     from ..io import write_json
+
+    hashing = hash_in_background(inputs)  # beside the setup, not after the rendering
     from ..persona.composite import CompositeParams
     from ..persona.puppet import PuppetParams, puppeteer
 
@@ -86,6 +88,7 @@ def _run(args, tracker) -> int:
                            side_by_side=args.side_by_side, size=args.size, mode=args.mode,
                            overwrite=args.overwrite, max_frames=args.max_frames, params=params, progress=bar,
                            tracking=tracker)
+    hashing.join()
     write_json(sidecar, provenance(
         command="puppet", inputs={"driver": args.driver, "puppet": args.puppet, "driver_photos": args.driver_photos},
         params={"side_by_side": args.side_by_side, "size": args.size, "mode": args.mode, "texture": args.texture,
