@@ -21,6 +21,9 @@ def register(sub) -> None:
     b.add_argument("--allow-mixed", action="store_true",
                    help="build even when the photos show several people (default: photos of other people are "
                         "left out when one person has >= 80%% of them, else the build is refused)")
+    b.add_argument("--no-texture-stacks", action="store_true",
+                   help="do not store the texture synthesis's precomputed stacks (~0.5 MB per photo): a smaller "
+                        "file; puppetry and texture synthesis then compute them when they start (~10 ms per photo)")
     add_overwrite(b)
     add_quiet(b)
     b.set_defaults(func=run_build)
@@ -115,11 +118,12 @@ def run_build(args) -> int:
                                        path=e.path, main=e.main, others=e.others, people=e.people) from None
     record = provenance(command="persona build", inputs={"photo_dir": folder},
                         params={"jobs": args.jobs, "min_photos": args.min_photos, "allow_mixed": args.allow_mixed,
-                                "persona_params": persona.params},
+                                "texture_stacks": not args.no_texture_stacks, "persona_params": persona.params},
                         outputs=[out], photos_used=len(persona), skipped=persona.skipped,
                         seconds=time.perf_counter() - t0)
     # the persona and its sidecar are committed together
-    write_files({out: lambda tmp: persona.save(tmp, overwrite=True), sidecar: encode_json(record)},
+    stacks = not args.no_texture_stacks
+    write_files({out: lambda tmp: persona.save(tmp, overwrite=True, texture_stacks=stacks), sidecar: encode_json(record)},
                 overwrite=args.overwrite, inputs=photos)
     if not args.quiet:
         print(f"{out}: {len(persona)} photos used, {len(persona.skipped)} skipped "

@@ -13,6 +13,7 @@ import facetex
 from facetex._resources import sample_path
 from facetex.cli import main
 from facetex.io import read_image, write_image, write_video
+from facetex.persona import load_persona
 
 pytestmark = pytest.mark.slow
 
@@ -49,6 +50,11 @@ def test_persona_and_puppet_commands(photos, driver, tmp_path, capsys):
     assert main(["persona", "build", str(photos), "-o", str(p), "--min-photos", "6", "--jobs", "1", "-q"]) == 0
     rec = _sidecar(p)
     assert rec["command"] == "persona build" and rec["inputs"]["photo_dir"]["files"] == 8 and rec["photos_used"] >= 6
+    assert rec["params"]["texture_stacks"] is True and load_persona(p).texture_stacks is not None
+    small = tmp_path / "small.persona"
+    assert main(["persona", "build", str(photos), "-o", str(small), "--min-photos", "6", "--jobs", "1", "-q",
+                 "--no-texture-stacks"]) == 0
+    assert load_persona(small).texture_stacks is None and small.stat().st_size < p.stat().st_size
     capsys.readouterr()
     out = tmp_path / "tex.png"
     assert main(["persona", "texture", str(p), "--like", str(sample_path("frl_004_smiling.jpg")), "-o", str(out)]) == 0
