@@ -123,7 +123,8 @@ def run_build(args) -> int:
                         seconds=time.perf_counter() - t0)
     # the persona and its sidecar are committed together
     stacks = not args.no_texture_stacks
-    write_files({out: lambda tmp: persona.save(tmp, overwrite=True, texture_stacks=stacks), sidecar: encode_json(record)},
+    write_files({out: lambda tmp: persona.save(tmp, overwrite=True, texture_stacks=stacks),
+                 sidecar: encode_json(record)},
                 overwrite=args.overwrite, inputs=photos)
     if not args.quiet:
         print(f"{out}: {len(persona)} photos used, {len(persona.skipped)} skipped "
