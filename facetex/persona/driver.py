@@ -626,25 +626,54 @@ def _anchor_vertices(points68: np.ndarray, mesh: np.ndarray, found: np.ndarray) 
     p = points68[found]
     m = mesh[found, :, :2]
     step = max(1, len(p) // 30)
-    d = np.linalg.norm(p[::step, :, None, :] - m[::step, None, :, :], axis=-1).mean(axis=0)  # (68, 468)
+    diff = p[::step, :, None, :] - m[::step, None, :, :]
+    d = np.sqrt(diff[..., 0] ** 2 + diff[..., 1] ** 2).mean(axis=0)  # (68, 468); norm's reduce over 2 is slow
     return d.argmin(axis=1)
+
+
+def _barycentrics(points: np.ndarray, a: np.ndarray, e1: np.ndarray, e2: np.ndarray, det: np.ndarray):
+    """(l0, l1, l2) of points (..., 2) in triangles given corner a, edges e1, e2 (broadcast)."""
+    d = points - a[..., :2]
+    l1 = (d[..., 0] * e2[..., 1] - d[..., 1] * e2[..., 0]) / det
+    l2 = (e1[..., 0] * d[..., 1] - e1[..., 1] * d[..., 0]) / det
+    return 1.0 - l1 - l2, l1, l2
 
 
 def _lift_points(points: np.ndarray, mesh: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """(P, 3) positions on a (468, 3) mesh of (P, 2) image points: barycentric in the mesh
-    triangle (of the fixed triangulation ``triangles``) containing the point in 2D, or the
-    nearest one (barycentrics clamped) outside the mesh."""
+    triangle (of the fixed triangulation ``triangles``) containing the point in 2D (the one it
+    is deepest inside where triangles overlap, the lowest index on ties), or the nearest one
+    (barycentrics clamped) outside the mesh.
+
+    Only the triangles near enough to contain a point are tried (centroid within the
+    triangle's largest centroid-to-corner distance); points inside none of them try all
+    triangles: the same triangle as a search over all of them, ~4x faster."""
     a, b, c = (mesh[triangles[:, k]] for k in range(3))
     e1, e2 = b[:, :2] - a[:, :2], c[:, :2] - a[:, :2]
     det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
     det = np.where(np.abs(det) < 1e-12, 1e-12, det)
-    d = points[:, None, :] - a[None, :, :2]
-    l1 = (d[..., 0] * e2[:, 1] - d[..., 1] * e2[:, 0]) / det
-    l2 = (e1[:, 0] * d[..., 1] - e1[:, 1] * d[..., 0]) / det
-    l0 = 1.0 - l1 - l2
-    best = np.minimum(np.minimum(l0, l1), l2).argmax(axis=1)  # (P, T) -> the triangle containing the point
-    r = np.arange(len(points))
-    w = np.clip(np.stack([l0[r, best], l1[r, best], l2[r, best]], axis=1), 0, None)
+    cen = (a[:, :2] + b[:, :2] + c[:, :2]) / 3.0
+    reach = np.max([np.sum((v[:, :2] - cen) ** 2, axis=1) for v in (a, b, c)], axis=0)  # squared
+    P = len(points)
+    dist = (points[:, 0, None] - cen[:, 0]) ** 2 + (points[:, 1, None] - cen[:, 1]) ** 2  # (P, T)
+    pi, ti = np.nonzero(dist <= reach)  # pairs sorted by point, then triangle
+    l0, l1, l2 = _barycentrics(points[pi], a[ti], e1[ti], e2[ti], det[ti])
+    depth = np.minimum(np.minimum(l0, l1), l2)
+    order = np.lexsort((ti, -depth, pi))  # per point: deepest first, lowest index on ties
+    first = order[np.r_[True, pi[order][1:] != pi[order][:-1]]] if order.size else order
+    best = np.zeros(P, np.int64)
+    lam = np.zeros((P, 3))
+    found = np.zeros(P, bool)
+    ok = first[depth[first] >= 0]  # inside a near triangle
+    best[pi[ok]], found[pi[ok]] = ti[ok], True
+    lam[pi[ok]] = np.stack([l0[ok], l1[ok], l2[ok]], axis=1)
+    redo = np.flatnonzero(~found)
+    if redo.size:  # outside every near triangle: all of them (the nearest, clamped)
+        m0, m1, m2 = _barycentrics(points[redo, None, :], a[None], e1[None], e2[None], det[None])
+        jj = np.minimum(np.minimum(m0, m1), m2).argmax(axis=1)
+        rr = np.arange(redo.size)
+        best[redo], lam[redo] = jj, np.stack([m0[rr, jj], m1[rr, jj], m2[rr, jj]], axis=1)
+    w = np.clip(lam, 0, None)
     w /= w.sum(axis=1, keepdims=True)
     tri = triangles[best]
     out = np.einsum("pk,pkc->pc", w, mesh[tri])

@@ -385,3 +385,37 @@ def test_track_rejects_a_face_slid_half_out_of_the_frame(tmp_path):
             assert abs(np.ptp(tr.points68[i, :, 0]) - width) < 0.12 * width, i
     assert "partly outside the frame" in tr.lost_causes
     assert sum(tr.lost_causes.values()) == tr.n_lost
+
+
+def _lift_all(points, mesh, triangles):
+    """_lift_points by trying every triangle (the definition)."""
+    a, b, c = (mesh[triangles[:, k]] for k in range(3))
+    e1, e2 = b[:, :2] - a[:, :2], c[:, :2] - a[:, :2]
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    det = np.where(np.abs(det) < 1e-12, 1e-12, det)
+    d = points[:, None, :] - a[None, :, :2]
+    l1 = (d[..., 0] * e2[:, 1] - d[..., 1] * e2[:, 0]) / det
+    l2 = (e1[:, 0] * d[..., 1] - e1[:, 1] * d[..., 0]) / det
+    l0 = 1.0 - l1 - l2
+    best = np.minimum(np.minimum(l0, l1), l2).argmax(axis=1)
+    r = np.arange(len(points))
+    w = np.clip(np.stack([l0[r, best], l1[r, best], l2[r, best]], axis=1), 0, None)
+    w /= w.sum(axis=1, keepdims=True)
+    out = np.einsum("pk,pkc->pc", w, mesh[triangles[best]])
+    out[:, :2] = points
+    return out
+
+
+def test_lift_points_equals_search_over_all_triangles():
+    from scipy.spatial import Delaunay
+
+    from facetex.persona.driver import _lift_points
+
+    rng = np.random.default_rng(3)
+    base = rng.uniform(0, 100, (120, 2))
+    triangles = Delaunay(base).simplices
+    for trial in range(5):
+        mesh = np.c_[base + rng.normal(0, 2.0 * trial, base.shape), rng.normal(0, 10, len(base))]  # folds too
+        pts = np.r_[rng.uniform(-20, 120, (200, 2)), mesh[:5, :2],  # outside the mesh and on vertices
+                    (mesh[triangles[:3, 0], :2] + mesh[triangles[:3, 1], :2]) / 2]  # on edges (ties)
+        assert np.array_equal(_lift_points(pts, mesh, triangles), _lift_all(pts, mesh, triangles))
