@@ -7,6 +7,7 @@ setuptools no longer provides, so its folder is found through its import spec.
 from __future__ import annotations
 
 import importlib.util
+import os
 from pathlib import Path
 
 from .errors import ModelNotFoundError
@@ -45,3 +46,12 @@ def model_path(name: str) -> Path:
 def sample_path(name: str = "") -> Path:
     """Path of a bundled sample image (``facetex/data/samples``)."""
     return Path(__file__).parent / "data" / "samples" / name
+
+
+def cache_dir() -> Path:
+    """facetex's cache folder for files derived from installed packages (not created here):
+    ``$FACETEX_CACHE``, else ``$XDG_CACHE_HOME/facetex``, else ``~/.cache/facetex``."""
+    if os.environ.get("FACETEX_CACHE"):
+        return Path(os.environ["FACETEX_CACHE"])
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "facetex"

@@ -188,3 +188,27 @@ def test_cnn_detector_agrees_with_hog(images, faces):
     fs = detect_faces(im, detector="cnn")
     assert len(fs) == 1
     assert np.linalg.norm(fs[0].points68 - hog, axis=1).mean() < 2.0
+
+
+def test_frontal_detector_cached_file_detects_the_same(tmp_path, monkeypatch):
+    import dlib
+
+    from facetex.landmarks import _frontal_face_detector
+
+    monkeypatch.setenv("FACETEX_CACHE", str(tmp_path / "cache"))
+    img = (read_image(sample_path("frl_004_smiling.jpg")) * 255 + 0.5).astype(np.uint8)
+
+    def boxes(det):
+        rects, scores, kinds = det.run(img, 0, 0.0)
+        return [(r.left(), r.top(), r.right(), r.bottom()) for r in rects], list(scores), list(kinds)
+
+    want = boxes(dlib.get_frontal_face_detector())
+    assert want[0]
+    first = _frontal_face_detector()  # built, then saved
+    saved = list((tmp_path / "cache").glob("dlib-*-frontal_face_detector.svm"))
+    assert len(saved) == 1 and boxes(first) == want
+    assert boxes(_frontal_face_detector()) == want  # loaded from the file
+    saved[0].write_bytes(b"damaged")
+    assert boxes(_frontal_face_detector()) == want and saved[0].stat().st_size > 1000  # built and saved again
+    monkeypatch.setenv("FACETEX_CACHE", str(saved[0]))  # a file, not a folder: nothing saved, still works
+    assert boxes(_frontal_face_detector()) == want
