@@ -86,40 +86,44 @@ def huber_rof(f, *, weight: float = 1.0, epsilon: float = 0.05, iters: int = 50,
     else:  # Algorithm 3
         mu = 2.0 * np.sqrt(gamma * delta) / lip
         tau, sigma, theta = mu / (2 * gamma), mu / (2 * delta), 1.0 / (1.0 + mu)
-    # dual variable scaled to q = p / weight (|q| <= 1); the weight moves into the steps
+    # dual variable scaled to q = p / weight (|q| <= 1); the weight moves into the steps.
+    # q = (q_x, q_y) as rows of one (2, n) array and step-invariant products precomputed: the
+    # grids are small, so each numpy call's overhead counts more than its arithmetic
     u, u_new, ubar = g.copy(), np.empty_like(g), g.copy()
-    qx, qy, gx, gy, div, nrm = (np.zeros(n, dtype=np.float32) for _ in range(6))
-    sx, sy = ex * np.float32(sigma / weight), ey * np.float32(sigma / weight)
+    q, grad, sq = (np.zeros((2, n), dtype=np.float32) for _ in range(3))
+    div, nrm = np.zeros(n, dtype=np.float32), np.zeros(n, dtype=np.float32)
+    e = np.stack([ex, ey])
+    s_e = e * np.float32(sigma / weight)
+    # float32: the same result as the float64 maximum rounded (rounding is monotonic), 5x faster
+    inv_shrink = np.float32(1.0 + sigma * delta)
+    c = 1.0 / (1.0 + tau)
+    g_c = (g * (tau * c)).astype(np.float32)  # as np.multiply(..., out=float32)
     for _ in range(int(iters)):
         # dual: q = (q + σ/w ∇ū) s / max(1, |q + σ/w ∇ū| s) with s = 1 / (1 + σδ): Huber prox + projection
-        inv_shrink = 1.0 + sigma * delta
-        np.subtract(ubar[1:], ubar[:-1], out=gx[:-1])
-        np.subtract(ubar[w:], ubar[:-w], out=gy[:-w])
-        gx *= sx
-        gy *= sy
-        qx += gx
-        qy += gy
-        np.multiply(qx, qx, out=nrm)
-        np.multiply(qy, qy, out=gx)
-        nrm += gx
+        np.subtract(ubar[1:], ubar[:-1], out=grad[0, :-1])
+        np.subtract(ubar[w:], ubar[:-w], out=grad[1, :-w])
+        grad *= s_e  # the tails never written are 0 (edge weight 0 there)
+        q += grad
+        np.multiply(q, q, out=sq)
+        np.add(sq[0], sq[1], out=nrm)
         np.sqrt(nrm, out=nrm)
         np.maximum(nrm, inv_shrink, out=nrm)
-        qx /= nrm
-        qy /= nrm
+        q /= nrm
         # primal: u' = (u + τ w div q + τ g) / (1 + τ)
-        np.add(qx, qy, out=div)
-        div[1:] -= qx[:-1]
-        div[w:] -= qy[:-w]
-        c = 1.0 / (1.0 + tau)
+        np.add(q[0], q[1], out=div)
+        div[1:] -= q[0, :-1]
+        div[w:] -= q[1, :-w]
         div *= tau * weight * c
         np.multiply(u, c, out=u_new)
         u_new += div
-        np.multiply(g, tau * c, out=gx)
-        u_new += gx
+        u_new += g_c
         if accelerate:
             theta = 1.0 / np.sqrt(1.0 + 2 * gamma * tau)
             tau, sigma = theta * tau, sigma / theta
-            sx, sy = ex * np.float32(sigma / weight), ey * np.float32(sigma / weight)
+            s_e = e * np.float32(sigma / weight)
+            inv_shrink = np.float32(1.0 + sigma * delta)
+            c = 1.0 / (1.0 + tau)
+            g_c = (g * (tau * c)).astype(np.float32)  # as np.multiply(..., out=float32)
         # over-relaxation ū = u' + θ (u' − u)
         np.subtract(u_new, u, out=ubar)
         ubar *= theta
