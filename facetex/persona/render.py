@@ -308,14 +308,17 @@ def render_layers(vertices, faces, uv, texture, *, rotation, translation, size, 
     v = np.asarray(vertices, np.float64)
     A = np.asarray(rotation, np.float64).reshape(3, 3)
     t = np.asarray(translation, np.float64).reshape(3)
-    xy = v @ A[:2].T + t[:2]
-    ok = np.isfinite(xy).all(axis=1)
+    xy = v @ A[:2].T
+    px, py = xy[:, 0] + t[0], xy[:, 1] + t[1]  # (per column: see _project)
+    ok = np.isfinite(px) & np.isfinite(py)
     empty = Layers(np.zeros((h, w, 3), np.float32), np.zeros((h, w), np.float32),
                    None if normals is False else np.zeros((h, w, 3), np.float32), (0, 0, 0, 0))
     if not ok.any():
         return empty
-    lo = np.floor(xy[ok].min(axis=0)).astype(int) - 1
-    hi = np.ceil(xy[ok].max(axis=0)).astype(int) + 2
+    if not ok.all():
+        px, py = px[ok], py[ok]
+    lo = np.floor([px.min(), py.min()]).astype(int) - 1
+    hi = np.ceil([px.max(), py.max()]).astype(int) + 2
     x0, y0 = max(0, lo[0]), max(0, lo[1])
     x1, y1 = min(w, hi[0]), min(h, hi[1])
     if x1 <= x0 or y1 <= y0:
@@ -334,7 +337,7 @@ def render_layers(vertices, faces, uv, texture, *, rotation, translation, size, 
     uvv = np.asarray(uv, np.float64)
     if prefilter:
         # texels per fine sample along the texture's x axis (the canonical frame's pixels)
-        texel_px = tex.shape[1] * float(np.ptp(uvv[:, 0]) or 1.0) / max(float(np.ptp(xy[ok, 0])) * ss, 1e-6)
+        texel_px = tex.shape[1] * float(np.ptp(uvv[:, 0]) or 1.0) / max(float(np.ptp(px)) * ss, 1e-6)
         if texel_px > 1.0:
             tex = cv2.GaussianBlur(tex, (0, 0), 0.5 * math.sqrt(texel_px ** 2 - 1.0))
     mask = ras.triangle >= 0
@@ -342,10 +345,12 @@ def render_layers(vertices, faces, uv, texture, *, rotation, translation, size, 
     flat = np.flatnonzero(mask)
     f = np.asarray(faces, np.int64)
     if flat.size:
+        # row gathers by np.take and the row scatter as 12-byte scalars (fancy indexing of short
+        # rows is several times slower)
         tri = ras.triangle.ravel()[flat]
-        lam = ras.bary.reshape(-1, 3)[flat].astype(np.float64)
-        puv = np.einsum("nk,nkc->nc", lam, uvv[f[tri]])
-        img.reshape(-1, 3)[flat] = _sample_texture(tex, puv)
+        lam = ras.bary.reshape(-1, 3).take(flat, axis=0).astype(np.float64)
+        puv = np.einsum("nk,nkc->nc", lam, uvv.take(f.take(tri, axis=0), axis=0))
+        img.reshape(-1, 3).view(_ROW3)[flat, 0] = np.ascontiguousarray(_sample_texture(tex, puv)).view(_ROW3)[:, 0]
     cov = mask.astype(np.float32)
     nrm = None
     if normals is not False:
@@ -358,7 +363,10 @@ def render_layers(vertices, faces, uv, texture, *, rotation, translation, size, 
         img, cov = down(img), down(cov)
         nrm = down(nrm) if nrm is not None else None
     # colours are the average over the covered samples (premultiplied -> straight)
-    img = np.divide(img, cov[..., None], out=np.zeros_like(img), where=cov[..., None] > 1e-6)
+    straight, covered = np.zeros_like(img), cov > 1e-6
+    for ch in range(3):  # one channel at a time: numpy broadcasts over a length-3 axis slowly
+        np.divide(img[..., ch], cov, out=straight[..., ch], where=covered)
+    img = straight
     if nrm is not None:
         nn = np.linalg.norm(nrm, axis=2, keepdims=True)
         nrm = np.divide(nrm, nn, out=np.zeros_like(nrm), where=nn > 1e-6)
