@@ -19,6 +19,9 @@ from ..errors import BadInputError
 
 __all__ = ["DeformParams", "huber_rof", "DeformationTransfer", "transfer_deformation", "invert_map"]
 
+#: A row of three float32 as one scalar (a fast scatter of (N, 3) float32 rows).
+_ROW3 = np.dtype((np.void, 12))
+
 
 @dataclass(frozen=True)
 class DeformParams:
@@ -329,7 +332,8 @@ class DeformationTransfer:
             raise BadInputError(f"inverse must be (H', W', 2) = {mp.shape[:2] + (2,)}, got {inv.shape}")
         from scipy import ndimage
 
-        _, (self._near_y, self._near_x) = ndimage.distance_transform_edt(~dmask, return_indices=True)
+        _, (near_y, near_x) = ndimage.distance_transform_edt(~dmask, return_indices=True)
+        self._near = (near_y * md.shape[1] + near_x).ravel()  # flat index of the nearest mask vertex
         self.inv_x = np.ascontiguousarray(inv[..., 0])
         self.inv_y = np.ascontiguousarray(inv[..., 1])
         self.puppet_mesh = mp
@@ -339,20 +343,23 @@ class DeformationTransfer:
         d = np.asarray(delta, dtype=np.float64)
         if d.shape != self.shape_driver + (3,):
             raise BadInputError(f"delta must be (H, W, 3) = {self.shape_driver + (3,)}, got {d.shape}")
-        dk = np.nan_to_num(d.reshape(-1, 3)[self.flat])
+        # (K, 3) rows by np.take and per-column arithmetic: fancy indexing of short rows and
+        # broadcasts over a length-3 axis are several times slower in numpy
+        dk = np.nan_to_num(d.reshape(-1, 3).take(self.flat, axis=0))
         norm = np.sqrt(np.einsum("ij,ij->i", dk, dk))
         moving = norm > 1e-9
         dhat = np.zeros_like(dk)
-        dhat[moving] = dk[moving] / norm[moving, None]
+        for c in range(3):
+            np.divide(dk[:, c], norm, out=dhat[:, c], where=moving)
         # nearest driver vertex M_D(s, t) to M_D(u, v) + Δ(u, v)
         j = np.arange(len(dk))
         far = norm >= self.stay_radius
         j[far] = self.tree.query(self.driver_vertices[far] + dk[far], workers=1)[1]
         # Δ' = M_P(s', t') − M_P(u', v');  f = Δ̂ · Δ'  (Tom Hanks §4, Fig. 3)
-        target = self.puppet_at_driver[j]
+        target = self.puppet_at_driver.take(j, axis=0)
         if self.params.subvertex:
-            r = self.driver_vertices + dk - self.driver_vertices[j]
-            target = target + np.einsum("kij,kj->ki", self.tangent_map[j], r)
+            r = self.driver_vertices + dk - self.driver_vertices.take(j, axis=0)
+            target = target + np.einsum("kij,kj->ki", self.tangent_map.take(j, axis=0), r)
         dprime = target - self.puppet_at_driver
         f = np.einsum("ij,ij->i", dhat, dprime)
         # no puppet counterpart: keep the driver's own magnitude
@@ -368,16 +375,21 @@ class DeformationTransfer:
         field = np.zeros(self.shape_driver, dtype=np.float32)
         field.ravel()[self.flat] = f
         fstar = huber_rof(field, weight=p.weight, epsilon=p.epsilon, iters=p.iters, mask=self.driver_mask)
+        fk = fstar.ravel()[self.flat]
+        dk = np.empty(dhat.shape, np.float32)
+        for c in range(3):  # (float64 products rounded to float32, as assigning dhat * fk would)
+            np.multiply(dhat[:, c], fk, out=dk[:, c], casting="same_kind")
         disp = np.zeros(self.shape_driver + (3,), dtype=np.float32)
-        disp.reshape(-1, 3)[self.flat] = dhat * fstar.ravel()[self.flat, None]
+        disp.reshape(-1, 3).view(_ROW3)[self.flat, 0] = dk.view(_ROW3)[:, 0]
         # M_P^i = M_P + Δ̂ f*, carried to the puppet grid through the inverse correspondence
         # off the driver's mask (puppet vertices beyond the driver's face: jaw line, forehead) the
         # nearest driver vertex's motion, so the puppet's outline moves with the face instead of
         # staying behind
-        disp = disp[self._near_y, self._near_x]
+        disp = disp.reshape(-1, 3).take(self._near, axis=0).reshape(disp.shape)
         moved = cv2.remap(disp, self.inv_x, self.inv_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         out = self.puppet_mesh.copy()
-        out[self.puppet_mask] += moved[self.puppet_mask]
+        for c in range(3):
+            np.add(out[..., c], moved[..., c], out=out[..., c], where=self.puppet_mask)
         return out
 
 
