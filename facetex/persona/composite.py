@@ -131,7 +131,8 @@ def inner_feather(mask, width: float) -> np.ndarray:
     m = np.asarray(mask, bool)
     if width <= 0:
         return m.astype(np.float32)
-    d = cv2.distanceTransform(np.pad(m, 1).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
+    pad = cv2.copyMakeBorder(m.view(np.uint8), 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)  # (np.pad is slower)
+    d = cv2.distanceTransform(pad, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
     t = np.clip((d - 0.5) / float(width), 0.0, 1.0)
     return _smoothstep(t).astype(np.float32)
 
