@@ -16,11 +16,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..errors import BadInputError
+from ._rows import scatter_rows
 
 __all__ = ["DeformParams", "huber_rof", "DeformationTransfer", "transfer_deformation", "invert_map"]
-
-#: A row of three float32 as one scalar (a fast scatter of (N, 3) float32 rows).
-_ROW3 = np.dtype((np.void, 12))
 
 
 @dataclass(frozen=True)
@@ -380,7 +378,7 @@ class DeformationTransfer:
         for c in range(3):  # (float64 products rounded to float32, as assigning dhat * fk would)
             np.multiply(dhat[:, c], fk, out=dk[:, c], casting="same_kind")
         disp = np.zeros(self.shape_driver + (3,), dtype=np.float32)
-        disp.reshape(-1, 3).view(_ROW3)[self.flat, 0] = dk.view(_ROW3)[:, 0]
+        scatter_rows(disp.reshape(-1, 3), self.flat, dk)
         # M_P^i = M_P + Δ̂ f*, carried to the puppet grid through the inverse correspondence
         # off the driver's mask (puppet vertices beyond the driver's face: jaw line, forehead) the
         # nearest driver vertex's motion, so the puppet's outline moves with the face instead of

@@ -52,6 +52,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import FacetexError, NoFaceError
+from ._rows import scatter_rows
 
 __all__ = [
     "DriverParams",
@@ -221,11 +222,10 @@ class GridInterpolator:
     def __call__(self, values) -> np.ndarray:
         v = np.asarray(values, np.float64)
         out = np.zeros((int(np.prod(self.shape)),) + v.shape[1:])
-        # np.take and a scatter of whole rows as one scalar: fancy indexing of short rows is slow
+        # np.take and scatter_rows: fancy indexing of short rows is slow
         res = np.einsum("nk,nk...->n...", self.weights, v.take(self.vertices, axis=0))
-        if out.ndim == 2 and res.flags.c_contiguous:
-            row = np.dtype((np.void, out.shape[1] * out.itemsize))
-            out.view(row)[self.flat, 0] = res.view(row)[:, 0]
+        if out.ndim == 2:
+            scatter_rows(out, self.flat, res)
         else:
             out[self.flat] = res
         return out.reshape(self.shape + v.shape[1:])

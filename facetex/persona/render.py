@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from ..errors import BadInputError
+from ._rows import scatter_rows
 
 __all__ = ["Raster", "Layers", "project_vertices", "rasterize", "render_mesh", "render_layers", "vertex_normals",
            "interpolate_attributes"]
@@ -32,8 +33,6 @@ __all__ = ["Raster", "Layers", "project_vertices", "rasterize", "render_mesh", "
 _CHUNK = 4_000_000
 #: Points closer than this (model units) to the camera plane are not drawn (pinhole camera).
 _NEAR = 1e-6
-#: A row of three float32 as one scalar (fast gathers/scatters of (N, 3) float32 rows).
-_ROW3 = np.dtype((np.void, 12))
 
 
 @dataclass(frozen=True, eq=False)
@@ -191,8 +190,7 @@ def rasterize(vertices, faces, *, rotation=None, translation=None, focal: float,
             lam /= lam.sum(axis=1, keepdims=True)
             lam = lam.astype(np.float32)
         tri[pix] = k if tri_ids is None else tri_ids[k]
-        # rows as 12-byte scalars: a row scatter of (N, 3) float32 is ~3x slower
-        bary.view(_ROW3)[pix, 0] = lam.view(_ROW3)[:, 0]
+        scatter_rows(bary, pix, lam)
     return Raster(triangle=tri.reshape(h, w), bary=bary.reshape(h, w, 3), depth=zbuf.reshape(h, w))
 
 
@@ -345,12 +343,11 @@ def render_layers(vertices, faces, uv, texture, *, rotation, translation, size, 
     flat = np.flatnonzero(mask)
     f = np.asarray(faces, np.int64)
     if flat.size:
-        # row gathers by np.take and the row scatter as 12-byte scalars (fancy indexing of short
-        # rows is several times slower)
+        # row gathers by np.take (fancy indexing of short rows is several times slower)
         tri = ras.triangle.ravel()[flat]
         lam = ras.bary.reshape(-1, 3).take(flat, axis=0).astype(np.float64)
         puv = np.einsum("nk,nkc->nc", lam, uvv.take(f.take(tri, axis=0), axis=0))
-        img.reshape(-1, 3).view(_ROW3)[flat, 0] = np.ascontiguousarray(_sample_texture(tex, puv)).view(_ROW3)[:, 0]
+        scatter_rows(img.reshape(-1, 3), flat, _sample_texture(tex, puv))
     cov = mask.astype(np.float32)
     nrm = None
     if normals is not False:
