@@ -181,7 +181,7 @@ def rasterize(vertices, faces, *, rotation=None, translation=None, focal: float,
     for pix, k, depth, l0, l1, l2 in cand:
         win = np.flatnonzero(depth <= zbuf[pix])
         pix, k = pix[win], k[win]
-        lam = np.empty((len(win), 3), np.float64 if not weak_perspective else np.float32)
+        lam = np.empty((len(win), 3), np.float32 if weak_perspective else np.float64)
         lam[:, 0], lam[:, 1], lam[:, 2] = l0[win], l1[win], l2[win]
         if not weak_perspective:  # perspective-correct weights
             lam[:, 0] *= zc[0][k]
