@@ -72,6 +72,31 @@ def _shape2(shape) -> tuple[int, int]:
     return h, w
 
 
+# numpy broadcasts over a length-3 inner axis (an (H, W) weight or a (3,) colour against an
+# (H, W, 3) image) and gathers (H, W, 3) pixels by a bool mask several times slower than the same
+# arithmetic one channel at a time / np.take on flat indices: the helpers below do that
+def _mix(alpha, a, b) -> np.ndarray:
+    """alpha * a + (1 - alpha) * b of (H, W) ``alpha`` and (H, W, 3) float32 images."""
+    out = np.empty(np.shape(a), np.float32)
+    beta = 1 - alpha
+    for c in range(3):
+        out[..., c] = alpha * a[..., c] + beta * b[..., c]
+    return out
+
+
+def _pixels(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """img[mask] (N, 3) of an (H, W, 3) image and an (H, W) bool mask."""
+    return np.ascontiguousarray(img).reshape(-1, 3).take(np.flatnonzero(mask), axis=0)
+
+
+def _shift(img: np.ndarray, by) -> np.ndarray:
+    """img + by of an (H, W, 3) float32 image and a (3,) colour."""
+    out = np.empty(img.shape, np.float32)
+    for c in range(3):
+        np.add(img[..., c], by[c], out=out[..., c])
+    return out
+
+
 def polygon_mask(points, shape, *, samples: int = 8) -> np.ndarray:
     """Anti-aliased coverage (H, W) float32 in [0, 1] of the polygon ``points`` (N, 2) x, y
     (pixel centres at integers): the fraction of ``samples`` x ``samples`` sub-pixel sample
@@ -106,7 +131,8 @@ def inner_feather(mask, width: float) -> np.ndarray:
     m = np.asarray(mask, bool)
     if width <= 0:
         return m.astype(np.float32)
-    d = cv2.distanceTransform(np.pad(m, 1).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
+    pad = cv2.copyMakeBorder(m.view(np.uint8), 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)  # (np.pad is slower)
+    d = cv2.distanceTransform(pad, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
     t = np.clip((d - 0.5) / float(width), 0.0, 1.0)
     return _smoothstep(t).astype(np.float32)
 
@@ -213,16 +239,21 @@ def match_color_statistics(src, ref, src_mask, ref_mask=None, *, std: bool = Fal
     rm = sm if ref_mask is None else np.asarray(ref_mask, bool)
     if not sm.any() or not rm.any():
         return np.asarray(src, np.float32).copy()
-    a, b = _lab(src), _lab(ref)
-    mu_a, mu_b = a[sm].mean(axis=0), b[rm].mean(axis=0)
+    # only the masked pixels of ``ref`` and of the round trips are converted (OpenCV converts
+    # pixel by pixel: the same values as converting the whole image)
+    a = _lab(src)
+    pa, pb = _pixels(a, sm), _lab(_pixels(ref, rm)[None])[0]
+    mu_a, mu_b = pa.mean(axis=0), pb.mean(axis=0)
     if std:
-        g = np.clip(b[rm].std(axis=0) / np.maximum(a[sm].std(axis=0), 1e-6), 1 / max_gain, max_gain)
+        g = np.clip(pb.std(axis=0) / np.maximum(pa.std(axis=0), 1e-6), 1 / max_gain, max_gain)
     else:
         g = np.ones(3, np.float32)
-    lab = (a - mu_a) * g + mu_b
+    lab = np.empty(a.shape, np.float32)
+    for c in range(3):
+        lab[..., c] = (a[..., c] - mu_a[c]) * g[c] + mu_b[c]
     out = _rgb(lab)
     for _ in range(2):  # OpenCV's float Lab <-> RGB round trip is good to ~0.1 L: re-centre on it
-        lab = lab + (mu_b - _lab(out)[sm].mean(axis=0))
+        lab = _shift(lab, mu_b - _lab(_pixels(out, sm)[None])[0].mean(axis=0))
         out = _rgb(lab)
     return out
 
@@ -246,8 +277,9 @@ def poisson_blend(src, dst, mask, *, pad: int = 4) -> np.ndarray:
     # work on the mask's bounding box plus a margin (seamlessClone needs the mask off the border)
     y0, y1 = max(0, ys.min() - pad), min(m.shape[0], ys.max() + pad + 1)
     x0, x1 = max(0, xs.min() - pad), min(m.shape[1], xs.max() + pad + 1)
-    sc, dc, mc = s[y0:y1, x0:x1], d[y0:y1, x0:x1], m[y0:y1, x0:x1]
-    sc, dc, mc = (np.pad(a, ((pad, pad), (pad, pad)) + ((0, 0),) * (a.ndim - 2), mode="edge") for a in (sc, dc, mc))
+    sc, dc, mc = s[y0:y1, x0:x1], d[y0:y1, x0:x1], m[y0:y1, x0:x1].view(np.uint8)
+    sc, dc, mc = (cv2.copyMakeBorder(a, pad, pad, pad, pad, cv2.BORDER_REPLICATE) for a in (sc, dc, mc))
+    mc = mc.view(bool)
     mc[:pad] = mc[-pad:] = False
     mc[:, :pad] = mc[:, -pad:] = False
     s8 = np.clip(np.round(sc * 255), 0, 255).astype(np.uint8)
@@ -519,12 +551,12 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1,) * 2)
         outline = cv2.erode(outline.astype(np.uint8), disc) > 0
     region = outline & (np.asarray(coverage) > 0.5)
-    if region.sum() < 16:
+    if np.count_nonzero(region) < 16:
         return frame.copy(), np.zeros((H, W), np.float32)
-    ys, xs = np.nonzero(region)
+    bx, by, bw, bh = cv2.boundingRect(region.view(np.uint8))
     pad = 3 + int(round(0.1 * iod))
-    y0, y1 = max(0, ys.min() - pad), min(H, ys.max() + pad + 1)
-    x0, x1 = max(0, xs.min() - pad), min(W, xs.max() + pad + 1)
+    y0, y1 = max(0, by - pad), min(H, by + bh + pad)
+    x0, x1 = max(0, bx - pad), min(W, bx + bw + pad)
     box = (slice(y0, y1), slice(x0, x1))
     fr, pu, rg = frame[box], np.asarray(puppet, np.float32)[box], region[box]
     nr = None if normals is None else np.asarray(normals, np.float32)[box]
@@ -569,10 +601,10 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     if params.mouth and puppet_lips is not None:
         mi, ma = mouth_interior(fr, p68[list(INNER_LIPS)] - [x0, y0], np.asarray(puppet_lips) - [x0, y0], rg.shape)
         ma = ma * rg
-        out = ma[..., None] * mi + (1 - ma[..., None]) * out
+        out = _mix(ma, mi, out)
     alpha = inner_feather(rg, max(1.0, params.feather * iod))
     res = frame.copy()
-    res[box] = alpha[..., None] * out + (1 - alpha[..., None]) * fr
+    res[box] = _mix(alpha, out, fr)
     full = np.zeros((H, W), np.float32)
     full[box] = alpha
     return res, full

@@ -425,7 +425,9 @@ class Puppeteer:
         if self.rest_move is not None:
             move += self.rest_move
         g = g.copy()
-        g[..., :2] += self.lip_fields(move) * self.puppet_mask[..., None]
+        lf = self.lip_fields(move)
+        for c in range(2):  # per column: numpy broadcasts over a length-2 axis slowly
+            g[..., c] += lf[..., c] * self.puppet_mask
         # lips that meet (or whose landmarks cross) must not fold the grid over: stair steps
         return unfold_columns(g, self.puppet_mask)
 

@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from ..errors import BadInputError
+from ._rows import scatter_rows
 
 __all__ = ["Raster", "Layers", "project_vertices", "rasterize", "render_mesh", "render_layers", "vertex_normals",
            "interpolate_attributes"]
@@ -62,9 +63,8 @@ def _size(size) -> tuple[int, int]:
     return w, h
 
 
-def project_vertices(vertices, *, rotation=None, translation=None, focal: float, size,
-                     weak_perspective: bool = False):
-    """Screen positions (V, 2) and camera depths (V,) of model vertices (V, 3)."""
+def _camera(vertices, rotation, translation):
+    """Checked float64 vertices (V, 3), rotation (3, 3) and translation (3,)."""
     v = np.asarray(vertices, dtype=np.float64)
     if v.ndim != 2 or v.shape[1] != 3:
         raise BadInputError(f"vertices must be (V, 3), got {v.shape}")
@@ -72,19 +72,37 @@ def project_vertices(vertices, *, rotation=None, translation=None, focal: float,
     t = np.zeros(3) if translation is None else np.asarray(translation, dtype=np.float64).reshape(3)
     if r.shape != (3, 3):
         raise BadInputError(f"rotation must be a 3x3 matrix, got {r.shape}")
+    return v, r, t
+
+
+def project_vertices(vertices, *, rotation=None, translation=None, focal: float, size,
+                     weak_perspective: bool = False):
+    """Screen positions (V, 2) and camera depths (V,) of model vertices (V, 3)."""
+    v, r, t = _camera(vertices, rotation, translation)
     w, h = _size(size)
-    cam = v @ r.T + t
-    z = cam[:, 2]
+    x, y, z = _project(v, r, t, focal, w, h, weak_perspective)
+    return np.stack([x, y], axis=1), z
+
+
+def _project(v, r, t, focal, w, h, weak_perspective):
+    """x, y, z (V,) each of :func:`project_vertices` (one column at a time: numpy broadcasts
+    over a length-3 inner axis slowly)."""
+    with np.errstate(invalid="ignore"):  # non-finite vertices are dropped by the callers
+        cam = v @ r.T
+    z = cam[:, 2] + t[2]
     if weak_perspective:
         if t[2] <= 0:
             raise BadInputError(f"weak perspective needs the mesh in front of the camera (t_z > 0), got {t[2]}")
         scale = focal / t[2]
-        xy = cam[:, :2] * scale
+        x = (cam[:, 0] + t[0]) * scale
+        y = (cam[:, 1] + t[1]) * scale
     else:
         with np.errstate(divide="ignore", invalid="ignore"):
-            xy = focal * cam[:, :2] / z[:, None]
-    xy += np.array([(w - 1) / 2.0, (h - 1) / 2.0])
-    return xy, z
+            x = focal * (cam[:, 0] + t[0]) / z
+            y = focal * (cam[:, 1] + t[1]) / z
+    x += (w - 1) / 2.0
+    y += (h - 1) / 2.0
+    return x, y, z
 
 
 def rasterize(vertices, faces, *, rotation=None, translation=None, focal: float, size,
@@ -94,72 +112,85 @@ def rasterize(vertices, faces, *, rotation=None, translation=None, focal: float,
     if f.ndim != 2 or f.shape[1] != 3:
         raise BadInputError(f"faces must be (F, 3), got {f.shape}")
     w, h = _size(size)
-    xy, z = project_vertices(vertices, rotation=rotation, translation=translation, focal=focal, size=size,
-                             weak_perspective=weak_perspective)
-    if f.size and (f.min() < 0 or f.max() >= len(xy)):
+    v, r, t = _camera(vertices, rotation, translation)
+    x, y, z = _project(v, r, t, focal, w, h, weak_perspective)
+    if f.size and (f.min() < 0 or f.max() >= len(v)):
         raise BadInputError("faces index vertices that do not exist")
-    tri_ids = np.arange(len(f))
-    zt = z[f]
-    p = xy[f]  # (T, 3, 2)
-    p0, p1, p2 = p[:, 0], p[:, 1], p[:, 2]
-    # reductions over the short axes written out: numpy's reduce over an axis of length 3 is slow
-    keep = (zt[:, 0] > _NEAR) & (zt[:, 1] > _NEAR) & (zt[:, 2] > _NEAR)
-    keep &= np.isfinite(p0).all(axis=1) & np.isfinite(p1).all(axis=1) & np.isfinite(p2).all(axis=1)
-    x0, y0 = p0[:, 0], p0[:, 1]
-    e1, e2 = p1 - p0, p2 - p0
-    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    keep &= np.abs(det) > 1e-12
-    lo = np.ceil(np.minimum(np.minimum(p0, p1), p2) - 1e-9)
-    hi = np.floor(np.maximum(np.maximum(p0, p1), p2) + 1e-9)
-    lo = np.maximum(lo, 0)
-    hi = np.minimum(hi, [w - 1, h - 1])
-    keep &= (hi[:, 0] >= lo[:, 0]) & (hi[:, 1] >= lo[:, 1])
-    tri_ids, lo, hi = tri_ids[keep], lo[keep].astype(np.int64), hi[keep].astype(np.int64)
-    det, e1, e2, x0, y0, zt = det[keep], e1[keep], e2[keep], x0[keep], y0[keep], zt[keep]
-    # λ1, λ2 as affine functions of the pixel (x, y): λ = a x + b y + c
-    a1, b1 = e2[:, 1] / det, -e2[:, 0] / det
-    a2, b2 = -e1[:, 1] / det, e1[:, 0] / det
-    c1, c2 = -(a1 * x0 + b1 * y0), -(a2 * x0 + b2 * y0)
-    inv_z = 1.0 / zt
-    bw = hi[:, 0] - lo[:, 0] + 1
-    counts = bw * (hi[:, 1] - lo[:, 1] + 1)
+    # Puppet meshes have about one triangle per pixel, so numpy's per-call overhead on arrays of
+    # ~15k dominates: everything stays in 1-D arrays (gathers/scatters of short rows and
+    # broadcasts over short axes are several times slower), each test runs once per vertex,
+    # and faces that cover no pixel centre get no candidates instead of being masked out.
+    ok = (z > _NEAR) & np.isfinite(x) & np.isfinite(y)  # a face is drawn only if its corners are
+    i0, i1, i2 = f[:, 0], f[:, 1], f[:, 2]
+    tri_ids = None  # None: face k is face k (no face dropped)
+    if not ok.all():
+        tri_ids = np.flatnonzero(ok[i0] & ok[i1] & ok[i2])
+        i0, i1, i2 = i0[tri_ids], i1[tri_ids], i2[tri_ids]
+    x0, x1, x2, y0, y1, y2 = x[i0], x[i1], x[i2], y[i0], y[i1], y[i2]
+    e1x, e1y, e2x, e2y = x1 - x0, y1 - y0, x2 - x0, y2 - y0
+    det = e1x * e2y - e1y * e2x
+    # pixel-centre bounding boxes, clipped to the image
+    lox = np.maximum(np.ceil(np.minimum(np.minimum(x0, x1), x2) - 1e-9), 0)
+    loy = np.maximum(np.ceil(np.minimum(np.minimum(y0, y1), y2) - 1e-9), 0)
+    hix = np.minimum(np.floor(np.maximum(np.maximum(x0, x1), x2) + 1e-9), w - 1)
+    hiy = np.minimum(np.floor(np.maximum(np.maximum(y0, y1), y2) + 1e-9), h - 1)
+    keep = (np.abs(det) > 1e-12) & (hix >= lox) & (hiy >= loy)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        # faces not kept: 0 candidates (their coefficients, possibly inf/NaN, are never read)
+        # (box corners and sizes stay float64: exact integers, and float division is much faster)
+        bw = np.where(keep, hix - lox + 1, 0)
+        counts = (bw * np.where(keep, hiy - loy + 1, 0)).astype(np.int64)
+        # λ1, λ2 as affine functions of the pixel (x, y): λ = a x + b y + c
+        a1, b1 = e2y / det, -e2x / det
+        a2, b2 = -e1y / det, e1x / det
+        c1, c2 = -(a1 * x0 + b1 * y0), -(a2 * x0 + b2 * y0)
+        # depth is affine in screen space (weak perspective), 1/z is (pinhole)
+        zv = z if weak_perspective else 1.0 / z
+    zc = (zv[i0], zv[i1], zv[i2])
     zbuf = np.full(h * w, np.inf)
-    starts = np.concatenate([[0], np.cumsum(counts)])
-    chunk_edges = np.searchsorted(starts, np.arange(0, starts[-1] + _CHUNK, _CHUNK))
-    chunk_edges = np.unique(np.clip(chunk_edges, 0, len(counts)))
+    starts = np.zeros(len(counts) + 1, np.int64)
+    np.cumsum(counts, out=starts[1:])
+    if starts[-1] <= _CHUNK:
+        chunk_edges = [0, len(counts)]
+    else:
+        chunk_edges = np.searchsorted(starts, np.arange(0, starts[-1] + _CHUNK, _CHUNK))
+        chunk_edges = np.unique(np.clip(chunk_edges, 0, len(counts))).tolist()
     cand = []
     for c0, c1_ in zip(chunk_edges[:-1], chunk_edges[1:]):
         if c1_ <= c0:
             continue
-        idx = np.arange(c0, c1_)
-        cnt = counts[idx]
-        k = np.repeat(idx, cnt)
-        off = np.arange(int(cnt.sum())) - np.repeat(starts[idx] - starts[c0], cnt)
-        px = lo[k, 0] + off % bw[k]
-        py = lo[k, 1] + off // bw[k]
+        k = np.repeat(np.arange(c0, c1_), counts[c0:c1_])
+        off = (np.arange(starts[c1_] - starts[c0]) - (starts[k] - starts[c0])).astype(np.float64)
+        bwk = bw[k]
+        dy = np.floor(off / bwk)  # exact: integers far below 2**53
+        px = lox[k] + (off - dy * bwk)
+        py = loy[k] + dy
         l1 = a1[k] * px + b1[k] * py + c1[k]
         l2 = a2[k] * px + b2[k] * py + c2[k]
         l0 = 1.0 - l1 - l2
-        inside = (l0 >= -1e-7) & (l1 >= -1e-7) & (l2 >= -1e-7)
-        k, px, py, l0, l1, l2 = k[inside], px[inside], py[inside], l0[inside], l1[inside], l2[inside]
-        if weak_perspective:
-            depth = l0 * zt[k, 0] + l1 * zt[k, 1] + l2 * zt[k, 2]
-        else:  # 1/z is affine in screen space
-            depth = 1.0 / (l0 * inv_z[k, 0] + l1 * inv_z[k, 1] + l2 * inv_z[k, 2])
-        pix = py * w + px
+        inside = np.flatnonzero((l0 >= -1e-7) & (l1 >= -1e-7) & (l2 >= -1e-7))
+        k, l0, l1, l2 = k[inside], l0[inside], l1[inside], l2[inside]
+        pix = (py[inside] * w + px[inside]).astype(np.int64)
+        depth = l0 * zc[0][k] + l1 * zc[1][k] + l2 * zc[2][k]
+        if not weak_perspective:
+            depth = 1.0 / depth
         np.minimum.at(zbuf, pix, depth)
         cand.append((pix, k, depth, l0, l1, l2))
     tri = np.full(h * w, -1, dtype=np.int64)
     bary = np.zeros((h * w, 3), dtype=np.float32)
     for pix, k, depth, l0, l1, l2 in cand:
-        win = depth <= zbuf[pix]
+        win = np.flatnonzero(depth <= zbuf[pix])
         pix, k = pix[win], k[win]
-        lam = np.stack([l0[win], l1[win], l2[win]], axis=1)
+        lam = np.empty((len(win), 3), np.float32 if weak_perspective else np.float64)
+        lam[:, 0], lam[:, 1], lam[:, 2] = l0[win], l1[win], l2[win]
         if not weak_perspective:  # perspective-correct weights
-            lam *= inv_z[k]
+            lam[:, 0] *= zc[0][k]
+            lam[:, 1] *= zc[1][k]
+            lam[:, 2] *= zc[2][k]
             lam /= lam.sum(axis=1, keepdims=True)
-        tri[pix] = tri_ids[k]
-        bary[pix] = lam
+            lam = lam.astype(np.float32)
+        tri[pix] = k if tri_ids is None else tri_ids[k]
+        scatter_rows(bary, pix, lam)
     return Raster(triangle=tri.reshape(h, w), bary=bary.reshape(h, w, 3), depth=zbuf.reshape(h, w))
 
 
@@ -275,14 +306,17 @@ def render_layers(vertices, faces, uv, texture, *, rotation, translation, size, 
     v = np.asarray(vertices, np.float64)
     A = np.asarray(rotation, np.float64).reshape(3, 3)
     t = np.asarray(translation, np.float64).reshape(3)
-    xy = v @ A[:2].T + t[:2]
-    ok = np.isfinite(xy).all(axis=1)
+    xy = v @ A[:2].T
+    px, py = xy[:, 0] + t[0], xy[:, 1] + t[1]  # (per column: see _project)
+    ok = np.isfinite(px) & np.isfinite(py)
     empty = Layers(np.zeros((h, w, 3), np.float32), np.zeros((h, w), np.float32),
                    None if normals is False else np.zeros((h, w, 3), np.float32), (0, 0, 0, 0))
     if not ok.any():
         return empty
-    lo = np.floor(xy[ok].min(axis=0)).astype(int) - 1
-    hi = np.ceil(xy[ok].max(axis=0)).astype(int) + 2
+    if not ok.all():
+        px, py = px[ok], py[ok]
+    lo = np.floor([px.min(), py.min()]).astype(int) - 1
+    hi = np.ceil([px.max(), py.max()]).astype(int) + 2
     x0, y0 = max(0, lo[0]), max(0, lo[1])
     x1, y1 = min(w, hi[0]), min(h, hi[1])
     if x1 <= x0 or y1 <= y0:
@@ -301,7 +335,7 @@ def render_layers(vertices, faces, uv, texture, *, rotation, translation, size, 
     uvv = np.asarray(uv, np.float64)
     if prefilter:
         # texels per fine sample along the texture's x axis (the canonical frame's pixels)
-        texel_px = tex.shape[1] * float(np.ptp(uvv[:, 0]) or 1.0) / max(float(np.ptp(xy[ok, 0])) * ss, 1e-6)
+        texel_px = tex.shape[1] * float(np.ptp(uvv[:, 0]) or 1.0) / max(float(np.ptp(px)) * ss, 1e-6)
         if texel_px > 1.0:
             tex = cv2.GaussianBlur(tex, (0, 0), 0.5 * math.sqrt(texel_px ** 2 - 1.0))
     mask = ras.triangle >= 0
@@ -309,10 +343,11 @@ def render_layers(vertices, faces, uv, texture, *, rotation, translation, size, 
     flat = np.flatnonzero(mask)
     f = np.asarray(faces, np.int64)
     if flat.size:
+        # row gathers by np.take (fancy indexing of short rows is several times slower)
         tri = ras.triangle.ravel()[flat]
-        lam = ras.bary.reshape(-1, 3)[flat].astype(np.float64)
-        puv = np.einsum("nk,nkc->nc", lam, uvv[f[tri]])
-        img.reshape(-1, 3)[flat] = _sample_texture(tex, puv)
+        lam = ras.bary.reshape(-1, 3).take(flat, axis=0).astype(np.float64)
+        puv = np.einsum("nk,nkc->nc", lam, uvv.take(f.take(tri, axis=0), axis=0))
+        scatter_rows(img.reshape(-1, 3), flat, _sample_texture(tex, puv))
     cov = mask.astype(np.float32)
     nrm = None
     if normals is not False:
@@ -325,7 +360,10 @@ def render_layers(vertices, faces, uv, texture, *, rotation, translation, size, 
         img, cov = down(img), down(cov)
         nrm = down(nrm) if nrm is not None else None
     # colours are the average over the covered samples (premultiplied -> straight)
-    img = np.divide(img, cov[..., None], out=np.zeros_like(img), where=cov[..., None] > 1e-6)
+    straight, covered = np.zeros_like(img), cov > 1e-6
+    for ch in range(3):  # one channel at a time: numpy broadcasts over a length-3 axis slowly
+        np.divide(img[..., ch], cov, out=straight[..., ch], where=covered)
+    img = straight
     if nrm is not None:
         nn = np.linalg.norm(nrm, axis=2, keepdims=True)
         nrm = np.divide(nrm, nn, out=np.zeros_like(nrm), where=nn > 1e-6)

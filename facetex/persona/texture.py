@@ -399,6 +399,16 @@ def _csr(weights: np.ndarray):
     return sp.csr_array(weights)
 
 
+def _unpremultiply(r: np.ndarray) -> np.ndarray:
+    """(..., 3) colours r[..., :3] / r[..., 3] of (..., 4) float32 rows [c * L', L'] (the
+    channels one at a time: numpy broadcasts over a length-3 inner axis slowly)."""
+    den = np.maximum(r[..., 3], np.float32(1e-30))
+    out = np.empty(r.shape[:-1] + (3,), np.float32)
+    for c in range(3):
+        np.divide(r[..., c], den, out=out[..., c])
+    return out
+
+
 class _Prepared:
     """Target-independent data of a persona for :func:`synthesize_texture` (see module doc).
 
@@ -662,20 +672,25 @@ class _Prepared:
                 for seg in self.segments[k]:
                     st = static[seg.cols][None] if u > 0 else None
                     if not regional:  # one product, the regions' masks summed
-                        acc = (mats[0] @ seg.stack) * scale[0]
+                        acc = mats[0] @ seg.stack
+                        acc *= scale[0]
                         if u > 0:
                             acc += ucoef[0] * st
                         acc *= seg.masks.sum(axis=0)[None]
                     else:
                         acc = np.zeros((B, seg.stack.shape[1]), np.float32)
                         for mj, j in zip(seg.masks, seg.regions):
-                            num = (mats[j] @ seg.stack) * scale[j]
+                            num = mats[j] @ seg.stack
+                            num *= scale[j]
                             if u > 0:
                                 num += ucoef[j] * st
-                            acc += mj[None] * num
-                    out[:, seg.cols] += acc
-            r = out.reshape(B, h, w, 4)
-            bands.append(r[..., :3] / np.maximum(r[..., 3:], 1e-30))
+                            num *= mj
+                            acc += num
+                    for ob, ab in zip(out, acc):  # row by row: the 2-D fancy scatter is ~2.5x slower
+                        t = ob.take(seg.cols)
+                        t += ab
+                        ob[seg.cols] = t
+            bands.append(_unpremultiply(out.reshape(B, h, w, 4)))
         return np.stack([collapse_pyramid([b[j] for b in bands]) for j in range(B)])
 
     @property

@@ -67,6 +67,18 @@ def test_colour_transfer_moves_the_lab_statistics_exactly(std):
     assert np.abs(a.mean(axis=0) - _lab(src)[m_src].mean(axis=0)).max() > 5  # it did move
 
 
+def test_lab_of_masked_pixels_equals_lab_of_the_whole_image():
+    """match_color_statistics converts only the masked pixels to Lab: OpenCV must convert pixel
+    by pixel (the same bits whatever the image's size and the pixel's position)."""
+    rng = np.random.default_rng(3)
+    for h, w in ((37, 53), (1, 1), (120, 101), (5, 3)):
+        img = rng.uniform(-0.1, 1.1, (h, w, 3)).astype(np.float32)
+        mask = rng.random((h, w)) < 0.6
+        full = _lab(img)[mask]
+        part = _lab(img[mask][None])[0]
+        np.testing.assert_array_equal(part.view(np.uint32), full.view(np.uint32))
+
+
 def test_colour_transfer_with_an_empty_mask_changes_nothing():
     src = np.full((8, 8, 3), 0.4, np.float32)
     out = match_color_statistics(src, src * 0.5, np.zeros((8, 8), bool))

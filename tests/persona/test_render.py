@@ -160,3 +160,34 @@ def test_layers_prefilter_removes_aliasing_of_a_minified_texture():
     inner = (slice(12, 34), slice(12, 34))
     assert smooth.image[inner].std() < 0.05 < sharp.image[inner].std()
     assert smooth.image[inner].mean() == pytest.approx(0.5, abs=0.03)
+
+
+def test_rasterize_fast_paths_match_general_path(monkeypatch):
+    """Dropped faces (non-finite or behind-camera corners, degenerate, off-screen) leave the
+    other faces' raster unchanged, and a run split into many chunks equals the one-chunk run."""
+    import facetex.persona.render as render_mod
+
+    g = load_generic_face()
+    size = (96, 120)
+    fr = canonical_frame(size)
+    kw = dict(rotation=rotation_from_angles(yaw=20), translation=((fr.cx - 47.5) / fr.scale, (fr.cy - 59.5) / fr.scale,
+              1000.0), focal=1000 * fr.scale, size=size)
+    v, f = np.asarray(g.vertices, float), np.asarray(g.triangles)
+    for weak in (True, False):
+        ref = rasterize(v, f, weak_perspective=weak, **kw)
+        assert ref.mask.sum() > 2000
+        # extra vertices: NaN, inf, behind the camera, far off-screen; faces using them, and a degenerate face
+        extra = np.array([[np.nan, 0, 0], [np.inf, 0, 0], [0, 0, -5000.0], [1e4, 1e4, 0], [1e4 + 1, 1e4, 0],
+                          [1e4, 1e4 + 1, 0]])
+        n = len(v)
+        f2 = np.vstack([f, [[0, 1, n], [n + 1, 2, 3], [4, n + 2, 5], [n + 3, n + 4, n + 5], [8, 8, 9], [10, 11, 10]]])
+        ras = rasterize(np.vstack([v, extra]), f2, weak_perspective=weak, **kw)
+        np.testing.assert_array_equal(ras.triangle, ref.triangle)
+        np.testing.assert_array_equal(ras.bary, ref.bary)
+        np.testing.assert_array_equal(ras.depth, ref.depth)
+        monkeypatch.setattr(render_mod, "_CHUNK", 97)  # many chunks, some faces straddling two
+        ras = rasterize(np.vstack([v, extra]), f2, weak_perspective=weak, **kw)
+        monkeypatch.undo()
+        np.testing.assert_array_equal(ras.triangle, ref.triangle)
+        np.testing.assert_array_equal(ras.bary, ref.bary)
+        np.testing.assert_array_equal(ras.depth, ref.depth)
