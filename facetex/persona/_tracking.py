@@ -114,7 +114,9 @@ def _start_child(path, size_of, kwargs) -> subprocess.Popen:
     env["PYTHONPATH"] = os.pathsep.join([root] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
     # one core's work (the caller's setup has the other): no idle BLAS/OpenMP threads
     env.update(OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
-    proc = subprocess.Popen([sys.executable, "-m", _MODULE], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+    # -P: not the working folder first on the path (-m puts it there), where another checkout's
+    # facetex would be imported instead of this one
+    proc = subprocess.Popen([sys.executable, "-P", "-m", _MODULE], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                             env=env)
     job = pickle.dumps({"path": path, "size_of": size_of, "kwargs": kwargs}, protocol=pickle.HIGHEST_PROTOCOL)
     # written from a thread: a child that dies at start must not block the caller on a full pipe

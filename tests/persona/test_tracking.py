@@ -35,6 +35,15 @@ def test_child_process_tracks_like_the_calling_thread(driver):
     assert (tr.frame_size, tr.fps, tr.lost_reason) == (ref.frame_size, ref.fps, ref.lost_reason)
 
 
+def test_child_imports_this_facetex_not_the_working_folders(driver, tmp_path, monkeypatch):
+    fake = tmp_path / "facetex"  # another checkout's package in the working folder
+    fake.mkdir()
+    (fake / "__init__.py").write_text("raise ImportError('the wrong facetex')\n")
+    monkeypatch.chdir(tmp_path)
+    tr = DriverTracking(driver, frontal_images=False).result()
+    assert tr.n_frames == track_driver(driver, frontal_images=False).n_frames
+
+
 def test_child_process_errors_reach_the_caller_with_the_file(tmp_path):
     p = tmp_path / "noface.mp4"
     write_video(p, [np.full((64, 64, 3), 0.5, np.float32)] * 2, fps=5)
