@@ -166,9 +166,7 @@ class Persona:
             from .texture import stored_stacks
 
             stacks = self.texture_stacks or stored_stacks(self)
-            meta = stacks["meta"]
-            header["texture_stacks"] = {**meta, "static": [int(stacks["arrays"][f"texture_static_{k}"].size)
-                                                           for k in range(len(meta["columns"]))]}
+            header["texture_stacks"] = stacks["meta"]
             arrays.update(stacks["arrays"])
         head = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
         with atomic_path(path, overwrite=overwrite) as tmp:

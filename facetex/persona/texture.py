@@ -497,7 +497,8 @@ class _Prepared:
                                             else np.zeros((self.n, 0), np.float32)).astype(STACK_DTYPE)
             arrays[f"texture_static_{k}"] = np.asarray(self.static[k], np.float32)
         columns = [arrays[f"texture_stack_{k}"].shape[1] for k in range(self.levels)]
-        return {"meta": {"key": _stored_key(self.tp), "columns": columns}, "arrays": arrays}
+        static = [arrays[f"texture_static_{k}"].size for k in range(self.levels)]
+        return {"meta": {"key": _stored_key(self.tp), "columns": columns, "static": static}, "arrays": arrays}
 
     def _load(self, stored: dict | None) -> bool:
         """Fill the stacks from ``stored``; False (nothing changed) when they do not fit."""
