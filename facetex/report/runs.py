@@ -178,7 +178,8 @@ def _load_bench_puppet(folder: Path, run: Run, path: Path) -> None:
     run.kind = "bench puppet"
     run.settings = dict(res.get("settings", {}))
     for r in res.get("rows", []):
-        it = Item(key=str(r.get("clip")), label=f"clip {r.get('clip')}")
+        run_key = r.get("run") or r.get("clip")  # "<persona>/<clip>"; older runs: the clip
+        it = Item(key=str(run_key), label=f"run {run_key}" if r.get("run") else f"clip {run_key}")
         it.metrics["puppet"] = {k: v for k, v in r.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
         media = r.get("media") or {}
         sheet = Path(media.get("contact_sheet", ""))
