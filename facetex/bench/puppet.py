@@ -21,7 +21,8 @@ shows there). Per run:
 * **eye openness**: eye aspect ratio (:func:`eye_aspect_ratio`, both eyes averaged) of the
   puppet over the driver's, mean over the frames where the driver's eyes are open (EAR >= 0.75
   × its 90th percentile in the clip): :func:`eye_openness_ratio`, target >= 0.8; **eye r**:
-  Pearson r of the two EAR series (the puppet blinks with the driver: near 1);
+  Pearson r of the two EAR series when the driver blinks (some frame below that level; else
+  "–"): :func:`blink_correlation`, near 1 when the puppet blinks with the driver;
 * **sharpness**: variance of the Laplacian (3 × 3, luminance) of the composite over the
   driver's own frame on the same face-skin pixels (:func:`face_skin_mask`: inside jaw and
   brows, eyes, brows and lips cut out; :func:`sharpness_ratio`), median over frames; target
@@ -71,7 +72,7 @@ from ._common import (Column, ResultStore, check_out_dir, csv_table, image_grid,
 
 __all__ = ["register_bench", "run_bench_puppet", "mouth_slope", "shifted_clip", "eye_aspect_ratio",
            "eye_openness_ratio", "cheek_mask", "cheek_delta_e", "face_skin_mask", "eye_mask", "sharpness_ratio",
-           "run_score", "worst_runs", "sheet_frames", "TARGETS"]
+           "blink_correlation", "run_score", "failed_targets", "worst_runs", "sheet_frames", "TARGETS"]
 
 ID_THRESHOLD = 0.6
 SLOPE_TARGET = 0.8
@@ -168,6 +169,35 @@ def eye_openness_ratio(driver_ear, puppet_ear, *, open_level: float = EYE_OPEN) 
         return float("nan")
     # ratio of means over the open frames: robust to single-frame landmark noise
     return float(p[ok].mean() / max(d[ok].mean(), 1e-9))
+
+
+def blink_correlation(driver_ear, puppet_ear, *, open_level: float = EYE_OPEN) -> float:
+    """Pearson r of the EAR series (the puppet blinks with the driver: near 1); NaN when the
+    driver never closes its eyes (no frame below ``open_level`` x its 90th percentile): then r
+    would only correlate landmark noise."""
+    d = np.asarray(driver_ear, float)
+    if not np.isfinite(d).any() or not (d[np.isfinite(d)] < open_level * np.nanpercentile(d, 90)).any():
+        return float("nan")
+    return _pearson(d, puppet_ear)
+
+
+def _series(row, key) -> np.ndarray:
+    return np.array([np.nan if v is None else v for v in row.get(key) or []], float)
+
+
+def _series_measures(row: dict) -> dict:
+    """(Re)compute in ``row`` the measures of its stored per-frame series (mouth slope and r, eye
+    openness ratio and blink r) and its fail score: a resumed run gets the current definitions."""
+    if row.get("driver_opening") is not None:
+        d, p = _series(row, "driver_opening"), _series(row, "puppet_opening")
+        row["mouth_slope"], row["mouth_r"] = mouth_slope(d, p), _pearson(d, p)
+    if row.get("driver_ear") is not None:
+        d, p = _series(row, "driver_ear"), _series(row, "puppet_ear")
+        row["eye_ratio"], row["eye_r"] = eye_openness_ratio(d, p), blink_correlation(d, p)
+        row["driver_blink_frames"] = int((d < EYE_OPEN * np.nanpercentile(d, 90)).sum()) if np.isfinite(d).any() \
+            else 0
+    row["score"], row["failed"] = run_score(row), failed_targets(row)
+    return row
 
 
 def _disc(shape, centre, radius) -> np.ndarray:
@@ -549,11 +579,7 @@ def _evaluate_clip(clip: Path, persona, ref_desc, out: Path, *, size, max_frames
         "frames": n,
         "lost": int((~found).sum()),
         "lost_causes": track.lost_causes,
-        "mouth_slope": mouth_slope(drv_open, pup_open),
-        "mouth_r": _pearson(drv_open, pup_open),
         "cheek_de": _median(de),
-        "eye_ratio": eye_openness_ratio(drv_ear, pup_ear),
-        "eye_r": _pearson(drv_ear, pup_ear),
         "sharp": _median(sharp),
         "eye_sharp": _median(eye_sharp),
         "id_closer": float(closer.mean()) if closer.size else float("nan"),
@@ -581,8 +607,7 @@ def _evaluate_clip(clip: Path, persona, ref_desc, out: Path, *, size, max_frames
         "sharp_frames": sharp.tolist(),
         "shape": pup.shape_source,
     }
-    row["score"] = run_score(row)
-    row["failed"] = failed_targets(row)
+    _series_measures(row)
     media = {}
     # contact sheet: 8 frames evenly spaced, with the most closed, widest-open and middle mouth frames
     three = sheet_frames(np.where(found, drv_open, np.nan))
@@ -865,6 +890,7 @@ def _write_tables(out: Path, rows: list, part, *, drivers, files, persona_files,
     """table.md, table.csv, results.json and the worst runs' sheets of a finished bench."""
     from ..io import read_image, write_json
 
+    rows = [_series_measures(dict(r)) for r in rows]
     keys = [c.key for c in COLUMNS[2:]]
     summary = {"persona": "mean", "clip": ""}
     worst = {"persona": "worst", "clip": ""}

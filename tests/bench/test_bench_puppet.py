@@ -42,6 +42,25 @@ def test_eye_openness_ratio_ignores_the_drivers_blinks():
     assert np.isnan(bench.eye_openness_ratio(np.full(5, np.nan), pup[:5]))
 
 
+def test_blink_correlation_only_when_the_driver_blinks():
+    drv = np.full(20, 0.3) + 0.001 * np.arange(20)
+    pup = drv.copy()
+    assert np.isnan(bench.blink_correlation(drv, pup))  # eyes always open: no blink to follow
+    drv[[5, 6]] = 0.05
+    assert np.isnan(bench.blink_correlation(drv, np.full(20, 0.25)))  # the puppet does not move: undefined
+    follows = drv * 0.8
+    stares = 0.3 + 0.001 * np.random.default_rng(0).standard_normal(20)  # eyes open throughout
+    assert bench.blink_correlation(drv, follows) == pytest.approx(1.0)
+    assert bench.blink_correlation(drv, stares) < 0.5
+    row = bench._series_measures({"driver_ear": list(drv), "puppet_ear": [None if i == 3 else v for i, v in
+                                                                          enumerate(follows)],
+                                  "driver_opening": list(np.linspace(0, 1, 20)),
+                                  "puppet_opening": list(np.linspace(0, 0.5, 20))})
+    assert row["eye_ratio"] == pytest.approx(0.8) and row["driver_blink_frames"] == 2
+    assert row["mouth_slope"] == pytest.approx(0.5) and row["mouth_r"] == pytest.approx(1.0)
+    assert row["failed"] == ["mouth_slope", "cheek_de", "sharp", "id_closer"]
+
+
 def test_cheek_delta_e_of_known_colours():
     black, white = np.zeros((10, 10, 3), np.float32), np.ones((10, 10, 3), np.float32)
     m = np.ones((10, 10), bool)
