@@ -809,7 +809,9 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, puppe
     Returns {"out", "rows", "summary", "worst", "worst_runs", "partial", "files", "targets_met"}."""
     from dataclasses import replace
 
-    from ..io import write_json
+    import hashlib
+
+    from ..io import atomic_path
     from ..persona.puppet import PuppetParams
 
     drivers, puppet_paths = _data_paths(data, drivers, puppets if puppets is not None else puppet)
@@ -848,7 +850,20 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, puppe
 
         return map_items(engine, _bench_item, items, progress=done)
 
-    refs = run_items([{"kind": "reference", "persona_file": str(Path(f).resolve())} for f in persona_files])
+    # the identity references (~40 descriptors each), cached per persona file (path, size, time)
+    ref_cache = []
+    for f in persona_files:
+        st = os.stat(f)
+        tag = hashlib.sha256(f"{Path(f).resolve()}\0{st.st_size}\0{st.st_mtime_ns}\0{ID_PHOTOS}".encode()).hexdigest()
+        ref_cache.append(out / "_cache" / f"reference_{Path(f).stem}_{tag[:12]}.npy")
+    missing = [k for k, c in enumerate(ref_cache) if not c.is_file()]
+    new = run_items([{"kind": "reference", "persona_file": str(Path(persona_files[k]).resolve())} for k in missing])
+    for k, d in zip(missing, new):
+        ref_cache[k].parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(ref_cache[k]) as tmp:
+            with open(tmp, "wb") as fh:
+                np.save(fh, np.asarray(d, np.float64))
+    refs = [np.load(c).tolist() for c in ref_cache]
     store = ResultStore(out / "runs")
     items, rows, todo = [], [], []
     for pf, name, ref in zip(persona_files, names, refs):

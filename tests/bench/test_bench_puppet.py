@@ -161,7 +161,8 @@ def fake_runs(tmp_path, monkeypatch):
         return row
 
     monkeypatch.setattr(bench, "_persona_file", lambda p, out, progress: str(p))
-    monkeypatch.setattr(bench, "_collection_descriptor", lambda f: np.zeros(128))
+    monkeypatch.setattr(bench, "_collection_descriptor", lambda f: calls.append(("reference", Path(f).stem))
+                        or np.zeros(128))
     monkeypatch.setattr(bench, "_evaluate_clip", evaluate)
     monkeypatch.setattr("facetex.persona.load_persona", lambda f: Path(f).stem)
     return personas, clips, calls
@@ -175,7 +176,8 @@ def test_cli_runs_every_puppet_on_every_clip(fake_runs, tmp_path, capsys):
     args = parser.parse_args(["puppet", "--drivers", str(clips), "--puppets", *map(str, personas), "--out", str(out),
                               "--no-partial", "--size", "64", "--json"])
     assert args.func(args) == 0
-    assert calls == [("Anna", "c1", 64), ("Anna", "c2", 64), ("Bert", "c1", 64), ("Bert", "c2", 64)]
+    assert calls == [("reference", "Anna"), ("reference", "Bert"), ("Anna", "c1", 64), ("Anna", "c2", 64),
+                     ("Bert", "c1", 64), ("Bert", "c2", 64)]
     printed = json.loads(capsys.readouterr().out)
     assert [w["run"] for w in printed["summary"]["worst_runs"]] == ["Bert/c2", "Anna/c2"]  # slope 0.2, 0.5
     res = json.loads((out / "results.json").read_text())
@@ -189,7 +191,7 @@ def test_cli_runs_every_puppet_on_every_clip(fake_runs, tmp_path, capsys):
     assert worst1.shape[1] == 45 and worst1.shape[0] > 30 and (out / "worst2_Anna__c2.png").is_file()
     assert not list(out.glob("worst3_*"))  # only runs that miss a target
     assert len(list((out / "runs").glob("*.json"))) == 4
-    # --puppet is the same option; --resume reuses the stored runs
+    # --puppet is the same option; --resume reuses the stored runs (and the identity references)
     calls.clear()
     args = parser.parse_args(["puppet", "--drivers", str(clips), "--puppet", str(personas[1]), "--out", str(out),
                               "--no-partial", "--size", "64", "--resume", "-q"])
