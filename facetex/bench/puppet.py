@@ -1018,7 +1018,7 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
                     "(closer to the persona than to the driver), the colour step at the composite's edge, lost "
                     "and rejected frames (with a half-out-of-frame check) and flicker. Writes table.md/.csv "
                     "with the worst run of every measure, results.json, per run contact sheets (fitted and "
-                    "at 100 %%) and zoomed crops, and the 100 %% sheets of the three worst runs.")
+                    "at 100 %) and zoomed crops, and the 100 % sheets of the three worst runs.")
     add_bench_options(p, "puppet", "data root holding grid/ (driver clips) and lfw/<person>/ (the puppets)")
     p.add_argument("--drivers", metavar="DIR", help="folder of driver videos (default DATA/grid)")
     p.add_argument("--puppets", "--puppet", nargs="+", metavar="PATH", dest="puppets",
