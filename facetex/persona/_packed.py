@@ -85,7 +85,10 @@ class Packed:
             raise ValueError(f"packed photo {i} does not hold {nbytes} bytes")
         u = out.view(_unsigned(self.dtype)).reshape(shape[0], -1)
         planes = np.frombuffer(raw, np.uint8).reshape(self.dtype.itemsize, -1)
-        u.view(np.uint8).reshape(-1, self.dtype.itemsize)[...] = planes.T
+        if self.dtype.itemsize == 1:
+            u.reshape(-1)[...] = planes[0]
+        else:
+            u.view(np.uint8).reshape(-1, self.dtype.itemsize)[...] = planes.T
         k = 1
         while k < len(u):  # prefix sum over the rows (Hillis-Steele; numpy buffers the overlap)
             u[k:] += u[:-k]

@@ -341,6 +341,11 @@ def _stack_members(header: dict, n: int, size=(0, 0)) -> tuple[dict, dict]:
         return {}, {}
     if not isinstance(meta, dict) or not isinstance(meta.get("key"), list):
         raise ValueError("texture_stacks")
+    static = meta.get("static")
+    if not (isinstance(static, list) and len(static) <= 32
+            and all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 2**26 for v in static)):
+        raise ValueError("texture_stacks")
+    out = {f"texture_static_{k}": (np.float32, (m,)) for k, m in enumerate(static)}
     if header["version"] >= 4:
         aligned = meta.get("aligned")
         rng = aligned.get("conf_range") if isinstance(aligned, dict) else None
@@ -349,16 +354,14 @@ def _stack_members(header: dict, n: int, size=(0, 0)) -> tuple[dict, dict]:
         if not ok:
             raise ValueError("texture_stacks")
         W, H = size
-        return {}, {"texture_aligned": (np.uint8, (n, H, W, 4))}
-    cols, static = meta.get("columns"), meta.get("static")
-    ok = (isinstance(cols, list) and isinstance(static, list) and len(cols) == len(static) <= 32
-          and all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 2**26 for v in cols + static))
+        out["texture_aligned_lsb"] = (np.uint8, (n, -(-H * W * 4 // 8)))
+        return out, {"texture_aligned": (np.uint8, (n, H, W, 4))}
+    cols = meta.get("columns")
+    ok = (isinstance(cols, list) and len(cols) == len(static)
+          and all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 2**26 for v in cols))
     if not ok:
         raise ValueError("texture_stacks")
-    out = {}
-    for k, (c, m) in enumerate(zip(cols, static)):
-        out[f"texture_stack_{k}"] = (np.float16, (n, c))
-        out[f"texture_static_{k}"] = (np.float32, (m,))
+    out.update({f"texture_stack_{k}": (np.float16, (n, c)) for k, c in enumerate(cols)})
     return out, {}
 
 
@@ -439,14 +442,13 @@ def load_persona(path) -> Persona:
     if shape_report is not None and not isinstance(shape_report, dict):
         raise _bad(path, "corrupt persona header (shape report is not an object)")
     stacks = None
-    if "texture_aligned" in packs:
-        stacks = {"meta": dict(header["texture_stacks"]), "arrays": {"texture_aligned": packs.pop("texture_aligned")},
-                  "path": str(path)}
-    elif version == 3 and header.get("texture_stacks") is not None:
-        names3 = [k for k in plain if k.startswith("texture_")]
-        if not all(_all_finite(arrays[k]) for k in names3):
+    if header.get("texture_stacks") is not None:  # version 3: float16 stacks; 4: packed aligned photos
+        names = [k for k in plain if k.startswith("texture_")]
+        if not all(_all_finite(arrays[k]) for k in names):
             raise _bad(path, "persona texture stacks contain NaN or infinite values")
-        stacks = {"meta": dict(header["texture_stacks"]), "arrays": {k: arrays.pop(k) for k in names3}}
+        stacks = {"meta": dict(header["texture_stacks"]), "arrays": {k: arrays.pop(k) for k in names}, "path": str(path)}
+        if "texture_aligned" in packs:
+            stacks["arrays"]["texture_aligned"] = packs.pop("texture_aligned")
     arrays.update({k: _Lazy(v, path, k) for k, v in packs.items()})
     return Persona(photos=photos, skipped=skipped, params=params, source=str(header.get("source", "")),
                    depth_photos=int(depth_photos or 0), shape_report=shape_report, texture_stacks=stacks,

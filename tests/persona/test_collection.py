@@ -534,7 +534,7 @@ def test_packed_arrays_round_trip_exactly():
         Packed(p.blob, p.offsets[::-1].copy(), p.shape, p.dtype)
 
 
-def test_aligned_photos_8_bit_code_hand_computed():
+def test_aligned_photos_code_hand_computed():
     from facetex.persona import texture as T
 
     tp = T.TextureParams()
@@ -543,12 +543,18 @@ def test_aligned_photos_8_bit_code_hand_computed():
     ic = np.zeros((1, 4, 4), np.float32)
     ic[0, :, :3] = [[0.0, 1.0, 0.5], [0.2, -0.1, 1.3], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
     ic[0, :, 3] = [lo, hi, lo * (hi / lo) ** (51 / 255), 5.0]
-    q = T._quantize_aligned(ic, tp)
-    assert q[0, :2, :3].tolist() == [[0, 255, 128], [51, 0, 255]]  # 0.5 * 255 = 127.5 -> 128; clipped
+    q, lsb = T._quantize_aligned(ic, tp)
+    # image in 1/511 steps: 0.5 * 511 = 255.5 -> 256 = 2 * 128 + 0; 0.2 * 511 = 102.2 -> 102 = 2 * 51;
+    # 1 and the clipped 1.3 -> 511 = 2 * 255 + 1
+    assert q[0, :2, :3].tolist() == [[0, 255, 128], [51, 0, 255]]
+    assert np.unpackbits(lsb).reshape(1, 4, 4)[0, :2].tolist() == [[0, 1, 0, 0], [0, 0, 1, 0]]
     assert q[0, :, 3].tolist() == [0, 255, 51, 255]  # log scale from lo to hi; clipped
-    lut = T._aligned_lut(tp)[0]
-    assert lut[51, 3] == pytest.approx(lo * (hi / lo) ** 0.2) and lut[255, 0] == 1.0
+    got = T._dequantize_aligned(q, lsb, (T._aligned_lut(tp), T._lsb_lut()))
+    assert got[0, :2, :3] == pytest.approx(np.array([[0, 511, 256], [102, 0, 511]]) / 511)
+    assert got[0, :, 3] == pytest.approx([lo, hi, lo * (hi / lo) ** 0.2, hi])
+    assert np.abs(got[0, 0, :3] - ic[0, 0, :3]).max() <= 0.5 / 511 + 1e-7  # the image's error
     # relative step of the confidence code: (hi / lo)^(1/255) - 1 = 1.55 %
+    lut = T._aligned_lut(tp)[0]
     assert lut[1:, 3] / lut[:-1, 3] == pytest.approx((hi / lo) ** (1 / 255))
 
 
