@@ -176,7 +176,7 @@ class Persona:
 
             stacks = self.texture_stacks if _packed_stacks(self.texture_stacks) else stored_stacks(self)
             header["texture_stacks"] = stacks["meta"]
-            arrays.update(stacks["arrays"])
+            arrays.update(sorted(stacks["arrays"].items()))  # one member order, computed or as read
         members = {}
         for name, arr in arrays.items():
             if isinstance(arr, Packed):
