@@ -99,8 +99,9 @@ class Persona:
     fiducials (n, 49, 2) float64 pose-corrected F^i; points68 (n, 68, 2) float64
     (pose-corrected, for masks); poses (n, 3) float64 yaw, pitch, roll in degrees;
     flows (n, H, W, 2) float16 collection flow in the neutral frame (from the projection
-    to the TPS-warped photo), in 1/256 px (:func:`quantize_flow`); subspace (1 + rank, H, W, 3) float32 mean and orthonormal
-    (inside the face mask) principal components of the TPS-warped photos.
+    to the TPS-warped photo), in 1/256 px (:func:`quantize_flow`); subspace (1 + rank, H, W, 3)
+    float32 (float16 values) mean and orthonormal (inside the face mask) principal components of
+    the TPS-warped photos.
     ``photos``: file names; ``skipped``: [{"file", "reason"}].
     depth (H, W) float32: the raw photometric-stereo average depth (canonical px, NaN off
     the face region; all NaN when the reconstruction failed) or None (version-1 file, not
@@ -168,6 +169,7 @@ class Persona:
         path = check_output_path(path, overwrite=overwrite)
         header = self.header()
         arrays = {k: getattr(self, k) for k in _ARRAYS if k not in _PACKED}
+        arrays["subspace"] = np.asarray(self.subspace).astype(np.float16)  # build rounds it so (SUBSPACE_DTYPE)
         arrays.update({k: _packed_member(self, k) for k in _PACKED})
         if self.depth is not None:
             arrays["depth"] = np.asarray(self.depth, np.float32)
@@ -251,6 +253,10 @@ def _lazy_shape(persona: Persona, name: str) -> tuple[int, ...]:
     v = persona.__dict__[f"_{name}"]
     return v.packed.shape if isinstance(v, _Lazy) else np.shape(v)
 
+
+#: precision of the appearance subspace in version-4 files (and of a build's): it only feeds the
+#: least-squares projection of a reference photo (half the 2.8 MB of float32)
+SUBSPACE_DTYPE = np.float16
 
 #: members of version-4 files packed losslessly (flows in 1/256 px as int16) and unpacked on first use
 _PACKED = {"images": np.uint8, "visibility": np.uint8, "flows": np.int16}
@@ -373,6 +379,7 @@ def _member_specs(header: dict, params: PersonaParams, n: int) -> tuple[dict, di
     packed = {}
     if header["version"] >= 4:
         packed = {k: (dtype, shapes.pop(k)[1]) for k, dtype in _PACKED.items()}
+        shapes["subspace"] = (SUBSPACE_DTYPE, shapes["subspace"][1])
     if header["version"] >= 2 and header.get("depth_photos") is not None:
         shapes["depth"] = (np.float32, (H, W))
     plain_stacks, packed_stacks = _stack_members(header, n, (W, H))
@@ -436,6 +443,7 @@ def load_persona(path) -> Persona:
     finite = ("fiducials", "points68", "poses", "subspace") + (("flows",) if version < 4 else ())
     if not all(_all_finite(arrays[k]) for k in finite):
         raise _bad(path, "persona arrays contain NaN or infinite values")
+    arrays["subspace"] = arrays["subspace"].astype(np.float32)
     if depth_photos is not None and np.isinf(arrays["depth"]).any():
         raise _bad(path, "persona depth contains infinite values")
     shape_report = header.get("shape") if version >= 2 else None
@@ -844,6 +852,7 @@ def _build(folder: Path, paths: list[Path], params: PersonaParams, pool: _Pool, 
     warped = remap_stack(images, maps)
     region = face_region(p68.mean(axis=0), (H, W))
     subspace, proj = appearance_subspace(warped, region, params.subspace_rank)
+    subspace = subspace.astype(SUBSPACE_DTYPE).astype(np.float32)  # the precision a .persona stores
     flows = collection_flow(warped, proj, params, pool=pool, progress=progress)
     persona = Persona(
         images=images,
