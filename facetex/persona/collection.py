@@ -18,8 +18,12 @@ robust photometric stereo on (at most ``shape_photos``) aligned photos, accepted
 passes a photometric validation on held-out photos, see :func:`average_shape`.
 ``.persona`` files are ``.npz`` zips with a JSON header, loaded with ``allow_pickle=False``;
 version 2 adds the average depth (version 1 files load with ``depth=None``); version 3 the
-texture synthesis's precomputed stacks (float16, :func:`facetex.persona.texture.stored_stacks`;
-older files compute them when a texture is first synthesized).
+texture synthesis's precomputed stacks (float16, ~0.5 MB per photo); version 4 packs the photos,
+visibilities and flows losslessly (:mod:`facetex.persona._packed`, unpacked on first use) and
+stores, instead of the stacks, every photo aligned to the neutral frame with its confidence, in
+8 bits, from which the stacks are rebuilt at load (:func:`facetex.persona.texture.stored_stacks`):
+~0.15 MB per photo instead of ~0.86. Files without stacks compute them when a texture is first
+synthesized.
 """
 
 from __future__ import annotations
@@ -40,7 +44,9 @@ from typing import Callable
 import cv2
 import numpy as np
 
+from .._parallel import available_cpus
 from ..errors import BadImageError, BadInputError, BadPersonaError, FacetexError, PersonaNotFoundError
+from ._packed import Packed
 
 __all__ = [
     "PersonaParams",
@@ -56,7 +62,7 @@ __all__ = [
 ]
 
 PERSONA_FORMAT = "facetex-persona"
-PERSONA_VERSION = 3
+PERSONA_VERSION = 4
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 
 
@@ -93,22 +99,24 @@ class Persona:
     fiducials (n, 49, 2) float64 pose-corrected F^i; points68 (n, 68, 2) float64
     (pose-corrected, for masks); poses (n, 3) float64 yaw, pitch, roll in degrees;
     flows (n, H, W, 2) float16 collection flow in the neutral frame (from the projection
-    to the TPS-warped photo); subspace (1 + rank, H, W, 3) float32 mean and orthonormal
-    (inside the face mask) principal components of the TPS-warped photos.
+    to the TPS-warped photo), in 1/256 px (:func:`quantize_flow`); subspace (1 + rank, H, W, 3)
+    float32 (float16 values) mean and orthonormal (inside the face mask) principal components of
+    the TPS-warped photos.
     ``photos``: file names; ``skipped``: [{"file", "reason"}].
     depth (H, W) float32: the raw photometric-stereo average depth (canonical px, NaN off
     the face region; all NaN when the reconstruction failed) or None (version-1 file, not
     computed); depth_photos: photos that fed it (0 when it failed or is absent).
-    texture_stacks: {"meta", "arrays"} as read from a version-3 file (or None): the texture
-    synthesis's precomputed stacks, handed to it on first use.
+    texture_stacks: {"meta", "arrays"} as read from a version-3 or 4 file (or None): the texture
+    synthesis's precomputed stacks (version 4: what they are rebuilt from), handed to it on first use.
+    Read from a version-4 file, images, visibility and flows are unpacked on first use.
     """
 
-    images: np.ndarray
-    visibility: np.ndarray
+    images: np.ndarray = field(repr=False)
+    visibility: np.ndarray = field(repr=False)
     fiducials: np.ndarray
     points68: np.ndarray
     poses: np.ndarray
-    flows: np.ndarray
+    flows: np.ndarray = field(repr=False)
     subspace: np.ndarray
     photos: list[str]
     skipped: list[dict] = field(default_factory=list)
@@ -121,12 +129,13 @@ class Persona:
     _cache: dict = field(default_factory=dict, repr=False)
 
     def __len__(self) -> int:
-        return len(self.images)
+        return len(self.fiducials)
 
     @property
     def size(self) -> tuple[int, int]:
         """Canonical frame (W, H)."""
-        return int(self.images.shape[2]), int(self.images.shape[1])
+        shape = _lazy_shape(self, "images")
+        return int(shape[2]), int(shape[1])
 
     @property
     def mean_fiducials(self) -> np.ndarray:
@@ -152,26 +161,34 @@ class Persona:
     def save(self, path, *, overwrite: bool = False, texture_stacks: bool = True) -> Path:
         """Write the persona atomically as one ``.persona`` file (npz zip + JSON header).
 
-        ``texture_stacks``: also store the texture synthesis's precomputed stacks (~0.5 MB per
-        photo; computed now if needed): puppetry and texture synthesis then start without
-        aligning every photo again."""
+        ``texture_stacks``: also store what the texture synthesis's precomputed stacks are rebuilt
+        from (~60 kB per photo; computed now if needed): puppetry and texture synthesis then start
+        without aligning every photo again."""
         from ..io import atomic_path, check_output_path
 
         path = check_output_path(path, overwrite=overwrite)
         header = self.header()
-        arrays = {k: getattr(self, k) for k in _ARRAYS}
+        arrays = {k: getattr(self, k) for k in _ARRAYS if k not in _PACKED}
+        arrays["subspace"] = np.asarray(self.subspace).astype(np.float16)  # build rounds it so (SUBSPACE_DTYPE)
+        arrays.update({k: _packed_member(self, k) for k in _PACKED})
         if self.depth is not None:
             arrays["depth"] = np.asarray(self.depth, np.float32)
         if texture_stacks:
             from .texture import stored_stacks
 
-            stacks = self.texture_stacks or stored_stacks(self)
+            stacks = self.texture_stacks if _packed_stacks(self.texture_stacks) else stored_stacks(self)
             header["texture_stacks"] = stacks["meta"]
-            arrays.update(stacks["arrays"])
+            arrays.update(sorted(stacks["arrays"].items()))  # one member order, computed or as read
+        members = {}
+        for name, arr in arrays.items():
+            if isinstance(arr, Packed):
+                members[name], members[f"{name}_offsets"] = arr.blob, arr.offsets
+            else:
+                members[name] = arr
         head = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
         with atomic_path(path, overwrite=overwrite) as tmp:
             with open(tmp, "wb") as fh, zipfile.ZipFile(fh, "w", allowZip64=True) as z:
-                for name, arr in {"header": head, **arrays}.items():
+                for name, arr in {"header": head, **members}.items():
                     info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
                     stored = name in _STORED or name.startswith("texture_")
                     info.compress_type = zipfile.ZIP_STORED if stored else zipfile.ZIP_DEFLATED
@@ -180,10 +197,77 @@ class Persona:
         return path
 
 
+def quantize_flow(flow: np.ndarray) -> np.ndarray:
+    """float16 flow rounded to 1/256 px (|flow| < 128 px), the precision a .persona stores: below
+    the 1/32 px sub-pixel grid of OpenCV's bilinear remap, and exact for float16 values >= 4 px."""
+    return (np.clip(np.rint(np.asarray(flow, np.float32) * 256), -32767, 32767) / 256).astype(np.float16)
+
+
+def _packed_member(persona: Persona, name: str) -> Packed:
+    """images / visibility / flows packed for a version-4 file (as read, when not unpacked since)."""
+    v = persona.__dict__[f"_{name}"]
+    if isinstance(v, _Lazy):
+        return v.packed
+    if name == "flows":
+        v = np.clip(np.rint(np.asarray(v, np.float32) * 256), -32767, 32767).astype(np.int16)
+    return Packed.pack(v, workers=available_cpus())
+
+
+def _packed_stacks(stacks: dict | None) -> bool:
+    """Whether ``stacks`` (Persona.texture_stacks) are of the version-4 kind (packed aligned photos)."""
+    return bool(stacks) and "aligned" in stacks["meta"]
+
+
+class _Lazy:
+    """A packed member of a version-4 file, unpacked on first use."""
+
+    __slots__ = ("packed", "path", "name")
+
+    def __init__(self, packed: Packed, path: Path, name: str):
+        self.packed, self.path, self.name = packed, path, name
+
+    def value(self) -> np.ndarray:
+        try:
+            a = self.packed.unpack(workers=available_cpus())
+        except _CORRUPT as e:
+            raise _bad(self.path, f"corrupt persona file ({self.name}: {type(e).__name__}: {e})") from None
+        return (a * np.float32(1 / 256)).astype(np.float16) if self.name == "flows" else a
+
+
+def _lazy_array(name: str) -> property:
+    key = f"_{name}"
+
+    def get(self):
+        v = self.__dict__[key]
+        if isinstance(v, _Lazy):
+            v = self.__dict__[key] = v.value()
+        return v
+
+    def put(self, value):
+        self.__dict__[key] = value
+
+    return property(get, put, doc=f"{name} (unpacked from a version-4 file on first use)")
+
+
+def _lazy_shape(persona: Persona, name: str) -> tuple[int, ...]:
+    v = persona.__dict__[f"_{name}"]
+    return v.packed.shape if isinstance(v, _Lazy) else np.shape(v)
+
+
+#: precision of the appearance subspace in version-4 files (and of a build's): it only feeds the
+#: least-squares projection of a reference photo (half the 2.8 MB of float32)
+SUBSPACE_DTYPE = np.float16
+
+#: members of version-4 files packed losslessly (flows in 1/256 px as int16) and unpacked on first use
+_PACKED = {"images": np.uint8, "visibility": np.uint8, "flows": np.int16}
+for _name in _PACKED:
+    setattr(Persona, _name, _lazy_array(_name))
+
+
 #: members written uncompressed (an npz is a zip: np.load reads both kinds). Deflate saved
-#: 20-27 % of these two but cost 1.7 s of every load of a 519-photo persona (measured); the
-#: texture stacks (texture_*) are stored too.
-_STORED = ("images", "flows")
+#: 20-27 % of the raw images and flows of version-3 files but cost 1.7 s of every load of a
+#: 519-photo persona (measured); packed members and the texture stacks (texture_*) are stored too.
+_STORED = ("images", "flows", "visibility", "images_offsets", "flows_offsets", "visibility_offsets")
 
 
 # name -> (dtype, trailing shape given (n, H, W, rank)) of the stored arrays
@@ -248,29 +332,58 @@ def _read_header(path: Path) -> tuple[dict, PersonaParams, list[str]]:
         dp = header.get("depth_photos") if version >= 2 else None
         if dp is not None and (not isinstance(dp, int) or dp < 0):
             raise ValueError(f"depth_photos {dp!r}")
-        _stack_members(header, len(photos))  # checks the stacks' description
+        _stack_members(header, len(photos), params.size)  # checks the stacks' description
     except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as e:
         raise _bad(path, f"corrupt persona header ({type(e).__name__}: {e})") from None
     return header, params, photos
 
 
-def _stack_members(header: dict, n: int) -> dict:
-    """name -> (dtype, shape) of the texture stacks a (version-3) header declares; ValueError
-    for a malformed description."""
+def _stack_members(header: dict, n: int, size=(0, 0)) -> tuple[dict, dict]:
+    """(plain, packed) name -> (dtype, shape) of the texture stacks a header declares (version 3:
+    float16 stacks and float32 static sums; version 4: the packed aligned photos, (n, H, W, 4)
+    uint8, ``size`` = (W, H)); ValueError for a malformed description."""
     meta = header.get("texture_stacks") if header.get("version", 0) >= 3 else None
     if meta is None:
-        return {}
-    cols, static = meta.get("columns") if isinstance(meta, dict) else None, meta.get("static")
-    ok = (isinstance(cols, list) and isinstance(static, list) and len(cols) == len(static) <= 32
-          and isinstance(meta.get("key"), list)
-          and all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 2**26 for v in cols + static))
+        return {}, {}
+    if not isinstance(meta, dict) or not isinstance(meta.get("key"), list):
+        raise ValueError("texture_stacks")
+    static = meta.get("static")
+    if not (isinstance(static, list) and len(static) <= 32
+            and all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 2**26 for v in static)):
+        raise ValueError("texture_stacks")
+    out = {f"texture_static_{k}": (np.float32, (m,)) for k, m in enumerate(static)}
+    if header["version"] >= 4:
+        aligned = meta.get("aligned")
+        rng = aligned.get("conf_range") if isinstance(aligned, dict) else None
+        ok = (isinstance(rng, list) and len(rng) == 2 and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                               for v in rng) and 0 < rng[0] < rng[1] < 1e6)
+        if not ok:
+            raise ValueError("texture_stacks")
+        W, H = size
+        out["texture_aligned_lsb"] = (np.uint8, (n, -(-H * W * 4 // 8)))
+        return out, {"texture_aligned": (np.uint8, (n, H, W, 4))}
+    cols = meta.get("columns")
+    ok = (isinstance(cols, list) and len(cols) == len(static)
+          and all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 2**26 for v in cols))
     if not ok:
         raise ValueError("texture_stacks")
-    out = {}
-    for k, (c, m) in enumerate(zip(cols, static)):
-        out[f"texture_stack_{k}"] = (np.float16, (n, c))
-        out[f"texture_static_{k}"] = (np.float32, (m,))
-    return out
+    out.update({f"texture_stack_{k}": (np.float16, (n, c)) for k, c in enumerate(cols)})
+    return out, {}
+
+
+def _member_specs(header: dict, params: PersonaParams, n: int) -> tuple[dict, dict]:
+    """(plain, packed) name -> (dtype, shape) of the arrays a (validated) header implies; a packed
+    member X is stored as X (its streams) and X_offsets (:class:`facetex.persona._packed.Packed`)."""
+    W, H = params.size
+    shapes = {k: (dtype, shape(n, H, W, params.subspace_rank)) for k, (dtype, shape) in _ARRAYS.items()}
+    packed = {}
+    if header["version"] >= 4:
+        packed = {k: (dtype, shapes.pop(k)[1]) for k, dtype in _PACKED.items()}
+        shapes["subspace"] = (SUBSPACE_DTYPE, shapes["subspace"][1])
+    if header["version"] >= 2 and header.get("depth_photos") is not None:
+        shapes["depth"] = (np.float32, (H, W))
+    plain_stacks, packed_stacks = _stack_members(header, n, (W, H))
+    return {**shapes, **plain_stacks}, {**packed, **packed_stacks}
 
 
 def read_persona_header(path) -> dict:
@@ -283,12 +396,16 @@ def read_persona_header(path) -> dict:
 
 def load_persona(path) -> Persona:
     """Read a ``.persona`` file; BadPersonaError naming it if corrupt, of another format
-    or version, or with inconsistent arrays. Version-1 files have no depth (``depth=None``)."""
+    or version, or with inconsistent arrays. Version-1 files have no depth (``depth=None``).
+    Version-4 files' images, visibility and flows are unpacked on first use (a corrupt stream
+    then raises BadPersonaError naming the file; every member's CRC-32 is checked here)."""
     path = Path(path)
     header, params, photos = _read_header(path)
-    depth_photos = header.get("depth_photos") if header["version"] >= 2 else None
-    stack_shapes = _stack_members(header, len(photos))
-    names = list(_ARRAYS) + (["depth"] if depth_photos is not None else []) + list(stack_shapes)
+    version = header["version"]
+    depth_photos = header.get("depth_photos") if version >= 2 else None
+    n = len(photos)
+    plain, packed = _member_specs(header, params, n)
+    names = list(plain) + [m for k in packed for m in (k, f"{k}_offsets")]
     _check_members(path, header, params, photos)  # declared sizes and shapes, before decompressing
     try:
         with zipfile.ZipFile(path) as zf, open(path, "rb") as raw:
@@ -309,28 +426,38 @@ def load_persona(path) -> Persona:
         skipped = list(header.get("skipped", []))
     except TypeError as e:
         raise _bad(path, f"corrupt persona header ({type(e).__name__}: {e})") from None
-    n = len(photos)
-    W, H = params.size
-    want_shapes = {k: (dtype, shape(n, H, W, params.subspace_rank)) for k, (dtype, shape) in _ARRAYS.items()}
-    if depth_photos is not None:
-        want_shapes["depth"] = (np.float32, (H, W))
-    want_shapes.update(stack_shapes)
-    for k, (dtype, want) in want_shapes.items():
+    for k, (dtype, want) in plain.items():
         a = arrays[k]
         if a.dtype != dtype or a.shape != want:
             raise _bad(path, f"array {k!r} has {a.dtype} {a.shape}, expected {np.dtype(dtype)} {want}")
-    if not all(_all_finite(arrays[k]) for k in ("fiducials", "points68", "poses", "flows", "subspace")):
+    packs = {}
+    for k, (dtype, shape) in packed.items():
+        blob, offsets = arrays.pop(k), arrays.pop(f"{k}_offsets")
+        if blob.dtype != np.uint8 or blob.ndim != 1 or offsets.dtype != np.int64 or offsets.shape != (n + 1,):
+            raise _bad(path, f"packed array {k!r} has {blob.dtype} {blob.shape} with {offsets.dtype} "
+                             f"{offsets.shape} offsets, expected uint8 (m,) with int64 ({n + 1},)")
+        try:
+            packs[k] = Packed(blob, offsets, shape, dtype)
+        except ValueError as e:
+            raise _bad(path, f"corrupt persona file (packed array {k!r}: {e})") from None
+    finite = ("fiducials", "points68", "poses", "subspace") + (("flows",) if version < 4 else ())
+    if not all(_all_finite(arrays[k]) for k in finite):
         raise _bad(path, "persona arrays contain NaN or infinite values")
+    arrays["subspace"] = arrays["subspace"].astype(np.float32)
     if depth_photos is not None and np.isinf(arrays["depth"]).any():
         raise _bad(path, "persona depth contains infinite values")
-    shape_report = header.get("shape") if header["version"] >= 2 else None
+    shape_report = header.get("shape") if version >= 2 else None
     if shape_report is not None and not isinstance(shape_report, dict):
         raise _bad(path, "corrupt persona header (shape report is not an object)")
     stacks = None
-    if stack_shapes:
-        if not all(_all_finite(arrays[k]) for k in stack_shapes):
+    if header.get("texture_stacks") is not None:  # version 3: float16 stacks; 4: packed aligned photos
+        names = [k for k in plain if k.startswith("texture_")]
+        if not all(_all_finite(arrays[k]) for k in names):
             raise _bad(path, "persona texture stacks contain NaN or infinite values")
-        stacks = {"meta": dict(header["texture_stacks"]), "arrays": {k: arrays.pop(k) for k in stack_shapes}}
+        stacks = {"meta": dict(header["texture_stacks"]), "arrays": {k: arrays.pop(k) for k in names}, "path": str(path)}
+        if "texture_aligned" in packs:
+            stacks["arrays"]["texture_aligned"] = packs.pop("texture_aligned")
+    arrays.update({k: _Lazy(v, path, k) for k, v in packs.items()})
     return Persona(photos=photos, skipped=skipped, params=params, source=str(header.get("source", "")),
                    depth_photos=int(depth_photos or 0), shape_report=shape_report, texture_stacks=stacks,
                    **arrays)
@@ -385,24 +512,32 @@ def _check_members(path: Path, header: dict, params: PersonaParams, photos: list
     n, (W, H), r = len(photos), params.size, params.subspace_rank
     if not (0 < W <= 4096 and 0 < H <= 4096 and 0 <= r <= 64):
         raise _bad(path, f"corrupt persona header (canonical size {W}x{H}, rank {r})")
-    want = {k: (np.dtype(dtype), shape(n, H, W, r)) for k, (dtype, shape) in _ARRAYS.items()}
-    if header["version"] >= 2 and header.get("depth_photos") is not None:
-        want["depth"] = (np.dtype(np.float32), (H, W))
-    want.update({k: (np.dtype(dt), shape) for k, (dt, shape) in _stack_members(header, n).items()})
+    plain, packed = _member_specs(header, params, n)
+    want = {k: (np.dtype(dtype), shape) for k, (dtype, shape) in plain.items()}
+    for k, (dtype, shape) in packed.items():
+        raw = int(np.prod(shape[1:])) * np.dtype(dtype).itemsize
+        # deflate's worst case: + 5 bytes per 16 kB block and 11 per stream
+        want[k] = (np.dtype(np.uint8), None, n * (raw + 5 * (raw // 16384 + 1) + 11))
+        want[f"{k}_offsets"] = (np.dtype(np.int64), (n + 1,))
+        want[f"{k}_unpacked"] = (np.dtype(dtype), shape)  # counted in the memory check only
     members = npz_members(path, BadPersonaError, what="persona file")
-    total = 0
+    total = sum(int(np.prod(s)) * d.itemsize for k, (d, s, *_) in want.items() if k.endswith("_unpacked"))
     for name, m in members.items():
-        if name == "header":
+        if name == "header" or name not in want:
             continue
-        if name in want:
-            dtype, shape = want[name]
-            if m["dtype"] != dtype or m["shape"] != shape:
-                raise _bad(path, f"array {name!r} has {m['dtype']} {m['shape']}, expected {dtype} {shape}")
-            nbytes = int(np.prod(shape)) * dtype.itemsize
-            if not nbytes <= m["file_size"] <= nbytes + 65536:  # + the .npy header
-                raise _bad(path, f"corrupt persona file (member {name!r} declares {m['file_size']} bytes "
-                                 f"for a {nbytes}-byte array)")
-            total += nbytes
+        dtype, shape, *limit = want[name]
+        if limit:  # packed streams: 1-D, at most the worst case of deflate
+            if m["dtype"] != dtype or m["shape"] is None or len(m["shape"]) != 1 or m["shape"][0] > limit[0]:
+                raise _bad(path, f"packed array {name!r} has {m['dtype']} {m['shape']}, expected {dtype} "
+                                 f"(m,) with m <= {limit[0]}")
+            shape = m["shape"]
+        elif m["dtype"] != dtype or m["shape"] != shape:
+            raise _bad(path, f"array {name!r} has {m['dtype']} {m['shape']}, expected {dtype} {shape}")
+        nbytes = int(np.prod(shape)) * dtype.itemsize
+        if not nbytes <= m["file_size"] <= nbytes + 65536:  # + the .npy header
+            raise _bad(path, f"corrupt persona file (member {name!r} declares {m['file_size']} bytes "
+                             f"for a {nbytes}-byte array)")
+        total += nbytes
     avail = available_memory()
     if avail and total > 0.9 * avail:
         raise _bad(path, f"its arrays need {total / 2**30:.1f} GiB, more than the {avail / 2**30:.1f} GiB "
@@ -486,7 +621,7 @@ def _flow_star(args):
     from ..geometry.flow import optical_flow
 
     proj, warped, alpha, method = args
-    return optical_flow(proj, warped, alpha=alpha, method=method).astype(np.float16)
+    return quantize_flow(optical_flow(proj, warped, alpha=alpha, method=method))
 
 
 class _Pool:
@@ -652,8 +787,8 @@ def project_onto_subspace(image: np.ndarray, subspace: np.ndarray, region: np.nd
 
 def collection_flow(stack: np.ndarray, proj: np.ndarray, params: PersonaParams, *, pool: _Pool | None = None,
                     progress: Callable | None = None) -> np.ndarray:
-    """(n, H, W, 2) float16 flows from each projection to its photo: warping photo i with
-    flow i pulls it onto its illumination-matched projection (Tom Hanks Sec. 5)."""
+    """(n, H, W, 2) float16 flows (1/256 px, :func:`quantize_flow`) from each projection to its photo:
+    warping photo i with flow i pulls it onto its illumination-matched projection (Tom Hanks Sec. 5)."""
     items = [(proj[i], stack[i], params.flow_alpha, params.flow_method) for i in range(len(stack))]
     return np.stack((pool or _Pool(1)).map(_flow_star, items, progress=progress, stage="flow"))
 
@@ -717,6 +852,7 @@ def _build(folder: Path, paths: list[Path], params: PersonaParams, pool: _Pool, 
     warped = remap_stack(images, maps)
     region = face_region(p68.mean(axis=0), (H, W))
     subspace, proj = appearance_subspace(warped, region, params.subspace_rank)
+    subspace = subspace.astype(SUBSPACE_DTYPE).astype(np.float32)  # the precision a .persona stores
     flows = collection_flow(warped, proj, params, pool=pool, progress=progress)
     persona = Persona(
         images=images,

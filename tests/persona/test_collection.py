@@ -338,7 +338,7 @@ _BASE = ("images", "visibility", "fiducials", "points68", "poses", "flows", "sub
 
 
 def test_version1_file_loads_without_depth(persona, tmp_path):
-    assert PERSONA_VERSION == 3
+    assert PERSONA_VERSION == 4
     head = persona.header()
     head["version"] = 1
     del head["depth_photos"]
@@ -349,7 +349,7 @@ def test_version1_file_loads_without_depth(persona, tmp_path):
     assert np.array_equal(q.flows, persona.flows)
     h = read_persona_header(v1)
     assert h["version"] == 1 and h["n_photos"] == 12 and h["size"] == SIZE
-    # a v1 file saved again becomes v3 without depth; with a depth it keeps it
+    # a v1 file saved again becomes v4 without depth; with a depth it keeps it
     q.save(tmp_path / "v2none.persona")
     assert load_persona(tmp_path / "v2none.persona").depth is None
     q.depth, q.depth_photos = persona.depth, 7
@@ -368,7 +368,8 @@ def test_texture_stacks_stored_and_used(persona, tmp_path):
 
     with_stacks = persona.save(tmp_path / "s.persona")
     without = persona.save(tmp_path / "n.persona", texture_stacks=False)
-    assert with_stacks.stat().st_size > without.stat().st_size + 0.2 * len(persona) * 2**20 / 4
+    W, H = SIZE  # the packed 8-bit aligned photos and confidences: more than a tenth of their raw bytes
+    assert with_stacks.stat().st_size > without.stat().st_size + 0.1 * len(persona) * H * W * 4
     q, r = load_persona(with_stacks), load_persona(without)
     assert r.texture_stacks is None and q.texture_stacks is not None
     assert q.texture_stacks["meta"]["key"] == T._stored_key(T.TextureParams())
@@ -389,7 +390,10 @@ def test_texture_stacks_stored_and_used(persona, tmp_path):
     # saved again from the cache (no recomputation): the same stored arrays
     again = load_persona(q.save(tmp_path / "again.persona"))
     a, b = again.texture_stacks["arrays"], load_persona(with_stacks).texture_stacks["arrays"]
-    assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+    assert a.keys() == b.keys() and "texture_aligned" in a and "texture_aligned_lsb" in a
+    assert all(np.array_equal(a[k], b[k]) for k in a if k != "texture_aligned")
+    assert np.array_equal(a["texture_aligned"].blob, b["texture_aligned"].blob)
+    assert again.save(tmp_path / "again2.persona").read_bytes() == with_stacks.read_bytes()
 
 
 def test_stale_texture_stacks_are_recomputed(persona, tmp_path, monkeypatch):
@@ -398,30 +402,166 @@ def test_stale_texture_stacks_are_recomputed(persona, tmp_path, monkeypatch):
     path = persona.save(tmp_path / "s.persona")
     monkeypatch.setattr(T, "STACKS_VERSION", T.STACKS_VERSION + 1)  # a later facetex computes them otherwise
     q = load_persona(path)
-    q.texture_stacks["arrays"]["texture_stack_0"][:] = 0  # would show if they were used
+    q.texture_stacks["arrays"]["texture_aligned"].blob[:] = 0  # would fail if they were used
     assert np.array_equal(_texture(q), _texture(persona))
 
 
+def _v3_file(persona, path, change=None):
+    """``persona`` written as format 3 did: raw images and float16 flows, and the texture stacks
+    as float16 per-level arrays with float32 static sums (``change(head, meta, arrays)`` edits)."""
+    from facetex.persona import texture as T
+
+    prep = T.prepare_persona(persona)
+    arrays = {k: getattr(persona, k) for k in _BASE}
+    arrays["depth"] = persona.depth
+    for k, segs in enumerate(prep.segments):
+        arrays[f"texture_stack_{k}"] = np.concatenate([g.stack for g in segs], axis=1).astype(np.float16)
+        arrays[f"texture_static_{k}"] = prep.static[k]
+    meta = {"key": T._stored_key(T.TextureParams()), "columns": [arrays[f"texture_stack_{k}"].shape[1]
+                                                                 for k in range(prep.levels)],
+            "static": [prep.static[k].size for k in range(prep.levels)]}
+    head = {**persona.header(), "version": 3}
+    if change:
+        change(head, meta, arrays)
+    return _npz(path, {**head, "texture_stacks": meta}, arrays)
+
+
+def test_version3_file_loads_and_uses_its_float16_stacks(persona, tmp_path):
+    from facetex.persona import texture as T
+
+    v3 = _v3_file(persona, tmp_path / "v3.persona")
+    q = load_persona(v3)
+    assert q.texture_stacks["meta"]["columns"] and np.array_equal(q.images, persona.images)
+    calls = []
+    real = T._Prepared._compute
+    T._Prepared._compute = lambda self, *a: (calls.append(1), real(self, *a))[1]
+    try:
+        old = _texture(q)  # from the file's float16 stacks: nothing computed
+        assert calls == []
+    finally:
+        T._Prepared._compute = real
+    assert np.abs(old - _texture(persona)).max() < 1 / 255  # vs the 8-bit aligned photos of format 4
+    # saved again: a version-4 file with the same content as one saved from the built persona
+    again = load_persona(q.save(tmp_path / "v4.persona"))
+    assert read_persona_header(tmp_path / "v4.persona")["version"] == 4
+    assert np.array_equal(_texture(again), _texture(persona))
+    assert (tmp_path / "v4.persona").stat().st_size < 0.5 * v3.stat().st_size
+
+
 def test_bad_texture_stacks_refused(persona, tmp_path):
-    good = load_persona(persona.save(tmp_path / "s.persona"))
-    head = good.header()
-    meta = good.texture_stacks["meta"]
-    arrays = {**{k: getattr(good, k) for k in _BASE}, "depth": good.depth, **good.texture_stacks["arrays"]}
-    nan = dict(arrays, texture_stack_0=np.full_like(arrays["texture_stack_0"], np.nan))
-    cases = [
-        ("columns", {**meta, "columns": [-1] + meta["columns"][1:]}, arrays, "corrupt persona header"),
-        ("shape", {**meta, "columns": [meta["columns"][0] + 4] + meta["columns"][1:]}, arrays, "texture_stack_0"),
-        ("nan", meta, nan, "NaN or infinite"),
-    ]
-    for name, m, arrs, words in cases:
-        path = _npz(tmp_path / f"{name}.persona", {**head, "texture_stacks": m}, arrs)
+    def nan(head, meta, arrays):
+        arrays["texture_stack_0"] = np.full_like(arrays["texture_stack_0"], np.nan)
+
+    def columns(head, meta, arrays):
+        meta["columns"][0] = -1
+
+    def shape(head, meta, arrays):
+        meta["columns"][0] += 4
+
+    for name, change, words in [("columns", columns, "corrupt persona header"), ("shape", shape, "texture_stack_0"),
+                                ("nan", nan, "NaN or infinite")]:
+        path = _v3_file(persona, tmp_path / f"{name}.persona", change)
         with pytest.raises(BadPersonaError, match=words):
             load_persona(path)
+    # version 4: the aligned photos' description and packing
+    good = persona.save(tmp_path / "good.persona")
+    head = read_persona_header(good)
+    for k in ("size", "n_photos"):
+        head.pop(k)
+    with np.load(good) as z:
+        arrays = {k: z[k] for k in z.files if k != "header"}
+    n = len(persona)
+    cases = [
+        ("range", {**head, "texture_stacks": {**head["texture_stacks"], "aligned": {"conf_range": [1, 0.5]}}},
+         arrays, "corrupt persona header"),
+        ("offsets", head, {**arrays, "texture_aligned_offsets": np.zeros(n, np.int64)}, "'texture_aligned_offsets'"),
+        ("order", head, {**arrays, "texture_aligned_offsets": arrays["texture_aligned_offsets"][::-1].copy()},
+         "offsets out of order"),
+        ("dtype", head, {**arrays, "images": arrays["images"].view(np.int8)}, "'images'"),
+    ]
+    for name, h, arrs, words in cases:
+        path = _npz(tmp_path / f"{name}.persona", h, arrs)
+        with pytest.raises(BadPersonaError, match=words) as e:
+            load_persona(path)
+        assert e.value.path == str(path)
+
+
+def test_packed_stream_that_does_not_unpack_is_refused_on_first_use(persona, tmp_path):
+    """A stream whose zip CRC-32 is right but whose content is not the photo's (a crafted file):
+    BadPersonaError naming the file when the array is first used, not garbage pixels."""
+    import zlib
+
+    good = persona.save(tmp_path / "good.persona")
+    head = read_persona_header(good)
+    for k in ("size", "n_photos"):
+        head.pop(k)
+    with np.load(good) as z:
+        arrays = {k: z[k] for k in z.files if k != "header"}
+    for member in ("images", "texture_aligned"):
+        blob, off = arrays[member].copy(), arrays[f"{member}_offsets"]
+        # photo 1's stream: a valid zlib stream of other bytes, repeated (the zip's CRC is made anew)
+        blob[off[1]:off[2]] = np.resize(np.frombuffer(zlib.compress(b"x" * 10), np.uint8), off[2] - off[1])
+        path = _npz(tmp_path / f"{member}.persona", head, {**arrays, member: blob})
+        q = load_persona(path)  # CRCs and shapes are right
+        with pytest.raises(BadPersonaError, match="corrupt persona file") as e:
+            q.images if member == "images" else _texture(q)
+        assert e.value.path == str(path)
+
+
+def test_packed_arrays_round_trip_exactly():
+    import zlib
+
+    from facetex.persona._packed import Packed
+
+    rng = np.random.default_rng(0)
+    for dtype in (np.uint8, np.int16):  # wrap-around of the row differences at both ends of the range
+        info = np.iinfo(dtype)
+        a = rng.integers(info.min, info.max, (9, 13, 7, 2), endpoint=True).astype(dtype)
+        a[0, ::2] = info.max
+        a[0, 1::2] = info.min
+        p = Packed.pack(a)
+        assert p.offsets[0] == 0 and p.offsets[-1] == p.blob.size and len(p) == 9
+        for workers in (1, 2):
+            got = p.unpack(workers=workers)
+            assert got.dtype == dtype and np.array_equal(got, a)
+    smooth = np.tile(np.arange(120, dtype=np.uint8)[:, None], (4, 1, 96))  # rows alike: packs small
+    assert Packed.pack(smooth).blob.size < 0.02 * smooth.size
+    p = Packed.pack(a)
+    ten = np.frombuffer(zlib.compress(b"\0" * 10), np.uint8)  # a valid stream of 10 bytes, not 182
+    short = Packed(ten, np.array([0, ten.size]), (1, 13, 7, 2), np.int16)
+    with pytest.raises(ValueError, match="does not hold"):
+        short.photo(0)
+    with pytest.raises(ValueError, match="offsets"):
+        Packed(p.blob, p.offsets[::-1].copy(), p.shape, p.dtype)
+
+
+def test_aligned_photos_code_hand_computed():
+    from facetex.persona import texture as T
+
+    tp = T.TextureParams()
+    lo, hi = T._conf_range(tp)
+    assert (lo, hi) == pytest.approx((0.02, 1.02))  # the floor; full trust + floor
+    ic = np.zeros((1, 4, 4), np.float32)
+    ic[0, :, :3] = [[0.0, 1.0, 0.5], [0.2, -0.1, 1.3], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
+    ic[0, :, 3] = [lo, hi, lo * (hi / lo) ** (51 / 255), 5.0]
+    q, lsb = T._quantize_aligned(ic, tp)
+    # image in 1/511 steps: 0.5 * 511 = 255.5 -> 256 = 2 * 128 + 0; 0.2 * 511 = 102.2 -> 102 = 2 * 51;
+    # 1 and the clipped 1.3 -> 511 = 2 * 255 + 1
+    assert q[0, :2, :3].tolist() == [[0, 255, 128], [51, 0, 255]]
+    assert np.unpackbits(lsb).reshape(1, 4, 4)[0, :2].tolist() == [[0, 1, 0, 0], [0, 0, 1, 0]]
+    assert q[0, :, 3].tolist() == [0, 255, 51, 255]  # log scale from lo to hi; clipped
+    got = T._dequantize_aligned(q, lsb, (T._aligned_lut(tp), T._lsb_lut()))
+    assert got[0, :2, :3] == pytest.approx(np.array([[0, 511, 256], [102, 0, 511]]) / 511)
+    assert got[0, :, 3] == pytest.approx([lo, hi, lo * (hi / lo) ** 0.2, hi])
+    assert np.abs(got[0, 0, :3] - ic[0, 0, :3]).max() <= 0.5 / 511 + 1e-7  # the image's error
+    # relative step of the confidence code: (hi / lo)^(1/255) - 1 = 1.55 %
+    lut = T._aligned_lut(tp)[0]
+    assert lut[1:, 3] / lut[:-1, 3] == pytest.approx((hi / lo) ** (1 / 255))
 
 
 def test_bad_depth_refused(persona, tmp_path):
     W, H = SIZE
-    head = persona.header()
+    head = {**persona.header(), "version": 3}  # the arrays as format 3 stored them (not packed)
     base = {k: getattr(persona, k) for k in _BASE}
     cases = [
         ("shape", {**base, "depth": np.zeros((H, W + 1), np.float32)}, "'depth'"),
@@ -482,8 +622,9 @@ def test_large_members_are_stored_uncompressed(persona, tmp_path):
     path = persona.save(tmp_path / "s.persona")
     with zipfile.ZipFile(path) as z:
         kinds = {i.filename: i.compress_type for i in z.infolist()}
-    assert kinds["images.npy"] == kinds["flows.npy"] == zipfile.ZIP_STORED  # loads without inflating
-    assert kinds["visibility.npy"] == zipfile.ZIP_DEFLATED
+    assert kinds["images.npy"] == kinds["flows.npy"] == kinds["visibility.npy"] == zipfile.ZIP_STORED  # packed
+    assert kinds["texture_aligned.npy"] == zipfile.ZIP_STORED
+    assert kinds["subspace.npy"] == zipfile.ZIP_DEFLATED
     assert persona.save(tmp_path / "t.persona").read_bytes() == path.read_bytes()  # byte-reproducible
 
 

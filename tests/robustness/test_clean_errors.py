@@ -37,7 +37,7 @@ def _flip(src, dst, offset: int):
 def flipped(tmp_path_factory, persona_file):
     d = tmp_path_factory.mktemp("flipped")
     out = {}
-    for member in ("subspace.npy", "visibility.npy", "header.npy"):  # deflated: a zlib error
+    for member in ("subspace.npy", "points68.npy", "header.npy"):  # deflated: a zlib error
         off, size, kind = _member_data(persona_file, member)
         assert kind == zipfile.ZIP_DEFLATED
         out[member] = _flip(persona_file, d / f"{member[:-4]}.persona", off + size // 2)
@@ -47,7 +47,7 @@ def flipped(tmp_path_factory, persona_file):
     return out
 
 
-@pytest.mark.parametrize("member", ["subspace.npy", "visibility.npy", "header.npy", "images-npy-header"])
+@pytest.mark.parametrize("member", ["subspace.npy", "points68.npy", "header.npy", "images-npy-header"])
 @pytest.mark.parametrize("command", ["average", "mesh", "texture", "puppet"])
 def test_flipped_byte_is_a_corrupt_persona(capsys, flipped, outdir, bad, videos, command, member):
     if command == "puppet" and not has_command("puppet"):

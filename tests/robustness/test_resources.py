@@ -162,7 +162,7 @@ def _crafted(tmp_path_factory, persona_file, member_gib: float):
         i.compress_type = zipfile.ZIP_DEFLATED
         i._compresslevel = 1  # fastest; still ~4.5 MB per GiB
         with zout.open(i, "w", force_zip64=True) as fh:
-            fh.write(_npy_header(np.uint8, (n, H, W, 3)))
+            fh.write(_npy_header(np.uint8, (n * H * W * 3,)))  # format 4: the packed photos' streams
             block = bytes(64 * 2**20)
             for _ in range(int(member_gib * 16)):
                 fh.write(block)
