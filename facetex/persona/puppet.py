@@ -454,7 +454,8 @@ class Puppeteer:
             return g
         m = self.motion
         have = None
-        if (self.params.lip_sync and self.lip_fields is not None) or (self.params.brow_sync and self.brow_fields is not None):
+        if ((self.params.lip_sync and self.lip_fields is not None)
+                or (self.params.brow_sync and self.brow_fields is not None)):
             have = self._sample_grid(g - self.puppet_grid, self.mean68)[:, :2]
         g = g.copy()
         if self.brow_fields is not None:
