@@ -70,6 +70,8 @@ __all__ = [
     "mouth_opening",
     "GridInterpolator",
     "LipFields",
+    "BrowFields",
+    "brow_heights",
     "unfold_columns",
     "MouthCorrection",
 ]
@@ -572,6 +574,52 @@ class LipFields:
         for c in range(2):  # per column: numpy broadcasts over a length-2 axis slowly
             out[:, c] = up[:, c] + self.side * (lo[:, c] - up[:, c])
         return out.reshape(self.shape + (2,))
+
+
+#: iBUG-68 brow points (right 17-21, left 22-26)
+BROWS = tuple(range(17, 27))
+
+
+class BrowFields:
+    """Thin-plate-spline field of brow motion on a grid.
+
+    ``mean68`` (68, 2) the face's mean landmarks, ``grid_xy`` (h, w, 2) grid positions (same
+    frame). :meth:`__call__` takes motions (68, 2) of the landmarks (only the brows 17-26 are
+    read) and returns the (h, w, 2) field that moves the brows by them while the eyes, nose, jaw
+    and lips stay (the skin between brow and lid stretches) and the forehead fades back to still
+    at ``forehead`` x the eye-centre distance above the brows (no landmark there: a spline held
+    only below the brows would carry the whole forehead and hairline with them). As
+    :class:`LipFields`, the spline's linear operator is computed once; a call is one product.
+    """
+
+    def __init__(self, mean68: np.ndarray, grid_xy: np.ndarray, smoothing: float = 1.0, forehead: float = 0.6):
+        from scipy.interpolate import RBFInterpolator
+
+        p = np.asarray(mean68, np.float64)
+        self.shape = grid_xy.shape[:2]
+        g = np.asarray(grid_xy, np.float64).reshape(-1, 2)
+        iod = float(np.linalg.norm(p[36:42].mean(axis=0) - p[42:48].mean(axis=0)))
+        still = np.delete(p, list(BROWS), axis=0)
+        top = p[list(BROWS)] - [0.0, forehead * iod]
+        ctrl = np.concatenate([p[list(BROWS)], still, top])
+        rbf = RBFInterpolator(ctrl, np.eye(len(ctrl)), kernel="thin_plate_spline", smoothing=smoothing)
+        self.op = np.ascontiguousarray(rbf(g)[:, : len(BROWS)], np.float32)
+
+    def __call__(self, motion68) -> np.ndarray:
+        r = np.asarray(motion68, np.float32)[list(BROWS)]
+        return (self.op @ r).reshape(self.shape + (2,))
+
+
+def brow_heights(points68) -> np.ndarray:
+    """Heights (..., 10) of the brow points 17-26 above the line through the eye centres, over the
+    eye-centre distance (positive: above), for (..., 68, 2) landmarks (image y down)."""
+    p = np.asarray(points68, np.float64)
+    a, b = p[..., 36:42, :].mean(axis=-2), p[..., 42:48, :].mean(axis=-2)
+    e = b - a
+    iod = np.maximum(np.linalg.norm(e, axis=-1, keepdims=True), 1e-9)
+    n = np.stack([e[..., 1], -e[..., 0]], axis=-1) / iod  # unit normal pointing up (y down)
+    d = p[..., 17:27, :] - ((a + b) / 2)[..., None, :]
+    return (d * n[..., None, :]).sum(axis=-1) / iod
 
 
 def unfold_columns(grid: np.ndarray, mask: np.ndarray, min_spacing: float = 0.1) -> np.ndarray:

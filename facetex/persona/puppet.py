@@ -133,6 +133,8 @@ class PuppetParams:
     supersample_composite: int = 1
     mouth_rest: bool = True
     lip_sync: bool = True
+    brow_rest: bool = True
+    brow_sync: bool = True
     max_depth_error: float = 0.08
     shape: str = "collection"
     shape_photos: int = 128
@@ -369,6 +371,14 @@ class Puppeteer:
             self.lip_fields = LipFields(self.mean68, self.puppet_grid[..., :2])
             self.lip_scale = _iod49(persona.mean_fiducials) / max(motion.iod, 1e-9)
         self.rest_move = self._rest_motion() if params.mouth_rest and self.lip_fields is not None else None
+        self.brow_fields = self.brow_rest = None
+        if self.motion.fiducials68 is not None and (params.brow_rest or params.brow_sync):
+            from .driver import BrowFields, _iod49
+
+            self.brow_fields = BrowFields(self.mean68, self.puppet_grid[..., :2])
+            self.brow_scale = _iod49(persona.mean_fiducials) / max(motion.iod, 1e-9)
+            if params.brow_rest:
+                self.brow_rest = self._brow_rest_motion()
 
     @property
     def puppet_average(self) -> np.ndarray:
@@ -396,6 +406,30 @@ class Puppeteer:
         move[[5, 6, 10, 11]] = lower / 2
         return move
 
+    def _brow_rest_motion(self) -> np.ndarray:
+        """(68, 2) constant motion of the puppet's brows (17-26) that gives each of its mean brows
+        the tilt and mean height above the eye line (over the eye distance) of the driver's mean
+        brow: the difference of the two least-squares lines (height on position along the eye
+        line), moved along the eye line's normal. The brow's own curve stays the puppet's."""
+        from .driver import brow_heights
+
+        m = self.motion
+        P, D = self.mean68, m.fiducials68[m.found].mean(axis=0)
+
+        def along(F):  # brow points' positions along the eye line, over the eye distance
+            a, b = F[36:42].mean(axis=0), F[42:48].mean(axis=0)
+            e = b - a
+            return (F[17:27] - (a + b) / 2) @ e / float(e @ e)
+
+        e = P[42:48].mean(axis=0) - P[36:42].mean(axis=0)
+        up = np.array([e[1], -e[0]])  # eye-distance long, upwards
+        xp, xd, hp, hd = along(P), along(D), brow_heights(P), brow_heights(D)
+        move = np.zeros((68, 2))
+        for side in (slice(0, 5), slice(5, 10)):
+            lp, ld = np.polyfit(xp[side], hp[side], 1), np.polyfit(xd[side], hd[side], 1)
+            move[17:27][side] = (np.polyval(ld, xp[side]) - np.polyval(lp, xp[side]))[:, None] * up
+        return move
+
     def _sample_grid(self, grid: np.ndarray, points: np.ndarray) -> np.ndarray:
         """Bilinear samples (P, 3) of a (h, w, 3) grid at canonical (x, y) ``points`` (P, 2)."""
         st = self.motion.grid_step
@@ -412,19 +446,40 @@ class Puppeteer:
         the constant rest motion (module doc): the deformation transfer's magnitude adjustment and
         Huber-ROF smoothing shrink the thin, fast lip motion by 10-25 % on GRID clips. Lips that
         close further than the puppet's mouth band is tall meet instead of folding the grid over
-        (:func:`facetex.persona.driver.unfold_columns`)."""
+        (:func:`facetex.persona.driver.unfold_columns`). The brows likewise follow the driver's
+        brow landmarks relative to the eye corners (:class:`facetex.persona.driver.BrowFields`; the
+        face mesh moved them 0.2-0.4x as far), from the brow rest (:meth:`_brow_rest_motion`)."""
         g = self.transfer(self.motion.delta_field(i))
-        if self.lip_fields is None:
+        if self.lip_fields is None and self.brow_fields is None:
             return g
+        m = self.motion
+        have = None
+        if ((self.params.lip_sync and self.lip_fields is not None)
+                or (self.params.brow_sync and self.brow_fields is not None)):
+            have = self._sample_grid(g - self.puppet_grid, self.mean68)[:, :2]
+        g = g.copy()
+        if self.brow_fields is not None:
+            bmove = np.zeros((68, 2))
+            if self.params.brow_sync:
+                # each brow moves as the driver's relative to its eye corners (the lids' blinks and
+                # squints are not the brow's), from where the puppet's corners are now: the deformation
+                # transfer moves the eyes by the face mesh, not by the landmarks' motion
+                d = m.fiducials68[i] - m.fiducials68[m.found].mean(axis=0)
+                for brow, eye in ((slice(17, 22), [36, 39]), (slice(22, 27), [42, 45])):
+                    bmove[brow] = (self.brow_scale * (d[brow] - d[eye].mean(axis=0)) + have[eye].mean(axis=0)
+                                   - have[brow])
+            if self.brow_rest is not None:
+                bmove += self.brow_rest
+            bf = self.brow_fields(bmove)
+            for c in range(2):
+                g[..., c] += bf[..., c] * self.puppet_mask
+        if self.lip_fields is None:
+            return unfold_columns(g, self.puppet_mask)
         move = np.zeros((68, 2))
         if self.params.lip_sync:
-            m = self.motion
-            want = self.lip_scale * (m.fiducials68[i] - m.fiducials68[m.found].mean(axis=0))
-            have = self._sample_grid(g - self.puppet_grid, self.mean68)[:, :2]
-            move += want - have
+            move += self.lip_scale * (m.fiducials68[i] - m.fiducials68[m.found].mean(axis=0)) - have
         if self.rest_move is not None:
             move += self.rest_move
-        g = g.copy()
         lf = self.lip_fields(move)
         for c in range(2):  # per column: numpy broadcasts over a length-2 axis slowly
             g[..., c] += lf[..., c] * self.puppet_mask

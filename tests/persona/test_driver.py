@@ -419,3 +419,42 @@ def test_lift_points_equals_search_over_all_triangles():
         pts = np.r_[rng.uniform(-20, 120, (200, 2)), mesh[:5, :2],  # outside the mesh and on vertices
                     (mesh[triangles[:3, 0], :2] + mesh[triangles[:3, 1], :2]) / 2]  # on edges (ties)
         assert np.array_equal(_lift_points(pts, mesh, triangles), _lift_all(pts, mesh, triangles))
+
+
+# ----------------------------------------------------------------------------- brows
+def test_brow_heights_hand_computed():
+    from facetex.persona.driver import brow_heights
+
+    p = np.zeros((68, 2))
+    p[36:42] = [10.0, 50.0]  # eye centres 40 px apart on a level line y = 50
+    p[42:48] = [50.0, 50.0]
+    p[17:27] = [[30.0, 50.0 - 4.0 * k] for k in range(10)]  # k x 4 px above it
+    np.testing.assert_allclose(brow_heights(p), 0.1 * np.arange(10), atol=1e-12)
+    # rotated and scaled: the same heights
+    a = np.deg2rad(20.0)
+    R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    np.testing.assert_allclose(brow_heights(2.5 * p @ R.T + [3.0, -7.0]), 0.1 * np.arange(10), atol=1e-12)
+
+
+def test_brow_fields_move_the_brows_and_hold_eyes_lips_and_hairline():
+    from facetex.persona.driver import BrowFields
+
+    p = _generic68()
+    gy, gx = np.mgrid[0:400:2, 0:400:2].astype(float)
+    f = BrowFields(p, np.stack([gx, gy], axis=-1))
+    move = np.zeros((68, 2))
+    move[17:22, 1] = -4.0  # right brow up
+    move[22:27, 1] = np.linspace(-1.0, 3.0, 5)  # left brow tilted down towards its outer end
+    move[36:68] = 50.0  # not brow points: ignored
+    field = f(move)
+
+    def at(pt):
+        return field[int(round(pt[1] / 2)), int(round(pt[0] / 2))]
+
+    for k in range(17, 27):
+        np.testing.assert_allclose(at(p[k]), move[k] * [0, 1], atol=0.35)
+    for still in (36, 39, 42, 45, 37, 44, 30, 33, 48, 54, 62, 66, 8):
+        assert np.abs(at(p[still])).max() < 0.3
+    iod = np.linalg.norm(p[36:42].mean(axis=0) - p[42:48].mean(axis=0))
+    assert np.abs(at(p[19] - [0, 0.6 * iod])).max() < 0.3  # the forehead fades back to still
+    assert at(p[19] - [0, 0.2 * iod])[1] < -1.0  # skin just above the brow goes with it

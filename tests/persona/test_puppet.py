@@ -396,3 +396,32 @@ def test_puppeteer_weight_smoothing_zero_is_per_frame(driver_video, tiny_persona
     assert W.shape[0] == len(pup.motion)
     smoothed = pup.textures(frames)
     assert all(np.isfinite(t).all() and t.shape == per_frame[0].shape for t in smoothed)
+
+
+def test_brow_rest_gives_the_puppets_mean_brows_the_drivers_tilt_and_height():
+    """A frowning persona (inner brow ends pulled down) driven by a driver with level brows: the
+    rest motion levels the puppet's brow lines and matches their height; the brow's own curve stays."""
+    from types import SimpleNamespace
+
+    from facetex.geometry._generic_face import load_generic_face
+    from facetex.persona.driver import brow_heights
+    from facetex.persona.puppet import Puppeteer
+
+    g = load_generic_face().points68[:, :2]
+    g = g / np.linalg.norm(g[36] - g[45])
+    drv, pup = g * 100.0 + 200.0, g * 80.0 + 150.0
+    pup[17:22, 1] += np.linspace(-4.0, 6.0, 5)  # right brow: inner end (21) down
+    pup[22:27, 1] += np.linspace(6.0, -4.0, 5)  # left brow: inner end (22) down
+    pup[19, 1] -= 2.0  # a peaked brow
+    motion = SimpleNamespace(fiducials68=np.stack([drv, drv]), found=np.array([True, True]))
+    stub = SimpleNamespace(motion=motion, mean68=pup)
+    moved = pup + Puppeteer._brow_rest_motion(stub)
+    hd, hp = brow_heights(drv), brow_heights(moved)
+    for side in (slice(0, 5), slice(5, 10)):
+        x = np.arange(5.0)
+        fit_d, fit_p = np.polyfit(x, hd[side], 1), np.polyfit(x, hp[side], 1)
+        assert fit_p[0] == pytest.approx(fit_d[0], abs=0.01)  # tilt
+        assert hp[side].mean() == pytest.approx(hd[side].mean(), abs=0.01)  # height
+    # the peak is kept: the puppet's middle point stays above its neighbours' line
+    assert hp[2] - (hp[1] + hp[3]) / 2 > 0.02
+    assert np.all(moved[:17] == pup[:17]) and np.all(moved[27:] == pup[27:])
