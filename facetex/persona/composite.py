@@ -258,6 +258,122 @@ def match_color_statistics(src, ref, src_mask, ref_mask=None, *, std: bool = Fal
     return out
 
 
+def skin_low_pass(lab, skin, sigma: float, *, trim: float = 3.0, floor: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+    """Low-frequency colour (H, W, 3) of the ``skin`` pixels (bool (H, W)) of ``lab`` (H, W, 3)
+    and their median (3,): a normalized convolution (Gaussian ``sigma`` px) of the skin pixels,
+    each channel clipped to its median ± ``trim`` x 1.4826 MAD first (stray hair, shadows and
+    highlights the mask let through count as the median's bound); where the skin is further than
+    ~2 sigma away (eyes, mouth, outside the face) it tends to the median (``floor``: the weight
+    of the median against the skin's blurred coverage). ``sigma`` inf: the median everywhere."""
+    x = np.asarray(lab, np.float32)
+    m = np.asarray(skin, bool)
+    px = _pixels(x, m)
+    med = np.median(px, axis=0).astype(np.float32)
+    if not np.isfinite(sigma):
+        return np.broadcast_to(med, x.shape), med
+    mad = np.maximum(1.4826 * np.median(np.abs(px - med), axis=0), 1.0)
+    mf = m.astype(np.float32)
+    num = np.empty(x.shape, np.float32)
+    for c in range(3):
+        num[..., c] = np.clip(x[..., c], med[c] - trim * mad[c], med[c] + trim * mad[c]) * mf
+    num = cv2.GaussianBlur(num, (0, 0), sigma)
+    den = cv2.GaussianBlur(mf, (0, 0), sigma) + floor
+    out = np.empty(x.shape, np.float32)
+    for c in range(3):
+        out[..., c] = (num[..., c] + floor * med[c]) / den
+    return out, med
+
+
+def _spread(x, m) -> np.ndarray:
+    """Robust spread (3,): 1.4826 x the median absolute value of (H, W, 3) ``x`` over bool ``m``."""
+    return 1.4826 * np.median(np.abs(_pixels(x, m)), axis=0)
+
+
+COLOURS = ("driver", "persona")
+
+
+def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(0.5, 1.5), colour: str = "driver",
+                         light_limits=(0.5, 2.0)) -> np.ndarray:
+    """``src`` (H, W, 3) sRGB with the low-frequency colour of ``ref`` (the same size, aligned),
+    measured on skin pixels only (bool ``src_skin``, ``ref_skin``), the detail of ``src`` kept.
+
+    In CIELAB, with low-passes S, R of the two skins (:func:`skin_low_pass`, Gaussian ``sigma``
+    px): ``colour="driver"``: out = R + g (src − S), the detail gain g per channel the ratio of
+    the two skins' robust high-pass spreads, clipped to ``gain`` (a dark, high-contrast persona
+    keeps its shading as detail, not as blotches on a pale face); ``colour="persona"``: only
+    the lighting moves: L x (R_L / median R_L) / (S_L / median S_L) (the low-frequency lightness
+    ratio, clipped to ``light_limits``; L* ~ Y^(1/3), so nearly the linear-light ratio), a, b
+    kept. Returns sRGB float32 in [0, 1]."""
+    if colour not in COLOURS:
+        raise BadInputError(f"unknown colour {colour!r}: use one of {', '.join(COLOURS)}")
+    sm, rm = np.asarray(src_skin, bool), np.asarray(ref_skin, bool)
+    if sm.sum() < 8 or rm.sum() < 8:
+        return np.asarray(src, np.float32).copy()
+    a, b = _lab(src), _lab(ref)
+    sa, ca = skin_low_pass(a, sm, sigma)
+    sb, cb = skin_low_pass(b, rm, sigma)
+    out = np.empty(a.shape, np.float32)
+    if colour == "persona":
+        r = np.clip((sb[..., 0] / max(float(cb[0]), 1.0)) / np.maximum(sa[..., 0] / max(float(ca[0]), 1.0), 1e-3),
+                    *light_limits)
+        out[..., 0] = a[..., 0] * r
+        out[..., 1:] = a[..., 1:]
+        return _rgb(out)
+    da = a - sa
+    g = np.clip(_spread(b - sb, rm) / np.maximum(_spread(da, sm), 1e-3), *gain)
+    for c in range(3):
+        out[..., c] = sb[..., c] + g[c] * da[..., c]
+    return _rgb(out)
+
+
+# ----------------------------------------------------------------------------- skin and occluders
+def skin_pixels(image, points68, region) -> tuple[np.ndarray | None, np.ndarray]:
+    """(bool (H, W) or None, bool (H, W)): the pixels of the bool ``region`` of ``image``
+    (H, W, 3) sRGB outside the grown eyes, brows, lips and nostrils that have the face's own skin
+    colour (chromaticity and lightness, :func:`facetex.geometry.skin.skin_colour_distance`, fitted
+    robustly to that region: hair, stubble, shadows and glasses frames fall out), and those
+    features (:func:`facetex.geometry.skin.feature_mask`). None when fewer than 20 pixels are left
+    to fit the colour."""
+    from ..geometry.skin import SkinParams, feature_mask as grown_features, skin_colour_distance
+
+    sp = SkinParams()
+    feats = grown_features(points68, region.shape, sp)
+    base = region & ~feats
+    if base.sum() < 20:
+        return None, feats
+    chroma, z = skin_colour_distance(image, points68, region=base)
+    return base & (chroma < sp.chroma_sigmas) & (z > -sp.dark_sigmas), feats
+
+
+def occlusion_mask(region, skin, features, points68, *, min_size: float = 0.03, margin: float = 0.02,
+                   soft: float = 0.01) -> np.ndarray:
+    """float32 (H, W) in [0, 1]: what lies over the driver's face (a fringe, glasses, a hand of
+    another colour): pixels of the bool ``region`` (the face outline) that are neither ``skin``
+    nor ``features`` (the bool pair of :func:`skin_pixels` on the driver's frame: its eyes, brows,
+    lips and nostrils are replaced by the puppet's). Only pieces larger than (``min_size`` x face
+    width)² count (a mole, a pore, a crease's shadow do not); they are grown by ``margin`` x face
+    width (strand tips, frame edges) and softened by a Gaussian of ``soft`` x face width."""
+    from ..geometry.masks import face_width
+
+    out = np.zeros(np.shape(region), np.float32)
+    if skin is None:
+        return out
+    fw = face_width(points68)
+    bad = (region & ~features & ~skin).astype(np.uint8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(bad, connectivity=8)
+    big = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= (min_size * fw) ** 2) + 1
+    if not len(big):
+        return out
+    occ = np.isin(lab, big).astype(np.uint8)
+    r = int(round(margin * fw))
+    if r >= 1:
+        occ = cv2.dilate(occ, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2))
+    occ = occ.astype(np.float32)
+    if soft * fw > 0.3:  # 1 up to the grown edge, falling to 0 over ~2 sigma outside it
+        occ = np.minimum(2 * cv2.GaussianBlur(occ, (0, 0), soft * fw), 1.0)
+    return occ * region
+
+
 # ----------------------------------------------------------------------------- blending
 def poisson_blend(src, dst, mask, *, pad: int = 4) -> np.ndarray:
     """Gradient-domain composite (Pérez et al. 2003, "normal clone"): inside the bool ``mask``
@@ -520,7 +636,10 @@ class CompositeParams:
     lighting: str = "stats"
     sh_strength: float = 1.0
     normal_smoothing: float = 0.05
-    std: bool = False
+    colour: str = "driver"
+    colour_sigma: float = 0.25
+    colour_gain: tuple[float, float] = (0.5, 1.5)
+    occlusion: bool = True
     poisson: bool = True
     feather: float = 0.06
     erode: float = 0.03
@@ -541,6 +660,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     All work happens in the face's bounding box."""
     if params.lighting not in LIGHTINGS:
         raise BadInputError(f"unknown lighting {params.lighting!r}: use one of {', '.join(LIGHTINGS)}")
+    if params.colour not in COLOURS:
+        raise BadInputError(f"unknown colour {params.colour!r}: use one of {', '.join(COLOURS)}")
     frame = np.asarray(frame, np.float32)
     H, W = frame.shape[:2]
     p68 = np.asarray(driver_points68, np.float64)
@@ -564,6 +685,14 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     skin = cv2.erode(skin.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
     if skin.sum() < 16:
         skin = rg
+    # skin-only colour of both faces (the driver's fringe, stubble, shadows and the persona's
+    # darker brows and lids must not set the colour), and what lies over the driver's face
+    p_box = p68 - [x0, y0]
+    drv_skin, feats = skin_pixels(fr, p_box, rg)
+    occ = occlusion_mask(rg, drv_skin, feats, p_box) if params.occlusion else None
+    pup_skin = skin_pixels(pu, p_box, rg)[0]
+    drv_skin = skin if drv_skin is None or drv_skin.sum() < 16 else drv_skin
+    pup_skin = skin if pup_skin is None or pup_skin.sum() < 16 else pup_skin
     out = pu
     if params.lighting == "sh":
         if nr is None:
@@ -595,14 +724,17 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         ratio = relight(np.ones_like(lum_p), nr, lp, ld) ** params.sh_strength
         out = linear_to_srgb(lin_p * ratio)
     if params.lighting in ("sh", "stats"):
-        out = match_color_statistics(out, fr, skin, std=params.std)
-    if params.poisson:
+        out = transfer_skin_colour(out, fr, pup_skin, drv_skin, sigma=max(1.0, params.colour_sigma * iod),
+                                   gain=params.colour_gain, colour=params.colour)
+    if params.poisson and params.colour == "driver":  # the membrane would bring the driver's tone back
         out = poisson_blend(out, fr, rg)
     if params.mouth and puppet_lips is not None:
         mi, ma = mouth_interior(fr, p68[list(INNER_LIPS)] - [x0, y0], np.asarray(puppet_lips) - [x0, y0], rg.shape)
         ma = ma * rg
         out = _mix(ma, mi, out)
     alpha = inner_feather(rg, max(1.0, params.feather * iod))
+    if occ is not None:  # the driver's occluders stay in front of the puppet
+        alpha = alpha * (1 - occ)
     res = frame.copy()
     res[box] = _mix(alpha, out, fr)
     full = np.zeros((H, W), np.float32)
