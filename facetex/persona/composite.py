@@ -360,14 +360,16 @@ def skin_pixels(image, points68, region) -> tuple[np.ndarray | None, np.ndarray]
     return base & (chroma < sp.chroma_sigmas) & (z > -sp.dark_sigmas), feats
 
 
-def occlusion_mask(region, skin, features, points68, *, min_size: float = 0.03, margin: float = 0.02,
-                   soft: float = 0.01) -> np.ndarray:
+def occlusion_mask(region, skin, features, points68, *, min_size: float = 0.03, apart: float = 0.06,
+                   margin: float = 0.02, soft: float = 0.01) -> np.ndarray:
     """float32 (H, W) in [0, 1]: what lies over the driver's face (a fringe, glasses, a hand of
     another colour): pixels of the bool ``region`` (the face outline) that are neither ``skin``
     nor ``features`` (the bool pair of :func:`skin_pixels` on the driver's frame: its eyes, brows,
-    lips and nostrils are replaced by the puppet's). Only pieces larger than (``min_size`` x face
-    width)² count (a mole, a pore, a crease's shadow do not); they are grown by ``margin`` x face
-    width (strand tips, frame edges) and softened by a Gaussian of ``soft`` x face width."""
+    lips and nostrils are replaced by the puppet's). A piece counts when more than (``min_size``
+    x face width)² of it lies further than ``apart`` x face width from the features (a mole or a
+    crease's shadow is smaller; the brow hairs and nostril shadows beyond the landmark polygons
+    lie next to them); it is grown by ``margin`` x face width (strand tips, frame edges) and
+    softened by a Gaussian of ``soft`` x face width."""
     from ..geometry.masks import face_width
 
     out = np.zeros(np.shape(region), np.float32)
@@ -376,7 +378,12 @@ def occlusion_mask(region, skin, features, points68, *, min_size: float = 0.03, 
     fw = face_width(points68)
     bad = (region & ~features & ~skin).astype(np.uint8)
     n, lab, stats, _ = cv2.connectedComponentsWithStats(bad, connectivity=8)
-    big = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= (min_size * fw) ** 2) + 1
+    if n < 2:
+        return out
+    r = max(1, int(round(apart * fw)))
+    near = cv2.dilate(features.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0
+    away = np.bincount(lab[~near], minlength=n)  # each piece's pixels away from the features
+    big = np.flatnonzero(away[1:] >= (min_size * fw) ** 2) + 1
     if not len(big):
         return out
     occ = np.isin(lab, big).astype(np.uint8)
