@@ -302,6 +302,12 @@ def skin_low_pass(lab, skin, sigma: float, *, trim: float = 3.0, floor: float = 
 COLOURS = ("driver", "persona")
 
 
+def _lightness_to_luminance(L):
+    """CIE 1976 L* (0..100) -> relative luminance Y (0..1), floored at 1e-4."""
+    f = (np.asarray(L, np.float32) + 16) / 116
+    return np.maximum(np.where(f > 6 / 29, f ** 3, 3 * (6 / 29) ** 2 * (f - 4 / 29)), 1e-4).astype(np.float32)
+
+
 def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 / 3, 1.5), colour: str = "driver",
                          light_limits=(0.5, 2.0)) -> np.ndarray:
     """``src`` (H, W, 3) sRGB with the low-frequency colour of ``ref`` (the same size, aligned),
@@ -313,8 +319,9 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     (a dark persona's iris and lids keep their contrast on a pale driver, a pale persona's pores
     do not turn coarse on a dark one); the persona's own shading and blotches below ~``sigma``
     become the driver's, so they cannot be amplified into bruises. ``colour="persona"``: only the
-    lighting moves: L x (R_L / r_L) / (S_L / s_L) (the low-frequency lightness ratio, clipped to
-    ``light_limits``; L* ~ Y^(1/3), so nearly the linear-light ratio), a, b kept.
+    lighting moves: linear-light R, G, B x (Y(R_L) / Y(r_L)) / (Y(S_L) / Y(s_L)), the driver's
+    low-frequency luminance ratio over the persona's (Y(L*) the CIE luminance, the ratio clipped
+    to ``light_limits``), the persona's chromaticity kept.
     Returns sRGB float32 in [0, 1]."""
     if colour not in COLOURS:
         raise BadInputError(f"unknown colour {colour!r}: use one of {', '.join(COLOURS)}")
@@ -326,11 +333,15 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     sb, cb = skin_low_pass(b, rm, sigma)
     out = np.empty(a.shape, np.float32)
     if colour == "persona":
-        r = np.clip((sb[..., 0] / max(float(cb[0]), 1.0)) / np.maximum(sa[..., 0] / max(float(ca[0]), 1.0), 1e-3),
-                    *light_limits)
-        out[..., 0] = a[..., 0] * r
-        out[..., 1:] = a[..., 1:]
-        return _rgb(out)
+        # the ratio in linear light, applied to R, G and B alike: the persona's chromaticity kept
+        def lum(l):
+            return _lightness_to_luminance(l)
+
+        r = (lum(sb[..., 0]) / lum(cb[0])) / (lum(sa[..., 0]) / lum(ca[0]))
+        lin = srgb_to_linear(src)
+        for c in range(3):
+            lin[..., c] *= np.clip(r, *light_limits)
+        return linear_to_srgb(lin)
     da = a - sa
     # lightness detail scales with the skin's lightness (L* ~ Y^(1/3), albedo x shading): a dark
     # persona's iris, lids and pores keep their contrast on a pale driver; chroma detail is kept
@@ -636,6 +647,8 @@ def boundary_color_step(image, mask, *, band: float = 3.0, gap: float = 1.0, sec
 
 # ----------------------------------------------------------------------------- pipeline
 LIGHTINGS = ("stats", "sh", "none")
+#: the inward feather is this many times wider with ``colour="persona"`` (no Poisson seam there)
+PERSONA_FEATHER = 3.0
 
 
 @dataclass(frozen=True)
@@ -667,7 +680,7 @@ class CompositeParams:
     sh_strength: float = 1.0
     normal_smoothing: float = 0.05
     colour: str = "driver"
-    colour_sigma: float = 0.12
+    colour_sigma: float = 0.08
     colour_gain: tuple[float, float] = (2 / 3, 1.5)
     occlusion: bool = True
     poisson: bool = True
@@ -762,7 +775,10 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         mi, ma = mouth_interior(fr, p68[list(INNER_LIPS)] - [x0, y0], np.asarray(puppet_lips) - [x0, y0], rg.shape)
         ma = ma * rg
         out = _mix(ma, mi, out)
-    alpha = inner_feather(rg, max(1.0, params.feather * iod))
+    # the persona's own skin tone meets the driver's at the outline: a wider ramp than the
+    # gradient-domain seam needs
+    feather = params.feather * (PERSONA_FEATHER if params.colour == "persona" else 1.0)
+    alpha = inner_feather(rg, max(1.0, feather * iod))
     if occ is not None:  # the driver's occluders stay in front of the puppet
         alpha = alpha * (1 - occ)
     res = frame.copy()

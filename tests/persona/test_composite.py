@@ -180,22 +180,25 @@ def test_skin_low_pass_trims_outliers_and_falls_back_to_the_median():
 
 
 def test_persona_colour_keeps_the_skin_tone_and_takes_the_lighting():
-    """colour="persona": a and b are the persona's; L is multiplied by the driver's low-frequency
-    lightness ratio (a left-right gradient) over the persona's (flat)."""
+    """colour="persona": linear R, G, B multiplied by the driver's low-frequency luminance ratio
+    (a left-right gradient) over the persona's (flat): the persona's chromaticity is kept."""
     base = np.float32([45.0, 14.0, 20.0])
     src_lab = base + _detail(amp=1.0)
     yy, xx = np.mgrid[0:40, 0:48]
     ref_lab = np.zeros((40, 48, 3), np.float32)
     ref_lab[:] = (70.0, 8.0, 12.0)
-    ref_lab[..., 0] *= 1 + 0.2 * (xx - 23.5) / 23.5  # lighting from the right
+    ref_lab[..., 0] += 8.0 * (xx - 23.5) / 23.5  # lighting from the right
     src, ref = _rgb(src_lab), _rgb(ref_lab)
     skin = np.ones((40, 48), bool)
-    out = _lab(transfer_skin_colour(src, ref, skin, skin, sigma=2.0, colour="persona"))
+    out = transfer_skin_colour(src, ref, skin, skin, sigma=2.0, colour="persona")
     inner = (slice(8, -8), slice(8, -8))
-    np.testing.assert_allclose(out[..., 1:][inner], src_lab[..., 1:][inner], atol=0.5)
-    ratio = cv2.GaussianBlur(out[..., 0], (0, 0), 2.0) / cv2.GaussianBlur(src_lab[..., 0], (0, 0), 2.0)
-    expect = 1 + 0.2 * (xx - 23.5) / 23.5
-    np.testing.assert_allclose(ratio[inner], expect[inner], atol=0.02)
+    lin_o, lin_s, lin_r = srgb_to_linear(out), srgb_to_linear(src), srgb_to_linear(ref)
+    chrom = lambda x: x / x.sum(axis=2, keepdims=True)  # noqa: E731
+    np.testing.assert_allclose(chrom(lin_o)[inner], chrom(lin_s)[inner], atol=2e-3)
+    luma = np.float32([0.2126, 0.7152, 0.0722])
+    y_r = cv2.GaussianBlur(lin_r @ luma, (0, 0), 2.0)
+    ratio = cv2.GaussianBlur(lin_o @ luma, (0, 0), 2.0) / cv2.GaussianBlur(lin_s @ luma, (0, 0), 2.0)
+    np.testing.assert_allclose(ratio[inner], (y_r / np.median(y_r))[inner], rtol=0.03)
     with pytest.raises(BadInputError, match="colour"):
         transfer_skin_colour(src, ref, skin, skin, sigma=2.0, colour="grey")
 
