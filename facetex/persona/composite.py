@@ -309,7 +309,7 @@ def _lightness_to_luminance(L):
 
 
 def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 / 3, 1.5), colour: str = "driver",
-                         light_limits=(0.5, 2.0)) -> np.ndarray:
+                         light_limits=(0.5, 2.0), shrink: int = 1) -> np.ndarray:
     """``src`` (H, W, 3) sRGB with the low-frequency colour of ``ref`` (the same size, aligned),
     measured on skin pixels only (bool ``src_skin``, ``ref_skin``), the detail of ``src`` kept.
 
@@ -322,33 +322,48 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     lighting moves: linear-light R, G, B x (Y(R_L) / Y(r_L)) / (Y(S_L) / Y(s_L)), the driver's
     low-frequency luminance ratio over the persona's (Y(L*) the CIE luminance, the ratio clipped
     to ``light_limits``), the persona's chromaticity kept.
-    Returns sRGB float32 in [0, 1]."""
+    ``shrink`` > 1: the low-frequency fields are computed on both images shrunk by that factor
+    (area average; ``src_skin`` and ``ref_skin`` are given at the shrunk size) and resized back
+    (bilinear): the same fields at a fraction of the cost. Returns sRGB float32 in [0, 1]."""
     if colour not in COLOURS:
         raise BadInputError(f"unknown colour {colour!r}: use one of {', '.join(COLOURS)}")
     sm, rm = np.asarray(src_skin, bool), np.asarray(ref_skin, bool)
     if sm.sum() < 8 or rm.sum() < 8:
         return np.asarray(src, np.float32).copy()
-    a, b = _lab(src), _lab(ref)
-    sa, ca = skin_low_pass(a, sm, sigma)
-    sb, cb = skin_low_pass(b, rm, sigma)
-    out = np.empty(a.shape, np.float32)
+    src = np.asarray(src, np.float32)
+    h, w = _shape2(src.shape)
+    k = max(1, int(shrink))
+    small = (sm.shape[1], sm.shape[0])
+    if k > 1:
+        s_small, r_small = (cv2.resize(np.asarray(x, np.float32), small, interpolation=cv2.INTER_AREA) for x in (src, ref))
+    else:
+        s_small, r_small = src, ref
+    sa, ca = skin_low_pass(_lab(s_small), sm, sigma / k)
+    sb, cb = skin_low_pass(_lab(r_small), rm, sigma / k)
+
+    def full(x):
+        return cv2.resize(x, (w, h), interpolation=cv2.INTER_LINEAR) if k > 1 else x
+
     if colour == "persona":
         # the ratio in linear light, applied to R, G and B alike: the persona's chromaticity kept
-        def lum(l):
-            return _lightness_to_luminance(l)
-
-        r = (lum(sb[..., 0]) / lum(cb[0])) / (lum(sa[..., 0]) / lum(ca[0]))
+        lum = _lightness_to_luminance
+        r = full(np.clip((lum(sb[..., 0]) / lum(cb[0])) / (lum(sa[..., 0]) / lum(ca[0])), *light_limits))
         lin = srgb_to_linear(src)
         for c in range(3):
-            lin[..., c] *= np.clip(r, *light_limits)
+            lin[..., c] *= r
         return linear_to_srgb(lin)
-    da = a - sa
     # lightness detail scales with the skin's lightness (L* ~ Y^(1/3), albedo x shading): a dark
-    # persona's iris, lids and pores keep their contrast on a pale driver; chroma detail is kept
-    g = float(np.clip(cb[0] / max(float(ca[0]), 1.0), *gain))
-    out[..., 0] = sb[..., 0] + g * da[..., 0]
-    for c in (1, 2):
-        out[..., c] = sb[..., c] + da[..., c]
+    # persona's iris, lids and pores keep their contrast on a pale driver; chroma detail is kept.
+    # out = R + (g, 1, 1) (src - S) = (g, 1, 1) src + field
+    g = np.float32([np.clip(cb[0] / max(float(ca[0]), 1.0), *gain), 1.0, 1.0])
+    field = np.empty(sa.shape, np.float32)
+    for c in range(3):
+        field[..., c] = sb[..., c] - g[c] * sa[..., c]
+    field = full(field)
+    a = _lab(src)
+    out = np.empty(a.shape, np.float32)
+    for c in range(3):
+        out[..., c] = g[c] * a[..., c] + field[..., c]
     return _rgb(out)
 
 
@@ -647,6 +662,9 @@ def boundary_color_step(image, mask, *, band: float = 3.0, gap: float = 1.0, sec
 
 # ----------------------------------------------------------------------------- pipeline
 LIGHTINGS = ("stats", "sh", "none")
+#: skin colour, occluders and the low-frequency colour field are worked out on the face's box
+#: shrunk to about this many px between the outer eye corners
+WORK_IOD = 16.0
 #: the inward feather is this many times wider with ``colour="persona"`` (no Poisson seam there)
 PERSONA_FEATHER = 3.0
 
@@ -724,18 +742,35 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     box = (slice(y0, y1), slice(x0, x1))
     fr, pu, rg = frame[box], np.asarray(puppet, np.float32)[box], region[box]
     nr = None if normals is None else np.asarray(normals, np.float32)[box]
-    skin = rg & ~feature_mask(p68 - [x0, y0], rg.shape)
-    skin = cv2.erode(skin.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-    if skin.sum() < 16:
-        skin = rg
+    skin = None  # the SH fit's skin (full size), made only for it
+    if params.lighting == "sh":
+        skin = rg & ~feature_mask(p68 - [x0, y0], rg.shape)
+        skin = cv2.erode(skin.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        if skin.sum() < 16:
+            skin = rg
     # skin-only colour of both faces (the driver's fringe, stubble, shadows and the persona's
     # darker brows and lids must not set the colour), and what lies over the driver's face
-    p_box = p68 - [x0, y0]
-    drv_skin, feats = skin_pixels(fr, p_box, rg)
-    occ = occlusion_mask(rg, drv_skin, feats, p_box) if params.occlusion else None
-    pup_skin = skin_pixels(pu, p_box, rg)[0]
-    drv_skin = skin if drv_skin is None or drv_skin.sum() < 16 else drv_skin
-    pup_skin = skin if pup_skin is None or pup_skin.sum() < 16 else pup_skin
+    # (on the box shrunk to ~WORK_IOD px between the eye corners: both are low-frequency)
+    ks = max(1, int(iod // WORK_IOD))
+    bh, bw = rg.shape
+    small = (max(1, round(bw / ks)), max(1, round(bh / ks)))
+
+    def shrunk(x):
+        return cv2.resize(np.asarray(x, np.float32), small, interpolation=cv2.INTER_AREA) if ks > 1 else x
+
+    p_s = (p68 - [x0, y0] + 0.5) * [small[0] / bw, small[1] / bh] - 0.5
+    rg_s = rg if ks == 1 else shrunk(rg) > 0.5
+    drv_skin, feats = skin_pixels(shrunk(fr), p_s, rg_s)
+    skin_s = rg_s & ~feats if (rg_s & ~feats).sum() >= 16 else rg_s
+    occ = None
+    if params.occlusion:
+        occ = occlusion_mask(rg_s, drv_skin, feats, p_s)
+        occ = (cv2.resize(occ, (bw, bh), interpolation=cv2.INTER_LINEAR) if ks > 1 else occ) * rg
+    # the persona's average texture has no hair or cast shadows on its face (they average out):
+    # its features are left out, the trimmed statistics do the rest
+    pup_skin = rg_s & ~feats
+    drv_skin = skin_s if drv_skin is None or drv_skin.sum() < 16 else drv_skin
+    pup_skin = skin_s if pup_skin is None or pup_skin.sum() < 16 else pup_skin
     out = pu
     if params.lighting == "sh":
         if nr is None:
@@ -768,7 +803,7 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         out = linear_to_srgb(lin_p * ratio)
     if params.lighting in ("sh", "stats"):
         out = transfer_skin_colour(out, fr, pup_skin, drv_skin, sigma=max(1.0, params.colour_sigma * iod),
-                                   gain=params.colour_gain, colour=params.colour)
+                                   gain=params.colour_gain, colour=params.colour, shrink=ks)
     if params.poisson and params.colour == "driver":  # the membrane would bring the driver's tone back
         out = poisson_blend(out, fr, rg)
     if params.mouth and puppet_lips is not None:
