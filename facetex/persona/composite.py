@@ -19,9 +19,9 @@ looks pasted on unless its colour, lighting and outline come from the frame it s
   statistics and a bounded lightness-detail gain, the persona's detail kept
   (:func:`transfer_skin_colour`). One mean shift over the whole face (Reinhard et al. 2001, still
   :func:`match_color_statistics`) kept a dark persona's own shading at its full depth on a pale
-  driver: purple-brown patches round the eyes and on the cheeks (cheek ΔE to the driver 10-21;
-  a smooth field, histogram matching and MKL were measured against it, see
-  :class:`CompositeParams`). ``colour="persona"`` keeps the persona's skin tone and takes only the
+  driver: purple-brown patches round the eyes and on the cheeks, and left a pale persona's
+  blotches on a flushed driver (cheek ΔE to the driver's own cheeks: median 11, worst 19 over
+  6 personas x 6 GRID clips; now 3.5 and 6.2; see :class:`CompositeParams`). ``colour="persona"`` keeps the persona's skin tone and takes only the
   driver's lighting;
 * **occlusion**: what lies over the driver's face (a fringe, glasses, a hand of another colour:
   not its skin by its own colour model, outside its eyes, brows and lips) stays in front of the
@@ -683,10 +683,12 @@ class CompositeParams:
     the persona's and takes only the lighting ("persona"; no Poisson blending then, its membrane
     would bring the driver's tone back); colour_sigma: the scale below which the colour is the
     driver's, as a fraction of the eye-corner distance, and colour_gain: the bounds of the
-    lightness-detail gain (:func:`transfer_skin_colour`). Chosen by the cheek ΔE to the driver
-    over 36 persona x GRID clip runs (worst run: mean shift 19, MKL 22, histogram 27, smooth field
-    at 0.4 / 0.25 / 0.15 / 0.10 eye distances 19 / 16 / 12 / 8) and by looking at the eyes: a gain
-    from the skins' high-pass spreads (0.5 on a dark persona over a pale driver) greyed the irises;
+    lightness-detail gain (:func:`transfer_skin_colour`). Chosen by the cheek ΔE (CIELAB) to the
+    driver's own cheeks over 6 personas x 6 GRID clips (worst run, skin-only masks: mean shift 19,
+    MKL 22 (and pink lips), per-channel histogram matching 27, smooth field at 0.4 / 0.25 / 0.15 /
+    0.10 / 0.08 eye distances 19 / 16 / 12 / 7.8 / 6.2; 0.12 to 0.08 look alike at 100 %) and by
+    looking at the eyes: a gain from the skins' high-pass spreads (0.5 on a dark persona over a
+    pale driver) greyed the irises;
     occlusion: keep the driver's occluders in front (:func:`occlusion_mask`); poisson:
     gradient-domain blending at the border; feather: width of the inward feather as a fraction of the eye-corner distance;
     erode: the driver's outline is shrunk by this fraction (the face-oval vertices sit on the
