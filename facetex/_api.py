@@ -898,6 +898,7 @@ def persona_mesh(persona: PersonaLike, *, step: int = 1,
 def puppeteer(driver: str | os.PathLike, puppet: PersonaLike, output: str | os.PathLike, *,
               side_by_side: bool = False, size: int | None = None,
               mode: Literal["composite", "face"] = "composite", lighting: Literal["stats", "sh", "none"] = "stats",
+              colour: Literal["driver", "persona"] = "driver",
               texture: Literal["ours", "static"] = "ours", weights: Literal["regional", "global"] = "regional",
               max_frames: int | None = None, driver_photos: str | os.PathLike | None = None,
               overwrite: bool = False, progress: Progress = False) -> dict:
@@ -921,6 +922,9 @@ def puppeteer(driver: str | os.PathLike, puppet: PersonaLike, output: str | os.P
     lighting : {"stats", "sh", "none"}
         Composite mode: match the driver's skin colour statistics, also its first-order
         spherical-harmonics lighting, or neither.
+    colour : {"driver", "persona"}
+        Composite mode: the puppet's skin takes the driver's colour and lighting, or keeps the
+        persona's skin tone and takes only the driver's lighting.
     texture : {"ours", "static"}
         Expression-dependent texture or the static average.
     weights : {"regional", "global"}
@@ -973,5 +977,5 @@ def puppeteer(driver: str | os.PathLike, puppet: PersonaLike, output: str | os.P
         return _puppeteer(driver, puppet, output, driver_photos=driver_photos, side_by_side=side_by_side,
                           size=size, mode=mode, overwrite=overwrite, max_frames=max_frames,
                           params=PuppetParams(texture=texture, weights=weights,
-                                              composite=CompositeParams(lighting=lighting)),
+                                              composite=CompositeParams(lighting=lighting, colour=colour)),
                           progress=bar)

@@ -26,6 +26,9 @@ def register(sub) -> None:
     p.add_argument("--lighting", choices=("stats", "sh", "none"), default="stats",
                    help="composite mode: match the driver's skin colour statistics (default), also its "
                         "first-order spherical-harmonics lighting (sh), or neither (none)")
+    p.add_argument("--colour", choices=("driver", "persona"), default="driver",
+                   help="composite mode: the puppet takes the driver's skin colour and lighting (default), or keeps "
+                        "the persona's skin tone and takes only the driver's lighting (persona)")
     p.add_argument("--texture", choices=("ours", "static"), default="ours",
                    help="expression-dependent texture (default) or the static average texture")
     p.add_argument("--weights", choices=("regional", "global"), default="regional",
@@ -82,7 +85,7 @@ def _run(args, tracker) -> int:
     from ..persona.puppet import PuppetParams, puppeteer
 
     params = PuppetParams(texture=args.texture, weights=args.weights, correspondence=args.correspondence,
-                          weight_smoothing=args.weight_smoothing, composite=CompositeParams(lighting=args.lighting))
+                          weight_smoothing=args.weight_smoothing, composite=CompositeParams(lighting=args.lighting, colour=args.colour))
     with progress_bar(2 * n, desc="puppet", unit="frame", disable=args.quiet) as bar:
         report = puppeteer(args.driver, args.puppet, args.output, driver_photos=args.driver_photos,
                            side_by_side=args.side_by_side, size=args.size, mode=args.mode,
@@ -93,7 +96,8 @@ def _run(args, tracker) -> int:
         command="puppet", inputs={"driver": args.driver, "puppet": args.puppet, "driver_photos": args.driver_photos},
         params={"side_by_side": args.side_by_side, "size": args.size, "mode": args.mode, "texture": args.texture,
                 "weights": args.weights, "weight_smoothing": args.weight_smoothing,
-                "correspondence": args.correspondence, "lighting": args.lighting, "max_frames": args.max_frames,
+                "correspondence": args.correspondence, "lighting": args.lighting, "colour": args.colour,
+                "max_frames": args.max_frames,
                 "puppet_params": params},
         outputs=[out], result=report), overwrite=args.overwrite, inputs=inputs)
     if report["lost_frames"] and not args.quiet:

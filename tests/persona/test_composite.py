@@ -17,11 +17,15 @@ from facetex.persona.composite import (
     linear_to_srgb,
     match_color_statistics,
     mouth_interior,
+    occlusion_mask,
     poisson_blend,
     polygon_mask,
     relight,
     sh_shading,
+    skin_low_pass,
+    skin_pixels,
     srgb_to_linear,
+    transfer_skin_colour,
 )
 
 
@@ -83,6 +87,186 @@ def test_colour_transfer_with_an_empty_mask_changes_nothing():
     src = np.full((8, 8, 3), 0.4, np.float32)
     out = match_color_statistics(src, src * 0.5, np.zeros((8, 8), bool))
     np.testing.assert_array_equal(out, src)
+
+
+# ----------------------------------------------------------------------------- skin colour transfer
+def _rgb(lab):
+    return cv2.cvtColor(np.asarray(lab, np.float32), cv2.COLOR_Lab2RGB)
+
+
+def _detail(h=40, w=48, amp=2.0):
+    """A +-amp checkerboard in L (the persona's fine detail), zero in a and b."""
+    yy, xx = np.mgrid[0:h, 0:w]
+    d = np.zeros((h, w, 3), np.float32)
+    d[..., 0] = amp * np.where((xx + yy) % 2 == 0, 1.0, -1.0)
+    return d
+
+
+def test_skin_colour_transfer_recovers_a_known_offset_and_gain():
+    """sigma inf: out = median(ref) + (g, 1, 1) (src - median(src)) in Lab, g = the ratio of the
+    skins' median lightness: a persona at L 45 with a +-2 L detail on a driver at L 60 (a, b
+    shifted by +6, -4) comes out at 60 +- 2 x 60 / 45 with the driver's a, b (hand-computed)."""
+    base = np.float32([45.0, 14.0, 20.0])  # a darker persona skin
+    src_lab = base + _detail()
+    ref_lab = np.broadcast_to(base + [15.0, 6.0, -4.0], src_lab.shape)
+    src, ref = _rgb(src_lab), _rgb(ref_lab)
+    skin = np.ones((40, 48), bool)
+    out = _lab(transfer_skin_colour(src, ref, skin, skin, sigma=np.inf))
+    # (OpenCV's float Lab round trip is good to ~0.1)
+    np.testing.assert_allclose(out[..., 0], 60.0 + 60.0 / 45.0 * _detail()[..., 0], atol=0.3)
+    np.testing.assert_allclose(out[..., 1:], np.broadcast_to([20.0, 16.0], out[..., 1:].shape), atol=0.3)
+
+
+def test_skin_colour_transfer_clamps_the_gain_and_keeps_the_detail():
+    base = np.float32([30.0, 14.0, 20.0])
+    src_lab = base + _detail(amp=2.0)
+    skin = np.ones((40, 48), bool)
+    for ref_l, g in ((70.0, 1.5), (15.0, 2 / 3)):  # ratios 2.33 and 0.5: held at the bounds
+        ref = _rgb(np.broadcast_to(np.float32([ref_l, 14.0, 20.0]), src_lab.shape))
+        out = _lab(transfer_skin_colour(_rgb(src_lab), ref, skin, skin, sigma=np.inf, gain=(2 / 3, 1.5)))
+        np.testing.assert_allclose(out[..., 0], ref_l + g * _detail(amp=2.0)[..., 0], atol=0.3)
+    src = _rgb(src_lab)
+    # with a smooth field: the low frequencies are the driver's, the fine detail the persona's
+    yy, xx = np.mgrid[0:40, 0:48]
+    ramp = np.zeros((40, 48, 3), np.float32)
+    ramp[..., 0] = 10.0 * xx / 47.0  # the driver's lighting: brighter to the right
+    ref = _rgb(base + [15.0, 4.0, 2.0] + ramp + _detail(amp=3.0)[:, ::-1])  # its own detail is not taken
+    out = _lab(transfer_skin_colour(src, ref, skin, skin, sigma=3.0, gain=(1.0, 1.0)))
+    low = cv2.GaussianBlur(out, (0, 0), 2.0)
+    inner = (slice(8, -8), slice(8, -8))
+    np.testing.assert_allclose(low[inner], cv2.GaussianBlur(_lab(ref), (0, 0), 2.0)[inner], atol=0.6)
+    hp = out[..., 0] - cv2.GaussianBlur(out[..., 0], (0, 0), 1.5)
+    hp_src = src_lab[..., 0] - cv2.GaussianBlur(src_lab[..., 0], (0, 0), 1.5)
+    np.testing.assert_allclose(hp[inner], hp_src[inner], atol=0.3)
+
+
+def test_skin_colour_transfer_ignores_what_is_not_skin():
+    """A dark brow and a dark lid on the persona (outside its skin mask) and the driver's dark
+    fringe (outside its skin mask) do not move the colour of the skin."""
+    base = np.float32([45.0, 14.0, 20.0])
+    src_lab = base + _detail()
+    ref_lab = base + [20.0, 2.0, -2.0] + _detail()
+    src, ref = _rgb(src_lab), _rgb(ref_lab)
+    skin = np.ones((40, 48), bool)
+    plain = _lab(transfer_skin_colour(src, ref, skin, skin, sigma=6.0))
+    src2, ref2 = src.copy(), ref.copy()
+    src2[10:16, 8:40] = 0.05  # the persona's brow
+    ref2[0:8] = (0.2, 0.12, 0.05)  # the driver's fringe
+    s_skin, r_skin = skin.copy(), skin.copy()
+    s_skin[10:16, 8:40] = False
+    r_skin[0:8] = False
+    out = _lab(transfer_skin_colour(src2, ref2, s_skin, r_skin, sigma=6.0))
+    keep = s_skin & r_skin
+    np.testing.assert_allclose(out[keep], plain[keep], atol=0.5)
+    # the brow stays darker than the skin around it (detail kept, not bleached)
+    assert out[12, 20, 0] < out[24, 20, 0] - 20
+
+
+def test_skin_low_pass_trims_outliers_and_falls_back_to_the_median():
+    lab = np.zeros((30, 30, 3), np.float32)
+    lab[:] = (60.0, 10.0, 15.0)
+    lab[5, 5] = (0.0, 0.0, 0.0)  # one black stray hair in the mask
+    skin = np.zeros((30, 30), bool)
+    skin[:, :15] = True
+    low, med = skin_low_pass(lab, skin, 2.0)
+    np.testing.assert_allclose(med, (60.0, 10.0, 15.0))
+    # clipped to the median - 3 x the spread (floored at 1): the black pixel pulls its
+    # neighbourhood down by < 0.15 L, not by the ~2.4 of a plain average
+    assert low[5, 5, 0] > 59.85
+    den = np.maximum(cv2.GaussianBlur(skin.astype(np.float32), (0, 0), 2.0), 1e-6)[..., None]
+    naive = cv2.GaussianBlur(lab * skin[..., None], (0, 0), 2.0) / den
+    assert naive[5, 5, 0] < 58.0
+    np.testing.assert_allclose(low[:, 25:], np.broadcast_to(med, low[:, 25:].shape), atol=1e-3)  # far from skin
+
+
+def test_persona_colour_keeps_the_skin_tone_and_takes_the_lighting():
+    """colour="persona": linear R, G, B multiplied by the driver's low-frequency luminance ratio
+    (a left-right gradient) over the persona's (flat): the persona's chromaticity is kept."""
+    base = np.float32([45.0, 14.0, 20.0])
+    src_lab = base + _detail(amp=1.0)
+    yy, xx = np.mgrid[0:40, 0:48]
+    ref_lab = np.zeros((40, 48, 3), np.float32)
+    ref_lab[:] = (70.0, 8.0, 12.0)
+    ref_lab[..., 0] += 8.0 * (xx - 23.5) / 23.5  # lighting from the right
+    src, ref = _rgb(src_lab), _rgb(ref_lab)
+    skin = np.ones((40, 48), bool)
+    out = transfer_skin_colour(src, ref, skin, skin, sigma=2.0, colour="persona")
+    inner = (slice(8, -8), slice(8, -8))
+    lin_o, lin_s, lin_r = srgb_to_linear(out), srgb_to_linear(src), srgb_to_linear(ref)
+    chrom = lambda x: x / x.sum(axis=2, keepdims=True)  # noqa: E731
+    np.testing.assert_allclose(chrom(lin_o)[inner], chrom(lin_s)[inner], atol=2e-3)
+    luma = np.float32([0.2126, 0.7152, 0.0722])
+    y_r = cv2.GaussianBlur(lin_r @ luma, (0, 0), 2.0)
+    ratio = cv2.GaussianBlur(lin_o @ luma, (0, 0), 2.0) / cv2.GaussianBlur(lin_s @ luma, (0, 0), 2.0)
+    np.testing.assert_allclose(ratio[inner], (y_r / np.median(y_r))[inner], rtol=0.03)
+    with pytest.raises(BadInputError, match="colour"):
+        transfer_skin_colour(src, ref, skin, skin, sigma=2.0, colour="grey")
+
+
+# ----------------------------------------------------------------------------- occlusion
+@pytest.fixture(scope="module")
+def driver_face():
+    """A real face (FRL 004) at about a GRID face's size (~100 px wide), its landmarks and oval."""
+    from facetex._resources import sample_path
+    from facetex.geometry.skin import face_region_mask
+    from facetex.landmarks import detect_face, face_mesh468
+    from facetex.persona.composite import FACE_OVAL
+
+    img = cv2.imread(str(sample_path("frl_004_neutral.jpg")))[..., ::-1].astype(np.float32) / 255.0
+    f = detect_face(img)
+    mesh = face_mesh468(img, f)
+    k = 100.0 / np.linalg.norm(f.points68[16] - f.points68[0])
+    small = cv2.resize(img, None, fx=k, fy=k, interpolation=cv2.INTER_AREA)
+    p = (f.points68 + 0.5) * k - 0.5
+    oval = (mesh[list(FACE_OVAL), :2] + 0.5) * k - 0.5
+    region = face_region_mask(p, small.shape, mesh=(mesh + 0.5) * k - 0.5)
+    return small, p, oval, region
+
+
+def _fringe(img, p, region):
+    """The image with a dark-brown fringe over the forehead down to just above the brows."""
+    band = region.copy()
+    band[int(p[17:27, 1].min() - 4):] = False
+    out = img.copy()
+    out[band] = (0.2, 0.13, 0.08)
+    return out, band
+
+
+def test_occlusion_mask_finds_a_fringe_and_not_the_features_or_a_mole(driver_face):
+    img, p, _, region = driver_face
+    hair, band = _fringe(img, p, region)
+    c = np.round(p[[2, 31, 41, 48]].mean(0)).astype(int)
+    hair[c[1] - 1:c[1] + 1, c[0] - 1:c[0] + 1] = (0.25, 0.15, 0.1)  # a mole on the cheek
+    skin, feats = skin_pixels(hair, p, region)
+    occ = occlusion_mask(region, skin, feats, p)
+    assert occ.dtype == np.float32 and occ.shape == region.shape
+    assert occ[band].mean() > 0.95  # the fringe stays in front
+    assert occ[c[1] - 3:c[1] + 4, c[0] - 3:c[0] + 4].max() == 0.0  # the mole is skin
+    for i in (37, 44, 51, 57, 33):  # eyes, mouth, nose: the puppet replaces them
+        x, y = np.round(p[i]).astype(int)
+        assert occ[y, x] == 0.0
+    assert occ[~region].max() == 0.0
+    # the same face without a fringe: nothing occludes it
+    skin0, feats0 = skin_pixels(img, p, region)
+    assert occlusion_mask(region, skin0, feats0, p).mean() < 0.01
+
+
+def test_composite_keeps_the_drivers_fringe_in_front(driver_face):
+    img, p, oval, region = driver_face
+    hair, band = _fringe(img, p, region)
+    puppet = np.empty_like(img)
+    puppet[:] = (0.45, 0.3, 0.22)  # a darker persona
+    coverage = region.astype(np.float32)
+    kw = dict(driver_oval=oval, driver_points68=p)
+    out, alpha = composite_face(hair, puppet, coverage, None, params=CompositeParams(mouth=False), **kw)
+    off = composite_face(hair, puppet, coverage, None, params=CompositeParams(mouth=False, occlusion=False), **kw)[1]
+    # the part of the fringe the puppet would cover without the occlusion mask (inside the outline)
+    covered = band & (cv2.erode(band.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0) & (off > 0.9)
+    assert covered.sum() > 100
+    assert alpha[covered].max() < 0.02
+    np.testing.assert_allclose(out[covered], hair[covered], atol=0.02)
+    c = np.round(p[[2, 31, 41, 48]].mean(0)).astype(int)
+    assert alpha[c[1], c[0]] > 0.99  # the cheeks are the puppet's
 
 
 # ----------------------------------------------------------------------------- lighting
