@@ -106,7 +106,9 @@ class PuppetParams:
     axis in face / composite mode (anti-aliased silhouette; in composite mode the feathered
     driver outline is the edge, and the texture is low-passed to the pixel spacing either way);
     mouth_rest: the puppet's mean lip gap set to the driver's (module doc); lip_sync: the
-    puppet's lip and jaw landmarks follow the driver's (:meth:`Puppeteer.grid`);
+    puppet's lip and jaw landmarks follow the driver's (:meth:`Puppeteer.grid`); eye_rest: eyes
+    narrower than the driver's are opened to the driver's mean lid gap (scaled), lid_sync: the
+    puppet's eyelids follow the driver's (blinks; :meth:`Puppeteer.grid`);
     max_depth_error: a reconstructed average depth whose RMS
     difference to the generic face exceeds this fraction of the frame width is replaced by
     the generic depth (too few or too uniformly lit photos); shape "generic" skips the
@@ -133,6 +135,8 @@ class PuppetParams:
     supersample_composite: int = 1
     mouth_rest: bool = True
     lip_sync: bool = True
+    eye_rest: bool = True
+    lid_sync: bool = True
     max_depth_error: float = 0.08
     shape: str = "collection"
     shape_photos: int = 128
@@ -369,6 +373,14 @@ class Puppeteer:
             self.lip_fields = LipFields(self.mean68, self.puppet_grid[..., :2])
             self.lip_scale = _iod49(persona.mean_fiducials) / max(motion.iod, 1e-9)
         self.rest_move = self._rest_motion() if params.mouth_rest and self.lip_fields is not None else None
+        self.lid_fields, self.eye_move = None, None
+        if self.motion.fiducials68 is not None and (params.eye_rest or params.lid_sync):
+            from .driver import LidFields, _iod49
+
+            self.lid_fields = LidFields(self.mean68, self.puppet_grid[..., :2])
+            self.lid_scale = _iod49(persona.mean_fiducials) / max(motion.iod, 1e-9)
+            if params.eye_rest:
+                self.eye_move = self._eye_rest_motion()
 
     @property
     def puppet_average(self) -> np.ndarray:
@@ -396,6 +408,35 @@ class Puppeteer:
         move[[5, 6, 10, 11]] = lower / 2
         return move
 
+    def _eye_rest_motion(self) -> np.ndarray:
+        """(68, 2) constant motion of the puppet's eyelid landmarks that opens each lid pair whose
+        mean gap is smaller than the driver's mean gap (scaled by the ratio of eye distances) to
+        that gap, 70 % by the upper lid. Why: LFW collections' mean eyes are narrow (news photos:
+        squints, smiles, flash; eye aspect ratio 0.21-0.29 against 0.31-0.34 of GRID speakers), and
+        a puppet whose eyes are a third narrower than the driver's reads as half shut."""
+        from .driver import _LOWER_LIDS, _UPPER_LIDS
+
+        m = self.motion
+        P = self.mean68
+        D = m.fiducials68[m.found].mean(axis=0)
+        move = np.zeros((68, 2))
+        for up, lo in zip(_UPPER_LIDS, _LOWER_LIDS):
+            change = max(0.0, self.lid_scale * (D[lo, 1] - D[up, 1]) - (P[lo, 1] - P[up, 1]))
+            move[up, 1] -= 0.7 * change
+            move[lo, 1] += 0.3 * change
+        return move
+
+    def target(self, i: int) -> np.ndarray:
+        """F^T (49, 2) of frame i for the texture weights: :func:`target_fiducials` with the
+        eyelids' rest motion (:meth:`_eye_rest_motion`), so the eye region's photos are chosen
+        with the eyes as open as the mesh shows them."""
+        f = target_fiducials(self.persona, self.motion, i)
+        if self.eye_move is not None:
+            from ..landmarks import POINTS49_INDEX
+
+            f = f + self.eye_move[POINTS49_INDEX]
+        return f
+
     def _sample_grid(self, grid: np.ndarray, points: np.ndarray) -> np.ndarray:
         """Bilinear samples (P, 3) of a (h, w, 3) grid at canonical (x, y) ``points`` (P, 2)."""
         st = self.motion.grid_step
@@ -414,6 +455,7 @@ class Puppeteer:
         close further than the puppet's mouth band is tall meet instead of folding the grid over
         (:func:`facetex.persona.driver.unfold_columns`)."""
         g = self.transfer(self.motion.delta_field(i))
+        g = self._lids(i, g)
         if self.lip_fields is None:
             return g
         move = np.zeros((68, 2))
@@ -430,6 +472,26 @@ class Puppeteer:
             g[..., c] += lf[..., c] * self.puppet_mask
         # lips that meet (or whose landmarks cross) must not fold the grid over: stair steps
         return unfold_columns(g, self.puppet_mask)
+
+    def _lids(self, i: int, g: np.ndarray) -> np.ndarray:
+        """The grid ``g`` with the puppet's eyelid landmarks moved as the driver's (scaled by the
+        ratio of eye distances) on top of the eyes' rest motion (:class:`facetex.persona.driver.LidFields`):
+        the deformation transfer's smoothing all but removes a blink's 2-4 px lid motion."""
+        if self.lid_fields is None:
+            return g
+        move = np.zeros((68, 2))
+        if self.params.lid_sync:
+            m = self.motion
+            want = self.lid_scale * (m.fiducials68[i] - m.fiducials68[m.found].mean(axis=0))
+            have = self._sample_grid(g - self.puppet_grid, self.mean68)[:, :2]
+            move += want - have
+        if self.eye_move is not None:
+            move += self.eye_move
+        g = g.copy()
+        lf = self.lid_fields(move)
+        for c in range(2):
+            g[..., c] += lf[..., c] * self.puppet_mask
+        return g
 
     def mesh(self, i: int) -> np.ndarray:
         """Puppet vertices (V, 3) in its canonical frame for frame i (the grid's mask vertices)."""
@@ -448,7 +510,7 @@ class Puppeteer:
             from .texture import blend_weights
 
             return list(blend_weights(self.persona, self.sequence_weights()[frames], params=tp))
-        f = [target_fiducials(self.persona, self.motion, i) for i in frames]
+        f = [self.target(i) for i in frames]
         return neutral_textures(self.persona, f, method=method, params=tp)
 
     def uses_sequence_weights(self, method: str | None = None) -> bool:
@@ -464,7 +526,7 @@ class Puppeteer:
             from .texture import sequence_weights
 
             fps = float(self.track.fps) if self.track is not None and self.track.fps else 25.0
-            f = np.stack([target_fiducials(self.persona, self.motion, i) for i in range(len(self.motion))])
+            f = np.stack([self.target(i) for i in range(len(self.motion))])
             self._sequence_weights = sequence_weights(self.persona, f, self.params.texture_params(),
                                                       sigma_frames=self.params.weight_smoothing * fps,
                                                       range_scale=self.params.weight_range)

@@ -137,6 +137,14 @@ class TextureParams:
     max_photos: int | None = 32
     weights: str = "regional"
     neighbours: int | tuple = 3
+    detail: tuple = (("eyes", 6.0, 5), ("face", 2.0, 2))
+
+    def detail_of(self, region: str) -> tuple[float, int]:
+        """(power, levels) of ``region``'s detail weights (:attr:`detail`; (1, 0): none)."""
+        for name, power, levels in self.detail:
+            if name == region:
+                return float(power), int(levels)
+        return 1.0, 0
 
     @property
     def alpha_(self) -> float:
@@ -656,8 +664,19 @@ class _Prepared:
               for j in range(R if regional else 1)]
         sums = [w.sum(axis=-1) for w in Wn]  # the kept weights sum to 1 (with the uniform term)
         # one (sparse when that pays off) matrix per region; each level only rescales its rows
-        mats = [_csr(w.astype(np.float32)) if np.count_nonzero(w) < 0.5 * w.size else w.astype(np.float32)
-                for w in Wn]
+        def matrix(w):
+            return _csr(w.astype(np.float32)) if np.count_nonzero(w) < 0.5 * w.size else w.astype(np.float32)
+
+        mats = [matrix(w) for w in Wn]
+        # the finest levels of a region take its detail weights (same totals, so the same scale)
+        fine = [(0, mats[j]) for j in range(len(Wn))]
+        if regional:
+            from .weights import detail_weights
+
+            for j, name in enumerate(self.regions):
+                power, nlev = self.tp.detail_of(name)
+                if nlev > 0 and power != 1:
+                    fine[j] = (nlev, matrix(detail_weights(Wn[j], power)))
         bands = []
         for k in range(p):
             lvl = p - 1 - k  # paper's l
@@ -681,7 +700,7 @@ class _Prepared:
                     else:
                         acc = np.zeros((B, seg.stack.shape[1]), np.float32)
                         for mj, j in zip(seg.masks, seg.regions):
-                            num = mats[j] @ seg.stack
+                            num = (fine[j][1] if k < fine[j][0] else mats[j]) @ seg.stack
                             num *= scale[j]
                             if u > 0:
                                 num += ucoef[j] * st
