@@ -119,7 +119,13 @@ class TextureParams:
     high-frequency energy, i.e. JPEG blocks, noise and harsh light, and costs 0.015-0.025
     leave-out SSIM); min_level_side: the pyramid's coarsest level (px, smaller side);
     mirror_weight / face_support / visibility_floor: the per-photo confidence
-    (:func:`facetex.geometry.frontalize.fill_confidence`); regions: the weight regions."""
+    (:func:`facetex.geometry.frontalize.fill_confidence`); regions: the weight regions;
+    detail: (region, power, levels): the finest ``levels`` pyramid levels of ``region`` blend its
+    weights raised to ``power`` (:func:`facetex.persona.weights.detail_weights`: the detail
+    bands from the few photos nearest the expression, the coarse ones from the broad average;
+    the eyes' whole expression-weighted pyramid, the rest of the face's two finest bands);
+    eye_quality: exponent of each photo's eye-detail confidence in the eyes' detail weights
+    (:meth:`_Prepared.eye_quality`; 0: none)."""
 
     sigma: float = 10.0
     alpha: float | None = None
@@ -137,7 +143,8 @@ class TextureParams:
     max_photos: int | None = 32
     weights: str = "regional"
     neighbours: int | tuple = 3
-    detail: tuple = (("eyes", 6.0, 5), ("face", 2.0, 2))
+    detail: tuple = (("eyes", 8.0, 5), ("face", 2.0, 2))
+    eye_quality: float = 3.0
 
     def detail_of(self, region: str) -> tuple[float, int]:
         """(power, levels) of ``region``'s detail weights (:attr:`detail`; (1, 0): none)."""
@@ -675,8 +682,9 @@ class _Prepared:
 
             for j, name in enumerate(self.regions):
                 power, nlev = self.tp.detail_of(name)
-                if nlev > 0 and power != 1:
-                    fine[j] = (nlev, matrix(detail_weights(Wn[j], power)))
+                q = self.eye_quality() if name == "eyes" and self.tp.eye_quality > 0 else None
+                if nlev > 0 and (power != 1 or q is not None):
+                    fine[j] = (nlev, matrix(detail_weights(Wn[j], power, q)))
         bands = []
         for k in range(p):
             lvl = p - 1 - k  # paper's l
@@ -712,6 +720,52 @@ class _Prepared:
                         ob[seg.cols] = t
             bands.append(_unpremultiply(out.reshape(B, h, w, 4)))
         return np.stack([collapse_pyramid([b[j] for b in bands]) for j in range(B)])
+
+    #: pyramid levels (finest = 0) whose band energy measures a photo's eye detail: 2-8 px
+    #: structures (lids, iris against the whites) at the 192 x 240 canonical frame
+    QUALITY_LEVELS = (1, 2)
+
+    def eye_quality(self) -> np.ndarray:
+        """(n,) detail confidence of each photo's eyes: its band energy (levels
+        :data:`QUALITY_LEVELS`, RGB, confidence-weighted) inside both eyes' outlines (grown by
+        0.1 IOD) over the collection's median, to the power ``tp.eye_quality`` / 2 (the band's
+        amplitude to the power ``eye_quality``), clipped to [1/4, 4]. Open, sharp eyes with visible
+        whites and iris have the most energy there; shut, blurred or shadowed ones the least
+        (the per-pixel L^alpha of Eq. 2 favoured JPEG blocks and noise: one number per photo over
+        the eyes does not). Computed from the stacks once."""
+        key = ("eye_quality", self.tp.eye_quality)
+        if key not in self._stage:
+            from .composite import polygon_mask
+
+            p = self.points68
+            iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
+            H, W = self.shape
+            m = np.maximum(polygon_mask(p[36:42], (H, W)), polygon_mask(p[42:48], (H, W))) > 0.5
+            r = max(1, int(round(0.1 * iod)))
+            m = cv2.dilate(m.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2))
+            m = m.astype(np.float32)
+            num = np.zeros(self.n)
+            den = np.zeros(self.n)
+            for k in range(self.levels):
+                if k > 0:
+                    m = cv2.resize(m, self.level_shapes[k][::-1], interpolation=cv2.INTER_AREA)
+                if k not in self.QUALITY_LEVELS:
+                    continue
+                inside = m.reshape(-1) > 0.25
+                for seg in self.segments[k]:
+                    sel = inside[seg.pixels]
+                    if not sel.any():
+                        continue
+                    rows = seg.stack.reshape(self.n, -1, 4)[:, sel].astype(np.float64)
+                    c = rows[..., 3]
+                    band2 = (rows[..., :3] ** 2).sum(-1) / np.maximum(c, 1e-6)  # |band|^2 c from (band c)^2 / c
+                    num += band2.sum(-1)
+                    den += c.sum(-1)
+            e = num / np.maximum(den, 1e-12)
+            med = float(np.median(e)) if np.median(e) > 0 else 1.0
+            q = np.clip((e / med) ** (self.tp.eye_quality / 2.0), 0.25, 4.0)
+            self._stage[key] = q
+        return self._stage[key]
 
     @property
     def pyr(self) -> list[np.ndarray]:

@@ -396,3 +396,63 @@ def test_puppeteer_weight_smoothing_zero_is_per_frame(driver_video, tiny_persona
     assert W.shape[0] == len(pup.motion)
     smoothed = pup.textures(frames)
     assert all(np.isfinite(t).all() and t.shape == per_frame[0].shape for t in smoothed)
+
+
+def test_puppet_lids_follow_the_drivers_and_narrow_eyes_open(driver_video, tiny_persona):
+    """The puppet's eyelid gaps (its mesh, canonical px) follow the driver's scaled by the ratio of
+    eye distances (slope ~1), and are at least the driver's mean gap (eye rest); without lid sync
+    and eye rest they do not follow."""
+    from facetex.persona.driver import _LOWER_LIDS, _UPPER_LIDS, DriverParams
+    from facetex.persona.puppet import PuppetParams, prepare_puppetry
+
+    def gaps(params):
+        session = prepare_puppetry(driver_video, tiny_persona, params=params)
+        pup, m = session.puppeteer, session.motion
+        frames = np.flatnonzero(m.found)
+        k = pup.lid_scale if pup.lid_fields is not None else pup.lip_scale
+
+        def gap(points):
+            return np.mean([points[b, 1] - points[a, 1] for a, b in zip(_UPPER_LIDS, _LOWER_LIDS)])
+
+        drv = np.array([k * gap(m.fiducials68[i]) for i in frames])
+        pp = np.array([gap(pup._sample_grid(pup.grid(i), pup.mean68)[:, :2]) for i in frames])
+        return drv, pp, gap(pup.mean68)
+
+    grid1 = DriverParams(grid_step=1)
+    drv, pp, rest = gaps(PuppetParams(driver=grid1))
+    assert drv.std() > 0.2  # the driver's eyes narrow in its smile
+    assert np.polyfit(drv, pp, 1)[0] == pytest.approx(1.0, abs=0.15)
+    assert pp.mean() >= min(drv.mean(), rest) - 0.1
+    _, off, _ = gaps(PuppetParams(driver=grid1, lid_sync=False, eye_rest=False))
+    assert np.polyfit(drv, off, 1)[0] < 0.9 or off.std() < 0.8 * drv.std()
+
+
+def test_eye_quality_ranks_a_photo_with_flat_eyes_last_and_detail_weights_are_optional(tiny_persona):
+    import dataclasses
+
+    from facetex.persona import texture as tx
+
+    tp = tx.TextureParams()
+    prep = tx.prepare_persona(tiny_persona, tp)
+    q = prep.eye_quality()
+    assert q.shape == (len(tiny_persona),) and np.all((q >= 0.25) & (q <= 4.0))
+    import copy
+
+    prep2 = copy.copy(prep)
+    prep2._stage = {}
+    prep2.segments = [[copy.copy(seg) for seg in segs] for segs in prep.segments]
+    for k in prep.QUALITY_LEVELS:  # photo 0's eye bands flattened to 10 %
+        for seg in prep2.segments[k]:
+            seg.stack = seg.stack.copy()
+            r = seg.stack[0].reshape(-1, 4)
+            r[:, :3] *= 0.1
+    q2 = prep2.eye_quality()
+    assert np.argmin(q2) == 0 and q2[0] < q[0]
+    # detail off: the blend is the plain regional blend; on: it differs only where the eyes and face are
+    f = tiny_persona.fiducials[:2]
+    plain = tx.blend_textures(tiny_persona, f, params=dataclasses.replace(tp, detail=(), eye_quality=0))
+    sharp = tx.blend_textures(tiny_persona, f, params=tp)
+    assert np.abs(plain - sharp).max() > 1e-3
+    off = tx.blend_textures(tiny_persona, f, params=dataclasses.replace(tp, detail=(("eyes", 1.0, 5),),
+                                                                         eye_quality=0))
+    np.testing.assert_allclose(off, plain, atol=1e-6)
