@@ -144,7 +144,7 @@ class TextureParams:
     weights: str = "regional"
     neighbours: int | tuple = 3
     detail: tuple = (("eyes", 8.0, 5), ("face", 2.0, 2))
-    eye_quality: float = 3.0
+    eye_quality: float = 1.5
 
     def detail_of(self, region: str) -> tuple[float, int]:
         """(power, levels) of ``region``'s detail weights (:attr:`detail`; (1, 0): none)."""
