@@ -44,6 +44,15 @@ leave-out numbers from ``facetex bench persona`` on the LFW Bush and Blair colle
   this removes the oval seam of the fill from the blend); 0.25 outside the photo's own face
   outline (collar, flags and background no longer leak into the chin and cheeks).
 - Outside the face (grown by 0.3 IOD) the texture is the expression-independent average.
+- Detail weights (``TextureParams.detail``): the regional weights spread over 15-60 photos, and
+  their average has no iris, whites or lid line (eyes smudged, the puppet's eye region 0.15-0.3
+  of the driver's Laplacian variance). The eyes' expression-weighted levels blend the weights
+  raised to the 8th power (the same Gaussian, sigma / sqrt(8): 1-4 photos) times each photo's
+  eye-detail confidence (its eyes' band energy, Eq. 2's L^alpha as one number per photo:
+  open, sharp eyes first); the rest of the face's two finest levels the weights squared. The
+  coarse levels stay the broad average (colour and shading consistent). Leave-out SSIM pays
+  for it in the eyes (a sharp photo's eyes are not the held-out photo's; the average's blur
+  is closer in SSIM): measured in ``facetex bench persona``; the mouth region is unchanged.
 - The weights are normalised per level and region, the coarse uniform part is precomputed,
   and only photos with a weight count (a sparse product over pixel segments grouped by
   region): ~10-25 ms per target for 500 photos on one core.
