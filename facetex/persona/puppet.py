@@ -46,6 +46,13 @@ Beyond the paper, the puppet's lips start closed when the driver's are: the pers
 texture often has parted lips (its photos talk and smile), so a constant lip motion sets the
 puppet's mean lip gap to the driver's mean gap (scaled by the eye distances); the per-frame
 motion then opens and closes it like the driver's.
+
+Eyes likewise (``eye_rest``, ``lid_sync``): the eyelid landmarks follow the driver's
+(:class:`facetex.persona.driver.LidFields`; the deformation transfer's smoothing all but removed a
+blink), and a persona whose mean eyes are narrower than the driver's (LFW collections: eye aspect
+ratio 0.21-0.29 against 0.31-0.34 of the GRID speakers; the puppet's eyes read as half shut) has
+them opened to the driver's mean lid gap; the texture's eye-region weights see the opened lids
+(:meth:`Puppeteer.target`), so photos with open eyes are blended there.
 """
 
 from __future__ import annotations
