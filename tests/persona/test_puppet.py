@@ -454,5 +454,45 @@ def test_eye_quality_ranks_a_photo_with_flat_eyes_last_and_detail_weights_are_op
     sharp = tx.blend_textures(tiny_persona, f, params=tp)
     assert np.abs(plain - sharp).max() > 1e-3
     off = tx.blend_textures(tiny_persona, f, params=dataclasses.replace(tp, detail=(("eyes", 1.0, 5),),
-                                                                         eye_quality=0))
+                                                                         eye_quality=0, restore=()))
+    plain = tx.blend_textures(tiny_persona, f, params=dataclasses.replace(tp, detail=(), eye_quality=0, restore=()))
     np.testing.assert_allclose(off, plain, atol=1e-6)
+
+
+def test_detail_restoration_gives_the_blend_its_photos_band_energy(tiny_persona):
+    """The blend of 8 photos has less fine-band energy in the face than its photos; restoration
+    scales the band back to the photos' weighted mean energy (gain <= restore_gain), face and
+    eyes only; a single photo's "blend" is (nearly) left alone (gain ~1)."""
+    import dataclasses
+
+    from facetex.persona import texture as tx
+
+    import copy
+
+    base = dataclasses.replace(tx.TextureParams(), detail=(), eye_quality=0, restore=())
+    prep = copy.copy(tx.prepare_persona(tiny_persona, base))  # its tp is changed below
+    S = tx.target_weights(tiny_persona, tiny_persona.fiducials[:1], base)
+    S = np.full_like(S, 1.0)  # every photo alike: the widest average
+    k, j = 0, list(prep.regions).index("face")
+    m = prep.masks[k][j] > 0.99
+
+    def band0(tp):
+        prep.tp = tp
+        t = prep.blend_many(S)[0]
+        return t - cv2.pyrUp(cv2.pyrDown(t), dstsize=t.shape[1::-1])
+
+    e_plain = (band0(base) ** 2).sum(-1)[m].mean()
+    e_rest = (band0(dataclasses.replace(base, restore=(("face", 1),), restore_gain=100.0)) ** 2).sum(-1)[m].mean()
+    want = prep.band_energy()[k, j].mean()  # uniform weights: the photos' mean energy
+    assert e_plain < 0.95 * want  # the photos' detail partly cancels in their average
+    # restored (measured on the collapsed, clipped texture: the soft masks and the collapse mix a little)
+    assert e_rest > e_plain and e_rest == pytest.approx(want, rel=0.25)
+    capped = (band0(dataclasses.replace(base, restore=(("face", 1),), restore_gain=1.1)) ** 2).sum(-1)[m].mean()
+    assert capped <= 1.1**2 * e_plain * 1.05
+    one = np.zeros_like(S)
+    one[..., 3] = 1.0  # a single photo: nothing cancelled, gain 1
+    prep.tp = base
+    a = prep.blend_many(one)
+    prep.tp = dataclasses.replace(base, restore=(("face", 3), ("eyes", 3)))
+    d = np.abs(prep.blend_many(one) - a)
+    assert d.max() < 0.03 and d.mean() < 1e-3  # nearly: its confidence-weighted energy vs the plain mean
