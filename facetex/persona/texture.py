@@ -776,7 +776,8 @@ class _Prepared:
             m = self.masks[k].reshape(len(self.regions) + 1, -1)  # (R + 1, h * w), last the outside
             gain = np.zeros((B, h * w), np.float32)
             gain += m[-1][None]  # outside the face: unchanged
-            e2 = (b.reshape(B, -1, 3).astype(np.float64) ** 2).sum(-1)  # (B, h * w)
+            bb = b.reshape(B, -1, 3)
+            e2 = bb[..., 0] * bb[..., 0] + bb[..., 1] * bb[..., 1] + bb[..., 2] * bb[..., 2]  # (B, h * w)
             for j, name in enumerate(self.regions):
                 mj = m[j]
                 if k >= levels.get(name, 0):
@@ -786,11 +787,12 @@ class _Prepared:
                 Wj = Wj.toarray() if hasattr(Wj, "toarray") else np.asarray(Wj)
                 tot = Wj.sum(axis=1)
                 e_photos = (Wj @ E[k, j]) / np.maximum(tot, 1e-30)
-                e_blend = (e2 @ mj) / max(float(mj.sum()), 1e-12)
+                e_blend = (e2 @ mj).astype(np.float64) / max(float(mj.sum()), 1e-12)
                 g = np.sqrt(e_photos / np.maximum(e_blend, 1e-12))
                 g = np.clip(np.where(np.isfinite(g) & (tot > 0), g, 1.0), 1.0, self.tp.restore_gain)
                 gain += g.astype(np.float32)[:, None] * mj[None]
-            b *= gain.reshape(B, h, w, 1)
+            for c in range(3):  # per channel: numpy broadcasts over a length-3 axis slowly
+                b[..., c] *= gain.reshape(B, h, w)
 
     #: pyramid levels (finest = 0) whose band energy measures a photo's eye detail: 2-8 px
     #: structures (lids, iris against the whites) at the 192 x 240 canonical frame
