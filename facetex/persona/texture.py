@@ -733,7 +733,7 @@ class _Prepared:
                         ob[seg.cols] = t
             bands.append(_unpremultiply(out.reshape(B, h, w, 4)))
         if regional:
-            self._restore_detail(bands, [(f[0], f[1]) for f in fine], mats)
+            self._restore_detail(bands, fine, mats)
         return np.stack([collapse_pyramid([b[j] for b in bands]) for j in range(B)])
 
     def band_energy(self) -> np.ndarray:
@@ -745,17 +745,19 @@ class _Prepared:
             den = np.zeros((self.levels, R, self.n))
             for k, segs in enumerate(self.segments):
                 for seg in segs:
-                    rows = seg.stack.reshape(self.n, -1, 4)
-                    c = rows[..., 3].astype(np.float64)
-                    e = (rows[..., :3].astype(np.float64) ** 2).sum(-1) / np.maximum(c, 1e-6)  # (band c)^2 / c
-                    for mj, j in zip(seg.masks[:, ::4], seg.regions):
-                        num[k, j] += e @ mj
-                        den[k, j] += c @ mj
+                    for i0 in range(0, self.n, self.CHUNK):  # a chunk of photos at a time (memory)
+                        rows = seg.stack[i0:i0 + self.CHUNK].reshape(-1, len(seg.pixels), 4)
+                        c = rows[..., 3]
+                        e = (rows[..., 0] ** 2 + rows[..., 1] ** 2 + rows[..., 2] ** 2) / np.maximum(c, 1e-6)
+                        for mj, j in zip(seg.masks[:, ::4], seg.regions):  # (band c)^2 / c = |band|^2 c
+                            num[k, j, i0:i0 + len(rows)] += e @ mj
+                            den[k, j, i0:i0 + len(rows)] += c @ mj
             self._stage["band_energy"] = num / np.maximum(den, 1e-12)
         return self._stage["band_energy"]
 
     def _restore_detail(self, bands: list[np.ndarray], fine: list, mats: list) -> None:
-        """Detail restoration (``tp.restore``; in place on the (B, h, w, 3) ``bands``, finest first).
+        """Detail restoration (``tp.restore``; in place on the (B, h, w, 3) ``bands``, finest first;
+        ``fine``: per region (levels, weights) of the detail weights, ``mats`` the other levels').
 
         Averaging photos whose fine detail (pores, creases, lashes) is not aligned to the pixel
         cancels most of it: the blend's band energy is a fraction of what each photo has. Per
