@@ -47,12 +47,15 @@ leave-out numbers from ``facetex bench persona`` on the LFW Bush and Blair colle
 - Detail weights (``TextureParams.detail``): the regional weights spread over 15-60 photos, and
   their average has no iris, whites or lid line (eyes smudged, the puppet's eye region 0.15-0.3
   of the driver's Laplacian variance). The eyes' expression-weighted levels blend the weights
-  raised to the 8th power (the same Gaussian, sigma / sqrt(8): 1-4 photos) times each photo's
+  raised to the 4th power (the same Gaussian, sigma / 2: a few photos) times each photo's
   eye-detail confidence (its eyes' band energy, Eq. 2's L^alpha as one number per photo:
-  open, sharp eyes first); the rest of the face's two finest levels the weights squared. The
+  open, sharp eyes first); the rest of the face's two finest levels the weights squared, and
+  its bands up to 8 px get the photos' own band energy back (``restore``, gain <= 3). The
   coarse levels stay the broad average (colour and shading consistent). Leave-out SSIM pays
-  for it in the eyes (a sharp photo's eyes are not the held-out photo's; the average's blur
-  is closer in SSIM): measured in ``facetex bench persona``; the mouth region is unchanged.
+  for it (a sharp photo's eyes are not the held-out photo's; the average's blur is closer in
+  SSIM): on Hugo Chavez (50 photos) eyes gain over static +0.010 -> -0.026, face +0.016 ->
+  -0.011, mouth +0.032 -> +0.029 (the 8th power: eyes -0.05; restoring the eyes too: -0.012
+  more).
 - The weights are normalised per level and region, the coarse uniform part is precomputed,
   and only photos with a weight count (a sparse product over pixel segments grouped by
   region): ~10-25 ms per target for 500 photos on one core.
@@ -154,9 +157,9 @@ class TextureParams:
     max_photos: int | None = 32
     weights: str = "regional"
     neighbours: int | tuple = 3
-    detail: tuple = (("eyes", 8.0, 5), ("face", 2.0, 2))
+    detail: tuple = (("eyes", 4.0, 5), ("face", 2.0, 2))
     eye_quality: float = 1.5
-    restore: tuple = (("eyes", 3), ("face", 3))
+    restore: tuple = (("face", 3),)
     restore_gain: float = 3.0
 
     def detail_of(self, region: str) -> tuple[float, int]:
