@@ -72,6 +72,8 @@ __all__ = [
     "LipFields",
     "BrowFields",
     "brow_heights",
+    "LidFields",
+    "eye_openness",
     "unfold_columns",
     "MouthCorrection",
 ]
@@ -806,3 +808,78 @@ def driver_motion(track: DriverTrack, params: DriverParams = DriverParams(), *, 
                         mean_fiducials=fid[found].mean(axis=0), grid=grid, grid_mesh=gm, grid_step=st,
                         found=found.copy(), opening=mouth_opening(p68), points68=p68, anchors=anchors,
                         mouth=mouth, fiducials68=fid68, triangles=triangles, frontal_mean68=fid_mean)
+
+
+# eyelid landmarks (iBUG): per eye the corners, the upper lid and the lower lid (paired top-bottom)
+_EYES = (((36, 39), (37, 38), (41, 40)), ((42, 45), (43, 44), (47, 46)))
+_UPPER_LIDS = (37, 38, 43, 44)
+_LOWER_LIDS = (41, 40, 47, 46)
+#: what the lid splines hold still: eye corners, brows, nose, jaw line and mouth
+_LID_STILL = (36, 39, 42, 45) + tuple(range(0, 36)) + tuple(range(48, 68))
+
+
+def eye_openness(points68) -> np.ndarray:
+    """Eye aspect ratio (both eyes' mean of (|p1 - p5| + |p2 - p4|) / 2 |p0 - p3|, Soukupova and
+    Cech 2016) per face: (...,) for (..., 68, 2)."""
+    p = np.asarray(points68, np.float64)
+    out = 0.0
+    for (c0, c1), (u0, u1), (l0, l1) in _EYES:
+        h = np.linalg.norm(p[..., u0, :] - p[..., l0, :], axis=-1) + np.linalg.norm(p[..., u1, :] - p[..., l1, :],
+                                                                                    axis=-1)
+        w = np.linalg.norm(p[..., c0, :] - p[..., c1, :], axis=-1)
+        out = out + h / np.maximum(2.0 * w, 1e-9)
+    return out / 2.0
+
+
+class LidFields:
+    """Thin-plate-spline fields of eyelid motion on a grid, split at each eye's opening (the
+    eyes' counterpart of :class:`LipFields`).
+
+    ``mean68`` (68, 2) the face's mean landmarks, ``grid_xy`` (h, w, 2) grid positions (same
+    frame). :meth:`__call__` takes motions (68, 2) of the landmarks (only the upper and lower
+    lid points 37, 38, 43, 44 / 41, 40, 47, 46 are read; eye corners, brows, nose, jaw and mouth
+    are held still) and returns the (h, w, 2) field: the upper lids' spline above the upper lid
+    contour, the lower lids' below the lower contour, and across each eye's opening a linear
+    blend, so a lid closes over the eye (a blink) instead of the whole eye region sliding.
+    """
+
+    def __init__(self, mean68: np.ndarray, grid_xy: np.ndarray, smoothing: float = 1.0):
+        from scipy.interpolate import RBFInterpolator
+
+        p = np.asarray(mean68, np.float64)
+        self.shape = grid_xy.shape[:2]
+        g = np.asarray(grid_xy, np.float64).reshape(-1, 2)
+        ops = []
+        for moving in (_UPPER_LIDS, _LOWER_LIDS):
+            idx = list(moving) + list(_LID_STILL)
+            rbf = RBFInterpolator(p[idx], np.eye(len(idx)), kernel="thin_plate_spline", smoothing=smoothing)
+            ops.append((np.asarray(moving), rbf(g)[:, : len(moving)].astype(np.float32)))
+        self.upper, self.lower = ops
+        # weight of the lower field: 0 above an eye's upper lid, 1 below its lower lid, linear across
+        # the opening; away from the eyes a sigmoid about the eyes' mid line (the fields vanish there)
+        x, y = g[:, 0], g[:, 1]
+        side = None
+        dist = np.full(len(g), np.inf)
+        for (c0, c1), (u0, u1), (l0, l1) in _EYES:
+            ux, uy = p[[c0, u0, u1, c1], 0], p[[c0, u0, u1, c1], 1]
+            lx, ly = p[[c0, l0, l1, c1], 0], p[[c0, l0, l1, c1], 1]
+            y_up = np.interp(x, *_increasing(ux, uy))
+            y_lo = np.interp(x, *_increasing(lx, ly))
+            band = np.maximum(y_lo - y_up, 0.5)
+            inside = np.clip((y - y_up) / band, 0.0, 1.0)
+            outside = np.maximum(0.0, np.maximum(min(ux) - x, x - max(ux)))
+            sig = 1.0 / (1.0 + np.exp(-np.clip((y - (y_up + y_lo) / 2) / (0.3 + 0.5 * outside), -50, 50)))
+            this = np.where(outside > 0, sig, inside)
+            near = outside < dist  # each grid point follows its nearer eye
+            side = this if side is None else np.where(near, this, side)
+            dist = np.minimum(dist, outside)
+        self.side = side.astype(np.float32)
+
+    def __call__(self, motion68) -> np.ndarray:
+        (mu, ou), (ml, ol) = self.upper, self.lower
+        r = np.asarray(motion68, np.float32)
+        up, lo = ou @ r[mu], ol @ r[ml]
+        out = np.empty(up.shape, np.float32)
+        for c in range(2):  # per column: numpy broadcasts over a length-2 axis slowly
+            out[:, c] = up[:, c] + self.side * (lo[:, c] - up[:, c])
+        return out.reshape(self.shape + (2,))

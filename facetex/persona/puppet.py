@@ -46,6 +46,13 @@ Beyond the paper, the puppet's lips start closed when the driver's are: the pers
 texture often has parted lips (its photos talk and smile), so a constant lip motion sets the
 puppet's mean lip gap to the driver's mean gap (scaled by the eye distances); the per-frame
 motion then opens and closes it like the driver's.
+
+Eyes likewise (``eye_rest``, ``lid_sync``): the eyelid landmarks follow the driver's
+(:class:`facetex.persona.driver.LidFields`; the deformation transfer's smoothing all but removed a
+blink), and a persona whose mean eyes are narrower than the driver's (LFW collections: eye aspect
+ratio 0.21-0.29 against 0.31-0.34 of the GRID speakers; the puppet's eyes read as half shut) has
+them opened to the driver's mean lid gap; the texture's eye-region weights see the opened lids
+(:meth:`Puppeteer.target`), so photos with open eyes are blended there.
 """
 
 from __future__ import annotations
@@ -106,7 +113,9 @@ class PuppetParams:
     axis in face / composite mode (anti-aliased silhouette; in composite mode the feathered
     driver outline is the edge, and the texture is low-passed to the pixel spacing either way);
     mouth_rest: the puppet's mean lip gap set to the driver's (module doc); lip_sync: the
-    puppet's lip and jaw landmarks follow the driver's (:meth:`Puppeteer.grid`);
+    puppet's lip and jaw landmarks follow the driver's (:meth:`Puppeteer.grid`); eye_rest: eyes
+    narrower than the driver's are opened to the driver's mean lid gap (scaled), lid_sync: the
+    puppet's eyelids follow the driver's (blinks; :meth:`Puppeteer.grid`);
     max_depth_error: a reconstructed average depth whose RMS
     difference to the generic face exceeds this fraction of the frame width is replaced by
     the generic depth (too few or too uniformly lit photos); shape "generic" skips the
@@ -135,6 +144,8 @@ class PuppetParams:
     lip_sync: bool = True
     brow_rest: bool = True
     brow_sync: bool = True
+    eye_rest: bool = True
+    lid_sync: bool = True
     max_depth_error: float = 0.08
     shape: str = "collection"
     shape_photos: int = 128
@@ -379,6 +390,14 @@ class Puppeteer:
             self.brow_scale = _iod49(persona.mean_fiducials) / max(motion.iod, 1e-9)
             if params.brow_rest:
                 self.brow_rest = self._brow_rest_motion()
+        self.lid_fields, self.eye_move = None, None
+        if self.motion.fiducials68 is not None and (params.eye_rest or params.lid_sync):
+            from .driver import LidFields, _iod49
+
+            self.lid_fields = LidFields(self.mean68, self.puppet_grid[..., :2])
+            self.lid_scale = _iod49(persona.mean_fiducials) / max(motion.iod, 1e-9)
+            if params.eye_rest:
+                self.eye_move = self._eye_rest_motion()
 
     @property
     def puppet_average(self) -> np.ndarray:
@@ -430,6 +449,35 @@ class Puppeteer:
             move[17:27][side] = (np.polyval(ld, xp[side]) - np.polyval(lp, xp[side]))[:, None] * up
         return move
 
+    def _eye_rest_motion(self) -> np.ndarray:
+        """(68, 2) constant motion of the puppet's eyelid landmarks that opens each lid pair whose
+        mean gap is smaller than the driver's mean gap (scaled by the ratio of eye distances) to
+        that gap, 70 % by the upper lid. Why: LFW collections' mean eyes are narrow (news photos:
+        squints, smiles, flash; eye aspect ratio 0.21-0.29 against 0.31-0.34 of GRID speakers), and
+        a puppet whose eyes are a third narrower than the driver's reads as half shut."""
+        from .driver import _LOWER_LIDS, _UPPER_LIDS
+
+        m = self.motion
+        P = self.mean68
+        D = m.fiducials68[m.found].mean(axis=0)
+        move = np.zeros((68, 2))
+        for up, lo in zip(_UPPER_LIDS, _LOWER_LIDS):
+            change = max(0.0, self.lid_scale * (D[lo, 1] - D[up, 1]) - (P[lo, 1] - P[up, 1]))
+            move[up, 1] -= 0.7 * change
+            move[lo, 1] += 0.3 * change
+        return move
+
+    def target(self, i: int) -> np.ndarray:
+        """F^T (49, 2) of frame i for the texture weights: :func:`target_fiducials` with the
+        eyelids' rest motion (:meth:`_eye_rest_motion`), so the eye region's photos are chosen
+        with the eyes as open as the mesh shows them."""
+        f = target_fiducials(self.persona, self.motion, i)
+        if self.eye_move is not None:
+            from ..landmarks import POINTS49_INDEX
+
+            f = f + self.eye_move[POINTS49_INDEX]
+        return f
+
     def _sample_grid(self, grid: np.ndarray, points: np.ndarray) -> np.ndarray:
         """Bilinear samples (P, 3) of a (h, w, 3) grid at canonical (x, y) ``points`` (P, 2)."""
         st = self.motion.grid_step
@@ -450,6 +498,7 @@ class Puppeteer:
         brow landmarks relative to the eye corners (:class:`facetex.persona.driver.BrowFields`; the
         face mesh moved them 0.2-0.4x as far), from the brow rest (:meth:`_brow_rest_motion`)."""
         g = self.transfer(self.motion.delta_field(i))
+        g = self._lids(i, g)
         if self.lip_fields is None and self.brow_fields is None:
             return g
         m = self.motion
@@ -486,6 +535,26 @@ class Puppeteer:
         # lips that meet (or whose landmarks cross) must not fold the grid over: stair steps
         return unfold_columns(g, self.puppet_mask)
 
+    def _lids(self, i: int, g: np.ndarray) -> np.ndarray:
+        """The grid ``g`` with the puppet's eyelid landmarks moved as the driver's (scaled by the
+        ratio of eye distances) on top of the eyes' rest motion (:class:`facetex.persona.driver.LidFields`):
+        the deformation transfer's smoothing all but removes a blink's 2-4 px lid motion."""
+        if self.lid_fields is None:
+            return g
+        move = np.zeros((68, 2))
+        if self.params.lid_sync:
+            m = self.motion
+            want = self.lid_scale * (m.fiducials68[i] - m.fiducials68[m.found].mean(axis=0))
+            have = self._sample_grid(g - self.puppet_grid, self.mean68)[:, :2]
+            move += want - have
+        if self.eye_move is not None:
+            move += self.eye_move
+        g = g.copy()
+        lf = self.lid_fields(move)
+        for c in range(2):
+            g[..., c] += lf[..., c] * self.puppet_mask
+        return g
+
     def mesh(self, i: int) -> np.ndarray:
         """Puppet vertices (V, 3) in its canonical frame for frame i (the grid's mask vertices)."""
         return self.grid(i)[self.puppet_mask]
@@ -503,7 +572,7 @@ class Puppeteer:
             from .texture import blend_weights
 
             return list(blend_weights(self.persona, self.sequence_weights()[frames], params=tp))
-        f = [target_fiducials(self.persona, self.motion, i) for i in frames]
+        f = [self.target(i) for i in frames]
         return neutral_textures(self.persona, f, method=method, params=tp)
 
     def uses_sequence_weights(self, method: str | None = None) -> bool:
@@ -519,7 +588,7 @@ class Puppeteer:
             from .texture import sequence_weights
 
             fps = float(self.track.fps) if self.track is not None and self.track.fps else 25.0
-            f = np.stack([target_fiducials(self.persona, self.motion, i) for i in range(len(self.motion))])
+            f = np.stack([self.target(i) for i in range(len(self.motion))])
             self._sequence_weights = sequence_weights(self.persona, f, self.params.texture_params(),
                                                       sigma_frames=self.params.weight_smoothing * fps,
                                                       range_scale=self.params.weight_range)

@@ -637,7 +637,8 @@ def test_segmented_sparse_blend_equals_the_dense_formula(persona, monkeypatch):
     import facetex.persona.texture as tx
 
     monkeypatch.setattr(tx, "SPARSE_MASS", 1.0)
-    tp = TextureParams(max_photos=None)
+    plain = dict(detail=(), eye_quality=0, restore=())  # the Eq. 3 blend itself (no detail weights)
+    tp = TextureParams(max_photos=None, **plain)
     prep = tx.prepare_persona(persona, tp)
     S = tx.target_weights(persona, persona.fiducials[[2, 7]], tp)  # (2 targets, 3 regions, n)
     got = prep.blend_many(S)
@@ -659,5 +660,5 @@ def test_segmented_sparse_blend_equals_the_dense_formula(persona, monkeypatch):
     np.testing.assert_allclose(got, want, atol=2e-4)
     # cutting the smallest weights and capping the photos changes the blend only a little
     monkeypatch.setattr(tx, "SPARSE_MASS", 0.995)
-    cut = tx.prepare_persona(persona, TextureParams(max_photos=6)).blend_many(S)
+    cut = tx.prepare_persona(persona, TextureParams(max_photos=6, **plain)).blend_many(S)
     assert 0 < np.abs(cut - got).mean() < 0.02

@@ -446,6 +446,30 @@ def test_brow_fields_move_the_brows_and_hold_eyes_lips_and_hairline():
     move[17:22, 1] = -4.0  # right brow up
     move[22:27, 1] = np.linspace(-1.0, 3.0, 5)  # left brow tilted down towards its outer end
     move[36:68] = 50.0  # not brow points: ignored
+def test_eye_openness_hand_computed():
+    from facetex.persona.driver import eye_openness
+
+    p = np.zeros((68, 2))
+    for c0, u0, u1, c1, l1, l0 in ((36, 37, 38, 39, 40, 41), (42, 43, 44, 45, 46, 47)):
+        p[[c0, c1]] = [[0, 0], [10, 0]]  # eye 10 px wide
+        p[[u0, u1]] = [[3, -1], [7, -2]]
+        p[[l0, l1]] = [[3, 2], [7, 2]]  # lid gaps 3 and 4 px
+    assert eye_openness(p) == pytest.approx((3 + 4) / (2 * 10))
+    p[[43, 44], 1] = 2.0  # right eye shut: its ratio 0
+    assert eye_openness(p) == pytest.approx(0.35 / 2)
+    assert eye_openness(np.stack([p, p])).shape == (2,)
+
+
+def test_lid_fields_close_the_lids_and_hold_the_rest():
+    from facetex.persona.driver import LidFields
+
+    p = _generic68()
+    gy, gx = np.mgrid[0:400:2, 0:400:2].astype(float)
+    f = LidFields(p, np.stack([gx, gy], axis=-1))
+    move = np.zeros((68, 2))
+    move[[37, 38, 43, 44], 1] = +3.0  # upper lids down (a blink)
+    move[[41, 40, 47, 46], 1] = -1.0  # lower lids up a little
+    move[[48, 54, 8], 1] = 50.0  # not lid points: ignored
     field = f(move)
 
     def at(pt):
@@ -458,3 +482,9 @@ def test_brow_fields_move_the_brows_and_hold_eyes_lips_and_hairline():
     iod = np.linalg.norm(p[36:42].mean(axis=0) - p[42:48].mean(axis=0))
     assert np.abs(at(p[19] - [0, 0.6 * iod])).max() < 0.3  # the forehead fades back to still
     assert at(p[19] - [0, 0.2 * iod])[1] < -1.0  # skin just above the brow goes with it
+    for up, lo in ((37, 41), (38, 40), (43, 47), (44, 46)):
+        gap = p[lo, 1] - p[up, 1]
+        assert at(p[up] - [0, 0.2 * gap])[1] == pytest.approx(3.0, abs=0.8)  # just above the upper lid
+        assert at(p[lo] + [0, 0.2 * gap])[1] == pytest.approx(-1.0, abs=0.5)  # just below the lower lid
+    for still in (36, 39, 42, 45, 19, 24, 30, 48, 57, 8):  # eye corners, brows, nose, mouth, chin
+        assert np.abs(at(p[still])).max() < 0.3

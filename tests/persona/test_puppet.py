@@ -387,7 +387,7 @@ def test_puppeteer_weight_smoothing_zero_is_per_frame(driver_video, tiny_persona
     session = pp.prepare_puppetry(driver_video, tiny_persona, params=pp.PuppetParams(weight_smoothing=0.0))
     pup = session.puppeteer
     frames = [0, 3, 7]
-    per_frame = pp.neutral_textures(tiny_persona, [pp.target_fiducials(tiny_persona, pup.motion, i) for i in frames],
+    per_frame = pp.neutral_textures(tiny_persona, [pup.target(i) for i in frames],  # with the eyes' rest motion
                                     params=pup.params.texture_params())
     for a, b in zip(pup.textures(frames), per_frame):
         np.testing.assert_array_equal(a, b)
@@ -425,3 +425,103 @@ def test_brow_rest_gives_the_puppets_mean_brows_the_drivers_tilt_and_height():
     # the peak is kept: the puppet's middle point stays above its neighbours' line
     assert hp[2] - (hp[1] + hp[3]) / 2 > 0.02
     assert np.all(moved[:17] == pup[:17]) and np.all(moved[27:] == pup[27:])
+
+
+def test_puppet_lids_follow_the_drivers_and_narrow_eyes_open(driver_video, tiny_persona):
+    """The puppet's eyelid gaps (its mesh, canonical px) follow the driver's scaled by the ratio of
+    eye distances (slope ~1), and are at least the driver's mean gap (eye rest); without lid sync
+    and eye rest they do not follow."""
+    from facetex.persona.driver import _LOWER_LIDS, _UPPER_LIDS, DriverParams
+    from facetex.persona.puppet import PuppetParams, prepare_puppetry
+
+    def gaps(params):
+        session = prepare_puppetry(driver_video, tiny_persona, params=params)
+        pup, m = session.puppeteer, session.motion
+        frames = np.flatnonzero(m.found)
+        k = pup.lid_scale if pup.lid_fields is not None else pup.lip_scale
+
+        def gap(points):
+            return np.mean([points[b, 1] - points[a, 1] for a, b in zip(_UPPER_LIDS, _LOWER_LIDS)])
+
+        drv = np.array([k * gap(m.fiducials68[i]) for i in frames])
+        pp = np.array([gap(pup._sample_grid(pup.grid(i), pup.mean68)[:, :2]) for i in frames])
+        return drv, pp, gap(pup.mean68)
+
+    grid1 = DriverParams(grid_step=1)
+    drv, pp, rest = gaps(PuppetParams(driver=grid1))
+    assert drv.std() > 0.2  # the driver's eyes narrow in its smile
+    assert np.polyfit(drv, pp, 1)[0] == pytest.approx(1.0, abs=0.15)
+    assert pp.mean() >= min(drv.mean(), rest) - 0.1
+    _, off, _ = gaps(PuppetParams(driver=grid1, lid_sync=False, eye_rest=False))
+    assert np.polyfit(drv, off, 1)[0] < 0.9 or off.std() < 0.8 * drv.std()
+
+
+def test_eye_quality_ranks_a_photo_with_flat_eyes_last_and_detail_weights_are_optional(tiny_persona):
+    import dataclasses
+
+    from facetex.persona import texture as tx
+
+    tp = tx.TextureParams()
+    prep = tx.prepare_persona(tiny_persona, tp)
+    q = prep.eye_quality()
+    assert q.shape == (len(tiny_persona),) and np.all((q >= 0.25) & (q <= 4.0))
+    import copy
+
+    prep2 = copy.copy(prep)
+    prep2._stage = {}
+    prep2.segments = [[copy.copy(seg) for seg in segs] for segs in prep.segments]
+    for k in prep.QUALITY_LEVELS:  # photo 0's eye bands flattened to 10 %
+        for seg in prep2.segments[k]:
+            seg.stack = seg.stack.copy()
+            r = seg.stack[0].reshape(-1, 4)
+            r[:, :3] *= 0.1
+    q2 = prep2.eye_quality()
+    assert np.argmin(q2) == 0 and q2[0] < q[0]
+    # detail off: the blend is the plain regional blend; on: it differs only where the eyes and face are
+    f = tiny_persona.fiducials[:2]
+    plain = tx.blend_textures(tiny_persona, f, params=dataclasses.replace(tp, detail=(), eye_quality=0))
+    sharp = tx.blend_textures(tiny_persona, f, params=tp)
+    assert np.abs(plain - sharp).max() > 1e-3
+    off = tx.blend_textures(tiny_persona, f, params=dataclasses.replace(tp, detail=(("eyes", 1.0, 5),),
+                                                                         eye_quality=0, restore=()))
+    plain = tx.blend_textures(tiny_persona, f, params=dataclasses.replace(tp, detail=(), eye_quality=0, restore=()))
+    np.testing.assert_allclose(off, plain, atol=1e-6)
+
+
+def test_detail_restoration_gives_the_blend_its_photos_band_energy(tiny_persona):
+    """The blend of 8 photos has less fine-band energy in the face than its photos; restoration
+    scales the band back to the photos' weighted mean energy (gain <= restore_gain), face and
+    eyes only; a single photo's "blend" is (nearly) left alone (gain ~1)."""
+    import dataclasses
+
+    from facetex.persona import texture as tx
+
+    import copy
+
+    base = dataclasses.replace(tx.TextureParams(), detail=(), eye_quality=0, restore=())
+    prep = copy.copy(tx.prepare_persona(tiny_persona, base))  # its tp is changed below
+    S = tx.target_weights(tiny_persona, tiny_persona.fiducials[:1], base)
+    S = np.full_like(S, 1.0)  # every photo alike: the widest average
+    k, j = 0, list(prep.regions).index("face")
+    m = prep.masks[k][j] > 0.99
+
+    def band0(tp):
+        prep.tp = tp
+        t = prep.blend_many(S)[0]
+        return t - cv2.pyrUp(cv2.pyrDown(t), dstsize=t.shape[1::-1])
+
+    e_plain = (band0(base) ** 2).sum(-1)[m].mean()
+    e_rest = (band0(dataclasses.replace(base, restore=(("face", 1),), restore_gain=100.0)) ** 2).sum(-1)[m].mean()
+    want = prep.band_energy()[k, j].mean()  # uniform weights: the photos' mean energy
+    assert e_plain < 0.95 * want  # the photos' detail partly cancels in their average
+    # restored (measured on the collapsed, clipped texture: the soft masks and the collapse mix a little)
+    assert e_rest > e_plain and e_rest == pytest.approx(want, rel=0.25)
+    capped = (band0(dataclasses.replace(base, restore=(("face", 1),), restore_gain=1.1)) ** 2).sum(-1)[m].mean()
+    assert capped <= 1.1**2 * e_plain * 1.05
+    one = np.zeros_like(S)
+    one[..., 3] = 1.0  # a single photo: nothing cancelled, gain 1
+    prep.tp = base
+    a = prep.blend_many(one)
+    prep.tp = dataclasses.replace(base, restore=(("face", 3), ("eyes", 3)))
+    d = np.abs(prep.blend_many(one) - a)
+    assert d.max() < 0.03 and d.mean() < 1e-3  # nearly: its confidence-weighted energy vs the plain mean

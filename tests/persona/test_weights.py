@@ -164,3 +164,17 @@ def test_temporal_weights_off_and_bad_input():
         temporal_weights(W[0], c, np.ones((5, 2)), sigma_frames=1.0)
     with pytest.raises(BadInputError):
         temporal_weights(W, c[:1], np.ones((5, 2)), sigma_frames=1.0)
+
+
+def test_detail_weights_hand_computed():
+    from facetex.persona.weights import detail_weights
+
+    W = np.array([[1.0, 0.5, 0.0], [0.2, 0.4, 0.4]])
+    # power 2: [1, .25, 0] rescaled to the total 1.5; [.25, 1, 1] rescaled to 1.0
+    np.testing.assert_allclose(detail_weights(W, 2.0), [[1.2, 0.3, 0.0], [1 / 9, 4 / 9, 4 / 9]])
+    # quality multiplies after the power: [1, .25 * 2, 0] -> total 1.5
+    np.testing.assert_allclose(detail_weights(W[:1], 2.0, quality=[1.0, 2.0, 5.0]), [[1.0, 0.5, 0.0]])
+    np.testing.assert_array_equal(detail_weights(W, 1.0), W)
+    assert detail_weights(np.zeros((1, 3)), 4.0).sum() == 0  # no weight stays none (no NaN)
+    with pytest.raises(BadInputError, match="detail power"):
+        detail_weights(W, 0.0)
