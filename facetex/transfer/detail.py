@@ -20,7 +20,9 @@ the *style's own* fine detail into the content's skin at the output's resolution
    so no hair or feature of the style is copied (that gain is capped at 1.25: more turns the
    optimiser's faint swirls into visible worms). Style skin whose fine detail is several
    times rougher than its typical skin (stubble at a beard's edge, stray hairs, a mole's
-   rim: what the colour mask misses) is treated as not skin.
+   rim: what the colour mask misses) is treated as not skin. With ``fill`` (default) the
+   style's non-skin there is first filled from its own skin (:func:`fill_index`, mirrored
+   texture), so those places get the style's skin detail too, never its hair or beard.
 
 Everything outside the content's skin is returned untouched. Hand-written (no library
 does band-energy transfer between two aligned images).
@@ -36,7 +38,7 @@ import numpy as np
 from ..errors import BadInputError
 
 __all__ = ["DetailParams", "band_stack", "band_energy", "transfer_skin_detail", "style_band_energies",
-           "REF_FACE_WIDTH"]
+           "fill_index", "REF_FACE_WIDTH"]
 
 #: face width |p16 − p0| (px) at which :attr:`DetailParams.sigmas` are given (FRL, 1000 px)
 REF_FACE_WIDTH = 330.0
@@ -57,6 +59,7 @@ class DetailParams:
     own_gain_range: tuple[float, float] = (0.5, 1.25)  # of the output's own bands where the style is not skin:
     # more amplifies the optimiser's faint swirl pattern into visible worms (seen on FRL 083←005)
     eps: float = 1e-6  # energy floor (values in [0, 1]²)
+    fill: bool = True  # fill the style's non-skin (hair, beard, highlights) from its skin, not from the output
     strength: float = 1.0  # 0 = output unchanged, 1 = full style detail
 
 
@@ -126,6 +129,19 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
     skin = (mc > 0.5) & (ms > 0.5)
     ms = ms * _smooth_roughness_gate(e_targets, skin, max(sig), params)
     skin = (mc > 0.5) & (ms > 0.5)
+    if params.fill and skin.sum() >= 64 and ((mc > 0) & (ms < 0.5)).any():
+        # what the style's hair, beard, highlights or features cover is filled from its own
+        # skin (mirrored across the nearest skin edge), so the content's skin there gets
+        # the style's skin detail, never its hair (issue 22)
+        src = ms > 0.5
+        idx = fill_index(src, (mc > 0) & ~src)
+        sty = sty[idx[0], idx[1]]
+        b_sty, _ = band_stack(sty, sig)
+        filled = [band_energy(b, params.energy_scale * s) for b, s in zip(b_sty, sig)]
+        e_aligned = filled
+        e_targets = [np.where(src, e, f) for e, f in zip(e_targets, filled)]
+        ms = np.where(mc > 0, 1.0, ms).astype(np.float32)
+        skin = (mc > 0.5) & (ms > 0.5)
     both = (mc * ms)[..., None]
     only_content = (mc * (1.0 - ms))[..., None]
     result = out.copy()
@@ -148,6 +164,44 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
             info["gain_own"].append(float(np.median(g_own[mc > 0.5])))
     result = np.clip(result, 0.0, 1.0)
     return (result, info) if return_info else result
+
+
+def fill_index(source: np.ndarray, holes: np.ndarray) -> np.ndarray:
+    """(2, H, W) int row/column indices that read ``holes`` pixels from ``source`` pixels
+    (identity elsewhere): each hole pixel p takes the mirror 2q − p of its nearest source
+    pixel q when that is source (texture continues across the edge, mirrored), else the
+    first source pixel at p + d·(cos θ, sin θ) for d = 1.5, 2.5, 4 × the deepest hole
+    distance and 16 directions θ, else q. Indexing an image with it fills the holes with
+    source texture instead of smearing the edge (inpainting by diffusion would)."""
+    from scipy.ndimage import distance_transform_edt
+
+    src = np.asarray(source, bool)
+    h, w = src.shape
+    yy, xx = np.mgrid[0:h, 0:w]
+    out = np.stack([yy, xx])
+    todo = np.asarray(holes, bool) & ~src
+    if not todo.any() or not src.any():
+        return out
+    dist, (qy, qx) = distance_transform_edt(~src, return_indices=True)
+    py, px = yy[todo], xx[todo]
+    ny, nx = qy[todo], qx[todo]
+    my, mx = 2 * ny - py, 2 * nx - px
+    ok = (my >= 0) & (my < h) & (mx >= 0) & (mx < w)
+    ok[ok] = src[my[ok], mx[ok]]
+    ry, rx = np.where(ok, my, ny), np.where(ok, mx, nx)
+    dmax = float(dist[todo].max())
+    for d in (1.5 * dmax, 2.5 * dmax, 4.0 * dmax):
+        for th in np.linspace(0, 2 * np.pi, 16, endpoint=False):
+            if ok.all():
+                break
+            cy = np.round(py + d * np.sin(th)).astype(int)
+            cx = np.round(px + d * np.cos(th)).astype(int)
+            c = ~ok & (cy >= 0) & (cy < h) & (cx >= 0) & (cx < w)
+            c[c] = src[cy[c], cx[c]]
+            ry, rx = np.where(c, cy, ry), np.where(c, cx, rx)
+            ok |= c
+    out[0][todo], out[1][todo] = ry, rx
+    return out
 
 
 def _smooth_roughness_gate(energies, skin, sigma, params: DetailParams) -> np.ndarray:
