@@ -100,6 +100,7 @@ class SkinParams:
     background_chroma: float = 0.4  # off-colour pieces less saturated than this × the skin: background
     highlight_chroma: float = 0.75  # highlights: saturation below this × the skin's
     source_margin: float = 0.02  # texture sources keep this × face width from hair and beard
+    source_speck: float = 2.0  # and skip skin with over this × the bare skin's dark-speck density
 
 
 def _p68(points68) -> np.ndarray:
@@ -469,13 +470,15 @@ class FaceSegmentation:
     highlight: np.ndarray
     features: np.ndarray  # grown eyes, brows, lips, nostrils
     region: np.ndarray  # head region searched
+    speckled: np.ndarray  # skin with sparse stubble-like dark specks (not a texture source)
 
     def source(self, margin: float, face_w: float) -> np.ndarray:
         """bool: skin that may be a texture source — the skin minus highlights, and at least
-        ``margin`` × face width away from hair and beard (strand tips, a beard's fading edge)."""
+        ``margin`` × face width away from hair and beard (strand tips, a beard's fading edge),
+        minus skin speckled like stubble (``source_speck``)."""
         bad = (self.hair | self.beard).astype(np.uint8)
         bad = _dilate(bad, margin * face_w) > 0
-        return self.skin & ~bad & ~self.highlight
+        return self.skin & ~bad & ~self.highlight & ~self.speckled
 
 
 def segment_face(image, points68, *, mesh=None, params: SkinParams = SkinParams()) -> FaceSegmentation:
@@ -533,9 +536,14 @@ def segment_face(image, points68, *, mesh=None, params: SkinParams = SkinParams(
     strands = hair_strand_mask(img, p, region, ref, params, exclude=feats)
     hair0 = (hair0 | strands) & ~grey
     other |= grey & ~ok
-    hair = (_dilate(hair0.astype(np.uint8), params.occluder_margin * fw) > 0) & region & ~feats & ~other
+    # strand tips at the hairline and a fringe's edge: grown by a margin above the eyes only
+    # (below, the off-colour pieces at the region's edge are the silhouette's shade, not hair)
+    grown = _dilate(hair0.astype(np.uint8), params.occluder_margin * fw) > 0
+    grown[int(np.clip(p[36:48, 1].mean(), 0, h)):] = False
+    hair = (hair0 | grown) & region & ~feats & ~other
     ok = ok | ((lab > 0) & ~hair & ~other)  # the shadows kept as skin
     beard = np.zeros((h, w), bool)
+    speckled = np.zeros((h, w), bool)
     if params.beard:
         # the rough-and-dark test away from the silhouette and the features' shadows
         inner = (cv2.erode(face.astype(np.uint8), _disc(max(1, int(0.03 * fw)))) > 0) \
@@ -543,6 +551,11 @@ def segment_face(image, points68, *, mesh=None, params: SkinParams = SkinParams(
         bare = region & ok & ~hair & ~other & ~feats & (light < params.highlight_sigmas)  # a highlight rings no specks
         beard = (stubble_mask(img, p, bare, ref, params, exclude=feats)
                  | beard_mask(img, p, inner, light, params)) & ~hair & ~feats
+        # sparser dark specks than a beard's (its fading edge, a shaved shadow): not a texture source
+        dens, _ = dark_speck_density(img, fw, reference=ref, within=bare)
+        ref_d = float(np.median(dens[ref])) if ref.any() else 0.0
+        speckled = dens > max(0.5 * params.stubble_density, params.source_speck * ref_d)
+
     skin = region & ok & ~hair & ~beard & ~feats
     skin = _fill_small_holes(skin, (params.hole_fill * fw) ** 2, light) & region & ~feats & ~hair & ~beard
     # keep the pieces connected to the reference skin and every large piece; drop islands
@@ -560,7 +573,7 @@ def segment_face(image, points68, *, mesh=None, params: SkinParams = SkinParams(
     labels[skin] = LABELS["skin"]
     labels[hl] = LABELS["highlight"]
     return FaceSegmentation(labels=labels, skin=skin, hair=hair & ~skin, brows=brows & feats, beard=beard,
-                            highlight=hl, features=feats, region=region)
+                            highlight=hl, features=feats, region=region, speckled=speckled & skin)
 
 
 def _feather_inwards(mask: np.ndarray, sigma: float) -> np.ndarray:

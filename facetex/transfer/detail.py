@@ -21,8 +21,8 @@ the *style's own* fine detail into the content's skin at the output's resolution
    optimiser's faint swirls into visible worms). Style skin whose fine detail is several
    times rougher than its typical skin (stubble at a beard's edge, stray hairs, a mole's
    rim: what the colour mask misses) is treated as not skin. With ``fill`` (default) the
-   style's non-skin there is first filled from its own skin (:func:`fill_index`, mirrored
-   texture), so those places get the style's skin detail too, never its hair or beard.
+   style's non-skin there is first filled from its own skin (:func:`fill_from_source`:
+   mirrored across thin gaps, random blended pieces in large holes), so those places get the style's skin detail too, never its hair or beard.
 
 Everything outside the content's skin is returned untouched. Hand-written (no library
 does band-energy transfer between two aligned images).
@@ -38,7 +38,7 @@ import numpy as np
 from ..errors import BadInputError
 
 __all__ = ["DetailParams", "band_stack", "band_energy", "transfer_skin_detail", "style_band_energies",
-           "fill_index", "REF_FACE_WIDTH"]
+           "fill_from_source", "REF_FACE_WIDTH"]
 
 #: face width |p16 − p0| (px) at which :attr:`DetailParams.sigmas` are given (FRL, 1000 px)
 REF_FACE_WIDTH = 330.0
@@ -134,9 +134,9 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
         # skin (mirrored across the nearest skin edge), so the content's skin there gets
         # the style's skin detail, never its hair (issue 22)
         src = ms > 0.5
-        idx = fill_index(src, (mc > 0) & ~src)
-        sty = sty[idx[0], idx[1]]
-        b_sty, _ = band_stack(sty, sig)
+        # the bands, not the pixels: copied pieces of a band carry no step in brightness
+        b_sty = fill_from_source(b_sty, src, (mc > 0) & ~src, block=max(8, int(round(0.1 * float(face_width)))),
+                                 mirror_max=0.03 * float(face_width))
         filled = [band_energy(b, params.energy_scale * s) for b, s in zip(b_sty, sig)]
         e_aligned = filled
         e_targets = [np.where(src, e, f) for e, f in zip(e_targets, filled)]
@@ -166,42 +166,64 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
     return (result, info) if return_info else result
 
 
-def fill_index(source: np.ndarray, holes: np.ndarray) -> np.ndarray:
-    """(2, H, W) int row/column indices that read ``holes`` pixels from ``source`` pixels
-    (identity elsewhere): each hole pixel p takes the mirror 2q − p of its nearest source
-    pixel q when that is source (texture continues across the edge, mirrored), else the
-    first source pixel at p + d·(cos θ, sin θ) for d = 1.5, 2.5, 4 × the deepest hole
-    distance and 16 directions θ, else q. Indexing an image with it fills the holes with
-    source texture instead of smearing the edge (inpainting by diffusion would)."""
+def fill_from_source(images, source: np.ndarray, holes: np.ndarray, *, block: int = 32, mirror_max: float = 10.0,
+                     seed: int = 0) -> list[np.ndarray]:
+    """``images`` (same-shape arrays, e.g. the bands of one image) with their ``holes`` pixels
+    filled from their ``source`` pixels. A hole pixel within ``mirror_max`` px of the source
+    takes the mirror 2q − p of its nearest source pixel q when that is source (the texture
+    goes on across a thin gap). Deeper pixels get randomly placed ``block``-sized pieces of
+    the source, overlapping by half and blended with weights w/√Σw² (Hann windows), which
+    keeps the energy of uncorrelated texture: no block edges, no repeating pattern (a
+    mirror-tiled patch showed a kaleidoscope lattice on a fringe-covered forehead). Meant
+    for zero-mean detail bands; pixels outside ``holes`` are returned unchanged."""
     from scipy.ndimage import distance_transform_edt
 
     src = np.asarray(source, bool)
     h, w = src.shape
-    yy, xx = np.mgrid[0:h, 0:w]
-    out = np.stack([yy, xx])
     todo = np.asarray(holes, bool) & ~src
-    if not todo.any() or not src.any():
-        return out
+    imgs = [np.asarray(im, np.float32).copy() for im in images]
+    if not todo.any() or src.sum() < 4:
+        return imgs
     dist, (qy, qx) = distance_transform_edt(~src, return_indices=True)
-    py, px = yy[todo], xx[todo]
-    ny, nx = qy[todo], qx[todo]
-    my, mx = 2 * ny - py, 2 * nx - px
-    ok = (my >= 0) & (my < h) & (mx >= 0) & (mx < w)
-    ok[ok] = src[my[ok], mx[ok]]
-    ry, rx = np.where(ok, my, ny), np.where(ok, mx, nx)
-    dmax = float(dist[todo].max())
-    for d in (1.5 * dmax, 2.5 * dmax, 4.0 * dmax):
-        for th in np.linspace(0, 2 * np.pi, 16, endpoint=False):
-            if ok.all():
-                break
-            cy = np.round(py + d * np.sin(th)).astype(int)
-            cx = np.round(px + d * np.cos(th)).astype(int)
-            c = ~ok & (cy >= 0) & (cy < h) & (cx >= 0) & (cx < w)
-            c[c] = src[cy[c], cx[c]]
-            ry, rx = np.where(c, cy, ry), np.where(c, cx, rx)
-            ok |= c
-    out[0][todo], out[1][todo] = ry, rx
-    return out
+    py, px = np.nonzero(todo)
+    my, mx = 2 * qy[py, px] - py, 2 * qx[py, px] - px
+    near = (dist[py, px] <= mirror_max) & (my >= 0) & (my < h) & (mx >= 0) & (mx < w)
+    near[near] = src[my[near], mx[near]]
+    deep = todo.copy()
+    deep[py[near], px[near]] = False
+    for im in imgs:
+        im[py[near], px[near]] = im[my[near], mx[near]]
+    if not deep.any():
+        return imgs
+    # block origins that lie (almost) wholly in the source; small sources fall back to any source pixel
+    b = int(max(4, min(block, h, w)))
+    cover = cv2.boxFilter(src.astype(np.float32), -1, (b, b), normalize=True, anchor=(0, 0), borderType=cv2.BORDER_CONSTANT)
+    cy, cx = np.nonzero(cover[: h - b + 1, : w - b + 1] > 0.97)
+    if len(cy) == 0:
+        cy, cx = np.nonzero(cover[: h - b + 1, : w - b + 1] >= cover[: h - b + 1, : w - b + 1].max() - 1e-6)
+    rng = np.random.default_rng(seed)
+    win = np.outer(np.hanning(b + 2)[1:-1], np.hanning(b + 2)[1:-1]).astype(np.float32)
+    acc = [np.zeros_like(im) for im in imgs]
+    wsum = np.zeros((h, w), np.float32)
+    ys, xs = np.nonzero(deep)
+    step = b // 2
+    for y0 in range((ys.min() // step) * step - step, ys.max() + 1, step):
+        for x0 in range((xs.min() // step) * step - step, xs.max() + 1, step):
+            ty0, tx0, ty1, tx1 = max(y0, 0), max(x0, 0), min(y0 + b, h), min(x0 + b, w)
+            if ty1 <= ty0 or tx1 <= tx0 or not deep[ty0:ty1, tx0:tx1].any():
+                continue
+            k = int(rng.integers(len(cy)))
+            sy, sx = cy[k] + (ty0 - y0), cx[k] + (tx0 - x0)
+            wv = win[ty0 - y0:ty1 - y0, tx0 - x0:tx1 - x0]
+            for a, im in zip(acc, imgs):
+                piece = im[sy:sy + (ty1 - ty0), sx:sx + (tx1 - tx0)]
+                a[ty0:ty1, tx0:tx1] += (wv[..., None] if im.ndim == 3 else wv) * piece
+            wsum[ty0:ty1, tx0:tx1] += wv * wv
+    norm = 1.0 / np.sqrt(np.maximum(wsum, 1e-6))
+    for a, im in zip(acc, imgs):
+        v = a * (norm[..., None] if im.ndim == 3 else norm)
+        im[deep] = v[deep]
+    return imgs
 
 
 def _smooth_roughness_gate(energies, skin, sigma, params: DetailParams) -> np.ndarray:
