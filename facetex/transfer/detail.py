@@ -171,8 +171,9 @@ def fill_from_source(images, source: np.ndarray, holes: np.ndarray, *, block: in
     """``images`` (same-shape arrays, e.g. the bands of one image) with their ``holes`` pixels
     filled from their ``source`` pixels. A hole pixel within ``mirror_max`` px of the source
     takes the mirror 2q − p of its nearest source pixel q when that is source (the texture
-    goes on across a thin gap). Deeper pixels get randomly placed ``block``-sized pieces of
-    the source, overlapping by half and blended with weights w/√Σw² (Hann windows), which
+    goes on across a thin gap). Deeper pixels get ``block``-sized pieces of the source, drawn
+    at random among the 4 × ``block`` nearest plain ones (no busier than the median piece: no
+    wrinkle or mole is copied), overlapping by half and blended with weights w/√Σw² (Hann windows), which
     keeps the energy of uncorrelated texture: no block edges, no repeating pattern (a
     mirror-tiled patch showed a kaleidoscope lattice on a fringe-covered forehead). Meant
     for zero-mean detail bands; pixels outside ``holes`` are returned unchanged."""
@@ -201,6 +202,17 @@ def fill_from_source(images, source: np.ndarray, holes: np.ndarray, *, block: in
     cy, cx = np.nonzero(cover[: h - b + 1, : w - b + 1] > 0.97)
     if len(cy) == 0:
         cy, cx = np.nonzero(cover[: h - b + 1, : w - b + 1] >= cover[: h - b + 1, : w - b + 1].max() - 1e-6)
+    # plain skin only: blocks at most as busy as the median block (a wrinkle, a mole or a scar
+    # copied into the hole would be a new mark there)
+    busy = sum(cv2.boxFilter((im * im).sum(-1) if im.ndim == 3 else im * im, -1, (b, b), anchor=(0, 0),
+                             borderType=cv2.BORDER_CONSTANT) for im in imgs)[cy, cx]
+    keep = busy <= np.median(busy)
+    cy, cx = cy[keep], cx[keep]
+    # and near the hole: each block draws from the nearest candidates (the same part of the face)
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(np.column_stack([cy, cx]))
+    near_k = int(min(len(cy), max(8, 4 * b)))
     rng = np.random.default_rng(seed)
     win = np.outer(np.hanning(b + 2)[1:-1], np.hanning(b + 2)[1:-1]).astype(np.float32)
     acc = [np.zeros_like(im) for im in imgs]
@@ -212,7 +224,8 @@ def fill_from_source(images, source: np.ndarray, holes: np.ndarray, *, block: in
             ty0, tx0, ty1, tx1 = max(y0, 0), max(x0, 0), min(y0 + b, h), min(x0 + b, w)
             if ty1 <= ty0 or tx1 <= tx0 or not deep[ty0:ty1, tx0:tx1].any():
                 continue
-            k = int(rng.integers(len(cy)))
+            _, cand = tree.query([y0, x0], k=near_k)
+            k = int(np.atleast_1d(cand)[rng.integers(near_k)])
             sy, sx = cy[k] + (ty0 - y0), cx[k] + (tx0 - x0)
             wv = win[ty0 - y0:ty1 - y0, tx0 - x0:tx1 - x0]
             for a, im in zip(acc, imgs):
