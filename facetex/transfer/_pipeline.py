@@ -381,7 +381,8 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
         from ..geometry.skin import skin_mask
 
         skin_c = skin_mask(content, cp, mesh=_face_mesh(content, cp))[box[1]:box[3], box[0]:box[2]]
-        skin_style_own = skin_mask(style, sp, mesh=_face_mesh(style, sp))
+        # the style lends texture only from bare skin: no hair, beard or highlights (issue 22)
+        skin_style_own = skin_mask(style, sp, mesh=_face_mesh(style, sp), source=True)
         if style_map is not None:
             skin_s = remap(skin_style_own, style_map, border="constant")
         else:

@@ -20,7 +20,9 @@ the *style's own* fine detail into the content's skin at the output's resolution
    so no hair or feature of the style is copied (that gain is capped at 1.25: more turns the
    optimiser's faint swirls into visible worms). Style skin whose fine detail is several
    times rougher than its typical skin (stubble at a beard's edge, stray hairs, a mole's
-   rim: what the colour mask misses) is treated as not skin.
+   rim: what the colour mask misses) is treated as not skin. With ``fill`` (default) the
+   style's non-skin there is first filled from its own skin (:func:`fill_from_source`:
+   mirrored across thin gaps, random blended pieces in large holes), so those places get the style's skin detail too, never its hair or beard.
 
 Everything outside the content's skin is returned untouched. Hand-written (no library
 does band-energy transfer between two aligned images).
@@ -36,7 +38,7 @@ import numpy as np
 from ..errors import BadInputError
 
 __all__ = ["DetailParams", "band_stack", "band_energy", "transfer_skin_detail", "style_band_energies",
-           "REF_FACE_WIDTH"]
+           "fill_from_source", "REF_FACE_WIDTH"]
 
 #: face width |p16 − p0| (px) at which :attr:`DetailParams.sigmas` are given (FRL, 1000 px)
 REF_FACE_WIDTH = 330.0
@@ -57,6 +59,7 @@ class DetailParams:
     own_gain_range: tuple[float, float] = (0.5, 1.25)  # of the output's own bands where the style is not skin:
     # more amplifies the optimiser's faint swirl pattern into visible worms (seen on FRL 083←005)
     eps: float = 1e-6  # energy floor (values in [0, 1]²)
+    fill: bool = True  # fill the style's non-skin (hair, beard, highlights) from its skin, not from the output
     strength: float = 1.0  # 0 = output unchanged, 1 = full style detail
 
 
@@ -126,6 +129,19 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
     skin = (mc > 0.5) & (ms > 0.5)
     ms = ms * _smooth_roughness_gate(e_targets, skin, max(sig), params)
     skin = (mc > 0.5) & (ms > 0.5)
+    if params.fill and skin.sum() >= 64 and ((mc > 0) & (ms < 0.5)).any():
+        # what the style's hair, beard, highlights or features cover is filled from its own
+        # skin (mirrored across the nearest skin edge), so the content's skin there gets
+        # the style's skin detail, never its hair (issue 22)
+        src = ms > 0.5
+        # the bands, not the pixels: copied pieces of a band carry no step in brightness
+        b_sty = fill_from_source(b_sty, src, (mc > 0) & ~src, block=max(8, int(round(0.1 * float(face_width)))),
+                                 mirror_max=0.03 * float(face_width))
+        filled = [band_energy(b, params.energy_scale * s) for b, s in zip(b_sty, sig)]
+        e_aligned = filled
+        e_targets = [np.where(src, e, f) for e, f in zip(e_targets, filled)]
+        ms = np.where(mc > 0, 1.0, ms).astype(np.float32)
+        skin = (mc > 0.5) & (ms > 0.5)
     both = (mc * ms)[..., None]
     only_content = (mc * (1.0 - ms))[..., None]
     result = out.copy()
@@ -148,6 +164,79 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
             info["gain_own"].append(float(np.median(g_own[mc > 0.5])))
     result = np.clip(result, 0.0, 1.0)
     return (result, info) if return_info else result
+
+
+def fill_from_source(images, source: np.ndarray, holes: np.ndarray, *, block: int = 32, mirror_max: float = 10.0,
+                     seed: int = 0) -> list[np.ndarray]:
+    """``images`` (same-shape arrays, e.g. the bands of one image) with their ``holes`` pixels
+    filled from their ``source`` pixels. A hole pixel within ``mirror_max`` px of the source
+    takes the mirror 2q − p of its nearest source pixel q when that is source (the texture
+    goes on across a thin gap). Deeper pixels get ``block``-sized pieces of the source, drawn
+    at random among the 4 × ``block`` nearest plain ones (no busier than the median piece: no
+    wrinkle or mole is copied), overlapping by half and blended with weights w/√Σw² (Hann windows), which
+    keeps the energy of uncorrelated texture: no block edges, no repeating pattern (a
+    mirror-tiled patch showed a kaleidoscope lattice on a fringe-covered forehead). Meant
+    for zero-mean detail bands; pixels outside ``holes`` are returned unchanged."""
+    from scipy.ndimage import distance_transform_edt
+
+    src = np.asarray(source, bool)
+    h, w = src.shape
+    todo = np.asarray(holes, bool) & ~src
+    imgs = [np.asarray(im, np.float32).copy() for im in images]
+    if not todo.any() or src.sum() < 4:
+        return imgs
+    dist, (qy, qx) = distance_transform_edt(~src, return_indices=True)
+    py, px = np.nonzero(todo)
+    my, mx = 2 * qy[py, px] - py, 2 * qx[py, px] - px
+    near = (dist[py, px] <= mirror_max) & (my >= 0) & (my < h) & (mx >= 0) & (mx < w)
+    near[near] = src[my[near], mx[near]]
+    deep = todo.copy()
+    deep[py[near], px[near]] = False
+    for im in imgs:
+        im[py[near], px[near]] = im[my[near], mx[near]]
+    if not deep.any():
+        return imgs
+    # block origins that lie (almost) wholly in the source; small sources fall back to any source pixel
+    b = int(max(4, min(block, h, w)))
+    cover = cv2.boxFilter(src.astype(np.float32), -1, (b, b), normalize=True, anchor=(0, 0), borderType=cv2.BORDER_CONSTANT)
+    cy, cx = np.nonzero(cover[: h - b + 1, : w - b + 1] > 0.97)
+    if len(cy) == 0:
+        cy, cx = np.nonzero(cover[: h - b + 1, : w - b + 1] >= cover[: h - b + 1, : w - b + 1].max() - 1e-6)
+    # plain skin only: blocks at most as busy as the median block (a wrinkle, a mole or a scar
+    # copied into the hole would be a new mark there)
+    busy = sum(cv2.boxFilter((im * im).sum(-1) if im.ndim == 3 else im * im, -1, (b, b), anchor=(0, 0),
+                             borderType=cv2.BORDER_CONSTANT) for im in imgs)[cy, cx]
+    keep = busy <= np.median(busy)
+    cy, cx = cy[keep], cx[keep]
+    # and near the hole: each block draws from the nearest candidates (the same part of the face)
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(np.column_stack([cy, cx]))
+    near_k = int(min(len(cy), max(8, 4 * b)))
+    rng = np.random.default_rng(seed)
+    win = np.outer(np.hanning(b + 2)[1:-1], np.hanning(b + 2)[1:-1]).astype(np.float32)
+    acc = [np.zeros_like(im) for im in imgs]
+    wsum = np.zeros((h, w), np.float32)
+    ys, xs = np.nonzero(deep)
+    step = b // 2
+    for y0 in range((ys.min() // step) * step - step, ys.max() + 1, step):
+        for x0 in range((xs.min() // step) * step - step, xs.max() + 1, step):
+            ty0, tx0, ty1, tx1 = max(y0, 0), max(x0, 0), min(y0 + b, h), min(x0 + b, w)
+            if ty1 <= ty0 or tx1 <= tx0 or not deep[ty0:ty1, tx0:tx1].any():
+                continue
+            _, cand = tree.query([y0, x0], k=near_k)
+            k = int(np.atleast_1d(cand)[rng.integers(near_k)])
+            sy, sx = cy[k] + (ty0 - y0), cx[k] + (tx0 - x0)
+            wv = win[ty0 - y0:ty1 - y0, tx0 - x0:tx1 - x0]
+            for a, im in zip(acc, imgs):
+                piece = im[sy:sy + (ty1 - ty0), sx:sx + (tx1 - tx0)]
+                a[ty0:ty1, tx0:tx1] += (wv[..., None] if im.ndim == 3 else wv) * piece
+            wsum[ty0:ty1, tx0:tx1] += wv * wv
+    norm = 1.0 / np.sqrt(np.maximum(wsum, 1e-6))
+    for a, im in zip(acc, imgs):
+        v = a * (norm[..., None] if im.ndim == 3 else norm)
+        im[deep] = v[deep]
+    return imgs
 
 
 def _smooth_roughness_gate(energies, skin, sigma, params: DetailParams) -> np.ndarray:

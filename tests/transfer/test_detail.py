@@ -82,3 +82,48 @@ def test_strength_zero_is_identity_and_bad_shapes_raise():
         transfer_skin_detail(out, style[:50], ones, ones)
     with pytest.raises(BadInputError):
         transfer_skin_detail(out, style, ones[:50], ones)
+
+
+# ---------------------------------------------------------------- the style's hair is never a source (issue 22)
+def _stripes(shape=(96, 96), period=5.0, amp=0.15):
+    x = np.arange(shape[1])[None, :]
+    s = amp * np.sin(2 * np.pi * x / period) * np.ones(shape)
+    return np.repeat(s[..., None], 3, 2).astype(np.float32)
+
+
+def test_fill_from_source_takes_skin_texture_not_the_hole():
+    from facetex.transfer.detail import fill_from_source
+
+    skin = _noise(10, 0.04) - 0.5
+    img = skin.copy()
+    src = np.zeros((96, 96), bool)
+    src[:, :40] = True
+    img[:, 40:] = _stripes()[:, 40:]  # "hair" in the hole
+    filled = fill_from_source([img], src, ~src, block=16, mirror_max=4.0)[0]
+    assert np.array_equal(filled[:, :40], img[:, :40])  # the source is untouched
+    hole = filled[:, 48:, 0]
+    corr = np.corrcoef(hole.ravel(), _stripes()[:, 48:, 0].ravel())[0, 1]
+    assert abs(corr) < 0.1  # nothing of the stripes is left
+    assert 0.7 < hole.std() / skin[:, :40, 0].std() < 1.3  # the skin's texture energy, no blur
+    # near the edge the texture is mirrored: column 41 (2 px past the last source column 39) reads column 37
+    assert np.array_equal(filled[:, 41], img[:, 37])
+
+
+def test_style_hair_never_reaches_the_output():
+    """Stripes where the style's mask says hair: the output gets the style's skin detail there instead."""
+    out = np.full((96, 96, 3), 0.6, np.float32)
+    skin = _noise(11, 0.03)
+    style = skin.copy()
+    ms = np.ones((96, 96), np.float32)
+    ms[:, 30:70] = 0.0
+    style[:, 30:70] = 0.6 + _stripes()[:, 30:70]  # the style's fringe
+    ones = np.ones((96, 96), np.float32)
+    res = transfer_skin_detail(out, style, ones, ms, face_width=330.0)
+    change = (res - out)[10:-10, 40:60, 0]
+    corr = np.corrcoef(change.ravel(), _stripes()[10:-10, 40:60, 0].ravel())[0, 1]
+    assert abs(corr) < 0.1
+    fine, _ = band_stack(res, (1.0, 2.0))
+    sfine, _ = band_stack(skin, (1.0, 2.0))
+    assert fine[0][10:-10, 40:60].std() > 0.6 * sfine[0][10:-10, 10:25].std()  # skin detail, not nothing
+    without = transfer_skin_detail(out, style, ones, ms, face_width=330.0, params=DetailParams(fill=False))
+    assert np.abs(without - out)[10:-10, 40:60].max() < 1e-6  # (old behaviour: the flat output's own detail)

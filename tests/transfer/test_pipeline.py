@@ -183,3 +183,36 @@ def test_cli_transfer_writes_output_and_sidecar(tmp_path, capsys):
     assert main(args) != 0
     assert "--overwrite" in capsys.readouterr().err
     assert out.read_bytes() == before
+
+
+def test_no_style_hair_reaches_the_output():
+    """A style with a skin-coloured (blond) fringe, which a colour test takes for skin: the
+    content's forehead gets skin detail, not the strands."""
+    import cv2
+
+    from facetex.geometry.masks import face_width
+
+    c = read_image(sample_path("frl_005_neutral.jpg"))
+    s = read_image(sample_path("frl_004_neutral.jpg"))
+    pc, ps = detect_face(c).points68, detect_face(s).points68
+    fw = face_width(ps)
+    top = int(ps[17:27, 1].min())
+    ys, xs = slice(top - int(0.45 * fw), top - int(0.04 * fw)), slice(int(ps[17, 0]), int(ps[26, 0]))
+    x = np.arange(xs.stop - xs.start)[None, :, None]
+    s = s.copy()
+    s[ys, xs] = np.clip(s[ys, xs] * (1.0 + 0.35 * np.sin(2 * np.pi * x / 5.0)), 0, 1)  # strands 2-3 px
+    out, info = transfer_with_info(c, s, content_points=pc, style_points=ps, **FAST)
+    im = info["images"]
+    x0, y0 = info["region_box"][:2]
+    ctop = int(pc[17:27, 1].min()) - y0
+    fore = np.zeros(im["skin_content"].shape, bool)
+    fore[max(0, ctop - 25):ctop - 5, int(pc[19, 0]) - x0:int(pc[24, 0]) - x0] = True
+    fore &= im["skin_content"] > 0.9
+    assert fore.sum() > 100
+    luma = lambda x: x @ np.array([0.299, 0.587, 0.114], np.float32)  # noqa: E731
+    hp = lambda x: x - cv2.GaussianBlur(x, (0, 0), 2.0)  # noqa: E731
+    strands = hp(luma(im["style_native"]))[fore]
+    assert strands.std() > 0.02  # the aligned style has its strands there
+    change = hp(luma(im["output_region"] - im["region"]))[fore]
+    assert change.std() > 1e-3  # the forehead did change
+    assert abs(np.corrcoef(change, strands)[0, 1]) < 0.15
