@@ -446,6 +446,20 @@ def test_brow_fields_move_the_brows_and_hold_eyes_lips_and_hairline():
     move[17:22, 1] = -4.0  # right brow up
     move[22:27, 1] = np.linspace(-1.0, 3.0, 5)  # left brow tilted down towards its outer end
     move[36:68] = 50.0  # not brow points: ignored
+    field = f(move)
+
+    def at(pt):
+        return field[int(round(pt[1] / 2)), int(round(pt[0] / 2))]
+
+    for k in range(17, 27):
+        np.testing.assert_allclose(at(p[k]), move[k] * [0, 1], atol=0.35)
+    for still in (36, 39, 42, 45, 37, 44, 30, 33, 48, 54, 62, 66, 8):
+        assert np.abs(at(p[still])).max() < 0.3
+    iod = np.linalg.norm(p[36:42].mean(axis=0) - p[42:48].mean(axis=0))
+    assert np.abs(at(p[19] - [0, 0.6 * iod])).max() < 0.3  # the forehead fades back to still
+    assert at(p[19] - [0, 0.2 * iod])[1] < -1.0  # skin just above the brow goes with it
+
+
 def test_eye_openness_hand_computed():
     from facetex.persona.driver import eye_openness
 
@@ -475,13 +489,6 @@ def test_lid_fields_close_the_lids_and_hold_the_rest():
     def at(pt):
         return field[int(round(pt[1] / 2)), int(round(pt[0] / 2))]
 
-    for k in range(17, 27):
-        np.testing.assert_allclose(at(p[k]), move[k] * [0, 1], atol=0.35)
-    for still in (36, 39, 42, 45, 37, 44, 30, 33, 48, 54, 62, 66, 8):
-        assert np.abs(at(p[still])).max() < 0.3
-    iod = np.linalg.norm(p[36:42].mean(axis=0) - p[42:48].mean(axis=0))
-    assert np.abs(at(p[19] - [0, 0.6 * iod])).max() < 0.3  # the forehead fades back to still
-    assert at(p[19] - [0, 0.2 * iod])[1] < -1.0  # skin just above the brow goes with it
     for up, lo in ((37, 41), (38, 40), (43, 47), (44, 46)):
         gap = p[lo, 1] - p[up, 1]
         assert at(p[up] - [0, 0.2 * gap])[1] == pytest.approx(3.0, abs=0.8)  # just above the upper lid
