@@ -99,6 +99,9 @@ class TransferParams:
     feature_temperature: float = 1.0
     detail: bool = False  # native-resolution skin detail stage (transfer/detail.py)
     detail_strength: float = 1.0
+    keep_shading: bool = False  # the content keeps its low-frequency colour and shading in the skin (colour.py)
+    shading_sigma: float = 0.05  # the shading step's low-pass σ, × the eye distance (colour.SHADING_SIGMA)
+    marks: str = "off"  # "content": keep the content's moles/spots; "style": the style's (marks.py); "off"
     lbfgs_history: int = 25
     eval_budget: float = 2.0  # loss evaluations per level ≤ this × iterations (strong-Wolfe uses 1–4 per iteration)
     converge: tuple[int, float] | None = None  # (k, rtol): a level ends when its loss fell < rtol in k iterations
@@ -148,6 +151,10 @@ class TransferParams:
         if self.converge is not None and (len(self.converge) != 2 or int(self.converge[0]) < 1
                                           or not float(self.converge[1]) >= 0):
             raise BadInputError(f"converge must be (iterations >= 1, relative tolerance >= 0), got {self.converge!r}")
+        if self.marks not in ("off", "content", "style"):
+            raise BadInputError(f"marks must be 'content', 'style' or 'off', not {self.marks!r}")
+        if not 0.0 < self.shading_sigma <= 1.0:
+            raise BadInputError(f"shading_sigma must be in (0, 1] (× the eye distance), got {self.shading_sigma}")
         if not 0.0 <= self.detail_strength <= 2.0:
             raise BadInputError(f"detail_strength must be in [0, 2], got {self.detail_strength}")
 
@@ -186,6 +193,9 @@ def preset(method: str = "facetex", name: str = "default", texture_net: str | No
             # prior, which L-BFGS undoes), texture from the style's skin only, and the style's
             # own pore-level detail at native resolution (docs/facetex-fidelity.md)
             p = replace(p, prior=False, constraint="skin", style_region="skin", target_region="skin", detail=True)
+            # detail, not lighting: the style brings texture, the content keeps its own colour,
+            # shading and marks (issue 22)
+            p = replace(p, keep_shading=True, marks="content")
     elif method == "mrf":  # Eq. 7: texture + content + TV
         p = replace(base, mrf_layers=layers["mrf"], mrf_weight=1.0, content_layers=layers["content"],
                     content_weight=0.3, tv_weight=0.05, style_region="image")
