@@ -41,7 +41,7 @@ from dataclasses import dataclass, field, replace
 from ..errors import BadInputError
 
 METHODS = ("facetex", "mrf", "gatys")
-PRESETS = ("default", "paper")
+PRESETS = ("default", "paper", "preview")
 TEXTURE_NETS = ("effnet-lite0", "vgg19", "face-resnet")
 
 # Layer roles per texture network: MRF texture layers, content layer, Gram style layers.
@@ -61,6 +61,8 @@ NET_LAYERS = {
 # VGG-Face relu4_2: mid-level maps on the 150 px face chip (17² and 8²); at weight 1 they
 # kept landmarks and identity best of level1..level4 and pairs of them (docs/texture-nets.md).
 STRUCTURE_LAYERS = ("level2", "level3")
+PREVIEW_SIZE = 256  # px: the preview preset's working size
+PREVIEW_ITERS = (20, 20, 20)
 
 
 @dataclass(frozen=True)
@@ -170,13 +172,21 @@ def preset(method: str = "facetex", name: str = "default", texture_net: str | No
         raise BadInputError(f"unknown texture network {net!r}: use one of {', '.join(TEXTURE_NETS)}")
     layers = NET_LAYERS[net]
     base = TransferParams(method=method, preset=name, texture_net=net)
-    if name == "paper":
+    if name == "preview":
+        # the default's steps at 256 px and a few iterations per level: a look in seconds
+        # while choosing a style (issue 22: <= 5 s per 1000 px portrait on 2 cores)
+        base = replace(base, size=PREVIEW_SIZE, iters=PREVIEW_ITERS, eval_budget=1.25, align_refine="optical-flow")
+    elif name == "paper":
         # 200 iterations per level, or until the loss falls < 1 % in 20 iterations: on the
         # default preset's finest level (FRL 083 <- 005) that is ~100 iterations, and the next
         # 100 lowered the loss by 2.6 % more (docs/facetex-fidelity.md §5)
         base = replace(base, size=1000, crop="image", levels=3, iters=(200, 200, 200), converge=(20, 0.01))
     else:
         base = replace(base, eval_budget=1.25)  # torch's max_eval default: the speed budget holds
+        # a level ends when its best loss fell < 1 % in 10 iterations (issue 22, speed: on the
+        # finest level the loss fell 46, 7.8, 3.1, 1.7, 1.2 % per 20 evaluations, so it stops
+        # after ~60-80 of its 100 iterations; docs/facetex-fidelity.md §5)
+        base = replace(base, converge=(10, 0.01))
         # measured on 10 FRL pairs at 1000 px (benchmarks/geometry_align.py): optical-flow
         # refinement left 2.66 px landmark error vs 2.93 px for SIFT flow, at 1/7 of the time
         base = replace(base, align_refine="optical-flow")
@@ -188,7 +198,7 @@ def preset(method: str = "facetex", name: str = "default", texture_net: str | No
             # the prior and face mask freeze everything outside the face (§3.1): texture patches
             # there cannot change, so they are not matched (same optimum, a fraction of the time)
             p = replace(p, target_region="face")
-        if name == "default":
+        if name in ("default", "preview"):
             # only the content's skin changes (hard constraint instead of the gradient-scaling
             # prior, which L-BFGS undoes), texture from the style's skin only, and the style's
             # own pore-level detail at native resolution (docs/facetex-fidelity.md)
