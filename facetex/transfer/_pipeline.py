@@ -461,7 +461,9 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
     if params.keep_shading:
         from .colour import eye_distance, keep_content_shading
 
-        out_region = keep_content_shading(out_region, region, skin_c, params.shading_sigma * eye_distance(cpr))
+        ed = eye_distance(cpr)
+        out_region = keep_content_shading(out_region, region, skin_c, params.shading_sigma * ed,
+                                          colour_sigma=params.colour_sigma * ed)
     timings["finish_s"] = time.perf_counter() - t0
     out = _compose(content, region, box, out_region, params)
     timings["total_s"] = time.perf_counter() - t_start

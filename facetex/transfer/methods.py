@@ -102,7 +102,8 @@ class TransferParams:
     detail: bool = False  # native-resolution skin detail stage (transfer/detail.py)
     detail_strength: float = 1.0
     keep_shading: bool = False  # the content keeps its low-frequency colour and shading in the skin (colour.py)
-    shading_sigma: float = 0.05  # the shading step's low-pass σ, × the eye distance (colour.SHADING_SIGMA)
+    shading_sigma: float = 0.15  # the shading step's low-pass σ of the luminance, × the eye distance (colour.py)
+    colour_sigma: float = 0.05  # … and of the chroma (colour cast)
     marks: str = "off"  # "content": keep the content's moles/spots; "style": the style's (marks.py); "off"
     lbfgs_history: int = 25
     eval_budget: float = 2.0  # loss evaluations per level ≤ this × iterations (strong-Wolfe uses 1–4 per iteration)
@@ -155,8 +156,9 @@ class TransferParams:
             raise BadInputError(f"converge must be (iterations >= 1, relative tolerance >= 0), got {self.converge!r}")
         if self.marks not in ("off", "content", "style"):
             raise BadInputError(f"marks must be 'content', 'style' or 'off', not {self.marks!r}")
-        if not 0.0 < self.shading_sigma <= 1.0:
-            raise BadInputError(f"shading_sigma must be in (0, 1] (× the eye distance), got {self.shading_sigma}")
+        for name in ("shading_sigma", "colour_sigma"):
+            if not 0.0 < getattr(self, name) <= 1.0:
+                raise BadInputError(f"{name} must be in (0, 1] (× the eye distance), got {getattr(self, name)}")
         if not 0.0 <= self.detail_strength <= 2.0:
             raise BadInputError(f"detail_strength must be in [0, 2], got {self.detail_strength}")
 

@@ -105,3 +105,20 @@ def test_transfer_marks_keeps_the_contents_or_brings_the_styles():
     assert moved[30, 30, 0] == pytest.approx(0.6, abs=0.03)
     with pytest.raises(BadInputError):
         transfer_marks(output, content, style, skin, skin, mode="both")
+
+
+def test_keep_shading_splits_luminance_and_chroma_scales():
+    # a grey (luminance-only) ramp over 60 px survives a 2 px chroma low-pass but not a 30 px
+    # luminance one; a chroma-only shift goes at the chroma σ
+    h, w = 40, 120
+    content = np.full((h, w, 3), 0.5, np.float32)
+    skin = np.ones((h, w), np.float32)
+    wave = 0.05 * np.sin(2 * np.pi * np.arange(w) / 12.0)[None, :, None].astype(np.float32)  # 12 px period
+    grey = content + wave * np.ones(3, np.float32)
+    kept = keep_content_shading(grey, content, skin, sigma=30.0, colour_sigma=2.0)
+    assert np.allclose(kept[:, 30:90], grey[:, 30:90], atol=2e-3)  # finer than σy: kept as detail
+    gone = keep_content_shading(grey, content, skin, sigma=1.0, colour_sigma=30.0)
+    assert np.abs(gone - content)[:, 30:90].max() < 0.02  # below σy = 1 px's reach: removed
+    tint = content + np.array([0.06, -0.03, 0.0], np.float32)  # constant: removed at any σ
+    got = keep_content_shading(tint, content, skin, sigma=30.0, colour_sigma=2.0)
+    assert np.abs(got - content).max() < 1e-3
