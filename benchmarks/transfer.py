@@ -44,6 +44,9 @@ warnings.simplefilter("ignore")
 import facetex
 from facetex.transfer import estimate_transfer_memory, preset
 args = json.loads(sys.argv[1])
+if args.get("threads"):
+    import torch
+    torch.set_num_threads(int(args["threads"]))
 c = facetex.read_image(args["content"]); s = facetex.read_image(args["style"])
 from facetex.landmarks import detect_face
 pc, ps = detect_face(c).points68, detect_face(s).points68  # models loaded before the clock starts
@@ -63,9 +66,12 @@ print(json.dumps({"wall_s": wall, "cpu_s": cpu, "peak_bytes": peak, "estimate_by
 """
 
 
+THREADS = 0  # torch threads in the child (0: torch's default); --threads
+
+
 def run_child(content, style, method, preset, options) -> dict:
     arg = json.dumps({"content": str(content), "style": str(style), "method": method, "preset": preset,
-                      "options": options})
+                      "options": options, "threads": THREADS})
     res = subprocess.run([sys.executable, "-c", CHILD, arg], capture_output=True, text=True, env=os.environ)
     if res.returncode != 0:
         raise SystemExit(f"child failed: {res.stderr.strip().splitlines()[-1] if res.stderr else res.returncode}")
@@ -84,7 +90,12 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=2, help="interleaved repeats of the issue-22 speed rows")
     ap.add_argument("--skip-before", action="store_true", help="issue-22 rows: skip the pre-issue default")
     ap.add_argument("--only-speed", action="store_true", help="only the issue-22 speed rows")
+    ap.add_argument("--threads", type=int, default=0,
+                    help="torch threads in each run (default torch's: one per core); on a shared, loaded machine "
+                         "1 avoids oversubscription and its CPU seconds are the work itself")
     a = ap.parse_args()
+    global THREADS
+    THREADS = a.threads
     from facetex.bench._common import data_folder, data_root  # --data or $FACETEX_DATA, never a machine path
     a.data = str(data_folder(data_root(a.data), "frl-london"))
     content = Path(a.data) / f"{a.content}_neutral.jpg"
