@@ -620,7 +620,8 @@ def run(args) -> int:
     n_people = len(list_portraits(data, tag="neutral"))
     total = max(1, min(int(args.pairs), n_people * (n_people - 1))) * len(methods)
     if args.pair_list is not None:
-        total = max(1, min(int(args.pairs), len(resolve_pair_list(args.pair_list, list_portraits(data, tag="neutral")))))
+        listed = resolve_pair_list(args.pair_list, list_portraits(data, tag="neutral"))
+        total = max(1, min(int(args.pairs), len(listed)))
         total *= len(methods)
     from ..cli._common import engine_from_args
 

@@ -40,7 +40,8 @@ def run(args) -> int:
         print(f"hair leakage (forehead change coherence): {r['hair_leakage']:.3f} (pasting the style: "
               f"{r['hair_leakage_style']:.3f})")
         print(f"dark specks per 1000 px on upper lip and chin: output {r['stubble_output']:.2f}, content "
-              f"{r['stubble_content']:.2f}, style {r['stubble_style']:.2f} (moved {r['stubble_moved']:+.2f} of the way)")
+              f"{r['stubble_content']:.2f}, style {r['stubble_style']:.2f} "
+              f"(moved {r['stubble_moved']:+.2f} of the way)")
         print(f"skin coverage (fraction changed): {r['coverage']:.2f}; fine detail moved {r['detail_moved']:+.2f} of "
               f"the way (cheeks where the style is rougher {r['detail_moved_cheeks']:+.2f})")
         print(f"marks: content {r['marks_content']:.0f} ({r['marks_kept']:.0%} kept), style {r['marks_style']:.0f} "

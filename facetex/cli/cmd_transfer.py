@@ -21,7 +21,8 @@ MAX_LEVELS = 8
 
 METHOD_HELP = {"facetex": "FaceTex (Eq. 5: MRF texture + facial structure + TV, skin only)",
                "mrf": "MRF-CNN baseline (Eq. 7)", "gatys": "Gatys neural style baseline (Eq. 6)"}
-PRESET_HELP = {"default": "384 px face crop, 3 x 100 L-BFGS iterations, minutes on a CPU",
+PRESET_HELP = {"default": "384 px face crop, up to 3 x 100 L-BFGS iterations (a level ends when its loss stops "
+                          "falling), seconds on a CPU",
                "paper": "the paper's whole image at 1000 px, 3 x 200 iterations (much slower)",
                "preview": "the default's steps at 256 px and 3 x 20 iterations: seconds, to choose a style"}
 
@@ -100,7 +101,8 @@ def register(sub) -> None:
                    help="on (default preset): the content keeps its own low-frequency skin colour and shading, the "
                         "style brings only detail; off: the style's shading and colour cast come too")
     p.add_argument("--marks", choices=("content", "style", "off"),
-                   help="moles and spots: keep the content's (default preset), bring the style's, or off (no marks step)")
+                   help="moles and spots: keep the content's (default preset), bring the style's, or off "
+                        "(no marks step)")
     p.add_argument("--save-every", type=positive_int, metavar="N",
                    help="every N loss evaluations (and after each level) write the full-size image so far as "
                         "OUT_level<L>_eval<NNNN>.png beside OUT (kept if the run is interrupted)")
