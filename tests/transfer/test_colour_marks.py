@@ -122,3 +122,19 @@ def test_keep_shading_splits_luminance_and_chroma_scales():
     tint = content + np.array([0.06, -0.03, 0.0], np.float32)  # constant: removed at any σ
     got = keep_content_shading(tint, content, skin, sigma=30.0, colour_sigma=2.0)
     assert np.abs(got - content).max() < 1e-3
+
+
+def test_presets_keep_the_contents_shading_and_marks_and_preview_is_small():
+    from facetex.transfer.methods import preset
+
+    d, v, p = preset("facetex", "default"), preset("facetex", "preview"), preset("facetex", "paper")
+    assert d.keep_shading and d.marks == "content" and d.converge == (10, 0.01)
+    assert v.keep_shading and v.marks == "content" and v.size == 256 and sum(v.iters) < sum(d.iters) / 4
+    assert v.detail and v.constraint == "skin"  # the default's steps, smaller
+    assert not p.keep_shading and p.marks == "off"  # the paper's method as published
+    assert not preset("mrf", "default").keep_shading
+    assert not d.with_options(keep_shading=False).keep_shading and d.with_options(marks="style").marks == "style"
+    with pytest.raises(BadInputError, match="marks must be"):
+        d.with_options(marks="both")
+    with pytest.raises(BadInputError, match="shading_sigma"):
+        d.with_options(shading_sigma=0.0)
