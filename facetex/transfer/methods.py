@@ -62,7 +62,7 @@ NET_LAYERS = {
 # kept landmarks and identity best of level1..level4 and pairs of them (docs/texture-nets.md).
 STRUCTURE_LAYERS = ("level2", "level3")
 PREVIEW_SIZE = 256  # px: the preview preset's working size
-PREVIEW_ITERS = (20, 20, 20)
+PREVIEW_ITERS = (16, 16, 16)
 
 
 @dataclass(frozen=True)
@@ -177,7 +177,8 @@ def preset(method: str = "facetex", name: str = "default", texture_net: str | No
     if name == "preview":
         # the default's steps at 256 px and a few iterations per level: a look in seconds
         # while choosing a style (issue 22: <= 5 s per 1000 px portrait on 2 cores)
-        base = replace(base, size=PREVIEW_SIZE, iters=PREVIEW_ITERS, eval_budget=1.25, align_refine="optical-flow")
+        # (no optical-flow refinement of the pre-warp: the landmark morph is enough for a look)
+        base = replace(base, size=PREVIEW_SIZE, iters=PREVIEW_ITERS, eval_budget=1.25, align_refine=None)
     elif name == "paper":
         # 200 iterations per level, or until the loss falls < 1 % in 20 iterations: on the
         # default preset's finest level (FRL 083 <- 005) that is ~100 iterations, and the next
@@ -185,10 +186,11 @@ def preset(method: str = "facetex", name: str = "default", texture_net: str | No
         base = replace(base, size=1000, crop="image", levels=3, iters=(200, 200, 200), converge=(20, 0.01))
     else:
         base = replace(base, eval_budget=1.25)  # torch's max_eval default: the speed budget holds
-        # a level ends when its best loss fell < 1 % in 10 iterations (issue 22, speed: on the
+        # a level ends when its best loss fell < 2 % in 10 iterations (issue 22, speed: on the
         # finest level the loss fell 46, 7.8, 3.1, 1.7, 1.2 % per 20 evaluations, so it stops
-        # after ~60-80 of its 100 iterations; docs/facetex-fidelity.md §5)
-        base = replace(base, converge=(10, 0.01))
+        # after ~50 of its 100 iterations; at < 1 % FRL 004 <- 005 ran 60, 80, 80 iterations,
+        # 262 evaluations, 22 % less CPU than 3 x 100: not enough for 20 s; docs/facetex-fidelity.md §6)
+        base = replace(base, converge=(10, 0.02))
         # measured on 10 FRL pairs at 1000 px (benchmarks/geometry_align.py): optical-flow
         # refinement left 2.66 px landmark error vs 2.93 px for SIFT flow, at 1/7 of the time
         base = replace(base, align_refine="optical-flow")
