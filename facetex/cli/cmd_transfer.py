@@ -24,7 +24,7 @@ METHOD_HELP = {"facetex": "FaceTex (Eq. 5: MRF texture + facial structure + TV, 
 PRESET_HELP = {"default": "384 px face crop, up to 3 x 100 L-BFGS iterations (a level ends when its loss stops "
                           "falling), seconds on a CPU",
                "paper": "the paper's whole image at 1000 px, 3 x 200 iterations (much slower)",
-               "preview": "the default's steps at 256 px and 3 x 16 iterations: seconds, to choose a style"}
+               "preview": "the default's steps at 256 px and 3 x 12 iterations: seconds, to choose a style"}
 
 
 def _iters(text: str) -> tuple[int, ...]:

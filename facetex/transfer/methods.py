@@ -62,7 +62,7 @@ NET_LAYERS = {
 # kept landmarks and identity best of level1..level4 and pairs of them (docs/texture-nets.md).
 STRUCTURE_LAYERS = ("level2", "level3")
 PREVIEW_SIZE = 256  # px: the preview preset's working size
-PREVIEW_ITERS = (16, 16, 16)
+PREVIEW_ITERS = (12, 12, 12)
 
 
 @dataclass(frozen=True)
