@@ -195,7 +195,7 @@ _WEIGHTS = ("mrf_weight", "structure_weight", "content_weight", "style_weight", 
 
 
 def _transfer_options(size, iters, texture_net, weights: dict, crop, detail, detail_strength,
-                      options: dict) -> dict:
+                      options: dict, keep_shading=None, marks=None) -> dict:
     out = dict(options)
     if size is not None:
         out["size"] = int(size)
@@ -216,6 +216,10 @@ def _transfer_options(size, iters, texture_net, weights: dict, crop, detail, det
         out["detail"] = bool(detail)
     if detail_strength is not None:
         out["detail_strength"] = float(detail_strength)
+    if keep_shading is not None:
+        out["keep_shading"] = bool(keep_shading)
+    if marks is not None:
+        out["marks"] = marks
     return out
 
 
@@ -245,7 +249,7 @@ def transfer_with_info(
     style: ImageLike,
     *,
     method: Literal["facetex", "mrf", "gatys"] = "facetex",
-    preset: Literal["default", "paper"] = "default",
+    preset: Literal["default", "paper", "preview"] = "default",
     size: int | None = None,
     iters: int | str | Sequence[int] | None = None,
     texture_net: Literal["effnet-lite0", "vgg19", "face-resnet"] | None = None,
@@ -257,6 +261,8 @@ def transfer_with_info(
     crop: Literal["face", "image"] | None = None,
     detail: bool | None = None,
     detail_strength: float | None = None,
+    keep_shading: bool | None = None,
+    marks: Literal["content", "style", "off"] | None = None,
     init: Literal["content", "random"] | ImageLike = "content",
     seed: int = 0,
     device: str = "cpu",
@@ -282,9 +288,10 @@ def transfer_with_info(
         a PIL image, or an (H, W, 3) array (uint8, or float in [0, 1]).
     method : {"facetex", "mrf", "gatys"}
         FaceTex (default), MRF-CNN or Neural Style.
-    preset : {"default", "paper"}
-        "default": a face crop at 384 px, 3 x 100 L-BFGS iterations (minutes on a CPU);
-        "paper": the paper's whole-image 1000 px schedule.
+    preset : {"default", "paper", "preview"}
+        "default": a face crop at 384 px, up to 3 x 100 L-BFGS iterations (seconds on a CPU);
+        "paper": the paper's whole-image 1000 px schedule; "preview": the default's steps at
+        256 px and a few iterations, to choose a style.
     size : int, optional
         Long edge of the working region in px (32..4096); default the preset's.
     iters : int, str or sequence of int, optional
@@ -301,6 +308,12 @@ def transfer_with_info(
         Run the native-resolution skin-detail stage (on in the default FaceTex preset).
     detail_strength : float, optional
         Strength of that stage, 0..2.
+    keep_shading : bool, optional
+        The output keeps the content's low-frequency skin colour and shading, the style
+        brings only detail (on in the default FaceTex preset; off: the style's shading too).
+    marks : {"content", "style", "off"}, optional
+        Moles and spots: the content's kept ("content", the default FaceTex preset), the
+        style's brought ("style"), or no marks step ("off").
     init : {"content", "random"} or image
         Where the optimisation starts: the content (FaceTex §2.3), uniform noise (seeded),
         or an image (path, PIL or array) of the content's size.
@@ -362,7 +375,8 @@ def transfer_with_info(
         style_source = os.fspath(style)
     weights = dict(mrf_weight=mrf_weight, structure_weight=structure_weight, content_weight=content_weight,
                    style_weight=style_weight, tv_weight=tv_weight)
-    opts = _transfer_options(size, iters, texture_net, weights, crop, detail, detail_strength, options)
+    opts = _transfer_options(size, iters, texture_net, weights, crop, detail, detail_strength, options,
+                             keep_shading=keep_shading, marks=marks)
     params = transfer_params(method, preset, **opts)  # bad options fail before any image is read
     if save_every is not None and (not isinstance(save_every, (int, np.integer)) or save_every < 1):
         raise BadInputError(f"save_every must be a positive integer, not {save_every!r}")
@@ -384,7 +398,7 @@ def transfer(
     style: ImageLike,
     *,
     method: Literal["facetex", "mrf", "gatys"] = "facetex",
-    preset: Literal["default", "paper"] = "default",
+    preset: Literal["default", "paper", "preview"] = "default",
     size: int | None = None,
     iters: int | str | Sequence[int] | None = None,
     texture_net: Literal["effnet-lite0", "vgg19", "face-resnet"] | None = None,
@@ -396,6 +410,8 @@ def transfer(
     crop: Literal["face", "image"] | None = None,
     detail: bool | None = None,
     detail_strength: float | None = None,
+    keep_shading: bool | None = None,
+    marks: Literal["content", "style", "off"] | None = None,
     init: Literal["content", "random"] | ImageLike = "content",
     seed: int = 0,
     device: str = "cpu",
@@ -417,8 +433,9 @@ def transfer(
         The face whose identity is kept and the face whose texture is transferred.
     method : {"facetex", "mrf", "gatys"}
         FaceTex (Eq. 5, default), MRF-CNN (Eq. 7) or Neural Style (Eq. 6).
-    preset : {"default", "paper"}
-        The default 384 px face-crop schedule or the paper's 1000 px whole-image one.
+    preset : {"default", "paper", "preview"}
+        The default 384 px face-crop schedule, the paper's 1000 px whole-image one, or a quick
+        256 px preview.
     size : int, optional
         Long edge of the working region in px.
     iters : int, str or sequence of int, optional
@@ -433,6 +450,10 @@ def transfer(
         Native-resolution skin-detail stage on/off.
     detail_strength : float, optional
         Its strength, 0..2.
+    keep_shading : bool, optional
+        Keep the content's low-frequency skin colour and shading (default preset: on).
+    marks : {"content", "style", "off"}, optional
+        Keep the content's marks or bring the style's (default preset: "content").
     init : {"content", "random"} or image
         Start of the optimisation.
     seed : int
@@ -477,7 +498,8 @@ def transfer(
         content, style, method=method, preset=preset, size=size, iters=iters, texture_net=texture_net,
         mrf_weight=mrf_weight, structure_weight=structure_weight, content_weight=content_weight,
         style_weight=style_weight, tv_weight=tv_weight, crop=crop, detail=detail, detail_strength=detail_strength,
-        init=init, seed=seed, device=device, progress=progress, callback=callback, save_every=save_every,
+        keep_shading=keep_shading, marks=marks, init=init, seed=seed, device=device, progress=progress,
+        callback=callback, save_every=save_every,
         content_points=content_points, style_points=style_points, max_memory=max_memory, **options)[0]
 
 

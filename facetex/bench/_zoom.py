@@ -14,7 +14,7 @@ import numpy as np
 
 __all__ = ["ZOOM_REGIONS", "zoom_boxes", "zoom_sheet"]
 
-ZOOM_REGIONS = ("forehead", "left cheek", "right cheek", "chin", "eyes", "mouth", "jaw edge")
+ZOOM_REGIONS = ("forehead", "left cheek", "right cheek", "upper lip", "chin", "eyes", "mouth", "jaw edge")
 
 
 def zoom_boxes(points68) -> dict[str, tuple[int, int, int, int]]:
@@ -26,12 +26,13 @@ def zoom_boxes(points68) -> dict[str, tuple[int, int, int, int]]:
         "forehead": (p[19] + p[24]) / 2 - [0, 0.45 * eye],
         "left cheek": (p[2] + p[31]) / 2 + [-0.1 * eye, -0.15 * eye],
         "right cheek": (p[14] + p[35]) / 2 + [0.1 * eye, -0.15 * eye],
+        "upper lip": (p[33] + p[51]) / 2,
         "chin": p[8] - [0, 0.25 * eye],
         "eyes": (p[36] + p[45]) / 2,
         "mouth": (p[48] + p[54]) / 2,
         "jaw edge": p[4],
     }
-    wide = {"eyes": (int(1.6 * eye), s), "mouth": (int(0.9 * eye), s)}
+    wide = {"eyes": (int(1.6 * eye), s), "mouth": (int(0.9 * eye), s), "upper lip": (int(0.9 * eye), int(0.3 * eye))}
     out = {}
     for k, c in centres.items():
         w, h = wide.get(k, (s, s))

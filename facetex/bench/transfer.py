@@ -15,6 +15,11 @@ pair, each output is scored against its content and style images with
   native resolution of the content, the pre-warped style and every output;
 - ``images/<content>__<style>__prewarp.png`` — the pre-warped style the optimiser got.
 
+Pairs are drawn by a seeded hash (:func:`facetex.bench._common.select_pairs`) or taken from
+an explicit list (``pair_list``; :data:`ISSUE22_PAIRS` is the documented one of issue 22:
+styles with a fringe, with stubble or a beard, with shiny skin, and pairs that differ in skin
+tone and sex). ``table.md`` also lists the issue-22 measures per pair, worst first.
+
 Besides the methods, a "no transfer" row scores the content itself as the output: a
 metric that moves less than its distance from that row has shown nothing.
 
@@ -44,10 +49,11 @@ __all__ = ["METHODS", "METHOD_TITLES", "METHOD_COLOURS", "PAPER_TABLE1", "PRESET
 DATA_SUBFOLDER = "frl-london"  # inside --data / $FACETEX_DATA (or --data is this folder itself)
 METHODS = ("gatys", "mrf", "facetex")
 NONE = "none"  # the content scored as the output ("doing nothing")
-PRESETS = ("default", "paper")
+PRESETS = ("default", "paper", "preview")
 METHOD_TITLES = {"gatys": "Neural Style", "mrf": "MRF-CNN", "facetex": "FaceTex", NONE: "no transfer"}
 METHOD_COLOURS = {"gatys": "tab:red", "mrf": "tab:green", "facetex": "tab:blue", NONE: "tab:gray"}  # Figure 4
 GRID_ORDER = ("mrf", "facetex", "gatys")  # Figure 3: style, content, MRF-CNN, FaceTex, Neural Style
+ZOOM_ROWS = ("forehead", "left cheek", "upper lip", "chin")  # where hair, shine and stubble show
 SAME_PERSON = 0.6  # dlib's same-person threshold for the identity distance
 
 # FaceTex Table 1 (Kaur, Zhang & Dana 2017): means over the five pairs of Figure 3
@@ -58,7 +64,39 @@ PAPER_TABLE1 = {
 }
 METRIC_KEYS = ("E_content", "E_style", "E_content_rms_px", "E_style_rms_px", "S_content", "S_style",
                "identity_content", "identity_style", "S_style_none", "S_style_gain", "detail_output",
-               "detail_content", "detail_style", "detail_ratio", "protected_change", "background_change")
+               "detail_content", "detail_style", "detail_ratio", "protected_change", "background_change",
+               "lowfreq_dE", "lowfreq_dE_max_region", "hair_leakage", "hair_leakage_style", "stubble_output",
+               "stubble_content", "stubble_style", "stubble_moved", "coverage", "detail_moved",
+               "detail_moved_cheeks", "marks_content", "marks_kept", "marks_style", "marks_arrived")
+
+# Issue 22's pairs (content, style) of FRL London neutral portraits, chosen by looking at them:
+# the style has a fringe (F), stubble or a beard (B), shiny skin (S); the two differ in skin
+# tone (T) and/or sex (X). The first 10 are the quick set used while iterating.
+ISSUE22_PAIRS = (
+    ("083", "037"),  # B X: pale young woman <- full-bearded man
+    ("010", "003"),  # F: woman <- woman with a heavy fringe
+    ("081", "043"),  # S T X: pale blonde woman <- dark-skinned man, shiny forehead
+    ("025", "022"),  # B T X: dark-skinned woman <- pale man with a goatee and stubble
+    ("087", "067"),  # F X: East Asian woman <- man with a long fringe
+    ("063", "061"),  # S T: pale man <- dark-skinned man with shiny skin
+    ("090", "092"),  # B X: woman <- bearded man
+    ("042", "003"),  # F T X: dark-skinned man <- pale woman with a fringe
+    ("030", "021"),  # S X: South-East Asian woman <- bald man, shiny head and forehead
+    ("019", "004"),  # B X: young woman <- man with stubble
+    ("009", "033"),  # B X: woman <- man with heavy stubble
+    ("018", "045"),  # F: man <- man with a fringe
+    ("097", "081"),  # F: woman <- woman with a side fringe
+    ("006", "042"),  # S X: dark-skinned woman <- dark-skinned man, shiny skin
+    ("061", "083"),  # T X: dark-skinned man <- pale woman
+    ("062", "009"),  # T: dark-skinned woman <- pale woman
+    ("002", "070"),  # B X: woman <- man with stubble
+    ("034", "008"),  # T X: East Asian woman <- South Asian man
+    ("068", "096"),  # T: pale man <- dark-skinned man
+    ("044", "039"),  # X: freckled man <- woman
+    ("038", "014"),  # spotted skin woman <- smooth-skinned woman (marks)
+    ("004", "005"),  # B: the project's usual pair (stubbled man <- East Asian man)
+)
+PAIR_LISTS = {"issue22": ISSUE22_PAIRS}
 
 TABLE_COLUMNS = (
     Column("method", "method"),
@@ -78,11 +116,60 @@ TABLE_COLUMNS = (
     Column("protected_change", "protected Δ", ".2f"),
     Column("background_change", "background Δ", ".2f"),
     Column("prewarp_folds", "folds", "d"),
+    Column("lowfreq_dE", "LF ΔE", ".2f"),
+    Column("lowfreq_dE_max_region", "LF ΔE max", ".2f"),
+    Column("hair_leakage", "hair coh", ".3f"),
+    Column("stubble_moved", "stubble moved", "+.2f"),
+    Column("coverage", "coverage", ".2f"),
+    Column("detail_moved", "detail moved", "+.2f"),
+    Column("detail_moved_cheeks", "detail moved cheeks", "+.2f"),
+    Column("marks_kept", "marks kept", ".2f"),
+    Column("marks_arrived", "marks arrived", ".2f"),
     Column("time_s", "s / image", ".1f"),
+    Column("cpu_s", "CPU s / image", ".1f"),
+)
+# per pair (the method's row), worst low-frequency ΔE first
+PAIR_COLUMNS = (
+    Column("pair", "content ← style"), Column("method", "method"),
+    Column("lowfreq_dE", "LF ΔE", ".2f"), Column("lowfreq_dE_max_region", "LF ΔE max", ".2f"),
+    Column("S_style_gain", "S gain", "+.3f"), Column("identity_content", "id(xt,xc)", ".3f"),
+    Column("hair_leakage", "hair coh", ".3f"), Column("hair_leakage_style", "hair coh (style)", ".3f"),
+    Column("stubble_output", "specks out", ".2f"), Column("stubble_content", "specks content", ".2f"),
+    Column("stubble_style", "specks style", ".2f"), Column("stubble_moved", "stubble moved", "+.2f"),
+    Column("coverage", "coverage", ".2f"), Column("detail_moved", "detail moved", "+.2f"),
+    Column("detail_moved_cheeks", "moved cheeks", "+.2f"), Column("marks_content", "marks c", "d"),
+    Column("marks_kept", "kept", ".2f"), Column("marks_style", "marks s", "d"),
+    Column("marks_arrived", "arrived", ".2f"), Column("protected_change", "protected Δ", ".2f"),
+    Column("background_change", "background Δ", ".2f"), Column("time_s", "s", ".1f"),
 )
 PAPER_COLUMNS = (Column("method", "method"), Column("E_content", "E(xt,xc)", ".2f"),
                  Column("E_style", "E(xt,xs)", ".2f"), Column("S_content", "S(xt,xc)", ".2f"),
                  Column("S_style", "S(xt,xs)", ".2f"))
+
+
+def resolve_pair_list(pair_list, portraits) -> list[tuple[str, str]]:
+    """(content, style) id pairs from a :data:`PAIR_LISTS` name, a "c:s,c:s" string or a
+    sequence of pairs; every id must have a portrait in ``portraits``."""
+    if isinstance(pair_list, str):
+        if pair_list in PAIR_LISTS:
+            pairs = list(PAIR_LISTS[pair_list])
+        else:
+            try:
+                pairs = [tuple(x.split(":")) for x in pair_list.split(",") if x.strip()]
+            except ValueError:
+                pairs = []
+            if not pairs or any(len(p) != 2 for p in pairs):
+                raise BadInputError(f"pair list {pair_list!r} is neither one of {', '.join(PAIR_LISTS)} nor "
+                                    "'content:style,content:style,...'")
+    else:
+        pairs = [tuple(p) for p in pair_list]
+    pairs = [(str(c).strip(), str(s).strip()) for c, s in pairs]
+    missing = sorted({i for p in pairs for i in p if i not in portraits})
+    if missing:
+        raise BadInputError(f"pair list names people without an NNN_neutral.jpg portrait: {', '.join(missing)}")
+    if any(c == s for c, s in pairs):
+        raise BadInputError("a pair of the pair list has the same person as content and style")
+    return pairs
 
 
 def parse_methods(methods) -> tuple[str, ...]:
@@ -148,12 +235,29 @@ def _summary_rows(records: dict, pairs, methods) -> list[dict]:
             row[k] = mean_finite(r["metrics"][k] for r in recs)
         row["same_identity"] = sum(1 for r in recs if r["metrics"]["identity_content"] < SAME_PERSON)
         row["time_s"] = mean_finite(r["wall_s"] for r in recs)
+        row["cpu_s"] = mean_finite(r.get("cpu_s", float("nan")) for r in recs)
         row["prewarp_folds"] = int(sum(int(r.get("prewarp_folds") or 0) for r in recs))
         rows.append(row)
     return rows
 
 
-def _table_markdown(rows, settings) -> str:
+def _pair_rows(records: dict, pairs, methods) -> list[dict]:
+    """One row per (pair, method) with its metrics, worst low-frequency ΔE first."""
+    rows = []
+    for m in methods:
+        for c, s in pairs:
+            r = records.get((c, s, m))
+            if r is None:
+                continue
+            met = dict(r["metrics"])
+            for k in ("marks_content", "marks_style"):
+                met[k] = int(met[k]) if np.isfinite(met.get(k, float("nan"))) else -1
+            rows.append({"pair": f"{c} ← {s}", "method": METHOD_TITLES[m], **met, "time_s": r["wall_s"]})
+    key = lambda r: -r["lowfreq_dE"] if np.isfinite(r.get("lowfreq_dE", float("nan"))) else 0.0  # noqa: E731
+    return sorted(rows, key=key)
+
+
+def _table_markdown(rows, settings, pair_rows=()) -> str:
     paper = [{"method": f"{METHOD_TITLES[m]} (paper)", **PAPER_TABLE1[m]} for m in METHODS]
     return "\n".join([
         "# FaceTex Table 1 — facial style transfer benchmark",
@@ -167,9 +271,20 @@ def _table_markdown(rows, settings) -> str:
         "three skin patches at native resolution, detail ratio = detail(output) / detail(style aligned onto "
         "the content); protected Δ = mean |Δ| (0–255) over eyes, brows and lips; background Δ = mean |Δ| "
         "outside the face; folds = pre-warp pixels of the face where the map folds (all pairs). "
-        "\"no transfer\" scores the content itself as the output.",
+        "\"no transfer\" scores the content itself as the output. "
+        "Issue 22: LF ΔE = ΔE76 (CIELAB) of the content's skin between output and content, both blurred at "
+        "0.1 × the eye distance over the skin only (mean; max = worst of forehead and cheek patches); hair coh "
+        "= structure-tensor coherence of the change image on the forehead skin (oriented strands: higher; "
+        "style = what pasting the aligned style would give); specks = dark specks per 1000 px on the upper "
+        "lip and chin, stubble moved = (output − content) / (style − content); coverage = fraction of the "
+        "content's skin that changed (|Δ| blurred at 2 px > 1/255); detail moved = fraction of the way the "
+        "σ = 2 px high-pass moved from the content's level to the style's own (cheeks: where the style is "
+        "rougher); marks kept / arrived = the content's blobs (LoG) found again in the output / the style's "
+        "that appear there. CPU s = process CPU time per image (the machine may be shared).",
         "",
         markdown_table(TABLE_COLUMNS, rows),
+        *(["## Per pair, worst low-frequency ΔE first", "", markdown_table(PAIR_COLUMNS, list(pair_rows))]
+          if pair_rows else []),
         "## Paper (Kaur, Zhang & Dana 2017, Table 1; head portraits of Shih et al., 5 pairs)",
         "",
         markdown_table(PAPER_COLUMNS, paper),
@@ -225,7 +340,7 @@ def _write_pair_zoom(out: Path, c: str, s: str, paths, methods, records, load) -
         img = out / "images" / f"{ResultStore.key(c, s, m)}.png"
         if (c, s, m) in records and img.is_file():
             cols.append((METHOD_TITLES[m], read_image(img)))
-    sheet = zoom_sheet(cols, d["points_c"], title=f"content {c}, style {s} (2x, nearest)")
+    sheet = zoom_sheet(cols, d["points_c"], regions=ZOOM_ROWS, title=f"content {c}, style {s} (2x, nearest)")
     target.parent.mkdir(exist_ok=True)
     return write_image(target, sheet, overwrite=True)
 
@@ -279,10 +394,10 @@ def _transfer_item(job: dict) -> dict:
     options, preset, seed, device = job["options"], job["preset"], job["seed"], job["device"]
     key, image_path = job["key"], out / "images" / f"{job['key']}.png"
     extra = {"aligned_style": d["aligned"]} if metrics_fn is _default_metrics else {}
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     output, info = transfer_fn(d["content"], d["style"], method=method, preset=preset, seed=seed,
                                device=device, progress=job.get("progress"), **options)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     info = dict(info or {})
     images = info.pop("images", None) or {}
     # score what is saved (8-bit), so re-measuring the PNG gives the same numbers
@@ -300,7 +415,7 @@ def _transfer_item(job: dict) -> dict:
         "preset": preset, "seed": int(seed), "device": device, "options": options,
         "wall_s": wall, **no_image_data(dict(info or {})), "versions": job["versions"]}), overwrite=True)
     rec = {"content": c, "style": s, "method": method, "config": job["config"], "metrics": metrics,
-           "metrics_error": error, "wall_s": wall, "prewarp_folds": info.get("prewarp_folds"),
+           "metrics_error": error, "wall_s": wall, "cpu_s": cpu, "prewarp_folds": info.get("prewarp_folds"),
            "timings": dict(info.get("timings", {})),
            "image": str(image_path.relative_to(out))}
     ResultStore(out / "results").put(key, rec)  # last: its presence marks the item done
@@ -311,7 +426,8 @@ def run_bench_transfer(data, out="bench_out/transfer", *, pairs: int = 5,
                        methods: Sequence[str] | str = METHODS, preset: str = "default", seed: int = 0,
                        size: int | None = None, iters=None, device: str = "cpu", overwrite: bool = False,
                        transfer_fn: Callable | None = None, metrics_fn: Callable | None = None,
-                       progress: Callable | None = None, engine=None) -> dict:
+                       progress: Callable | None = None, engine=None, pair_list=None,
+                       transfer_options: dict | None = None) -> dict:
     """Run the FaceTex §3.1 benchmark and write its tables, figures and per-pair results to ``out``.
 
     ``transfer_fn(content, style, *, method, preset, seed, device, progress, **options)``
@@ -322,6 +438,9 @@ def run_bench_transfer(data, out="bench_out/transfer", *, pairs: int = 5,
     method) and gets ``n=0`` updates with the transfer's own iteration count.
     ``engine`` (:mod:`facetex.batch.engines`, started): the (pair, method) transfers run as its
     items (``transfer_fn`` / ``metrics_fn`` must then be picklable); default: one after another here.
+    ``pair_list``: a name of :data:`PAIR_LISTS` ("issue22") or a sequence of (content,
+    style) ids: its first ``pairs`` pairs are run instead of hashed ones.
+    ``transfer_options``: more options for every transfer (e.g. ``keep_shading``, ``marks``).
     Returns the output paths, the Table 1 rows and the counts of run / reused items."""
     methods = parse_methods(methods)
     if preset not in PRESETS:
@@ -333,11 +452,15 @@ def run_bench_transfer(data, out="bench_out/transfer", *, pairs: int = 5,
     if len(portraits) < 2:
         raise BadInputError(f"found {len(portraits)} person(s) with an NNN_neutral.jpg portrait, "
                             "need at least 2 different people", path=data)
-    chosen = select_pairs(list(portraits), int(pairs), seed=seed)
+    if pair_list is None:
+        chosen = select_pairs(list(portraits), int(pairs), seed=seed)
+    else:
+        chosen = resolve_pair_list(pair_list, portraits)[:int(pairs)]
     out = check_out_dir(out)
     (out / "images").mkdir(exist_ok=True)
     store = ResultStore(out / "results")
     options = {} if size is None else {"size": int(size)}
+    options.update(transfer_options or {})
     if iters is not None:
         options["iters"] = list(iters)
     transfer_fn = transfer_fn or _default_transfer_fn()
@@ -345,6 +468,8 @@ def run_bench_transfer(data, out="bench_out/transfer", *, pairs: int = 5,
         metrics_fn = _default_metrics
     settings = {"data": str(data.resolve()), "seed": int(seed), "preset": preset, "methods": list(methods),
                 "n_pairs": len(chosen), "pairs_requested": int(pairs), "size": size, "device": device,
+                "pair_list": pair_list if isinstance(pair_list, str) or pair_list is None else "explicit",
+                "transfer_options": dict(transfer_options or {}),
                 "versions": versions()}
 
     from ..batch import map_items
@@ -430,7 +555,7 @@ def run_bench_transfer(data, out="bench_out/transfer", *, pairs: int = 5,
         "table": rows,
         "paper_table1": PAPER_TABLE1,
     }), overwrite=True)
-    write_text(files["table_md"], _table_markdown(rows, settings))
+    write_text(files["table_md"], _table_markdown(rows, settings, _pair_rows(records, chosen, tuple(methods))))
     write_text(files["table_csv"], csv_table((Column("method_id", ""),) + TABLE_COLUMNS, rows))
     files["zoom"] = _write_zoom(out / "zoom.png", out, chosen)
     _write_grid(files["grid"], out, chosen, portraits, methods, records)
@@ -458,6 +583,13 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
     p.add_argument("--iters", type=_iters, default=None, metavar="N,N,N",
                    help="L-BFGS iterations per level passed to the transfer, e.g. 5,5,5 for a quick run "
                         "(default: the preset's)")
+    p.add_argument("--pair-list", metavar="NAME|C:S,...", default=None,
+                   help=f"run these (content:style) pairs instead of hashed ones: {', '.join(PAIR_LISTS)} (the "
+                        "documented issue-22 list, 22 pairs) or e.g. 083:037,010:003; --pairs takes its first N")
+    p.add_argument("--keep-shading", choices=("on", "off"), default=None,
+                   help="FaceTex: keep the content's low-frequency colour and shading (default: the preset's)")
+    p.add_argument("--marks", choices=("content", "style", "off"), default=None,
+                   help="FaceTex: keep the content's marks or bring the style's (default: the preset's)")
     add_seed_device(p)
     add_overwrite(p)
     from ..cli._common import add_engine_options
@@ -466,6 +598,16 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
                                                     "one after another in this process); ray: items in flight")
     p.set_defaults(func=run)
     return p
+
+
+def _finish_options(args) -> dict:
+    """The transfer options of ``--keep-shading`` / ``--marks`` (only those given)."""
+    out = {}
+    if getattr(args, "keep_shading", None) is not None:
+        out["keep_shading"] = args.keep_shading == "on"
+    if getattr(args, "marks", None) is not None:
+        out["marks"] = args.marks
+    return out
 
 
 def run(args) -> int:
@@ -477,13 +619,18 @@ def run(args) -> int:
     data = data_folder(data_root(args.data), DATA_SUBFOLDER)
     n_people = len(list_portraits(data, tag="neutral"))
     total = max(1, min(int(args.pairs), n_people * (n_people - 1))) * len(methods)
+    if args.pair_list is not None:
+        listed = resolve_pair_list(args.pair_list, list_portraits(data, tag="neutral"))
+        total = max(1, min(int(args.pairs), len(listed)))
+        total *= len(methods)
     from ..cli._common import engine_from_args
 
     with engine_from_args(args, inline_single=True) as engine, \
             progress_bar(total=total, desc="bench transfer", unit="run", disable=args.quiet) as update:
         result = run_bench_transfer(data, args.out, pairs=args.pairs, methods=methods, preset=args.preset,
                                     seed=args.seed, size=args.size, iters=args.iters, device=args.device,
-                                    overwrite=args.overwrite, progress=update, engine=engine)
+                                    overwrite=args.overwrite, progress=update, engine=engine,
+                                    pair_list=args.pair_list, transfer_options=_finish_options(args))
     table = Path(result["files"]["table_md"]).read_text(encoding="utf-8")
     finish_bench(args, "transfer", result["out"], result["files"], inputs={"data": data},
                  settings={"data": str(data)},

@@ -6,7 +6,9 @@ from ._common import print_json
 
 
 def register(sub) -> None:
-    p = sub.add_parser("metrics", help="landmark error, texture similarity and identity distance of a transfer output")
+    p = sub.add_parser("metrics", help="landmark error, texture similarity, identity distance and the skin measures "
+                                       "(low-frequency ΔE, hair and stubble leakage, coverage, detail moved, marks) "
+                                       "of a transfer output")
     p.add_argument("output", help="the transferred image x_t")
     p.add_argument("content", help="the content image x_c")
     p.add_argument("style", help="the style image x_s")
@@ -32,4 +34,16 @@ def run(args) -> int:
         print(f"texture similarity S (Eq. 8): content {result['S_content']:.3f}, style {result['S_style']:.3f}")
         print(f"identity distance (< 0.6 = same person): content {result['identity_content']:.3f},"
               f" style {result['identity_style']:.3f}")
+        r = result
+        print(f"low-frequency skin ΔE (blur 0.1 x eye distance): mean {r['lowfreq_dE']:.2f}, worst patch "
+              f"{r['lowfreq_dE_max_region']:.2f}")
+        print(f"hair leakage (forehead change coherence): {r['hair_leakage']:.3f} (pasting the style: "
+              f"{r['hair_leakage_style']:.3f})")
+        print(f"dark specks per 1000 px on upper lip and chin: output {r['stubble_output']:.2f}, content "
+              f"{r['stubble_content']:.2f}, style {r['stubble_style']:.2f} "
+              f"(moved {r['stubble_moved']:+.2f} of the way)")
+        print(f"skin coverage (fraction changed): {r['coverage']:.2f}; fine detail moved {r['detail_moved']:+.2f} of "
+              f"the way (cheeks where the style is rougher {r['detail_moved_cheeks']:+.2f})")
+        print(f"marks: content {r['marks_content']:.0f} ({r['marks_kept']:.0%} kept), style {r['marks_style']:.0f} "
+              f"({r['marks_arrived']:.0%} arrived)")
     return 0

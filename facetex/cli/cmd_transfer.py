@@ -21,8 +21,10 @@ MAX_LEVELS = 8
 
 METHOD_HELP = {"facetex": "FaceTex (Eq. 5: MRF texture + facial structure + TV, skin only)",
                "mrf": "MRF-CNN baseline (Eq. 7)", "gatys": "Gatys neural style baseline (Eq. 6)"}
-PRESET_HELP = {"default": "384 px face crop, 3 x 100 L-BFGS iterations, minutes on a CPU",
-               "paper": "the paper's whole image at 1000 px, 3 x 200 iterations (much slower)"}
+PRESET_HELP = {"default": "384 px face crop, up to 3 x 100 L-BFGS iterations (a level ends when its loss stops "
+                          "falling), seconds on a CPU",
+               "paper": "the paper's whole image at 1000 px, 3 x 200 iterations (much slower)",
+               "preview": "the default's steps at 256 px and 3 x 12 iterations: seconds, to choose a style"}
 
 
 def _iters(text: str) -> tuple[int, ...]:
@@ -95,6 +97,12 @@ def register(sub) -> None:
                         "torchvision file in $TORCH_HOME)")
     p.add_argument("--vgg19-weights", metavar="PATH", help="path of torchvision's vgg19-dcbb9e9d.pth (for --texture-net vgg19)")
     p.add_argument("--crop", choices=("face", "image"), help="work on a face crop (default preset) or the whole image")
+    p.add_argument("--keep-shading", choices=("on", "off"),
+                   help="on (default preset): the content keeps its own low-frequency skin colour and shading, the "
+                        "style brings only detail; off: the style's shading and colour cast come too")
+    p.add_argument("--marks", choices=("content", "style", "off"),
+                   help="moles and spots: keep the content's (default preset), bring the style's, or off "
+                        "(no marks step)")
     p.add_argument("--save-every", type=positive_int, metavar="N",
                    help="every N loss evaluations (and after each level) write the full-size image so far as "
                         "OUT_level<L>_eval<NNNN>.png beside OUT (kept if the run is interrupted)")
@@ -141,7 +149,9 @@ def run(args) -> int:
         check_input_file(p)
     weights = {f"{k}_weight": getattr(args, f"{k}_weight") for k in ("mrf", "structure", "content", "style", "tv")}
     options = {k: v for k, v in {"size": args.size, "iters": args.iters, "texture_net": args.texture_net,
-                                  "vgg19_weights": args.vgg19_weights, "crop": args.crop, **weights}.items()
+                                  "vgg19_weights": args.vgg19_weights, "crop": args.crop, **weights,
+                                  "keep_shading": None if args.keep_shading is None else args.keep_shading == "on",
+                                  "marks": args.marks}.items()
                if v is not None}
     params = transfer_params(args.method, args.preset, **options)
     check_device(args.device)

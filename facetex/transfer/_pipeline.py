@@ -375,7 +375,7 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
     # masks: skin of both faces (content region frame), facial prior, face region
     t0 = time.perf_counter()
     needs_skin = params.constraint == "skin" or params.style_region == "skin" or params.target_region == "skin" \
-        or params.detail
+        or params.detail or params.keep_shading or params.marks != "off"
     skin_c = skin_s = None
     if needs_skin:
         from ..geometry.skin import skin_mask
@@ -451,6 +451,21 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
                                                        style_energy=energies, face_width=face_width(cpr),
                                                        params=dparams, return_info=True)
     timings["detail_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    marks_info = None
+    if params.marks != "off":
+        from .marks import transfer_marks
+
+        out_region, found = transfer_marks(out_region, region, style_native, skin_c, skin_s, mode=params.marks,
+                                           face_width=face_width(cpr), return_info=True)
+        marks_info = {"mode": params.marks, "content": int(len(found["content"])), "style": int(len(found["style"]))}
+    if params.keep_shading:
+        from .colour import eye_distance, keep_content_shading
+
+        ed = eye_distance(cpr)
+        out_region = keep_content_shading(out_region, region, skin_c, params.shading_sigma * ed,
+                                          colour_sigma=params.colour_sigma * ed)
+    timings["finish_s"] = time.perf_counter() - t0
     out = _compose(content, region, box, out_region, params)
     timings["total_s"] = time.perf_counter() - t_start
     info = {
@@ -459,7 +474,7 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
         "timings": timings, "levels": info["levels"],
         "optimizer": {k: info[k] for k in ("optimizer", "line_search", "lbfgs_history", "clamp")},
         "region_box": list(map(int, box)), "working_shape": list(wh), "warnings": warn,
-        "prewarp_folds": int(folds), "detail": detail_info,
+        "prewarp_folds": int(folds), "detail": detail_info, "marks": marks_info,
         "memory_estimate_bytes": need, "versions": _versions(__version__),
         "images": {"content_w": content_w, "style_w": style_w, "output_w": out_w, "prior": prior, "face": face,
                    "region": region, "style_native": style_native, "skin_content": skin_c, "skin_style": skin_s,

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field, replace
 from ..errors import BadInputError
 
 METHODS = ("facetex", "mrf", "gatys")
-PRESETS = ("default", "paper")
+PRESETS = ("default", "paper", "preview")
 TEXTURE_NETS = ("effnet-lite0", "vgg19", "face-resnet")
 
 # Layer roles per texture network: MRF texture layers, content layer, Gram style layers.
@@ -61,6 +61,8 @@ NET_LAYERS = {
 # VGG-Face relu4_2: mid-level maps on the 150 px face chip (17² and 8²); at weight 1 they
 # kept landmarks and identity best of level1..level4 and pairs of them (docs/texture-nets.md).
 STRUCTURE_LAYERS = ("level2", "level3")
+PREVIEW_SIZE = 256  # px: the preview preset's working size
+PREVIEW_ITERS = (12, 12, 12)
 
 
 @dataclass(frozen=True)
@@ -99,6 +101,10 @@ class TransferParams:
     feature_temperature: float = 1.0
     detail: bool = False  # native-resolution skin detail stage (transfer/detail.py)
     detail_strength: float = 1.0
+    keep_shading: bool = False  # the content keeps its low-frequency colour and shading in the skin (colour.py)
+    shading_sigma: float = 0.15  # the shading step's low-pass σ of the luminance, × the eye distance (colour.py)
+    colour_sigma: float = 0.05  # … and of the chroma (colour cast)
+    marks: str = "off"  # "content": keep the content's moles/spots; "style": the style's (marks.py); "off"
     lbfgs_history: int = 25
     eval_budget: float = 2.0  # loss evaluations per level ≤ this × iterations (strong-Wolfe uses 1–4 per iteration)
     converge: tuple[int, float] | None = None  # (k, rtol): a level ends when its loss fell < rtol in k iterations
@@ -148,6 +154,11 @@ class TransferParams:
         if self.converge is not None and (len(self.converge) != 2 or int(self.converge[0]) < 1
                                           or not float(self.converge[1]) >= 0):
             raise BadInputError(f"converge must be (iterations >= 1, relative tolerance >= 0), got {self.converge!r}")
+        if self.marks not in ("off", "content", "style"):
+            raise BadInputError(f"marks must be 'content', 'style' or 'off', not {self.marks!r}")
+        for name in ("shading_sigma", "colour_sigma"):
+            if not 0.0 < getattr(self, name) <= 1.0:
+                raise BadInputError(f"{name} must be in (0, 1] (× the eye distance), got {getattr(self, name)}")
         if not 0.0 <= self.detail_strength <= 2.0:
             raise BadInputError(f"detail_strength must be in [0, 2], got {self.detail_strength}")
 
@@ -163,13 +174,23 @@ def preset(method: str = "facetex", name: str = "default", texture_net: str | No
         raise BadInputError(f"unknown texture network {net!r}: use one of {', '.join(TEXTURE_NETS)}")
     layers = NET_LAYERS[net]
     base = TransferParams(method=method, preset=name, texture_net=net)
-    if name == "paper":
+    if name == "preview":
+        # the default's steps at 256 px and a few iterations per level: a look in seconds
+        # while choosing a style (issue 22: <= 5 s per 1000 px portrait on 2 cores)
+        # (no optical-flow refinement of the pre-warp: the landmark morph is enough for a look)
+        base = replace(base, size=PREVIEW_SIZE, iters=PREVIEW_ITERS, eval_budget=1.25, align_refine=None)
+    elif name == "paper":
         # 200 iterations per level, or until the loss falls < 1 % in 20 iterations: on the
         # default preset's finest level (FRL 083 <- 005) that is ~100 iterations, and the next
         # 100 lowered the loss by 2.6 % more (docs/facetex-fidelity.md §5)
         base = replace(base, size=1000, crop="image", levels=3, iters=(200, 200, 200), converge=(20, 0.01))
     else:
         base = replace(base, eval_budget=1.25)  # torch's max_eval default: the speed budget holds
+        # a level ends when its best loss fell < 2 % in 10 iterations (issue 22, speed: on the
+        # finest level the loss fell 46, 7.8, 3.1, 1.7, 1.2 % per 20 evaluations, so it stops
+        # after ~50 of its 100 iterations; at < 1 % FRL 004 <- 005 ran 60, 80, 80 iterations,
+        # 262 evaluations, 22 % less CPU than 3 x 100: not enough for 20 s; docs/facetex-fidelity.md §6)
+        base = replace(base, converge=(10, 0.02))
         # measured on 10 FRL pairs at 1000 px (benchmarks/geometry_align.py): optical-flow
         # refinement left 2.66 px landmark error vs 2.93 px for SIFT flow, at 1/7 of the time
         base = replace(base, align_refine="optical-flow")
@@ -181,11 +202,14 @@ def preset(method: str = "facetex", name: str = "default", texture_net: str | No
             # the prior and face mask freeze everything outside the face (§3.1): texture patches
             # there cannot change, so they are not matched (same optimum, a fraction of the time)
             p = replace(p, target_region="face")
-        if name == "default":
+        if name in ("default", "preview"):
             # only the content's skin changes (hard constraint instead of the gradient-scaling
             # prior, which L-BFGS undoes), texture from the style's skin only, and the style's
             # own pore-level detail at native resolution (docs/facetex-fidelity.md)
             p = replace(p, prior=False, constraint="skin", style_region="skin", target_region="skin", detail=True)
+            # detail, not lighting: the style brings texture, the content keeps its own colour,
+            # shading and marks (issue 22)
+            p = replace(p, keep_shading=True, marks="content")
     elif method == "mrf":  # Eq. 7: texture + content + TV
         p = replace(base, mrf_layers=layers["mrf"], mrf_weight=1.0, content_layers=layers["content"],
                     content_weight=0.3, tv_weight=0.05, style_region="image")

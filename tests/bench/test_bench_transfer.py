@@ -357,3 +357,33 @@ def test_engine_gives_the_sequential_results(data, tmp_path):
         assert (tmp_path / "seq" / name).read_bytes() == (tmp_path / "par" / name).read_bytes()
     resumed = bench.run_bench_transfer(data, tmp_path / "par", **kw)
     assert (resumed["n_run"], resumed["n_reused"]) == (0, 4)
+
+
+def test_pair_list_explicit_and_named(data, tmp_path, monkeypatch):
+    portraits = {p: None for p in PEOPLE}
+    assert bench.resolve_pair_list("003:004,005:008", portraits) == [("003", "004"), ("005", "008")]
+    assert bench.resolve_pair_list([("008", "003")], portraits) == [("008", "003")]
+    with pytest.raises(BadInputError, match="without an NNN_neutral.jpg portrait: 999"):
+        bench.resolve_pair_list("003:999", portraits)
+    with pytest.raises(BadInputError, match="neither one of issue22"):
+        bench.resolve_pair_list("003-004", portraits)
+    with pytest.raises(BadInputError, match="same person"):
+        bench.resolve_pair_list("003:003", portraits)
+    # the documented issue-22 list: ≥ 20 pairs of different people, no pair twice
+    assert len(bench.ISSUE22_PAIRS) >= 20 and len(set(bench.ISSUE22_PAIRS)) == len(bench.ISSUE22_PAIRS)
+    assert all(c != s for c, s in bench.ISSUE22_PAIRS)
+    # the run takes the list's first --pairs pairs, passes --keep-shading / --marks on, and writes
+    # the per-pair table
+    fake = FakeTransfer()
+    monkeypatch.setattr(bench, "_default_transfer_fn", lambda: fake)
+    monkeypatch.setattr("facetex.metrics.transfer_metrics", quick_metrics)
+    parser = argparse.ArgumentParser()
+    bench.register_bench(parser.add_subparsers())
+    args = parser.parse_args(["transfer", "--data", str(data), "--out", str(tmp_path / "o"), "--pairs", "1",
+                              "--methods", "facetex", "--pair-list", "005:003,004:008", "--keep-shading", "off",
+                              "--marks", "style", "-q"])
+    assert args.func(args) == 0
+    assert fake.calls == [("facetex", {"keep_shading": False, "marks": "style"})]
+    res = json.loads((tmp_path / "o" / "results.json").read_text())
+    assert [(p["content"], p["style"]) for p in res["pairs"]] == [("005", "003")]
+    assert "## Per pair, worst low-frequency ΔE first" in (tmp_path / "o" / "table.md").read_text()

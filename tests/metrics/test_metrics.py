@@ -96,7 +96,15 @@ def test_metrics_cli_json(capsys):
     assert set(out) == {"E_content", "E_style", "E_content_rms_px", "E_style_rms_px",
                         "S_content", "S_style", "identity_content", "identity_style", "S_style_none",
                         "S_style_gain", "detail_output", "detail_content", "detail_style", "detail_style_own",
-                        "detail_ratio", "protected_change", "background_change"}
+                        "detail_ratio", "protected_change", "background_change",
+                        # issue 22
+                        "lowfreq_dE", "lowfreq_dE_max_region", "hair_leakage", "hair_leakage_style",
+                        "stubble_output", "stubble_content", "stubble_style", "stubble_moved", "coverage",
+                        "detail_moved", "detail_moved_cheeks", "marks_content", "marks_kept", "marks_style",
+                        "marks_arrived"}
+    # doing nothing: no colour change, no coverage, no detail or stubble moved, every mark kept
+    assert out["lowfreq_dE"] == 0.0 and out["coverage"] == 0.0 and out["stubble_output"] == out["stubble_content"]
+    assert out["detail_moved"] == 0.0 and out["marks_kept"] in (1.0, None)
     assert out["E_content"] == 0.0 and out["S_content"] == pytest.approx(1.0)
     # the content scored as its own output: no gain, no change, its own detail
     assert out["S_style_gain"] == 0.0 and out["protected_change"] == 0.0 and out["background_change"] == 0.0
