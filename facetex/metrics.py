@@ -226,9 +226,11 @@ def protected_change(output, content, *, points=None, source=None) -> float:
 
 def face_area_mask(image, points68, *, mesh=None, margin: float = 0.03) -> np.ndarray:
     """bool (H, W): the face (jaw + forehead outline, united with the mesh's face oval when
-    ``mesh`` is given) grown by ``margin`` × face width. Its complement is the background."""
+    ``mesh`` is given, and with the head region where the transfer may find skin: up to the
+    hairline, the temples and the jaw edge) grown by ``margin`` × face width. Its complement
+    is the background."""
     from .geometry.masks import face_outline, face_width
-    from .geometry.skin import FACE_OVAL_468
+    from .geometry.skin import FACE_OVAL_468, head_region_mask
 
     p = _as_points(points68, "points68")
     h, w = np.asarray(image).shape[:2]
@@ -237,6 +239,7 @@ def face_area_mask(image, points68, *, mesh=None, margin: float = 0.03) -> np.nd
     if mesh is not None:
         oval = np.asarray(mesh)[list(FACE_OVAL_468), :2]
         cv2.fillPoly(m, [np.round(oval * 16).astype(np.int32)], 1, cv2.LINE_8, 4)
+    m |= head_region_mask(p, (h, w), mesh=mesh).astype(np.uint8)
     r = max(1, int(round(margin * face_width(p))))
     m = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
     return m.astype(bool)
