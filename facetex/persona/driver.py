@@ -524,6 +524,18 @@ def _increasing(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return xs[keep], ys[keep]
 
 
+
+def _upper_lower_field(fields, motion68) -> np.ndarray:
+    """(h, w, 2) motion of a :class:`LipFields` / :class:`LidFields`: the upper and lower
+    landmarks' fields mixed by each grid point's ``side`` (0 upper, 1 lower)."""
+    (mu, ou), (ml, ol) = fields.upper, fields.lower
+    r = np.asarray(motion68, np.float32)
+    up, lo = ou @ r[mu], ol @ r[ml]
+    out = np.empty(up.shape, np.float32)
+    for c in range(2):  # per column: numpy broadcasts over a length-2 axis slowly
+        out[:, c] = up[:, c] + fields.side * (lo[:, c] - up[:, c])
+    return out.reshape(fields.shape + (2,))
+
 class LipFields:
     """Thin-plate-spline fields of lip and jaw motion on a grid, split at the mouth.
 
@@ -569,13 +581,7 @@ class LipFields:
         self.side = np.where(outside > 0, sig, inside).astype(np.float32)
 
     def __call__(self, motion68) -> np.ndarray:
-        (mu, ou), (ml, ol) = self.upper, self.lower
-        r = np.asarray(motion68, np.float32)
-        up, lo = ou @ r[mu], ol @ r[ml]
-        out = np.empty(up.shape, np.float32)
-        for c in range(2):  # per column: numpy broadcasts over a length-2 axis slowly
-            out[:, c] = up[:, c] + self.side * (lo[:, c] - up[:, c])
-        return out.reshape(self.shape + (2,))
+        return _upper_lower_field(self, motion68)
 
 
 #: iBUG-68 brow points (right 17-21, left 22-26)
@@ -876,10 +882,4 @@ class LidFields:
         self.side = side.astype(np.float32)
 
     def __call__(self, motion68) -> np.ndarray:
-        (mu, ou), (ml, ol) = self.upper, self.lower
-        r = np.asarray(motion68, np.float32)
-        up, lo = ou @ r[mu], ol @ r[ml]
-        out = np.empty(up.shape, np.float32)
-        for c in range(2):  # per column: numpy broadcasts over a length-2 axis slowly
-            out[:, c] = up[:, c] + self.side * (lo[:, c] - up[:, c])
-        return out.reshape(self.shape + (2,))
+        return _upper_lower_field(self, motion68)
