@@ -252,12 +252,18 @@ def test_bad_inputs(data, tmp_path):
         _run(data, tmp_path / "o", FakeTransfer(), preset="fast")
 
 
-def test_cli_parser_and_run(data, tmp_path, monkeypatch, capsys):
+def _fake_bench_parser(monkeypatch):
+    """(FakeTransfer, the bench's argument parser) with the fake transfer and quick metrics patched in."""
     fake = FakeTransfer()
     monkeypatch.setattr(bench, "_default_transfer_fn", lambda: fake)
     monkeypatch.setattr("facetex.metrics.transfer_metrics", quick_metrics)
     parser = argparse.ArgumentParser()
     bench.register_bench(parser.add_subparsers())
+    return fake, parser
+
+
+def test_cli_parser_and_run(data, tmp_path, monkeypatch, capsys):
+    fake, parser = _fake_bench_parser(monkeypatch)
     args = parser.parse_args(["transfer", "--data", str(data), "--out", str(tmp_path / "o"), "--pairs", "1",
                               "--methods", "mrf", "--seed", "2", "--preset", "paper", "--json"])
     assert args.func(args) == 0
@@ -374,11 +380,7 @@ def test_pair_list_explicit_and_named(data, tmp_path, monkeypatch):
     assert all(c != s for c, s in bench.ISSUE22_PAIRS)
     # the run takes the list's first --pairs pairs, passes --keep-shading / --marks on, and writes
     # the per-pair table
-    fake = FakeTransfer()
-    monkeypatch.setattr(bench, "_default_transfer_fn", lambda: fake)
-    monkeypatch.setattr("facetex.metrics.transfer_metrics", quick_metrics)
-    parser = argparse.ArgumentParser()
-    bench.register_bench(parser.add_subparsers())
+    fake, parser = _fake_bench_parser(monkeypatch)
     args = parser.parse_args(["transfer", "--data", str(data), "--out", str(tmp_path / "o"), "--pairs", "1",
                               "--methods", "facetex", "--pair-list", "005:003,004:008", "--keep-shading", "off",
                               "--marks", "style", "-q"])

@@ -448,6 +448,16 @@ def test_version3_file_loads_and_uses_its_float16_stacks(persona, tmp_path):
     assert (tmp_path / "v4.persona").stat().st_size < 0.5 * v3.stat().st_size
 
 
+def _saved_parts(persona, path):
+    """(header without the derived size/n_photos, member arrays) of ``persona`` saved to ``path``."""
+    good = persona.save(path)
+    head = read_persona_header(good)
+    for k in ("size", "n_photos"):
+        head.pop(k)
+    with np.load(good) as z:
+        return head, {k: z[k] for k in z.files if k != "header"}
+
+
 def test_bad_texture_stacks_refused(persona, tmp_path):
     def nan(head, meta, arrays):
         arrays["texture_stack_0"] = np.full_like(arrays["texture_stack_0"], np.nan)
@@ -464,12 +474,7 @@ def test_bad_texture_stacks_refused(persona, tmp_path):
         with pytest.raises(BadPersonaError, match=words):
             load_persona(path)
     # version 4: the aligned photos' description and packing
-    good = persona.save(tmp_path / "good.persona")
-    head = read_persona_header(good)
-    for k in ("size", "n_photos"):
-        head.pop(k)
-    with np.load(good) as z:
-        arrays = {k: z[k] for k in z.files if k != "header"}
+    head, arrays = _saved_parts(persona, tmp_path / "good.persona")
     n = len(persona)
     cases = [
         ("range", {**head, "texture_stacks": {**head["texture_stacks"], "aligned": {"conf_range": [1, 0.5]}}},
@@ -491,12 +496,7 @@ def test_packed_stream_that_does_not_unpack_is_refused_on_first_use(persona, tmp
     BadPersonaError naming the file when the array is first used, not garbage pixels."""
     import zlib
 
-    good = persona.save(tmp_path / "good.persona")
-    head = read_persona_header(good)
-    for k in ("size", "n_photos"):
-        head.pop(k)
-    with np.load(good) as z:
-        arrays = {k: z[k] for k in z.files if k != "header"}
+    head, arrays = _saved_parts(persona, tmp_path / "good.persona")
     for member in ("images", "texture_aligned"):
         blob, off = arrays[member].copy(), arrays[f"{member}_offsets"]
         # photo 1's stream: a valid zlib stream of other bytes, repeated (the zip's CRC is made anew)
