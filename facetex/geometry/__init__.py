@@ -5,6 +5,7 @@
 - :mod:`.flow`: dense correspondence (variational optical flow, SIFT-flow-like), flow utilities
 - :mod:`.frontalize`: head pose by PnP on a generic 3D face, frontalization
 - :mod:`.masks`: the FaceTex facial prior mask and the face-region mask
+- :mod:`.glasses`: eyeglasses in a face photo (the frame's bridge over the nose)
 """
 
 from .._lazy import lazy_attributes as _lazy_attributes

@@ -139,7 +139,12 @@ class TextureParams:
     bands from the few photos nearest the expression, the coarse ones from the broad average;
     the eyes' whole expression-weighted pyramid, the rest of the face's two finest bands);
     eye_quality: exponent of each photo's eye-detail confidence in the eyes' detail weights
-    (:meth:`_Prepared.eye_quality`; 0: none); restore: (region, levels): the finest ``levels``
+    (:meth:`_Prepared.eye_quality`; 0: none); glasses: exponent of the eyes' detail weights'
+    penalty of photos with eyeglasses (:meth:`_Prepared.glasses_free`; 0: none: a collection
+    with a few glasses photos drew the frames as ghost rings round the puppet's eyes);
+    mouth detail: the mouth's whole pyramid from the photos nearest the expression, like the
+    eyes' (averaged lips were pale and blurred, and dlib read the puppet's mouth 0.55-0.7 as
+    open as its mesh); restore: (region, levels): the finest ``levels``
     bands of ``region`` get their photos' own band energy back (:meth:`_Prepared._restore_detail`),
     the gain at most ``restore_gain``."""
 
@@ -159,9 +164,10 @@ class TextureParams:
     max_photos: int | None = 32
     weights: str = "regional"
     neighbours: int | tuple = 3
-    detail: tuple = (("eyes", 4.0, 5), ("face", 2.0, 2))
+    detail: tuple = (("eyes", 4.0, 5), ("face", 2.0, 2), ("mouth", 4.0, 5))
     eye_quality: float = 1.5
-    restore: tuple = (("face", 3),)
+    glasses: float = 4.0
+    restore: tuple = (("face", 3), ("mouth", 3))
     restore_gain: float = 3.0
 
     def detail_of(self, region: str) -> tuple[float, int]:
@@ -774,7 +780,11 @@ class _Prepared:
 
             for j, name in enumerate(self.regions):
                 power, nlev = self.tp.detail_of(name)
-                q = self.eye_quality() if name == "eyes" and self.tp.eye_quality > 0 else None
+                q = None
+                if name == "eyes" and self.tp.eye_quality > 0:
+                    q = self.eye_quality()
+                if name == "eyes" and self.tp.glasses > 0:
+                    q = self.glasses_free() if q is None else q * self.glasses_free()
                 if nlev > 0 and (power != 1 or q is not None):
                     fine[j] = (nlev, matrix(detail_weights(Wn[j], power, q)))
         bands = []
@@ -919,6 +929,20 @@ class _Prepared:
             med = float(np.median(e)) if np.median(e) > 0 else 1.0
             q = np.clip((e / med) ** (self.tp.eye_quality / 2.0), 0.25, 4.0)
             self._stage[key] = q
+        return self._stage[key]
+
+    def glasses_free(self) -> np.ndarray:
+        """(n,) weight in (0, 1] of each photo's eyes by how unlikely it shows eyeglasses
+        (:func:`facetex.geometry.glasses.glasses_weights` of the photos' bridge scores, exponent
+        ``tp.glasses``), once. The frames' rims are strong fine detail round the eyes: the
+        eye-detail weights favoured exactly those photos."""
+        key = ("glasses", self.tp.glasses)
+        if key not in self._stage:
+            from ..geometry.glasses import glasses_bridge_score, glasses_weights
+
+            P = self._persona_ref
+            scores = [glasses_bridge_score(im, p) for im, p in zip(P.images, P.points68)]
+            self._stage[key] = glasses_weights(scores, power=self.tp.glasses)
         return self._stage[key]
 
     @property

@@ -483,9 +483,39 @@ def test_eye_quality_ranks_a_photo_with_flat_eyes_last_and_detail_weights_are_op
     sharp = tx.blend_textures(tiny_persona, f, params=tp)
     assert np.abs(plain - sharp).max() > 1e-3
     off = tx.blend_textures(tiny_persona, f, params=dataclasses.replace(tp, detail=(("eyes", 1.0, 5),),
-                                                                         eye_quality=0, restore=()))
+                                                                         eye_quality=0, glasses=0, restore=()))
     plain = tx.blend_textures(tiny_persona, f, params=dataclasses.replace(tp, detail=(), eye_quality=0, restore=()))
     np.testing.assert_allclose(off, plain, atol=1e-6)
+
+
+def test_photos_with_glasses_lose_their_eye_detail_weight(tiny_persona):
+    import copy
+
+    from facetex.persona import texture as tx
+
+    tp = tx.TextureParams()
+    prep = copy.copy(tx.prepare_persona(tiny_persona, tp))
+    prep._stage = {}
+    persona = copy.copy(tiny_persona)
+    images = np.array(tiny_persona.images, copy=True)
+    p = tiny_persona.points68[0]
+    iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
+    y = int(round((p[39, 1] + p[42, 1]) / 2 - 0.1 * iod))
+    dark = 30 if images.dtype == np.uint8 else 30 / 255
+    cv2.line(images[0], (int(p[39, 0]) - 2, y), (int(p[42, 0]) + 2, y), (dark,) * 3, 2)  # photo 0's bridge
+    persona.images = images
+    prep._persona_ref = persona
+    g = prep.glasses_free()
+    assert g.shape == (len(tiny_persona),) and np.all((g > 0) & (g <= 1))
+    assert np.argmin(g) == 0 and g[0] < 0.5 and np.median(g) == 1.0
+    # in the eyes' detail weights: photo 0 weighs less than without the penalty
+    from facetex.persona.weights import detail_weights
+
+    S = tx.target_weights(tiny_persona, tiny_persona.fiducials[:1], tp)[:, list(prep.regions).index("eyes")]
+    S = np.full_like(S, 1.0)
+    with_g = detail_weights(S, 4.0, prep.eye_quality() * g)
+    without = detail_weights(S, 4.0, prep.eye_quality())
+    assert with_g[0, 0] < 0.5 * without[0, 0]
 
 
 def test_detail_restoration_gives_the_blend_its_photos_band_energy(tiny_persona):
