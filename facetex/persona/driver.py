@@ -82,13 +82,18 @@ __all__ = [
 _INNER_UPPER = (61, 62, 63)
 _INNER_LOWER = (67, 66, 65)
 _EYE_OUTER = (36, 45)
+#: iBUG-68 points the puppet's mouth follows (:class:`LipFields`): the lips and the lower jaw
+_MOUTH_FIDUCIALS = tuple(range(4, 13)) + tuple(range(48, 68))
 
 
 @dataclass(frozen=True)
 class DriverParams:
     """size: canonical frame (W, H); grid_step: depth-map grid step (canonical px) of the
     deformation field; smooth_window / smooth_order: Savitzky-Golay filter over frames (a
-    window of 1 disables it); subspace_frames: frontalized frames kept for the driver's 2D
+    window of 1 disables it); lip_smooth_window: the same filter's window for the lip and jaw
+    fiducials the puppet's mouth follows (3 with order 2: unfiltered; a syllable's opening lasts
+    3-6 frames at 25 fps, and the 5-frame window cut its peaks: the puppet's mouth opened 0.88
+    as far as the driver's on GRID); subspace_frames: frontalized frames kept for the driver's 2D
     average and appearance subspace; min_mesh_score: mesh face score below which a frame is lost;
     redetect_every: frames between face detections (landmarks are tracked in between);
     mouth_correction: lips and jaw of the driver's translation field follow the tracked
@@ -99,6 +104,7 @@ class DriverParams:
     grid_step: int = 2
     smooth_window: int = 5
     smooth_order: int = 2
+    lip_smooth_window: int = 3
     subspace_frames: int = 24
     min_mesh_score: float = 0.5
     procrustes_iters: int = 3
@@ -794,7 +800,11 @@ def driver_motion(track: DriverTrack, params: DriverParams = DriverParams(), *, 
     for i in np.flatnonzero(found):
         x3 = _lift_points(p68[i], mesh[i], triangles)
         fid68[i] = (np.linalg.solve(A[i], (x3 - b[i]).T).T)[:, :2]
-    fid68 = smooth_series(fill_lost(fid68, found), w, o)
+    filled = fill_lost(fid68, found)
+    fid68 = smooth_series(filled, w, o)
+    if params.lip_smooth_window != w:
+        mouth_pts = list(_MOUTH_FIDUCIALS)
+        fid68[:, mouth_pts] = smooth_series(filled[:, mouth_pts], params.lip_smooth_window, o)
     fid = fid68[:, POINTS49_INDEX]
     # depth-map grid
     W, H = params.size
