@@ -29,6 +29,9 @@ def register(sub) -> None:
     p.add_argument("--colour", choices=("driver", "persona"), default="driver",
                    help="composite mode: the puppet takes the driver's skin colour and lighting (default), or keeps "
                         "the persona's skin tone and takes only the driver's lighting (persona)")
+    p.add_argument("--sharpen", type=finite_float(1.0, 4.0), default=2.0, metavar="GAIN",
+                   help="composite mode: raise the puppet's fine detail towards the driver frame's, at most by "
+                        "this gain (default 2; 1 = off; 1..4)")
     p.add_argument("--texture", choices=("ours", "static"), default="ours",
                    help="expression-dependent texture (default) or the static average texture")
     p.add_argument("--weights", choices=("regional", "global"), default="regional",
@@ -85,7 +88,8 @@ def _run(args, tracker) -> int:
     from ..persona.puppet import PuppetParams, puppeteer
 
     params = PuppetParams(texture=args.texture, weights=args.weights, correspondence=args.correspondence,
-                          weight_smoothing=args.weight_smoothing, composite=CompositeParams(lighting=args.lighting, colour=args.colour))
+                          weight_smoothing=args.weight_smoothing, composite=CompositeParams(lighting=args.lighting, colour=args.colour,
+                                                    sharpen=args.sharpen))
     with progress_bar(2 * n, desc="puppet", unit="frame", disable=args.quiet) as bar:
         report = puppeteer(args.driver, args.puppet, args.output, driver_photos=args.driver_photos,
                            side_by_side=args.side_by_side, size=args.size, mode=args.mode,
@@ -97,7 +101,7 @@ def _run(args, tracker) -> int:
         params={"side_by_side": args.side_by_side, "size": args.size, "mode": args.mode, "texture": args.texture,
                 "weights": args.weights, "weight_smoothing": args.weight_smoothing,
                 "correspondence": args.correspondence, "lighting": args.lighting, "colour": args.colour,
-                "max_frames": args.max_frames,
+                "sharpen": args.sharpen, "max_frames": args.max_frames,
                 "puppet_params": params},
         outputs=[out], result=report), overwrite=args.overwrite, inputs=inputs)
     if report["lost_frames"] and not args.quiet:

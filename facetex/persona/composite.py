@@ -26,6 +26,11 @@ looks pasted on unless its colour, lighting and outline come from the frame it s
 * **occlusion**: what lies over the driver's face (a fringe, glasses, a hand of another colour:
   not its skin by its own colour model, outside its eyes, brows and lips) stays in front of the
   puppet (:func:`occlusion_mask`);
+* **sharpness**: the puppet's fine detail is scaled to the driver's frame's (unsharp mask of
+  bounded gain, :func:`match_sharpness`): the persona's texture has been resampled four times
+  (frontalized, aligned, blended, rendered) and its small collections' photos are soft, so a
+  puppet sat in a video frame as a smooth mask (skin detail 0.34-0.68 of the driver's, Laplacian
+  variance, on the 44-71-photo personas);
 * **gradient-domain blending**: the puppet's gradients with the driver's values on the mask
   border (Pérez et al. 2003, OpenCV's ``seamlessClone``), so the colour is continuous across
   the border;
@@ -65,6 +70,7 @@ __all__ = [
     "transfer_skin_colour",
     "skin_pixels",
     "occlusion_mask",
+    "match_sharpness",
     "poisson_blend",
     "mouth_interior",
     "boundary_color_step",
@@ -422,6 +428,35 @@ def occlusion_mask(region, skin, features, points68, *, min_size: float = 0.03, 
     return occ * region
 
 
+def match_sharpness(src, ref, src_skin, ref_skin, *, sigma: float = 1.0, max_gain: float = 2.0,
+                    coverage=None) -> tuple[np.ndarray, float]:
+    """(``src`` sharpened, gain): ``src`` + (g − 1) x its high-pass (``src`` minus its Gaussian
+    of ``sigma`` px: an unsharp mask), g = the RMS of ``ref``'s high-pass on its bool
+    ``ref_skin`` pixels over ``src``'s on ``src_skin`` (luminance), clipped to [1, ``max_gain``]:
+    never blurred, never sharpened more than ``max_gain``. ``coverage`` (H, W) of ``src``: its
+    blur is normalized by the blurred coverage, so the silhouette's edge against the empty
+    outside does not ring. Images (H, W, 3) float [0, 1]; the result is clipped to [0, 1]."""
+    s = np.asarray(src, np.float32)
+    r = np.asarray(ref, np.float32)
+    cov = np.ones(s.shape[:2], np.float32) if coverage is None else np.asarray(coverage, np.float32)
+
+    def high(img, c):
+        blur = cv2.GaussianBlur(img * c[..., None], (0, 0), sigma)
+        wgt = cv2.GaussianBlur(c, (0, 0), sigma)[..., None]
+        return img - blur / np.maximum(wgt, 1e-3)
+
+    ms, mr = np.asarray(src_skin, bool), np.asarray(ref_skin, bool)
+    if ms.sum() < 16 or mr.sum() < 16:
+        return s.copy(), 1.0
+    hs = high(s, cov)
+    rs = float(np.sqrt(np.mean(((hs @ _LUMA)[ms]) ** 2)))
+    rr = float(np.sqrt(np.mean(((high(r, np.ones(r.shape[:2], np.float32)) @ _LUMA)[mr]) ** 2)))
+    g = float(np.clip(rr / max(rs, 1e-6), 1.0, max_gain))
+    if g <= 1.0:
+        return s.copy(), 1.0
+    return np.clip(s + (g - 1.0) * hs, 0.0, 1.0), g
+
+
 # ----------------------------------------------------------------------------- blending
 def poisson_blend(src, dst, mask, *, pad: int = 4) -> np.ndarray:
     """Gradient-domain composite (Pérez et al. 2003, "normal clone"): inside the bool ``mask``
@@ -689,7 +724,9 @@ class CompositeParams:
     0.10 / 0.08 eye distances 19 / 16 / 12 / 7.8 / 6.2; 0.12 to 0.08 look alike at 100 %) and by
     looking at the eyes: a gain from the skins' high-pass spreads (0.5 on a dark persona over a
     pale driver) greyed the irises;
-    occlusion: keep the driver's occluders in front (:func:`occlusion_mask`); poisson:
+    occlusion: keep the driver's occluders in front (:func:`occlusion_mask`); sharpen: the
+    puppet's fine detail is raised towards the driver's frame's, at most by this gain (1: off;
+    :func:`match_sharpness`); poisson:
     gradient-domain blending at the border; feather: width of the inward feather as a fraction of the eye-corner distance;
     erode: the driver's outline is shrunk by this fraction (the face-oval vertices sit on the
     silhouette, where skin meets hair or background); mouth: draw the driver's mouth interior
@@ -703,6 +740,7 @@ class CompositeParams:
     colour_sigma: float = 0.08
     colour_gain: tuple[float, float] = (2 / 3, 1.5)
     occlusion: bool = True
+    sharpen: float = 2.0
     poisson: bool = True
     feather: float = 0.06
     erode: float = 0.03
@@ -774,6 +812,11 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     drv_skin = skin_s if drv_skin is None or drv_skin.sum() < 16 else drv_skin
     pup_skin = skin_s if pup_skin is None or pup_skin.sum() < 16 else pup_skin
     out = pu
+    if params.sharpen > 1:
+        # skin of both, full size: the driver's landmarks (the puppet sits there), features cut out
+        skin_full = rg & ~feature_mask(p68 - [x0, y0], rg.shape)
+        out, _ = match_sharpness(pu, fr, skin_full, skin_full, max_gain=params.sharpen,
+                                 coverage=np.asarray(coverage, np.float32)[box])
     if params.lighting == "sh":
         if nr is None:
             raise BadInputError("lighting='sh' needs the puppet's normals")
@@ -797,7 +840,7 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
                 nd = smooth(dn, valid)
         # lighting from luminance only (colour comes from the statistics below): per-channel fits
         # turn red lips and stubble under the mouth into a colour cast of the downward normals
-        lin_p, lin_d = srgb_to_linear(pu), srgb_to_linear(fr)
+        lin_p, lin_d = srgb_to_linear(out), srgb_to_linear(fr)
         lum_p, lum_d = (lin_p @ _LUMA)[..., None], (lin_d @ _LUMA)[..., None]
         lp = fit_sh_lighting(lum_p, nr, skin)
         ld = fit_sh_lighting(lum_d, nd, skin)

@@ -16,6 +16,7 @@ from facetex.persona.composite import (
     inner_feather,
     linear_to_srgb,
     match_color_statistics,
+    match_sharpness,
     mouth_interior,
     occlusion_mask,
     poisson_blend,
@@ -503,3 +504,32 @@ def test_composite_rejects_an_unknown_lighting():
         composite_face(np.zeros((8, 8, 3)), np.zeros((8, 8, 3)), np.ones((8, 8)), np.zeros((8, 8, 3)),
                        driver_oval=np.zeros((3, 2)), driver_points68=np.zeros((68, 2)),
                        params=CompositeParams(lighting="studio"))
+
+
+def test_match_sharpness_scales_the_high_pass_to_the_references_never_blurs_and_is_bounded():
+    rng = np.random.default_rng(0)
+    n = cv2.GaussianBlur(rng.normal(0, 0.05, (64, 64, 3)).astype(np.float32), (0, 0), 0.7)
+    skin = np.ones((64, 64), bool)
+    src, ref = 0.5 + 0.5 * n, 0.5 + n
+    out, g = match_sharpness(src, ref, skin, skin, sigma=1.0, max_gain=3.0)
+    assert g == pytest.approx(2.0, rel=1e-3)  # the high-pass is linear: half the amplitude
+
+    def hp_rms(img):
+        return float(np.sqrt(np.mean((img - cv2.GaussianBlur(img, (0, 0), 1.0)) ** 2)))
+
+    assert hp_rms(out) == pytest.approx(hp_rms(ref), rel=0.15)
+    assert np.abs(out.mean() - src.mean()) < 1e-3  # detail only, the colour stays
+    same, g1 = match_sharpness(ref, src, skin, skin)  # a smoother reference: left alone
+    assert g1 == 1.0 and np.array_equal(same, ref)
+    _, g2 = match_sharpness(src, 0.5 + 10 * n, skin, skin, max_gain=2.0)
+    assert g2 == 2.0
+    # a flat puppet disc on an empty outside: the coverage-normalized blur does not ring at its edge
+    cov = np.zeros((64, 64), np.float32)
+    cv2.circle(cov, (32, 32), 20, 1.0, -1)
+    flat = np.zeros((64, 64, 3), np.float32) + 0.6 * cov[..., None]
+    inside = cov > 0
+    strong = 0.5 + 10 * n
+    out, g = match_sharpness(flat, strong, inside, skin, coverage=cov)
+    assert g == 2.0 and np.abs(out[inside] - 0.6).max() < 1e-4
+    plain, _ = match_sharpness(flat, strong, inside, skin)  # the edge against the black outside rings
+    assert np.abs(plain[inside] - 0.6).max() > 0.05
