@@ -29,9 +29,9 @@ def register(sub) -> None:
     p.add_argument("--colour", choices=("driver", "persona"), default="driver",
                    help="composite mode: the puppet takes the driver's skin colour and lighting (default), or keeps "
                         "the persona's skin tone and takes only the driver's lighting (persona)")
-    p.add_argument("--sharpen", type=finite_float(1.0, 4.0), default=2.0, metavar="GAIN",
+    p.add_argument("--sharpen", type=finite_float(1.0, 4.0), default=2.5, metavar="GAIN",
                    help="composite mode: raise the puppet's fine detail towards the driver frame's, at most by "
-                        "this gain (default 2; 1 = off; 1..4)")
+                        "this gain (default 2.5; 1 = off; 1..4)")
     p.add_argument("--texture", choices=("ours", "static"), default="ours",
                    help="expression-dependent texture (default) or the static average texture")
     p.add_argument("--weights", choices=("regional", "global"), default="regional",

@@ -740,7 +740,7 @@ class CompositeParams:
     colour_sigma: float = 0.08
     colour_gain: tuple[float, float] = (2 / 3, 1.5)
     occlusion: bool = True
-    sharpen: float = 2.0
+    sharpen: float = 2.5
     poisson: bool = True
     feather: float = 0.06
     erode: float = 0.03
