@@ -721,8 +721,9 @@ class CompositeParams:
     lightness-detail gain (:func:`transfer_skin_colour`). Chosen by the cheek ΔE (CIELAB) to the
     driver's own cheeks over 6 personas x 6 GRID clips (worst run, skin-only masks: mean shift 19,
     MKL 22 (and pink lips), per-channel histogram matching 27, smooth field at 0.4 / 0.25 / 0.15 /
-    0.10 / 0.08 eye distances 19 / 16 / 12 / 7.8 / 6.2; 0.12 to 0.08 look alike at 100 %) and by
-    looking at the eyes: a gain from the skins' high-pass spreads (0.5 on a dark persona over a
+    0.10 / 0.08 eye distances 19 / 16 / 12 / 7.8 / 6.2; 0.12 to 0.08 look alike at 100 %; with the
+    sharper eye and mouth textures 0.08 gave 9.1 on a dark persona over a pale driver, 0.06 7.2,
+    alike at 100 %) and by looking at the eyes: a gain from the skins' high-pass spreads (0.5 on a dark persona over a
     pale driver) greyed the irises;
     occlusion: keep the driver's occluders in front (:func:`occlusion_mask`); sharpen: the
     puppet's fine detail is raised towards the driver's frame's, at most by this gain (1: off;
@@ -737,7 +738,7 @@ class CompositeParams:
     sh_strength: float = 1.0
     normal_smoothing: float = 0.05
     colour: str = "driver"
-    colour_sigma: float = 0.08
+    colour_sigma: float = 0.06
     colour_gain: tuple[float, float] = (2 / 3, 1.5)
     occlusion: bool = True
     sharpen: float = 2.5
@@ -812,11 +813,6 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     drv_skin = skin_s if drv_skin is None or drv_skin.sum() < 16 else drv_skin
     pup_skin = skin_s if pup_skin is None or pup_skin.sum() < 16 else pup_skin
     out = pu
-    if params.sharpen > 1:
-        # skin of both, full size: the driver's landmarks (the puppet sits there), features cut out
-        skin_full = rg & ~feature_mask(p68 - [x0, y0], rg.shape)
-        out, _ = match_sharpness(pu, fr, skin_full, skin_full, max_gain=params.sharpen,
-                                 coverage=np.asarray(coverage, np.float32)[box])
     if params.lighting == "sh":
         if nr is None:
             raise BadInputError("lighting='sh' needs the puppet's normals")
@@ -840,7 +836,7 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
                 nd = smooth(dn, valid)
         # lighting from luminance only (colour comes from the statistics below): per-channel fits
         # turn red lips and stubble under the mouth into a colour cast of the downward normals
-        lin_p, lin_d = srgb_to_linear(out), srgb_to_linear(fr)
+        lin_p, lin_d = srgb_to_linear(pu), srgb_to_linear(fr)
         lum_p, lum_d = (lin_p @ _LUMA)[..., None], (lin_d @ _LUMA)[..., None]
         lp = fit_sh_lighting(lum_p, nr, skin)
         ld = fit_sh_lighting(lum_d, nd, skin)
@@ -849,6 +845,13 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     if params.lighting in ("sh", "stats"):
         out = transfer_skin_colour(out, fr, pup_skin, drv_skin, sigma=max(1.0, params.colour_sigma * iod),
                                    gain=params.colour_gain, colour=params.colour, shrink=ks)
+    if params.sharpen > 1:
+        # after the colour transfer: a dark persona's detail is small in sRGB until it takes a pale
+        # driver's tone (measured before, Williams' puppets were sharpened to 2x the driver's detail).
+        # Skin of both at full size: the driver's landmarks (the puppet sits there), features cut out
+        skin_full = rg & ~feature_mask(p68 - [x0, y0], rg.shape)
+        out, _ = match_sharpness(out, fr, skin_full, skin_full, max_gain=params.sharpen,
+                                 coverage=np.asarray(coverage, np.float32)[box])
     if params.poisson and params.colour == "driver":  # the membrane would bring the driver's tone back
         out = poisson_blend(out, fr, rg)
     if params.mouth and puppet_lips is not None:
