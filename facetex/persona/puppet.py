@@ -319,6 +319,29 @@ def grid_normals(grid: np.ndarray) -> np.ndarray:
     nn = np.linalg.norm(n, axis=2, keepdims=True)
     return np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-12)
 
+def landmark_field(persona, kind: str, step: int):
+    """The persona's :class:`~facetex.persona.driver.LipFields` ("lips"), ``BrowFields`` ("brows")
+    or ``LidFields`` ("lids") at its mean landmarks on its depth-map grid of ``step`` px, cached on
+    the persona: they depend on the persona alone, so the puppet's setup makes them beside the
+    driver's tracking (:func:`prepare_puppetry`)."""
+    key = ("landmark_field", kind, int(step))
+    if key not in persona._cache:
+        from .driver import BrowFields, LidFields, LipFields
+
+        W, H = persona.size
+        gy, gx = np.mgrid[0:H:step, 0:W:step].astype(np.float64)
+        cls = {"lips": LipFields, "brows": BrowFields, "lids": LidFields}[kind]
+        persona._cache[key] = cls(persona.points68.mean(axis=0), np.stack([gx, gy], axis=-1))
+    return persona._cache[key]
+
+
+def _landmark_fields_used(params: PuppetParams) -> tuple[str, ...]:
+    """The kinds of :func:`landmark_field` a puppet with ``params`` moves its grid by."""
+    return tuple(k for k, on in (("lips", params.mouth_rest or params.lip_sync),
+                                 ("brows", params.brow_rest or params.brow_sync),
+                                 ("lids", params.eye_rest or params.lid_sync)) if on)
+
+
 class Puppeteer:
     """Puppet mesh, texture and rendering for each frame of a driver motion.
 
@@ -377,24 +400,24 @@ class Puppeteer:
         self.mean68 = persona.points68.mean(axis=0)  # the texture's frame (its 49 points: the mean fiducials)
         self.lip_fields = None
         if self.motion.fiducials68 is not None and (params.mouth_rest or params.lip_sync):
-            from .driver import LipFields, _iod49
+            from .driver import _iod49
 
-            self.lip_fields = LipFields(self.mean68, self.puppet_grid[..., :2])
+            self.lip_fields = landmark_field(persona, "lips", st)
             self.lip_scale = _iod49(persona.mean_fiducials) / max(motion.iod, 1e-9)
         self.rest_move = self._rest_motion() if params.mouth_rest and self.lip_fields is not None else None
         self.brow_fields = self.brow_rest = None
         if self.motion.fiducials68 is not None and (params.brow_rest or params.brow_sync):
-            from .driver import BrowFields, _iod49
+            from .driver import _iod49
 
-            self.brow_fields = BrowFields(self.mean68, self.puppet_grid[..., :2])
+            self.brow_fields = landmark_field(persona, "brows", st)
             self.brow_scale = _iod49(persona.mean_fiducials) / max(motion.iod, 1e-9)
             if params.brow_rest:
                 self.brow_rest = self._brow_rest_motion()
         self.lid_fields, self.eye_move = None, None
         if self.motion.fiducials68 is not None and (params.eye_rest or params.lid_sync):
-            from .driver import LidFields, _iod49
+            from .driver import _iod49
 
-            self.lid_fields = LidFields(self.mean68, self.puppet_grid[..., :2])
+            self.lid_fields = landmark_field(persona, "lids", st)
             self.lid_scale = _iod49(persona.mean_fiducials) / max(motion.iod, 1e-9)
             if params.eye_rest:
                 self.eye_move = self._eye_rest_motion()
@@ -702,7 +725,12 @@ def _prepare_puppet_texture(loaded, params: PuppetParams, timings: dict) -> None
     persona = loaded.result()
     tp = params.texture_params()
     t0 = time.perf_counter()
-    prepare_persona(persona, tp)
+    prep = prepare_persona(persona, tp)
+    if params.texture == "ours" and tp.weights == "regional":  # what the first blend would compute
+        if tp.restore:
+            prep.band_energy()
+        if tp.eye_quality > 0:
+            prep.eye_quality()
     t1 = time.perf_counter()
     if params.needs_average_face:
         average_face(persona, "d", params=tp)
@@ -710,8 +738,12 @@ def _prepare_puppet_texture(loaded, params: PuppetParams, timings: dict) -> None
 
 
 def _puppet_shape(loaded, params: PuppetParams, timings: dict) -> None:
+    """The puppet's average shape and its landmark fields (cached on the persona)."""
     t0 = time.perf_counter()
-    puppet_average_shape(loaded.result(), params)  # cached on the persona
+    persona = loaded.result()
+    puppet_average_shape(persona, params)
+    for kind in _landmark_fields_used(params):
+        landmark_field(persona, kind, params.driver.grid_step)
     timings["puppet_shape_s"] = time.perf_counter() - t0
 
 
