@@ -342,6 +342,18 @@ def test_poisson_blend_is_continuous_in_its_inputs():
     assert d.max() < 3e-5
 
 
+def test_skin_colour_transfer_is_continuous_in_the_puppet():
+    # the colour transfer's CIELAB must not step: a puppet changed by 1e-5 (far below 1/255)
+    # comes out changed by about as little (OpenCV's float sRGB->Lab table made 1/255 jumps)
+    rng = np.random.default_rng(4)
+    src = rng.uniform(0.05, 0.6, (1, 4000, 3)).astype(np.float32)
+    ref = rng.uniform(0.4, 0.9, (1, 4000, 3)).astype(np.float32)
+    skin = np.ones((1, 4000), bool)
+    out = transfer_skin_colour(src, ref, skin, skin, sigma=3.0)
+    nudged = transfer_skin_colour(src + np.float32(1e-5), ref, skin, skin, sigma=3.0)
+    assert np.abs(nudged - out).max() < 1e-4
+
+
 def test_poisson_blend_checks_sizes():
     with pytest.raises(BadInputError):
         poisson_blend(np.zeros((8, 8, 3)), np.zeros((9, 8, 3)), np.ones((8, 8), bool))
