@@ -58,13 +58,60 @@ def run(args) -> int:
     # the driver's tracking starts first, in a child process: this one then checks the arguments,
     # imports the puppet code and loads the persona beside it (nothing is written before the checks)
     tracker = _start_tracking(args)
+    _single_threaded_blas()
+    loading = _start_loading(args)
     try:
-        return _run(args, tracker)
+        return _run(args, tracker, loading)
     finally:
         tracker.cancel()  # a no-op once its result was taken
 
 
-def _run(args, tracker) -> int:
+def _single_threaded_blas() -> None:
+    """BLAS on one thread in this process (before numpy loads it): the puppetry runs its own
+    threads (persona stacks, frames), and BLAS's threads on its small matrices (Procrustes SVDs,
+    splines) cost more than they save: the driver motion took 0.18 s of CPU alone on one BLAS
+    thread, 0.54 s on two (2.2 s of wall time on a shared 2-core machine). ``OMP_NUM_THREADS``
+    stays the thread budget of facetex's own pools."""
+    import os
+
+    if "numpy" not in sys.modules:
+        os.environ.update(OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
+
+
+def _puppet_params(args):
+    from ..persona.composite import CompositeParams
+    from ..persona.puppet import PuppetParams
+
+    return PuppetParams(texture=args.texture, weights=args.weights, correspondence=args.correspondence,
+                        weight_smoothing=args.weight_smoothing,
+                        composite=CompositeParams(lighting=args.lighting, colour=args.colour, sharpen=args.sharpen))
+
+
+def _start_loading(args):
+    """The persona's load and precomputation (:func:`~facetex.persona.puppet.load_puppet`) on a
+    thread, beside this one's checks and imports (~1 s; the load and the texture stacks are mostly
+    zlib, OpenCV and numpy, which release the GIL): a future. A daemon thread: an error in the
+    arguments ends the command without waiting for it."""
+    import threading
+    from concurrent.futures import Future
+
+    fut = Future()
+
+    def work():
+        if not fut.set_running_or_notify_cancel():
+            return
+        try:
+            from ..persona.puppet import load_puppet
+
+            fut.set_result(load_puppet(args.puppet, _puppet_params(args)))
+        except BaseException as e:  # noqa: BLE001 - handed to the puppetry, which re-raises it
+            fut.set_exception(e)
+
+    threading.Thread(target=work, name="facetex-persona-load", daemon=True).start()
+    return fut
+
+
+def _run(args, tracker, loading=None) -> int:
     from ..errors import BadInputError
     from ..io import VIDEO_EXTENSIONS, check_input_dir, check_output_path, video_info
     from ..persona import read_persona_header
@@ -84,17 +131,14 @@ def _run(args, tracker) -> int:
     from ..io import write_json
 
     hashing = hash_in_background(inputs)  # beside the setup, not after the rendering
-    from ..persona.composite import CompositeParams
-    from ..persona.puppet import PuppetParams, puppeteer
+    from ..persona.puppet import puppeteer
 
-    params = PuppetParams(texture=args.texture, weights=args.weights, correspondence=args.correspondence,
-                          weight_smoothing=args.weight_smoothing, composite=CompositeParams(lighting=args.lighting, colour=args.colour,
-                                                    sharpen=args.sharpen))
+    params = _puppet_params(args)
     with progress_bar(2 * n, desc="puppet", unit="frame", disable=args.quiet) as bar:
         report = puppeteer(args.driver, args.puppet, args.output, driver_photos=args.driver_photos,
                            side_by_side=args.side_by_side, size=args.size, mode=args.mode,
                            overwrite=args.overwrite, max_frames=args.max_frames, params=params, progress=bar,
-                           tracking=tracker)
+                           tracking=tracker, loading=loading)
     hashing.join()
     write_json(sidecar, provenance(
         command="puppet", inputs={"driver": args.driver, "puppet": args.puppet, "driver_photos": args.driver_photos},

@@ -319,6 +319,29 @@ def grid_normals(grid: np.ndarray) -> np.ndarray:
     nn = np.linalg.norm(n, axis=2, keepdims=True)
     return np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-12)
 
+def landmark_field(persona, kind: str, step: int):
+    """The persona's :class:`~facetex.persona.driver.LipFields` ("lips"), ``BrowFields`` ("brows")
+    or ``LidFields`` ("lids") at its mean landmarks on its depth-map grid of ``step`` px, cached on
+    the persona: they depend on the persona alone, so the puppet's setup makes them beside the
+    driver's tracking (:func:`prepare_puppetry`)."""
+    key = ("landmark_field", kind, int(step))
+    if key not in persona._cache:
+        from .driver import BrowFields, LidFields, LipFields
+
+        W, H = persona.size
+        gy, gx = np.mgrid[0:H:step, 0:W:step].astype(np.float64)
+        cls = {"lips": LipFields, "brows": BrowFields, "lids": LidFields}[kind]
+        persona._cache[key] = cls(persona.points68.mean(axis=0), np.stack([gx, gy], axis=-1))
+    return persona._cache[key]
+
+
+def _landmark_fields_used(params: PuppetParams) -> tuple[str, ...]:
+    """The kinds of :func:`landmark_field` a puppet with ``params`` moves its grid by."""
+    return tuple(k for k, on in (("lips", params.mouth_rest or params.lip_sync),
+                                 ("brows", params.brow_rest or params.brow_sync),
+                                 ("lids", params.eye_rest or params.lid_sync)) if on)
+
+
 class Puppeteer:
     """Puppet mesh, texture and rendering for each frame of a driver motion.
 
@@ -377,24 +400,24 @@ class Puppeteer:
         self.mean68 = persona.points68.mean(axis=0)  # the texture's frame (its 49 points: the mean fiducials)
         self.lip_fields = None
         if self.motion.fiducials68 is not None and (params.mouth_rest or params.lip_sync):
-            from .driver import LipFields, _iod49
+            from .driver import _iod49
 
-            self.lip_fields = LipFields(self.mean68, self.puppet_grid[..., :2])
+            self.lip_fields = landmark_field(persona, "lips", st)
             self.lip_scale = _iod49(persona.mean_fiducials) / max(motion.iod, 1e-9)
         self.rest_move = self._rest_motion() if params.mouth_rest and self.lip_fields is not None else None
         self.brow_fields = self.brow_rest = None
         if self.motion.fiducials68 is not None and (params.brow_rest or params.brow_sync):
-            from .driver import BrowFields, _iod49
+            from .driver import _iod49
 
-            self.brow_fields = BrowFields(self.mean68, self.puppet_grid[..., :2])
+            self.brow_fields = landmark_field(persona, "brows", st)
             self.brow_scale = _iod49(persona.mean_fiducials) / max(motion.iod, 1e-9)
             if params.brow_rest:
                 self.brow_rest = self._brow_rest_motion()
         self.lid_fields, self.eye_move = None, None
         if self.motion.fiducials68 is not None and (params.eye_rest or params.lid_sync):
-            from .driver import LidFields, _iod49
+            from .driver import _iod49
 
-            self.lid_fields = LidFields(self.mean68, self.puppet_grid[..., :2])
+            self.lid_fields = landmark_field(persona, "lids", st)
             self.lid_scale = _iod49(persona.mean_fiducials) / max(motion.iod, 1e-9)
             if params.eye_rest:
                 self.eye_move = self._eye_rest_motion()
@@ -711,28 +734,69 @@ def _prepare_puppet_texture(loaded, params: PuppetParams, timings: dict) -> None
     persona = loaded.result()
     tp = params.texture_params()
     t0 = time.perf_counter()
-    prepare_persona(persona, tp)
+    prep = prepare_persona(persona, tp)
+    if params.texture == "ours" and tp.weights == "regional":  # what the first blend would compute
+        if tp.restore:
+            prep.band_energy()
+        if tp.eye_quality > 0:
+            prep.eye_quality()
     t1 = time.perf_counter()
     if params.needs_average_face:
         average_face(persona, "d", params=tp)
     timings.update(persona_prepare_s=t1 - t0, puppet_average_s=time.perf_counter() - t1)
 
 
+def _loaded_early(loading, timings: dict):
+    """The Persona of a :func:`load_puppet` future (its timings copied into ``timings``)."""
+    persona, early = loading.result()
+    timings.update(early)
+    return persona
+
+
 def _puppet_shape(loaded, params: PuppetParams, timings: dict) -> None:
+    """The puppet's average shape and its landmark fields (cached on the persona)."""
     t0 = time.perf_counter()
-    puppet_average_shape(loaded.result(), params)  # cached on the persona
+    persona = loaded.result()
+    puppet_average_shape(persona, params)
+    for kind in _landmark_fields_used(params):
+        landmark_field(persona, kind, params.driver.grid_step)
     timings["puppet_shape_s"] = time.perf_counter() - t0
+
+
+class _Done:
+    """A finished future's stand-in (its ``result``)."""
+
+    def __init__(self, value):
+        self.value = value
+
+    def result(self):
+        return self.value
+
+
+def load_puppet(persona, params: PuppetParams = PuppetParams()) -> tuple:
+    """(Persona, timings): a Persona or .persona path (loaded) with everything the puppetry
+    computes from the persona alone made and cached on it: its average shape, landmark fields and
+    texture stacks (with the blend's band energy and eye quality). :func:`prepare_puppetry` does
+    this beside the driver's tracking; the CLI starts it on a thread before its own imports and
+    hands it over (``loading``)."""
+    timings: dict = {}
+    loaded = _Done(_load_puppet(persona, timings))
+    _puppet_shape(loaded, params, timings)
+    _prepare_puppet_texture(loaded, params, timings)
+    return loaded.value, timings
 
 
 def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | None = None,
                      params: PuppetParams = PuppetParams(), progress: Callable | None = None,
-                     tracking="process") -> PuppetSession:
+                     tracking="process", loading=None) -> PuppetSession:
     """Track the driver video and set up the puppet (everything before the per-frame rendering).
 
     ``persona``: a Persona or a .persona path. The driver is tracked in a child process
     (``tracking="process"``; ``"thread"``: in this one; or a :class:`DriverTracking` already
     started with the same arguments) while a second thread loads the persona and precomputes
-    its texture stacks: neither needs the other, and dlib holds the GIL."""
+    its texture stacks: neither needs the other, and dlib holds the GIL. ``loading``: a future of
+    :func:`load_puppet` of the same persona and ``params`` started earlier (by the CLI), used
+    instead of loading the persona here."""
     from concurrent.futures import ThreadPoolExecutor
 
     from ._tracking import DriverTracking
@@ -760,9 +824,12 @@ def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | N
         raise BadInputError(f"unknown tracking {tracking!r}: use 'process', 'thread' or a DriverTracking")
     # one worker thread: the persona load, then the texture precomputation (cached on the persona)
     with ThreadPoolExecutor(1, thread_name_prefix="facetex-puppet") as pool:
-        loaded = pool.submit(_load_puppet, persona, puppet_timings)
-        shaped = pool.submit(_puppet_shape, loaded, params, puppet_timings)
-        prepared = pool.submit(_prepare_puppet_texture, loaded, params, puppet_timings)
+        if loading is not None:  # loaded and prepared by the caller's thread
+            loaded = shaped = prepared = pool.submit(_loaded_early, loading, puppet_timings)
+        else:
+            loaded = pool.submit(_load_puppet, persona, puppet_timings)
+            shaped = pool.submit(_puppet_shape, loaded, params, puppet_timings)
+            prepared = pool.submit(_prepare_puppet_texture, loaded, params, puppet_timings)
         try:
             track = tracker.result(progress)
             timings["track_s"] = time.perf_counter() - t0
@@ -928,15 +995,15 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
 def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool = False, size: int | None = None,
               mode: str = "composite", overwrite: bool = False, max_frames: int | None = None,
               params: PuppetParams = PuppetParams(), progress: Callable | None = None,
-              on_frame: Callable | None = None, tracking="process") -> dict:
+              on_frame: Callable | None = None, tracking="process", loading=None) -> dict:
     """Render ``driver`` (a video) performed by ``persona`` (a Persona or .persona path) to
     ``output`` (H.264 MP4, written atomically, the driver's audio passed through).
 
     Frames where the driver's face is lost (not found, partly outside the frame, implausible)
     show the driver's frame and are counted and reported with their causes; a video without
     any face raises NoFaceError naming it (nothing is written).
-    ``on_frame(record)`` receives each frame record of :func:`render_frames`; ``tracking``: see
-    :func:`prepare_puppetry`.
+    ``on_frame(record)`` receives each frame record of :func:`render_frames`; ``tracking`` and
+    ``loading``: see :func:`prepare_puppetry`.
     Returns a report dict (frames, lost frames, timings, shape/collection sources)."""
     import tempfile
     from concurrent.futures import ThreadPoolExecutor
@@ -952,7 +1019,7 @@ def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool
         # the driver's audio is encoded during the setup, not beside the rendering
         audio = audio_pool.submit(transcode_audio, driver, Path(tmp) / "audio.m4a")
         session = prepare_puppetry(driver, persona, driver_photos=driver_photos, max_frames=max_frames,
-                                   params=params, progress=progress, tracking=tracking)
+                                   params=params, progress=progress, tracking=tracking, loading=loading)
         return _render_video(session, out, audio, driver=driver, inputs=inputs, size=size, mode=mode,
                              side_by_side=side_by_side, overwrite=overwrite, progress=progress, on_frame=on_frame,
                              t_start=t_start)

@@ -433,16 +433,42 @@ def _gemv_blend(stack: np.ndarray, w: np.ndarray, shape) -> np.ndarray:
 class _Segment:
     """Pixels of one pyramid level that belong to the same set of weight regions: their stack
     rows (n, npix * 4) float32 [L' band (3 ch), L'] stored contiguously (so a region's product
-    reads only its own pixels), their flat pixel indices and the regions' masks there."""
+    reads only its own pixels), their flat pixel indices and the regions' masks there. ``stack``:
+    the (n, npix * 4) float32 array to use (default: a new one)."""
 
     __slots__ = ("pixels", "cols", "regions", "stack", "masks")
 
-    def __init__(self, pixels: np.ndarray, regions: tuple[int, ...], n: int, masks: np.ndarray):
+    def __init__(self, pixels: np.ndarray, regions: tuple[int, ...], n: int, masks: np.ndarray,
+                 stack: np.ndarray | None = None):
         self.pixels = pixels
         self.cols = (pixels[:, None] * 4 + np.arange(4)).reshape(-1)  # stack columns (4 per pixel)
         self.regions = regions
-        self.stack = np.empty((n, len(pixels) * 4), np.float32)
+        self.stack = np.empty((n, len(pixels) * 4), np.float32) if stack is None else stack
         self.masks = np.repeat(masks, 4, axis=1)  # (len(regions), npix * 4) float32
+
+
+def _small_page_arrays(shapes: list[tuple[int, int]]) -> list[np.ndarray]:
+    """Float32 arrays of ``shapes`` in one anonymous memory map whose transparent
+    huge pages are off. Why: numpy asks for huge pages for large arrays, and the kernel then
+    compacts memory at the first touch (defrag "madvise"): the ~470 MB of a 519-photo persona's
+    stacks cost 0.7-1.3 s of system time to fault in with huge pages, 0.2-0.5 s with 4 kB pages
+    (the blends read them as fast). The arrays keep the map alive (their base); pickled, they are
+    copied like any array."""
+    import mmap
+
+    sizes = [-(-int(np.prod(s)) * 4 // 64) * 64 for s in shapes]  # 64-byte aligned starts
+    total = max(sum(sizes), 1)
+    mem = mmap.mmap(-1, total)
+    if hasattr(mmap, "MADV_NOHUGEPAGE"):
+        try:
+            mem.madvise(mmap.MADV_NOHUGEPAGE)
+        except OSError:  # a kernel without transparent huge pages
+            pass
+    arrays, off = [], 0
+    for s, size in zip(shapes, sizes):
+        arrays.append(np.frombuffer(mem, np.float32, int(np.prod(s)), off).reshape(s))
+        off += size
+    return arrays
 
 
 def _csr(weights: np.ndarray):
@@ -709,8 +735,14 @@ class _Prepared:
             for c in np.unique(code[code > 0]):
                 pix = np.nonzero(code == c)[0]
                 regs = tuple(j for j in range(R) if c >> j & 1)
-                segs.append(_Segment(pix, regs, self.n, m[list(regs)].reshape(len(regs), -1)[:, pix].copy()))
+                segs.append((pix, regs, m[list(regs)].reshape(len(regs), -1)[:, pix].copy()))
             self.segments.append(segs)
+        # all segments' stacks in one memory map with small pages (_small_page_arrays)
+        shapes = [(self.n, len(pix) * 4) for segs in self.segments for pix, _, _ in segs]
+        stacks = _small_page_arrays(shapes)
+        stacks = iter(stacks)
+        self.segments = [[_Segment(pix, regs, self.n, masks, next(stacks)) for pix, regs, masks in segs]
+                         for segs in self.segments]
 
     def single(self, which: str, persona: Persona) -> np.ndarray:
         if which not in self._single:

@@ -194,6 +194,8 @@ def fit_expression_model(fiducials, *, neighbours=3, regions=("mouth", "eyes", "
     """The regional expression model of a collection's (n, 49, 2) pose-corrected fiducials
     (module docstring). ``neighbours``: K of the adaptive sigma, one number or one per region
     (a number in (0, 1) is a fraction of the collection)."""
+    from scipy.spatial.distance import cdist
+
     f = np.asarray(fiducials, np.float64)
     if f.ndim != 3 or f.shape[1:] != (49, 2) or len(f) < 3:
         raise BadInputError(f"need (n >= 3, 49, 2) fiducials to fit the expression weights, got {f.shape}")
@@ -211,7 +213,8 @@ def fit_expression_model(fiducials, *, neighbours=3, regions=("mouth", "eyes", "
         k = int(min(max(1, k), n - 1))
         centre = name != "face"
         coords = _region_coords(z, REGIONS[name], centre)
-        d = np.sqrt(((coords[:, None] - coords[None]) ** 2).sum(-1))
+        # scipy's pairwise distances: the (n, n, D) broadcast difference cost ~0.6 s on 519 photos
+        d = cdist(coords, coords)
         np.fill_diagonal(d, np.inf)
         kth = float(max(np.median(np.partition(d, k - 1, axis=1)[:, k - 1]), 1e-6))
         out.append(_Region(name, REGIONS[name], centre, coords, kth, k))

@@ -315,6 +315,46 @@ def test_poisson_blend_takes_the_border_from_the_destination():
     np.testing.assert_allclose(out[inner], np.clip(dst + bump, 0, 1)[inner], atol=0.012)
 
 
+def test_poisson_blend_is_opencvs_normal_clone_in_float():
+    # on 8-bit inputs the float solve is seamlessClone's (which truncates its result to 8 bits)
+    rng = np.random.default_rng(2)
+    yy, xx = np.mgrid[0:50, 0:64]
+    src8 = np.clip(120 + 60 * np.sin(xx / 6.0) + 30 * np.cos(yy / 4.0) + rng.normal(0, 3, (50, 64)), 0, 255)
+    src8 = np.repeat(src8[..., None], 3, axis=-1).astype(np.uint8)
+    src8[..., 1] //= 2
+    dst8 = np.clip(rng.normal(70, 20, (50, 64, 3)), 0, 255).astype(np.uint8)
+    mask = ((yy - 24) / 17.0) ** 2 + ((xx - 30) / 23.0) ** 2 < 1
+    out = poisson_blend(src8 / np.float32(255), dst8 / np.float32(255), mask)
+    x, y, w, h = cv2.boundingRect(mask.astype(np.uint8))
+    clone = cv2.seamlessClone(src8, dst8, mask.astype(np.uint8) * 255, (x + w // 2, y + h // 2), cv2.NORMAL_CLONE)
+    gap = out[mask] * 255 - clone[mask]
+    assert gap.min() > -0.01 and gap.max() < 1.01  # truncation: up to one level below
+    assert 0.3 < gap.mean() < 0.7
+
+
+def test_poisson_blend_is_continuous_in_its_inputs():
+    # no 8-bit rounding inside: a change far below 1/255 moves the result by as little
+    rng = np.random.default_rng(3)
+    src = rng.uniform(0.2, 0.8, (40, 48, 3)).astype(np.float32)
+    dst = rng.uniform(0.2, 0.8, (40, 48, 3)).astype(np.float32)
+    mask = _disc(40, 48, 24, 20, 15)
+    nudged = src + np.float32(1e-5) * rng.choice([-1, 1], src.shape).astype(np.float32)
+    d = np.abs(poisson_blend(nudged, dst, mask) - poisson_blend(src, dst, mask))
+    assert d.max() < 3e-5
+
+
+def test_skin_colour_transfer_is_continuous_in_the_puppet():
+    # the colour transfer's CIELAB must not step: a puppet changed by 1e-5 (far below 1/255)
+    # comes out changed by about as little (OpenCV's float sRGB->Lab table made 1/255 jumps)
+    rng = np.random.default_rng(4)
+    src = rng.uniform(0.05, 0.6, (1, 4000, 3)).astype(np.float32)
+    ref = rng.uniform(0.4, 0.9, (1, 4000, 3)).astype(np.float32)
+    skin = np.ones((1, 4000), bool)
+    out = transfer_skin_colour(src, ref, skin, skin, sigma=3.0)
+    nudged = transfer_skin_colour(src + np.float32(1e-5), ref, skin, skin, sigma=3.0)
+    assert np.abs(nudged - out).max() < 1e-4
+
+
 def test_poisson_blend_checks_sizes():
     with pytest.raises(BadInputError):
         poisson_blend(np.zeros((8, 8, 3)), np.zeros((9, 8, 3)), np.ones((8, 8), bool))

@@ -555,3 +555,19 @@ def test_detail_restoration_gives_the_blend_its_photos_band_energy(tiny_persona)
     prep.tp = dataclasses.replace(base, restore=(("face", 3), ("eyes", 3)))
     d = np.abs(prep.blend_many(one) - a)
     assert d.max() < 0.03 and d.mean() < 1e-3  # nearly: its confidence-weighted energy vs the plain mean
+
+
+def test_a_persona_loaded_beforehand_gives_the_same_frames(driver_video, tiny_persona, session):
+    """What the CLI does: load_puppet on a thread, handed to prepare_puppetry(loading=...)."""
+    import dataclasses
+    from concurrent.futures import ThreadPoolExecutor
+
+    import facetex.persona.puppet as pp
+
+    fresh = dataclasses.replace(tiny_persona, _cache={})
+    with ThreadPoolExecutor(1) as pool:
+        early = pp.prepare_puppetry(driver_video, fresh, loading=pool.submit(pp.load_puppet, fresh, pp.PuppetParams()))
+    assert ("landmark_field", "lips", 2) in fresh._cache  # made by load_puppet, before the driver's motion
+    assert early.timings["persona_prepare_s"] >= 0
+    for a, b in zip(pp.render_frames(early, size=96), pp.render_frames(session, size=96)):
+        np.testing.assert_array_equal(a["puppet"], b["puppet"])

@@ -82,3 +82,14 @@ def test_blend_weights_select_per_level():
     assert np.allclose(blend_pyramids([pa, pb], [wa, wb]), 1.0, atol=1e-5)
     wa3 = [3 * np.ones(x.shape[:2], np.float32) for x in pa]
     assert np.allclose(blend_pyramids([pa, pb], [wa3, wb]), 0.25, atol=1e-5)
+
+
+def test_stack_arrays_share_one_map_without_overlapping():
+    from facetex.persona.texture import _small_page_arrays
+
+    arrays = _small_page_arrays([(3, 5), (2, 7), (4, 1)])
+    assert [a.shape for a in arrays] == [(3, 5), (2, 7), (4, 1)]
+    for k, a in enumerate(arrays):
+        a[...] = k + 1
+    assert [(float(a.min()), float(a.max())) for a in arrays] == [(1, 1), (2, 2), (3, 3)]
+    assert all(a.dtype == np.float32 and a.ctypes.data % 64 == 0 for a in arrays)
