@@ -319,7 +319,7 @@ def _lightness_to_luminance(L):
     return np.maximum(np.where(f > 6 / 29, f ** 3, 3 * (6 / 29) ** 2 * (f - 4 / 29)), 1e-4).astype(np.float32)
 
 
-def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 / 3, 1.5), colour: str = "driver",
+def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 / 3, 1.2), colour: str = "driver",
                          light_limits=(0.5, 2.0), shrink: int = 1) -> np.ndarray:
     """``src`` (H, W, 3) sRGB with the low-frequency colour of ``ref`` (the same size, aligned),
     measured on skin pixels only (bool ``src_skin``, ``ref_skin``), the detail of ``src`` kept.
@@ -769,7 +769,7 @@ class CompositeParams:
     normal_smoothing: float = 0.05
     colour: str = "driver"
     colour_sigma: float = 0.06
-    colour_gain: tuple[float, float] = (2 / 3, 1.5)
+    colour_gain: tuple[float, float] = (2 / 3, 1.2)
     occlusion: bool = True
     sharpen: float = 2.5
     poisson: bool = True
