@@ -46,11 +46,12 @@ def glasses_bridge_score(image, points68) -> float:
     return float(gy.mean(axis=1).max() / (gx.mean() + 1e-3))
 
 
-def glasses_weights(scores, *, level: float = 1.5, power: float = 4.0) -> np.ndarray:
+def glasses_weights(scores, *, level: float = 1.25, power: float = 4.0) -> np.ndarray:
     """(n,) weights in (0, 1] of photos by their :func:`glasses_bridge_score` ``scores`` (n,):
     1 up to ``level`` x the collection's median score, then (score / (level x median)) ** -power
     (the shared LFW collections: glasses photos 1.6-3.6 x their median, photos without 0.3-2.1
-    x; a photo without glasses that scores high loses some weight, one with glasses most).
+    x; a photo without glasses that scores high loses some weight, one with glasses most; at
+    level 1.5 Arroyo's puppet still showed faint rims).
     NaN scores (no box) and a collection without a usable median get weight 1."""
     s = np.asarray(scores, np.float64)
     out = np.ones(s.shape)

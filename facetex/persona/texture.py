@@ -139,9 +139,9 @@ class TextureParams:
     bands from the few photos nearest the expression, the coarse ones from the broad average;
     the eyes' whole expression-weighted pyramid, the rest of the face's two finest bands);
     eye_quality: exponent of each photo's eye-detail confidence in the eyes' detail weights
-    (:meth:`_Prepared.eye_quality`; 0: none); glasses: exponent of the eyes' detail weights'
-    penalty of photos with eyeglasses (:meth:`_Prepared.glasses_free`; 0: none: a collection
-    with a few glasses photos drew the frames as ghost rings round the puppet's eyes);
+    (:meth:`_Prepared.eye_quality`; 0: none); glasses: exponent of the penalty of photos with
+    eyeglasses in the eyes' and the face's weights (:meth:`_Prepared.glasses_free`; 0: none: a
+    collection with a few glasses photos drew the frames as ghost rings round the puppet's eyes);
     restore: (region, levels): the finest ``levels`` bands of ``region`` get their photos' own
     band energy back (:meth:`_Prepared._restore_detail`), the gain at most ``restore_gain``; the
     mouth's too (averaged lips were pale and blurred: dlib read the puppet's mouth opening 0.55-0.7
@@ -796,6 +796,14 @@ class _Prepared:
         B, R, n = S.shape
         if R != len(self.regions):
             raise BadInputError(f"{R} region weights for the {len(self.regions)} regions {self.regions}")
+        if regional and self.tp.glasses > 0:
+            # photos with eyeglasses lose their weight round the eyes: their rims lie in the eyes'
+            # and the rest of the face's regions (the eyes' detail weights alone left faint rings)
+            S = S.copy()
+            g = self.glasses_free()
+            for j, name in enumerate(self.regions):
+                if name in ("eyes", "face"):
+                    S[:, j] *= g
         # per region: the similarities, small ones cut; sparse products when that pays off
         Wn = [_cut_small(S[:, j], SPARSE_MASS, self.tp.max_photos if regional else None)
               for j in range(R if regional else 1)]
@@ -812,11 +820,7 @@ class _Prepared:
 
             for j, name in enumerate(self.regions):
                 power, nlev = self.tp.detail_of(name)
-                q = None
-                if name == "eyes" and self.tp.eye_quality > 0:
-                    q = self.eye_quality()
-                if name == "eyes" and self.tp.glasses > 0:
-                    q = self.glasses_free() if q is None else q * self.glasses_free()
+                q = self.eye_quality() if name == "eyes" and self.tp.eye_quality > 0 else None
                 if nlev > 0 and (power != 1 or q is not None):
                     fine[j] = (nlev, matrix(detail_weights(Wn[j], power, q)))
         bands = []

@@ -637,7 +637,7 @@ def test_segmented_sparse_blend_equals_the_dense_formula(persona, monkeypatch):
     import facetex.persona.texture as tx
 
     monkeypatch.setattr(tx, "SPARSE_MASS", 1.0)
-    plain = dict(detail=(), eye_quality=0, restore=())  # the Eq. 3 blend itself (no detail weights)
+    plain = dict(detail=(), eye_quality=0, glasses=0, restore=())  # the Eq. 3 blend itself (no detail weights)
     tp = TextureParams(max_photos=None, **plain)
     prep = tx.prepare_persona(persona, tp)
     S = tx.target_weights(persona, persona.fiducials[[2, 7]], tp)  # (2 targets, 3 regions, n)

@@ -484,11 +484,11 @@ def test_eye_quality_ranks_a_photo_with_flat_eyes_last_and_detail_weights_are_op
     assert np.abs(plain - sharp).max() > 1e-3
     off = tx.blend_textures(tiny_persona, f, params=dataclasses.replace(tp, detail=(("eyes", 1.0, 5),),
                                                                          eye_quality=0, glasses=0, restore=()))
-    plain = tx.blend_textures(tiny_persona, f, params=dataclasses.replace(tp, detail=(), eye_quality=0, restore=()))
+    plain = tx.blend_textures(tiny_persona, f, params=dataclasses.replace(tp, detail=(), eye_quality=0, glasses=0, restore=()))
     np.testing.assert_allclose(off, plain, atol=1e-6)
 
 
-def test_photos_with_glasses_lose_their_eye_detail_weight(tiny_persona):
+def test_photos_with_glasses_lose_their_weight_round_the_eyes(tiny_persona):
     import copy
 
     from facetex.persona import texture as tx
@@ -508,14 +508,28 @@ def test_photos_with_glasses_lose_their_eye_detail_weight(tiny_persona):
     g = prep.glasses_free()
     assert g.shape == (len(tiny_persona),) and np.all((g > 0) & (g <= 1))
     assert np.argmin(g) == 0 and g[0] < 0.5 and np.median(g) == 1.0
-    # in the eyes' detail weights: photo 0 weighs less than without the penalty
-    from facetex.persona.weights import detail_weights
+    # in the blend: the eyes' and the face's weights of photo 0 are scaled by g[0], the mouth's are not
+    import dataclasses
 
-    S = tx.target_weights(tiny_persona, tiny_persona.fiducials[:1], tp)[:, list(prep.regions).index("eyes")]
-    S = np.full_like(S, 1.0)
-    with_g = detail_weights(S, 4.0, prep.eye_quality() * g)
-    without = detail_weights(S, 4.0, prep.eye_quality())
-    assert with_g[0, 0] < 0.5 * without[0, 0]
+    S = np.full((1, len(prep.regions), len(tiny_persona)), 1.0)
+    seen = {}
+
+    def spy(w, mass, cap):
+        seen.setdefault(len(seen), np.array(w, copy=True))
+        return w
+
+    import facetex.persona.texture as txm
+
+    orig = txm._cut_small
+    txm._cut_small = spy
+    try:
+        prep.tp = dataclasses.replace(tp, detail=(), restore=())
+        prep.blend_many(S)
+    finally:
+        txm._cut_small = orig
+    for j, name in enumerate(prep.regions):
+        want = g if name in ("eyes", "face") else np.ones_like(g)
+        np.testing.assert_allclose(seen[j][0], want)
 
 
 def test_detail_restoration_gives_the_blend_its_photos_band_energy(tiny_persona):
@@ -528,7 +542,7 @@ def test_detail_restoration_gives_the_blend_its_photos_band_energy(tiny_persona)
 
     import copy
 
-    base = dataclasses.replace(tx.TextureParams(), detail=(), eye_quality=0, restore=())
+    base = dataclasses.replace(tx.TextureParams(), detail=(), eye_quality=0, glasses=0, restore=())
     prep = copy.copy(tx.prepare_persona(tiny_persona, base))  # its tp is changed below
     S = tx.target_weights(tiny_persona, tiny_persona.fiducials[:1], base)
     S = np.full_like(S, 1.0)  # every photo alike: the widest average
