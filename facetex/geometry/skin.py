@@ -581,6 +581,14 @@ def segment_face(image, points68, *, mesh=None, params: SkinParams = SkinParams(
     brows = _dilate(brows, params.brow_margin * fw) > 0
     chroma, light = skin_colour_distance(img, p, region=face & ~feats)
     ok = ((chroma < params.chroma_sigmas) | (light > params.highlight_sigmas)) & (light > -params.dark_sigmas)
+    border = region & ~(cv2.erode(region.astype(np.uint8), _disc(max(1, int(0.02 * fw)))) > 0)
+    # bright pieces pass as highlights only inside the face: one reaching the
+    # region's border is the background or grey hair beyond the hairline (on FRL 042, dark
+    # skin, his short grey hair and the wall above it were all "highlight")
+    bright = (ok & (light > params.highlight_sigmas) & region).astype(np.uint8)
+    n, lab, _, _ = cv2.connectedComponentsWithStats(bright, connectivity=8)
+    if n > 1:
+        ok &= ~np.isin(lab, np.setdiff1d(np.unique(lab[border]), [0]))
     bad = (~ok & region).astype(np.uint8)
     n, lab, stats, _ = cv2.connectedComponentsWithStats(bad, connectivity=8)
     big = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= (params.occluder_min * fw) ** 2)
@@ -591,7 +599,6 @@ def segment_face(image, points68, *, mesh=None, params: SkinParams = SkinParams(
     mx = img.max(-1)
     sat = (mx - img.min(-1)) / (mx + 1e-3)
     s0 = float(np.median(sat[face & ~feats & ok])) if (face & ~feats & ok).any() else float(np.median(sat))
-    border = region & ~(cv2.erode(region.astype(np.uint8), _disc(max(1, int(0.02 * fw)))) > 0)
     brow_top = float(p[17:27, 1].min())
     grey = (cv2.GaussianBlur(sat, (0, 0), 0.005 * fw) < params.background_chroma * s0) & (light > -1.5)
     hair0 = np.zeros((h, w), bool)
@@ -630,6 +637,24 @@ def segment_face(image, points68, *, mesh=None, params: SkinParams = SkinParams(
         dens, _ = dark_speck_density(img, fw, reference=ref, within=bare)
         ref_d = float(np.median(dens[ref])) if ref.any() else 0.0
         speckled = dens > max(0.5 * params.stubble_density, params.source_speck * ref_d)
+        # speckled skin is hair where hair grows: above the brows when it touches the non-skin
+        # beyond the hairline (short or grey hair at the hairline), and in the beard zone (a
+        # thin moustache, a chin tuft, shaved stubble: the opening of stubble_mask drops them)
+        dense = dens > max(params.stubble_density, params.source_speck * ref_d)  # as dense as stubble
+        sp = cv2.morphologyEx((dense & bare).astype(np.uint8), cv2.MORPH_CLOSE, _disc(max(1, int(0.01 * fw))))
+        n, lab, stats, _ = cv2.connectedComponentsWithStats(sp, connectivity=8)
+        if n > 1:
+            beyond = _dilate((region & ~bare & ~feats & ~beard).astype(np.uint8), 0.01 * fw) > 0
+            beyond[int(np.clip(brow_top, 0, h)):] = False
+            hairline = np.setdiff1d(np.unique(lab[beyond & (sp > 0)]), [0])
+            near = _dilate((region & ~bare & ~feats & ~beard).astype(np.uint8), 0.03 * fw) > 0  # a band, not the forehead
+            hair |= np.isin(lab, hairline) & near & region & ~feats
+            # (off the lip line and nostril rims and the jaw's silhouette: their shade specks too)
+            zone = beard_zone_mask(p, (h, w), params) & inner & ~(_dilate(feats.astype(np.uint8), 0.008 * fw) > 0)
+            tuft = cv2.morphologyEx(((sp > 0) & zone).astype(np.uint8), cv2.MORPH_OPEN, _disc(1))
+            n, lab, stats, _ = cv2.connectedComponentsWithStats(tuft, connectivity=8)
+            big_t = [i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= (0.03 * fw) ** 2]
+            beard |= np.isin(lab, big_t) & ~hair & ~feats
 
     skin = region & ok & ~hair & ~beard & ~feats
     skin = _fill_small_holes(skin, (params.hole_fill * fw) ** 2, light) & region & ~feats & ~hair & ~beard
