@@ -117,11 +117,11 @@ class SkinParams:
     highlight_chroma: float = 0.75  # highlights: saturation below this × the skin's
     source_margin: float = 0.02  # texture sources keep this × face width from hair and beard
     source_speck: float = 2.0  # and skip skin with over this × the bare skin's dark-speck density
-    # and never the beard zone (upper lip, chin, lower jaw): short, grey or dark-on-dark stubble
+    # and never the beard zone (upper lip and chin): short, grey or dark-on-dark stubble
     # passes the colour and speck tests there (FRL 043, 021, 067 carried 0.17-0.32 of their
     # lip/chin specks onto clean-shaven faces), so the style's skin there comes from elsewhere
     source_beard_zone: bool = True
-    beard_zone_margin: float = 0.03  # the zone grown by this × face width
+    beard_zone_margin: float = 0.02  # the zone grown by this × face width
 
 
 def _p68(points68) -> np.ndarray:
@@ -495,12 +495,13 @@ def _reference_skin(p: np.ndarray, shape) -> np.ndarray:
 
 
 def beard_zone_mask(points68, shape, params: SkinParams = SkinParams()) -> np.ndarray:
-    """bool (H, W): where a beard grows — the convex hull of the nose base (31–35), the mouth
-    (48–59) and the lower jaw (5–11), grown by ``beard_zone_margin`` × face width: the upper
-    lip, the chin and the jaw under it, by geometry alone (stubble there may be invisible to
-    colour and dark-speck tests)."""
+    """bool (H, W): where a moustache and a goatee grow — the convex hull of the nose base
+    (31–35), the mouth (48–59) and the chin's jaw (6–10), grown by ``beard_zone_margin`` × face
+    width: the upper lip and the chin, by geometry alone (stubble there may be invisible to
+    colour and dark-speck tests). It stops short of the cheeks (with the jaw points 5 and 11 it
+    took 8–14 % of the cheek patches, where the style's detail should arrive)."""
     p, (h, w) = _p68(points68), _shape(shape)
-    hull = cv2.convexHull(np.vstack([p[31:36], p[48:60], p[5:12]]).astype(np.float32))[:, 0]
+    hull = cv2.convexHull(np.vstack([p[31:36], p[48:60], p[6:11]]).astype(np.float32))[:, 0]
     m = np.zeros((h, w), np.uint8)
     _poly(m, hull)
     return _dilate(m, params.beard_zone_margin * face_width(p)) > 0
@@ -519,7 +520,7 @@ class FaceSegmentation:
     features: np.ndarray  # grown eyes, brows, lips, nostrils
     region: np.ndarray  # head region searched
     speckled: np.ndarray  # skin with sparse stubble-like dark specks (not a texture source)
-    beard_zone: np.ndarray | None = None  # upper lip, chin, lower jaw (not a texture source)
+    beard_zone: np.ndarray | None = None  # upper lip and chin (not a texture source)
 
     def source(self, margin: float, face_w: float) -> np.ndarray:
         """bool: skin that may be a texture source — the skin minus highlights, and at least

@@ -23,7 +23,7 @@ the *style's own* fine detail into the content's skin at the output's resolution
    rim: what the colour mask misses) is treated as not skin. With ``fill`` (default) the
    style's non-skin there is first filled from its own skin (:func:`fill_from_source`:
    mirrored across thin gaps, random blended pieces in large holes), so those places get the style's skin detail too, never its hair or beard.
-   In ``own_zone`` (the pipeline passes the content's beard zone: upper lip, chin, lower jaw)
+   In ``own_zone`` (the pipeline passes the content's beard zone: upper lip and chin)
    the output keeps its own detail rescaled as above: the style's plain pores copied there
    read as stubble specks on a clean-shaven face (FRL 087 ← 067, issue 22).
 
