@@ -144,5 +144,6 @@ def test_the_own_zone_keeps_the_outputs_detail_and_the_rest_takes_the_styles():
     corr = lambda a, b, c: np.corrcoef(a[c][..., 0].ravel(), b[c][..., 0].ravel())[0, 1]  # noqa: E731
     assert corr(ro[0], oo[0], inside) > 0.95 and abs(corr(ro[0], so[0], inside)) < 0.1
     assert corr(ro[0], so[0], outside) > 0.95
+    assert abs(ro[0][inside].std() / oo[0][inside].std() - 1.0) < 0.05  # as it is: not rescaled
     with pytest.raises(BadInputError):
         transfer_skin_detail(out, style, ones, ones, own_zone=zone[:50])
