@@ -71,6 +71,7 @@ __all__ = [
     "dark_speck_density",
     "stubble_mask",
     "highlight_mask",
+    "beard_zone_mask",
 ]
 
 #: MediaPipe face-mesh indices of the face oval, clockwise from the forehead top (10).
@@ -116,6 +117,11 @@ class SkinParams:
     highlight_chroma: float = 0.75  # highlights: saturation below this × the skin's
     source_margin: float = 0.02  # texture sources keep this × face width from hair and beard
     source_speck: float = 2.0  # and skip skin with over this × the bare skin's dark-speck density
+    # and never the beard zone (upper lip and chin): short, grey or dark-on-dark stubble
+    # passes the colour and speck tests there (FRL 043, 021, 067 carried 0.17-0.32 of their
+    # lip/chin specks onto clean-shaven faces), so the style's skin there comes from elsewhere
+    source_beard_zone: bool = True
+    beard_zone_margin: float = 0.02  # the zone grown by this × face width
 
 
 def _p68(points68) -> np.ndarray:
@@ -488,6 +494,19 @@ def _reference_skin(p: np.ndarray, shape) -> np.ndarray:
     return m.astype(bool)
 
 
+def beard_zone_mask(points68, shape, params: SkinParams = SkinParams()) -> np.ndarray:
+    """bool (H, W): where a moustache and a goatee grow — the convex hull of the nose base
+    (31–35), the mouth (48–59) and the chin's jaw (6–10), grown by ``beard_zone_margin`` × face
+    width: the upper lip and the chin, by geometry alone (stubble there may be invisible to
+    colour and dark-speck tests). It stops short of the cheeks (with the jaw points 5 and 11 it
+    took 8–14 % of the cheek patches, where the style's detail should arrive)."""
+    p, (h, w) = _p68(points68), _shape(shape)
+    hull = cv2.convexHull(np.vstack([p[31:36], p[48:60], p[6:11]]).astype(np.float32))[:, 0]
+    m = np.zeros((h, w), np.uint8)
+    _poly(m, hull)
+    return _dilate(m, params.beard_zone_margin * face_width(p)) > 0
+
+
 @dataclass
 class FaceSegmentation:
     """Labels of :func:`segment_face` and its bool parts, all (H, W)."""
@@ -501,17 +520,31 @@ class FaceSegmentation:
     features: np.ndarray  # grown eyes, brows, lips, nostrils
     region: np.ndarray  # head region searched
     speckled: np.ndarray  # skin with sparse stubble-like dark specks (not a texture source)
+    beard_zone: np.ndarray | None = None  # upper lip and chin (not a texture source)
 
     def source(self, margin: float, face_w: float) -> np.ndarray:
         """bool: skin that may be a texture source — the skin minus highlights, and at least
         ``margin`` × face width away from hair and beard (strand tips, a beard's fading edge),
-        minus skin speckled like stubble (``source_speck``)."""
+        minus skin speckled like stubble (``source_speck``) and the beard zone."""
         bad = (self.hair | self.beard).astype(np.uint8)
         bad = _dilate(bad, margin * face_w) > 0
-        return self.skin & ~bad & ~self.highlight & ~self.speckled
+        src = self.skin & ~bad & ~self.highlight & ~self.speckled
+        return src if self.beard_zone is None else src & ~self.beard_zone
+
+    def padded(self, shape, origin) -> "FaceSegmentation":
+        """The segmentation of a crop placed at ``origin`` (y, x) in an image of ``shape``."""
+        y, x = origin
+        def put(a):
+            if a is None:
+                return None
+            out = np.zeros(tuple(shape[:2]), a.dtype)
+            out[y:y + a.shape[0], x:x + a.shape[1]] = a
+            return out
+        return FaceSegmentation(**{k: put(getattr(self, k)) for k in self.__dataclass_fields__})
 
 
-def segment_face(image, points68, *, mesh=None, params: SkinParams = SkinParams()) -> FaceSegmentation:
+def segment_face(image, points68, *, mesh=None, params: SkinParams = SkinParams(),
+                 crop: bool = True) -> FaceSegmentation:
     """Segment a face into skin, hair, brows, beard/stubble and specular highlights.
 
     The head region (:func:`head_region_mask`) minus the grown features is tested against
@@ -522,13 +555,26 @@ def segment_face(image, points68, *, mesh=None, params: SkinParams = SkinParams(
     (:func:`stubble_mask`) and the rough-and-dark test of :func:`beard_mask`; highlights
     (:func:`highlight_mask`) stay skin. Hand-written from landmarks, colour and texture
     (no face-parsing weights ship in a registry package usable here; see
-    benchmarks/skin_segmentation.py for the IoU against hand-checked masks)."""
+    benchmarks/skin_segmentation.py for the IoU against hand-checked masks). ``crop``: work
+    on the head region's box (the default; ``False``: on the whole image, the same labels)."""
     p = _p68(points68)
     img = _rgb01(image)
     h, w = img.shape[:2]
     fw = face_width(p)
-    face = face_region_mask(p, (h, w), mesh=mesh, shrink=params.oval_shrink)
     region = head_region_mask(p, (h, w), mesh=mesh, params=params)
+    # work on the head region's box only (a fifth of a 1000 px portrait): every step is local
+    # within 4 × its widest blur (0.03 × face width) or confined to the region, so the labels
+    # are the same as on the whole image at a fraction of the time
+    ys, xs = np.nonzero(region)
+    pad = int(np.ceil(0.2 * fw)) + 2
+    y0, y1 = max(0, ys.min() - pad), min(h, ys.max() + pad + 1)
+    x0, x1 = max(0, xs.min() - pad), min(w, xs.max() + pad + 1)
+    if crop and (y1 - y0) * (x1 - x0) < 0.8 * h * w:
+        off = np.array([x0, y0], np.float64)
+        sub_mesh = None if mesh is None else np.asarray(mesh, np.float64)[:, :2] - off
+        seg = segment_face(img[y0:y1, x0:x1], p - off, mesh=sub_mesh, params=params, crop=False)
+        return seg.padded((h, w), (y0, x0))
+    face = face_region_mask(p, (h, w), mesh=mesh, shrink=params.oval_shrink)
     feats = feature_mask(p, (h, w), params)
     brows = np.zeros((h, w), np.uint8)
     for brow in _BROWS:
@@ -536,6 +582,14 @@ def segment_face(image, points68, *, mesh=None, params: SkinParams = SkinParams(
     brows = _dilate(brows, params.brow_margin * fw) > 0
     chroma, light = skin_colour_distance(img, p, region=face & ~feats)
     ok = ((chroma < params.chroma_sigmas) | (light > params.highlight_sigmas)) & (light > -params.dark_sigmas)
+    border = region & ~(cv2.erode(region.astype(np.uint8), _disc(max(1, int(0.02 * fw)))) > 0)
+    # bright pieces pass as highlights only inside the face: one reaching the
+    # region's border is the background or grey hair beyond the hairline (on FRL 042, dark
+    # skin, his short grey hair and the wall above it were all "highlight")
+    bright = (ok & (light > params.highlight_sigmas) & region).astype(np.uint8)
+    n, lab, _, _ = cv2.connectedComponentsWithStats(bright, connectivity=8)
+    if n > 1:
+        ok &= ~np.isin(lab, np.setdiff1d(np.unique(lab[border]), [0]))
     bad = (~ok & region).astype(np.uint8)
     n, lab, stats, _ = cv2.connectedComponentsWithStats(bad, connectivity=8)
     big = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= (params.occluder_min * fw) ** 2)
@@ -546,7 +600,6 @@ def segment_face(image, points68, *, mesh=None, params: SkinParams = SkinParams(
     mx = img.max(-1)
     sat = (mx - img.min(-1)) / (mx + 1e-3)
     s0 = float(np.median(sat[face & ~feats & ok])) if (face & ~feats & ok).any() else float(np.median(sat))
-    border = region & ~(cv2.erode(region.astype(np.uint8), _disc(max(1, int(0.02 * fw)))) > 0)
     brow_top = float(p[17:27, 1].min())
     grey = (cv2.GaussianBlur(sat, (0, 0), 0.005 * fw) < params.background_chroma * s0) & (light > -1.5)
     hair0 = np.zeros((h, w), bool)
@@ -585,6 +638,24 @@ def segment_face(image, points68, *, mesh=None, params: SkinParams = SkinParams(
         dens, _ = dark_speck_density(img, fw, reference=ref, within=bare)
         ref_d = float(np.median(dens[ref])) if ref.any() else 0.0
         speckled = dens > max(0.5 * params.stubble_density, params.source_speck * ref_d)
+        # speckled skin is hair where hair grows: above the brows when it touches the non-skin
+        # beyond the hairline (short or grey hair at the hairline), and in the beard zone (a
+        # thin moustache, a chin tuft, shaved stubble: the opening of stubble_mask drops them)
+        dense = dens > max(params.stubble_density, params.source_speck * ref_d)  # as dense as stubble
+        sp = cv2.morphologyEx((dense & bare).astype(np.uint8), cv2.MORPH_CLOSE, _disc(max(1, int(0.01 * fw))))
+        n, lab, stats, _ = cv2.connectedComponentsWithStats(sp, connectivity=8)
+        if n > 1:
+            beyond = _dilate((region & ~bare & ~feats & ~beard).astype(np.uint8), 0.01 * fw) > 0
+            beyond[int(np.clip(brow_top, 0, h)):] = False
+            hairline = np.setdiff1d(np.unique(lab[beyond & (sp > 0)]), [0])
+            near = _dilate((region & ~bare & ~feats & ~beard).astype(np.uint8), 0.03 * fw) > 0  # a band, not the forehead
+            hair |= np.isin(lab, hairline) & near & region & ~feats
+            # (off the lip line and nostril rims and the jaw's silhouette: their shade specks too)
+            zone = beard_zone_mask(p, (h, w), params) & inner & ~(_dilate(feats.astype(np.uint8), 0.008 * fw) > 0)
+            tuft = cv2.morphologyEx(((sp > 0) & zone).astype(np.uint8), cv2.MORPH_OPEN, _disc(1))
+            n, lab, stats, _ = cv2.connectedComponentsWithStats(tuft, connectivity=8)
+            big_t = [i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= (0.03 * fw) ** 2]
+            beard |= np.isin(lab, big_t) & ~hair & ~feats
 
     skin = region & ok & ~hair & ~beard & ~feats
     skin = _fill_small_holes(skin, (params.hole_fill * fw) ** 2, light) & region & ~feats & ~hair & ~beard
@@ -603,7 +674,8 @@ def segment_face(image, points68, *, mesh=None, params: SkinParams = SkinParams(
     labels[skin] = LABELS["skin"]
     labels[hl] = LABELS["highlight"]
     return FaceSegmentation(labels=labels, skin=skin, hair=hair & ~skin, brows=brows & feats, beard=beard,
-                            highlight=hl, features=feats, region=region, speckled=speckled & skin)
+                            highlight=hl, features=feats, region=region, speckled=speckled & skin,
+                            beard_zone=beard_zone_mask(p, (h, w), params) if params.source_beard_zone else None)
 
 
 def _feather_inwards(mask: np.ndarray, sigma: float) -> np.ndarray:

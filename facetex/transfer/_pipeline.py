@@ -447,9 +447,14 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
         energies = None
         if style_map is not None:
             energies = _crop_map_energies(style, style_map, face_width(sp), dparams)
+        from ..geometry.skin import beard_zone_mask
+
+        # the content's upper lip and chin keep their own fine detail: the style's pores
+        # copied there read as stubble specks on a clean-shaven face (issue 22)
         out_region, detail_info = transfer_skin_detail(out_region, style_native, skin_c, skin_s,
                                                        style_energy=energies, face_width=face_width(cpr),
-                                                       params=dparams, return_info=True)
+                                                       params=dparams, own_zone=beard_zone_mask(cpr, (rh, rw)),
+                                                       return_info=True)
     timings["detail_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     marks_info = None

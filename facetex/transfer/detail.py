@@ -23,6 +23,9 @@ the *style's own* fine detail into the content's skin at the output's resolution
    rim: what the colour mask misses) is treated as not skin. With ``fill`` (default) the
    style's non-skin there is first filled from its own skin (:func:`fill_from_source`:
    mirrored across thin gaps, random blended pieces in large holes), so those places get the style's skin detail too, never its hair or beard.
+   In ``own_zone`` (the pipeline passes the content's beard zone: upper lip and chin)
+   the output keeps its own detail as it is: the style's plain pores copied there
+   read as stubble specks on a clean-shaven face (FRL 087 ← 067, issue 22).
 
 Everything outside the content's skin is returned untouched. Hand-written (no library
 does band-energy transfer between two aligned images).
@@ -102,7 +105,7 @@ def _check(name, a, shape=None, channels=None) -> np.ndarray:
 
 def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, style_energy=None,
                          face_width: float = REF_FACE_WIDTH, params: DetailParams = DetailParams(),
-                         return_info: bool = False):
+                         own_zone=None, return_info: bool = False):
     """Give ``output`` the style's fine skin detail at its own resolution (see module doc).
 
     ``output``, ``aligned_style``: (H, W, 3) float in [0, 1], the same geometry;
@@ -110,6 +113,9 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
     this frame); ``style_energy``: list of (H, W) target energies per band (from
     :func:`style_band_energies` in the style photo, warped here), default the aligned
     style's own; ``face_width``: of the content face in these pixels (scales ``sigmas``).
+    ``own_zone`` (H, W) bool: where the output keeps its own detail as it is, neither the
+    style's nor a fill's — the content's beard zone: any pore of the style copied there reads
+    as a stubble speck, and a gain towards a smoother style would erase the content's stubble.
     Returns the new image (and with ``return_info`` a dict of per-band mean gains).
     """
     out = _check("output", output, channels=3)
@@ -128,19 +134,24 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
     e_targets = e_aligned if style_energy is None else [np.asarray(e, np.float32) for e in style_energy]
     skin = (mc > 0.5) & (ms > 0.5)
     ms = ms * _smooth_roughness_gate(e_targets, skin, max(sig), params)
+    own = np.zeros(hw, bool) if own_zone is None else _check("own_zone", own_zone, hw) > 0
+    own_soft = np.zeros(hw, np.float32)
+    if own.any():  # feathered like the skin masks, so the zone leaves no seam
+        own_soft = np.clip(_gauss(own.astype(np.float32), 0.01 * float(face_width)), 0, 1)
+        ms = ms * (1.0 - own_soft)
     skin = (mc > 0.5) & (ms > 0.5)
-    if params.fill and skin.sum() >= 64 and ((mc > 0) & (ms < 0.5)).any():
+    if params.fill and skin.sum() >= 64 and ((mc > 0) & (ms < 0.5) & ~own).any():
         # what the style's hair, beard, highlights or features cover is filled from its own
         # skin (mirrored across the nearest skin edge), so the content's skin there gets
         # the style's skin detail, never its hair (issue 22)
         src = ms > 0.5
         # the bands, not the pixels: copied pieces of a band carry no step in brightness
-        b_sty = fill_from_source(b_sty, src, (mc > 0) & ~src, block=max(8, int(round(0.1 * float(face_width)))),
+        b_sty = fill_from_source(b_sty, src, (mc > 0) & ~src & ~own, block=max(8, int(round(0.1 * float(face_width)))),
                                  mirror_max=0.03 * float(face_width))
         filled = [band_energy(b, params.energy_scale * s) for b, s in zip(b_sty, sig)]
         e_aligned = filled
         e_targets = [np.where(src, e, f) for e, f in zip(e_targets, filled)]
-        ms = np.where(mc > 0, 1.0, ms).astype(np.float32)
+        ms = np.where((mc > 0) & ~own, 1.0, ms).astype(np.float32)
         skin = (mc > 0.5) & (ms > 0.5)
     both = (mc * ms)[..., None]
     only_content = (mc * (1.0 - ms))[..., None]
@@ -155,6 +166,7 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
         ref = float(np.median(e_target[skin])) if skin.any() else float(np.median(e_target))
         e_out = band_energy(b_out[k], es)
         g_own = np.clip(np.sqrt((ref + params.eps) / (e_out + params.eps)), *params.own_gain_range)
+        g_own = g_own * (1.0 - own_soft) + own_soft  # as it is in the zone: a smoother style would erase stubble
         new = both * (g_style[..., None] * b_sty[k]) + only_content * (g_own[..., None] * b_out[k]) \
             + (1.0 - mc[..., None]) * b_out[k]
         result += params.strength * (new - b_out[k])

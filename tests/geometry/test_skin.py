@@ -174,3 +174,37 @@ def test_a_bright_low_chroma_blob_is_a_highlight_and_no_texture_source(clean):
     assert not seg.source(0.02, fw)[c[1], c[0]]  # but never a style's texture source
     src = skin_mask(shiny, p, mesh=mesh, source=True, soft=False)
     assert not src[c[1], c[0]]
+
+
+def test_the_beard_zone_is_skin_but_never_a_texture_source(clean):
+    """Stubble may pass every colour and speck test (short, grey, or dark on dark skin): the
+    upper lip and chin of a style lend no texture, whatever is found there."""
+    from facetex.geometry.skin import SkinParams, segment_face
+
+    img, p, mesh = clean
+    fw = face_width(p)
+    seg = segment_face(img, p, mesh=mesh)
+    src = seg.source(0.02, fw)
+    lip = np.round((p[33] + p[51]) / 2).astype(int)
+    chin = np.round((p[57] + p[8]) / 2).astype(int)
+    cheek = np.round(p[[2, 31, 41, 48]].mean(0)).astype(int)
+    for x, y in (lip, chin):
+        assert seg.skin[y, x] and not src[y, x]
+    assert src[cheek[1], cheek[0]]
+    off = segment_face(img, p, mesh=mesh, params=SkinParams(source_beard_zone=False)).source(0.02, fw)
+    assert off[chin[1], chin[0]]  # the zone, not another test, took it out
+
+
+def test_segmenting_the_head_box_gives_the_labels_of_the_whole_image(clean):
+    from facetex.geometry.skin import segment_face
+
+    img, p, mesh = clean
+    pad = 150  # a portrait with room around the head, as FRL's 1000 px ones
+    big = cv2.copyMakeBorder(img, pad, pad, pad, pad, cv2.BORDER_REFLECT)
+    pb, mb = p + pad, mesh + [pad, pad, 0]
+    a = segment_face(big, pb, mesh=mb)
+    b = segment_face(big, pb, mesh=mb, crop=False)
+    assert b.region.any() and b.region.sum() < 0.5 * b.region.size  # the box is a crop
+    for k in b.__dataclass_fields__:
+        if getattr(b, k) is not None:
+            assert np.array_equal(getattr(a, k), getattr(b, k)), k

@@ -127,3 +127,23 @@ def test_style_hair_never_reaches_the_output():
     assert fine[0][10:-10, 40:60].std() > 0.6 * sfine[0][10:-10, 10:25].std()  # skin detail, not nothing
     without = transfer_skin_detail(out, style, ones, ms, face_width=330.0, params=DetailParams(fill=False))
     assert np.abs(without - out)[10:-10, 40:60].max() < 1e-6  # (old behaviour: the flat output's own detail)
+
+
+def test_the_own_zone_keeps_the_outputs_detail_and_the_rest_takes_the_styles():
+    """The content's beard zone: no style pore (a speck there reads as stubble), no fill."""
+    out = _noise(12, 0.01)
+    style = _noise(13, 0.05)
+    ones = np.ones((96, 96), np.float32)
+    zone = np.zeros((96, 96), bool)
+    zone[:, 48:] = True
+    res = transfer_skin_detail(out, style, ones, ones, face_width=330.0, own_zone=zone)
+    ro, _ = band_stack(res, (1.0,))
+    oo, _ = band_stack(out, (1.0,))
+    so, _ = band_stack(style, (1.0,))
+    inside, outside = (slice(10, -10), slice(70, -10)), (slice(10, -10), slice(10, 30))
+    corr = lambda a, b, c: np.corrcoef(a[c][..., 0].ravel(), b[c][..., 0].ravel())[0, 1]  # noqa: E731
+    assert corr(ro[0], oo[0], inside) > 0.95 and abs(corr(ro[0], so[0], inside)) < 0.1
+    assert corr(ro[0], so[0], outside) > 0.95
+    assert abs(ro[0][inside].std() / oo[0][inside].std() - 1.0) < 0.05  # as it is: not rescaled
+    with pytest.raises(BadInputError):
+        transfer_skin_detail(out, style, ones, ones, own_zone=zone[:50])
