@@ -508,7 +508,7 @@ def test_photos_with_glasses_lose_their_weight_round_the_eyes(tiny_persona):
     g = prep.glasses_free()
     assert g.shape == (len(tiny_persona),) and np.all((g > 0) & (g <= 1))
     assert np.argmin(g) == 0 and g[0] < 0.5 and np.median(g) == 1.0
-    # in the blend: the eyes' and the face's weights of photo 0 are scaled by g[0], the mouth's are not
+    # in the blend: the eyes' and the face's weights are scaled (each from its own level), the mouth's are not
     import dataclasses
 
     S = np.full((1, len(prep.regions), len(tiny_persona)), 1.0)
@@ -528,7 +528,7 @@ def test_photos_with_glasses_lose_their_weight_round_the_eyes(tiny_persona):
     finally:
         txm._cut_small = orig
     for j, name in enumerate(prep.regions):
-        want = g if name in ("eyes", "face") else np.ones_like(g)
+        want = prep.glasses_free(tx.GLASSES_LEVELS[name]) if name in tx.GLASSES_LEVELS else np.ones_like(g)
         np.testing.assert_allclose(seen[j][0], want)
 
 
