@@ -443,9 +443,10 @@ def match_sharpness(src, ref, src_skin, ref_skin, *, sigma: float = 1.0, max_gai
     outside does not ring. Images (H, W, 3) float [0, 1]; the result is clipped to [0, 1]."""
     s = np.asarray(src, np.float32)
     r = np.asarray(ref, np.float32)
-    cov = np.ones(s.shape[:2], np.float32) if coverage is None else np.asarray(coverage, np.float32)
 
-    def high(img, c):
+    def high(img, c=None):
+        if c is None:
+            return img - cv2.GaussianBlur(img, (0, 0), sigma)
         blur = cv2.GaussianBlur(img * c[..., None], (0, 0), sigma)
         wgt = cv2.GaussianBlur(c, (0, 0), sigma)[..., None]
         return img - blur / np.maximum(wgt, 1e-3)
@@ -453,9 +454,9 @@ def match_sharpness(src, ref, src_skin, ref_skin, *, sigma: float = 1.0, max_gai
     ms, mr = np.asarray(src_skin, bool), np.asarray(ref_skin, bool)
     if ms.sum() < 16 or mr.sum() < 16:
         return s.copy(), 1.0
-    hs = high(s, cov)
+    hs = high(s, None if coverage is None else np.asarray(coverage, np.float32))
     rs = float(np.sqrt(np.mean(((hs @ _LUMA)[ms]) ** 2)))
-    rr = float(np.sqrt(np.mean(((high(r, np.ones(r.shape[:2], np.float32)) @ _LUMA)[mr]) ** 2)))
+    rr = float(np.sqrt(np.mean(((high(r) @ _LUMA)[mr]) ** 2)))
     g = float(np.clip(rr / max(rs, 1e-6), 1.0, max_gain))
     if g <= 1.0:
         return s.copy(), 1.0
@@ -753,8 +754,10 @@ class CompositeParams:
     MKL 22 (and pink lips), per-channel histogram matching 27, smooth field at 0.4 / 0.25 / 0.15 /
     0.10 / 0.08 eye distances 19 / 16 / 12 / 7.8 / 6.2; 0.12 to 0.08 look alike at 100 %; with the
     sharper eye and mouth textures 0.08 gave 9.1 on a dark persona over a pale driver, 0.06 7.2,
-    alike at 100 %) and by looking at the eyes: a gain from the skins' high-pass spreads (0.5 on a dark persona over a
-    pale driver) greyed the irises;
+    alike at 100 %) and by looking at the eyes: a gain from the skins' high-pass spreads (0.5 on
+    a dark persona over a pale driver) greyed the irises; an upper bound of 1.5 (a dark persona's
+    skin is ~1.8x darker in L* than a pale driver's) blackened the eye sockets and nostrils and
+    turned the lips white, 1.2 keeps them a face's (cheek ΔE 7.4 -> 6.7 on that pair);
     occlusion: keep the driver's occluders in front (:func:`occlusion_mask`); sharpen: the
     puppet's fine detail is raised towards the driver's frame's, at most by this gain (1: off;
     :func:`match_sharpness`); poisson:

@@ -530,7 +530,6 @@ def _increasing(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return xs[keep], ys[keep]
 
 
-
 def _upper_lower_field(fields, motion68) -> np.ndarray:
     """(h, w, 2) motion of a :class:`LipFields` / :class:`LidFields`: the upper and lower
     landmarks' fields mixed by each grid point's ``side`` (0 upper, 1 lower)."""
@@ -541,6 +540,7 @@ def _upper_lower_field(fields, motion68) -> np.ndarray:
     for c in range(2):  # per column: numpy broadcasts over a length-2 axis slowly
         out[:, c] = up[:, c] + fields.side * (lo[:, c] - up[:, c])
     return out.reshape(fields.shape + (2,))
+
 
 class LipFields:
     """Thin-plate-spline fields of lip and jaw motion on a grid, split at the mouth.

@@ -319,6 +319,7 @@ def grid_normals(grid: np.ndarray) -> np.ndarray:
     nn = np.linalg.norm(n, axis=2, keepdims=True)
     return np.divide(n, nn, out=np.zeros_like(n), where=nn > 1e-12)
 
+
 def landmark_field(persona, kind: str, step: int):
     """The persona's :class:`~facetex.persona.driver.LipFields` ("lips"), ``BrowFields`` ("brows")
     or ``LidFields`` ("lids") at its mean landmarks on its depth-map grid of ``step`` px, cached on
@@ -740,6 +741,8 @@ def _prepare_puppet_texture(loaded, params: PuppetParams, timings: dict) -> None
             prep.band_energy()
         if tp.eye_quality > 0:
             prep.eye_quality()
+        if tp.glasses > 0:
+            prep.glasses_factors()
     t1 = time.perf_counter()
     if params.needs_average_face:
         average_face(persona, "d", params=tp)
@@ -776,7 +779,7 @@ class _Done:
 def load_puppet(persona, params: PuppetParams = PuppetParams()) -> tuple:
     """(Persona, timings): a Persona or .persona path (loaded) with everything the puppetry
     computes from the persona alone made and cached on it: its average shape, landmark fields and
-    texture stacks (with the blend's band energy and eye quality). :func:`prepare_puppetry` does
+    texture stacks (with the blend's band energy, eye quality and glasses factors). :func:`prepare_puppetry` does
     this beside the driver's tracking; the CLI starts it on a thread before its own imports and
     hands it over (``loading``)."""
     timings: dict = {}

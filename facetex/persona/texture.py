@@ -805,9 +805,8 @@ class _Prepared:
             # photos with eyeglasses lose their weight round the eyes: their rims lie in the eyes'
             # and the rest of the face's regions (the eyes' detail weights alone left faint rings)
             S = S.copy()
-            for j, name in enumerate(self.regions):
-                if name in GLASSES_LEVELS:
-                    S[:, j] *= self.glasses_free(GLASSES_LEVELS[name])
+            for j, g in self.glasses_factors().items():
+                S[:, j] *= g
         # per region: the similarities, small ones cut; sparse products when that pays off
         Wn = [_cut_small(S[:, j], SPARSE_MASS, self.tp.max_photos if regional else None)
               for j in range(R if regional else 1)]
@@ -971,11 +970,17 @@ class _Prepared:
             self._stage[key] = q
         return self._stage[key]
 
-    def glasses_free(self, level: float = 1.25) -> np.ndarray:
-        """(n,) weight in (0, 1] of each photo's eyes by how unlikely it shows eyeglasses
-        (:func:`facetex.geometry.glasses.glasses_weights` of the photos' bridge scores, exponent
-        ``tp.glasses``), once. The frames' rims are strong fine detail round the eyes: the
-        eye-detail weights favoured exactly those photos."""
+    def glasses_factors(self) -> dict[int, np.ndarray]:
+        """{region index: (n,) :meth:`glasses_free` factors} of the regions in
+        :data:`GLASSES_LEVELS`, each at its own level: what the blend multiplies their weights by."""
+        return {j: self.glasses_free(GLASSES_LEVELS[name]) for j, name in enumerate(self.regions)
+                if name in GLASSES_LEVELS}
+
+    def glasses_free(self, level: float) -> np.ndarray:
+        """(n,) weight in (0, 1] of each photo by how unlikely it shows eyeglasses
+        (:func:`facetex.geometry.glasses.glasses_weights` of the photos' bridge scores from
+        ``level`` x their median, exponent ``tp.glasses``), once per level. The frames' rims are
+        strong fine detail round the eyes: the eye-detail weights favoured exactly those photos."""
         key = ("glasses", self.tp.glasses, level)
         if key not in self._stage:
             from ..geometry.glasses import glasses_bridge_score, glasses_weights

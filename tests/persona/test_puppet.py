@@ -505,7 +505,7 @@ def test_photos_with_glasses_lose_their_weight_round_the_eyes(tiny_persona):
     cv2.line(images[0], (int(p[39, 0]) - 2, y), (int(p[42, 0]) + 2, y), (dark,) * 3, 2)  # photo 0's bridge
     persona.images = images
     prep._persona_ref = persona
-    g = prep.glasses_free()
+    g = prep.glasses_free(tx.GLASSES_LEVELS["eyes"])
     assert g.shape == (len(tiny_persona),) and np.all((g > 0) & (g <= 1))
     assert np.argmin(g) == 0 and g[0] < 0.5 and np.median(g) == 1.0
     # in the blend: the eyes' and the face's weights are scaled (each from its own level), the mouth's are not
