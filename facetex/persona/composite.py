@@ -68,11 +68,14 @@ __all__ = [
     "match_color_statistics",
     "skin_low_pass",
     "transfer_skin_colour",
+    "lip_weights",
     "skin_pixels",
     "occlusion_mask",
     "match_sharpness",
     "poisson_blend",
     "mouth_interior",
+    "mouth_closure",
+    "fill_mouth_interior",
     "boundary_color_step",
     "CompositeParams",
     "composite_face",
@@ -320,7 +323,7 @@ def _lightness_to_luminance(L):
 
 
 def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 / 3, 1.2), colour: str = "driver",
-                         light_limits=(0.5, 2.0), shrink: int = 1) -> np.ndarray:
+                         light_limits=(0.5, 2.0), shrink: int = 1, lips=None) -> np.ndarray:
     """``src`` (H, W, 3) sRGB with the low-frequency colour of ``ref`` (the same size, aligned),
     measured on skin pixels only (bool ``src_skin``, ``ref_skin``), the detail of ``src`` kept.
 
@@ -335,7 +338,13 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     to ``light_limits``), the persona's chromaticity kept.
     ``shrink`` > 1: the low-frequency fields are computed on both images shrunk by that factor
     (area average; ``src_skin`` and ``ref_skin`` are given at the shrunk size) and resized back
-    (bilinear): the same fields at a fraction of the cost. Returns sRGB float32 in [0, 1]."""
+    (bilinear): the same fields at a fraction of the cost.
+    ``lips`` (colour "driver"): (weight (H, W) in [0, 1], bool (H, W) lip pixels of both images)
+    or None: where the weight is 1 the low-frequency colour is the lips' own, out = r' + (g, 1, 1)
+    (src − s'), r' and s' the two lip medians: lips are not skin, and the skin's field gave a
+    dark persona's lips, lighter than her skin, a pale driver's skin tone plus that difference
+    (white lips; a pale driver's lips are darker than her skin).
+    Returns sRGB float32 in [0, 1]."""
     if colour not in COLOURS:
         raise BadInputError(f"unknown colour {colour!r}: use one of {', '.join(COLOURS)}")
     sm, rm = np.asarray(src_skin, bool), np.asarray(ref_skin, bool)
@@ -372,10 +381,31 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
         field[..., c] = sb[..., c] - g[c] * sa[..., c]
     field = full(field)
     a = _lab(src)
+    if lips is not None:
+        wl, lm = np.asarray(lips[0], np.float32), np.asarray(lips[1], bool)
+        if lm.sum() >= 8 and wl.max() > 0:
+            lip_field = np.median(_pixels(_lab(ref), lm), axis=0) - g * np.median(_pixels(a, lm), axis=0)
+            for c in range(3):
+                field[..., c] += wl * (lip_field[c] - field[..., c])
     out = np.empty(a.shape, np.float32)
     for c in range(3):
         out[..., c] = g[c] * a[..., c] + field[..., c]
     return _rgb(out)
+
+
+def lip_weights(points68, shape, *, feather: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+    """(weight (H, W) float32, bool (H, W)) of the lips at iBUG landmarks ``points68``: the outer
+    lip polygon 48-59 feathered by ``feather`` x the eye-corner distance (Gaussian sigma), and the
+    lip pixels themselves (outer polygon minus inner 60-67, a pixel in from both edges) where
+    their colour is measured (:func:`transfer_skin_colour`)."""
+    p = np.asarray(points68, np.float64)
+    h, w = _shape2(shape)
+    outer = polygon_mask(p[48:60], (h, w))
+    inner = polygon_mask(p[60:68], (h, w))
+    ring = ((outer > 0.5) & ~(inner > 0.5)).astype(np.uint8)
+    ring = cv2.erode(ring, np.ones((3, 3), np.uint8)) > 0
+    sig = max(0.75, feather * float(np.linalg.norm(p[36] - p[45])))
+    return np.clip(cv2.GaussianBlur(outer.astype(np.float32), (0, 0), sig), 0, 1), ring
 
 
 # ----------------------------------------------------------------------------- skin and occluders
@@ -433,31 +463,40 @@ def occlusion_mask(region, skin, features, points68, *, min_size: float = 0.03, 
     return occ * region
 
 
-def match_sharpness(src, ref, src_skin, ref_skin, *, sigma: float = 1.0, max_gain: float = 2.0,
-                    coverage=None) -> tuple[np.ndarray, float]:
-    """(``src`` sharpened, gain): ``src`` + (g − 1) x its high-pass (``src`` minus its Gaussian
-    of ``sigma`` px: an unsharp mask), g = the RMS of ``ref``'s high-pass on its bool
-    ``ref_skin`` pixels over ``src``'s on ``src_skin`` (luminance), clipped to [1, ``max_gain``]:
-    never blurred, never sharpened more than ``max_gain``. ``coverage`` (H, W) of ``src``: its
-    blur is normalized by the blurred coverage, so the silhouette's edge against the empty
-    outside does not ring. Images (H, W, 3) float [0, 1]; the result is clipped to [0, 1]."""
+def match_sharpness(src, ref, src_skin, ref_skin, *, max_gain: float = 2.0, coverage=None) -> tuple[np.ndarray, float]:
+    """(``src`` sharpened, gain g): ``src`` + (g − 1) x its pixel-scale high-pass (``src`` minus
+    the mean of its 4 neighbours, −∇²/4), g chosen so that the variance of the 3 x 3 Laplacian of
+    the luminance on ``src``'s bool ``src_skin`` pixels equals ``ref``'s on ``ref_skin`` (the
+    sharpness the puppet bench measures; a quadratic in g − 1, its larger root), clipped to
+    [1, ``max_gain``]: never blurred, never sharpened more than ``max_gain``. The finest band is
+    what a video frame's skin has and a resampled average texture lacks; an unsharp mask of
+    sigma 1 px raised the mottling between pores instead (0.64 of a GRID driver's Laplacian
+    variance at its 2.5 cap). ``coverage`` (H, W) of ``src``: the neighbours' mean is normalized
+    by their coverage, so the silhouette's edge against the empty outside does not ring. Images
+    (H, W, 3) float [0, 1]; the result is clipped to [0, 1]."""
     s = np.asarray(src, np.float32)
     r = np.asarray(ref, np.float32)
-
-    def high(img, c=None):
-        if c is None:
-            return img - cv2.GaussianBlur(img, (0, 0), sigma)
-        blur = cv2.GaussianBlur(img * c[..., None], (0, 0), sigma)
-        wgt = cv2.GaussianBlur(c, (0, 0), sigma)[..., None]
-        return img - blur / np.maximum(wgt, 1e-3)
-
     ms, mr = np.asarray(src_skin, bool), np.asarray(ref_skin, bool)
     if ms.sum() < 16 or mr.sum() < 16:
         return s.copy(), 1.0
-    hs = high(s, None if coverage is None else np.asarray(coverage, np.float32))
-    rs = float(np.sqrt(np.mean(((hs @ _LUMA)[ms]) ** 2)))
-    rr = float(np.sqrt(np.mean(((high(r) @ _LUMA)[mr]) ** 2)))
-    g = float(np.clip(rr / max(rs, 1e-6), 1.0, max_gain))
+    k4 = np.array([[0, 0.25, 0], [0.25, 0, 0.25], [0, 0.25, 0]], np.float32)
+    if coverage is None:
+        hs = s - cv2.filter2D(s, -1, k4, borderType=cv2.BORDER_REFLECT)
+    else:
+        c = np.asarray(coverage, np.float32)
+        num = cv2.filter2D(s * c[..., None], -1, k4, borderType=cv2.BORDER_REFLECT)
+        den = cv2.filter2D(c, -1, k4, borderType=cv2.BORDER_REFLECT)[..., None]
+        hs = s - num / np.maximum(den, 1e-3)
+        hs *= (den > 0.99)  # next to the silhouette (partly uncovered neighbours) left alone
+    lap = [cv2.Laplacian(np.ascontiguousarray(x @ _LUMA), cv2.CV_32F, ksize=1) for x in (s, hs, r)]
+    ls, lh, lr = lap[0][ms], lap[1][ms], lap[2][mr]
+    ls, lh = ls - ls.mean(), lh - lh.mean()
+    # Var(∇²(s + k hs)) = a k² + b k + c + Var(∇² ref) on the skin
+    a, b = float(np.mean(lh * lh)), 2.0 * float(np.mean(ls * lh))
+    c = float(np.mean(ls * ls)) - float(np.var(lr))
+    disc = b * b - 4 * a * c
+    k = (-b + math.sqrt(disc)) / (2 * a) if a > 1e-12 and disc >= 0 else 0.0
+    g = float(np.clip(1.0 + k, 1.0, max_gain))
     if g <= 1.0:
         return s.copy(), 1.0
     return np.clip(s + (g - 1.0) * hs, 0.0, 1.0), g
@@ -692,6 +731,46 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     return img, alpha
 
 
+def mouth_closure(inner_lips, closed: float = 0.04) -> float:
+    """How closed a mouth is, from its inner-lip points 60-67 (8, 2): 1 when the lip gap is at most
+    ``closed`` x the mouth width, 0 from twice that (smooth in between): the complement of
+    :func:`mouth_interior`'s fade."""
+    p = np.asarray(inner_lips, np.float64)
+    if p.shape != (8, 2) or not np.isfinite(p).all():
+        return 0.0
+    _, _, wd, gd = _mouth_frame(p)
+    return float(1.0 - _smoothstep(np.clip((gd / max(wd, 1e-6) - closed) / closed, 0.0, 1.0)))
+
+
+def fill_mouth_interior(texture, inner_lips, closure: float) -> np.ndarray:
+    """``texture`` (H, W, 3) float with the inside of its inner-lip contour ``inner_lips`` (8, 2),
+    grown by a pixel, filled from the lips around it (OpenCV's Telea inpainting), mixed in by
+    ``closure`` in [0, 1] (:func:`mouth_closure` of the frame's mouth). A persona whose photos
+    mostly smile has teeth between its average's inner lips; lips that close over them leave a
+    sub-pixel sliver that rendered as a white strip between dark lines (read as an open mouth)."""
+    t = np.asarray(texture, np.float32)
+    c = float(np.clip(closure, 0.0, 1.0))
+    p = np.asarray(inner_lips, np.float64)
+    if c <= 0 or p.shape != (8, 2) or not np.isfinite(p).all():
+        return t
+    h, w = _shape2(t.shape)
+    x0, y0 = (max(0, int(np.floor(v)) - 4) for v in p.min(axis=0))
+    x1, y1 = min(w, int(np.ceil(p[:, 0].max())) + 5), min(h, int(np.ceil(p[:, 1].max())) + 5)
+    if x1 - x0 < 3 or y1 - y0 < 3:
+        return t
+    roi = t[y0:y1, x0:x1]
+    hole = polygon_mask(p - [x0, y0], roi.shape[:2])
+    hole = cv2.dilate((hole > 0.25).astype(np.uint8), np.ones((3, 3), np.uint8))
+    if not hole.any():
+        return t
+    u8 = (np.clip(roi, 0, 1) * 255 + 0.5).astype(np.uint8)
+    filled = cv2.inpaint(u8, hole, 2, cv2.INPAINT_TELEA).astype(np.float32) / 255
+    a = c * cv2.GaussianBlur(hole.astype(np.float32), (0, 0), 0.7)[..., None]
+    out = t.copy()
+    out[y0:y1, x0:x1] = roi + a * (filled - roi)
+    return out
+
+
 # ----------------------------------------------------------------------------- measure
 def boundary_color_step(image, mask, *, band: float = 3.0, gap: float = 1.0, sectors: int = 16,
                         min_pixels: int = 3) -> tuple[float, np.ndarray]:
@@ -749,7 +828,8 @@ class CompositeParams:
     the persona's and takes only the lighting ("persona"; no Poisson blending then, its membrane
     would bring the driver's tone back); colour_sigma: the scale below which the colour is the
     driver's, as a fraction of the eye-corner distance, and colour_gain: the bounds of the
-    lightness-detail gain (:func:`transfer_skin_colour`). Chosen by the cheek ΔE (CIELAB) to the
+    lightness-detail gain (:func:`transfer_skin_colour`); lip_colour: with colour "driver" the
+    lips take the driver's lips' colour (:func:`lip_weights`), not the skin's. Chosen by the cheek ΔE (CIELAB) to the
     driver's own cheeks over 6 personas x 6 GRID clips (worst run, skin-only masks: mean shift 19,
     MKL 22 (and pink lips), per-channel histogram matching 27, smooth field at 0.4 / 0.25 / 0.15 /
     0.10 / 0.08 eye distances 19 / 16 / 12 / 7.8 / 6.2; 0.12 to 0.08 look alike at 100 %; with the
@@ -773,6 +853,7 @@ class CompositeParams:
     colour: str = "driver"
     colour_sigma: float = 0.06
     colour_gain: tuple[float, float] = (2 / 3, 1.2)
+    lip_colour: bool = True
     occlusion: bool = True
     sharpen: float = 2.5
     poisson: bool = True
@@ -877,12 +958,21 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         out = linear_to_srgb(lin_p * ratio)
     if params.lighting in ("sh", "stats"):
         out = transfer_skin_colour(out, fr, pup_skin, drv_skin, sigma=max(1.0, params.colour_sigma * iod),
-                                   gain=params.colour_gain, colour=params.colour, shrink=ks)
+                                   gain=params.colour_gain, colour=params.colour, shrink=ks,
+                                   lips=lip_weights(p68 - [x0, y0], rg.shape) if params.lip_colour else None)
     if params.sharpen > 1:
         # after the colour transfer: a dark persona's detail is small in sRGB until it takes a pale
         # driver's tone (measured before, Williams' puppets were sharpened to 2x the driver's detail).
-        # Skin of both at full size: the driver's landmarks (the puppet sits there), features cut out
+        # Skin of both at full size: the driver's landmarks (the puppet sits there), features cut out,
+        # and only what has the driver's skin colour (its hair, fringe, glasses and the background
+        # at the outline would set a far higher target)
         skin_full = rg & ~feature_mask(p68 - [x0, y0], rg.shape)
+        if drv_skin is not None and ks > 1:
+            colour_skin = cv2.resize(drv_skin.astype(np.uint8), (bw, bh), interpolation=cv2.INTER_NEAREST) > 0
+        else:
+            colour_skin = drv_skin
+        if colour_skin is not None and (skin_full & colour_skin).sum() >= 64:
+            skin_full = skin_full & colour_skin
         out, _ = match_sharpness(out, fr, skin_full, skin_full, max_gain=params.sharpen,
                                  coverage=np.asarray(coverage, np.float32)[box])
     if params.poisson and params.colour == "driver":  # the membrane would bring the driver's tone back

@@ -115,7 +115,9 @@ class PuppetParams:
     mouth_rest: the puppet's mean lip gap set to the driver's (module doc); lip_sync: the
     puppet's lip and jaw landmarks follow the driver's (:meth:`Puppeteer.grid`); eye_rest: eyes
     narrower than the driver's are opened to the driver's mean lid gap (scaled), lid_sync: the
-    puppet's eyelids follow the driver's (blinks; :meth:`Puppeteer.grid`);
+    puppet's eyelids follow the driver's (blinks; :meth:`Puppeteer.grid`); close_mouth: the
+    texture's mouth interior is filled from its lips as the driver's lips close
+    (:func:`facetex.persona.composite.fill_mouth_interior`: no teeth sliver between closed lips);
     max_depth_error: a reconstructed average depth whose RMS
     difference to the generic face exceeds this fraction of the frame width is replaced by
     the generic depth (too few or too uniformly lit photos); shape "generic" skips the
@@ -146,6 +148,7 @@ class PuppetParams:
     brow_sync: bool = True
     eye_rest: bool = True
     lid_sync: bool = True
+    close_mouth: bool = True
     max_depth_error: float = 0.08
     shape: str = "collection"
     shape_photos: int = 128
@@ -604,9 +607,21 @@ class Puppeteer:
         if self.uses_sequence_weights(method):
             from .texture import blend_weights
 
-            return list(blend_weights(self.persona, self.sequence_weights()[frames], params=tp))
-        f = [self.target(i) for i in frames]
-        return neutral_textures(self.persona, f, method=method, params=tp)
+            tex = list(blend_weights(self.persona, self.sequence_weights()[frames], params=tp))
+        else:
+            tex = neutral_textures(self.persona, [self.target(i) for i in frames], method=method, params=tp)
+        return self._close_interiors(frames, tex)
+
+    def _close_interiors(self, frames: list, tex: list) -> list:
+        """The textures with their mouth interior filled from the lips as the driver's mouth
+        closes (:func:`facetex.persona.composite.fill_mouth_interior`; ``params.close_mouth``)."""
+        from .composite import fill_mouth_interior, mouth_closure
+
+        m = self.motion
+        if not self.params.close_mouth or m.fiducials68 is None:
+            return list(tex)
+        lips = self.mean68[60:68]
+        return [fill_mouth_interior(t, lips, mouth_closure(m.fiducials68[i][60:68])) for i, t in zip(frames, tex)]
 
     def uses_sequence_weights(self, method: str | None = None) -> bool:
         """Whether ``method``'s textures (default: the puppet's) blend the clip's temporally

@@ -16,7 +16,10 @@ from facetex.persona.composite import (
     inner_feather,
     linear_to_srgb,
     match_color_statistics,
+    fill_mouth_interior,
+    lip_weights,
     match_sharpness,
+    mouth_closure,
     mouth_interior,
     occlusion_mask,
     poisson_blend,
@@ -546,30 +549,104 @@ def test_composite_rejects_an_unknown_lighting():
                        params=CompositeParams(lighting="studio"))
 
 
-def test_match_sharpness_scales_the_high_pass_to_the_references_never_blurs_and_is_bounded():
+def _lap_var(img, mask):
+    g = np.ascontiguousarray(np.asarray(img, np.float32) @ np.float32([0.2126, 0.7152, 0.0722]))
+    return float(cv2.Laplacian(g, cv2.CV_32F, ksize=1)[mask].var())
+
+
+def test_match_sharpness_matches_the_references_laplacian_variance_never_blurs_and_is_bounded():
     rng = np.random.default_rng(0)
     n = cv2.GaussianBlur(rng.normal(0, 0.05, (64, 64, 3)).astype(np.float32), (0, 0), 0.7)
     skin = np.ones((64, 64), bool)
     src, ref = 0.5 + 0.5 * n, 0.5 + n
-    out, g = match_sharpness(src, ref, skin, skin, sigma=1.0, max_gain=3.0)
-    assert g == pytest.approx(2.0, rel=1e-3)  # the high-pass is linear: half the amplitude
-
-    def hp_rms(img):
-        return float(np.sqrt(np.mean((img - cv2.GaussianBlur(img, (0, 0), 1.0)) ** 2)))
-
-    assert hp_rms(out) == pytest.approx(hp_rms(ref), rel=0.15)
+    out, g = match_sharpness(src, ref, skin, skin, max_gain=5.0)
+    assert 1.0 < g < 5.0
+    assert _lap_var(out, skin) == pytest.approx(_lap_var(ref, skin), rel=0.02)  # the measure matched
+    # hand-computed: out = src + (g - 1) (src - mean of its 4 neighbours)
+    k4 = np.float32([[0, 0.25, 0], [0.25, 0, 0.25], [0, 0.25, 0]])
+    want = np.clip(src + (g - 1) * (src - cv2.filter2D(src, -1, k4, borderType=cv2.BORDER_REFLECT)), 0, 1)
+    assert np.abs(out - want).max() < 1e-5
     assert np.abs(out.mean() - src.mean()) < 1e-3  # detail only, the colour stays
     same, g1 = match_sharpness(ref, src, skin, skin)  # a smoother reference: left alone
     assert g1 == 1.0 and np.array_equal(same, ref)
     _, g2 = match_sharpness(src, 0.5 + 10 * n, skin, skin, max_gain=2.0)
     assert g2 == 2.0
-    # a flat puppet disc on an empty outside: the coverage-normalized blur does not ring at its edge
+    # only the masked pixels set the gain: a reference as smooth as the source there, rough elsewhere
+    half = np.zeros((64, 64), bool)
+    half[:, :32] = True
+    rough = np.where(half[..., None], src, 0.5 + 5 * n)
+    inner = half & np.roll(half, -2, axis=1)  # the 3 x 3 Laplacian does not reach the rough side
+    _, g3 = match_sharpness(src, rough, inner, inner)
+    assert g3 == 1.0
+    # a flat puppet disc on an empty outside: the coverage-normalized high-pass does not ring at its edge
     cov = np.zeros((64, 64), np.float32)
     cv2.circle(cov, (32, 32), 20, 1.0, -1)
     flat = np.zeros((64, 64, 3), np.float32) + 0.6 * cov[..., None]
     inside = cov > 0
     strong = 0.5 + 10 * n
-    out, g = match_sharpness(flat, strong, inside, skin, coverage=cov)
-    assert g == 2.0 and np.abs(out[inside] - 0.6).max() < 1e-4
-    plain, _ = match_sharpness(flat, strong, inside, skin)  # the edge against the black outside rings
+    out, g = match_sharpness(flat, strong, inside, skin, coverage=cov, max_gain=2.0)
+    assert np.abs(out[inside] - 0.6).max() < 1e-4
+    plain, _ = match_sharpness(flat + 0.01 * n, strong, inside, skin, max_gain=2.0)  # its edge rings
     assert np.abs(plain[inside] - 0.6).max() > 0.05
+
+
+def _face68(cx=48.0, cy=40.0, iod=40.0, gap=8.0):
+    """iBUG-68-shaped points: outer eye corners 36/45 ``iod`` apart, outer lips 48-59 an ellipse
+    around (cx, cy + 10) and inner lips 60-67 ``gap`` px apart in the middle."""
+    p = np.zeros((68, 2))
+    p[36], p[45] = (cx - iod / 2, cy - 15), (cx + iod / 2, cy - 15)
+    t = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    p[48:60] = np.c_[cx - 14 * np.cos(t), cy + 10 - 9 * np.sin(t)]
+    ui = np.array([-8, -4, 0, 4, 8], float)
+    p[60:65] = np.c_[cx + ui, cy + 10 - gap / 2 * np.array([0, 1, 1, 1, 0])]
+    p[65:68] = np.c_[cx + ui[3:0:-1], np.full(3, cy + 10 + gap / 2)]
+    return p
+
+
+def test_lips_take_the_drivers_lip_colour_not_the_skins():
+    """A persona whose lips are lighter than her skin (L 45 skin, L 60 lips) on a pale driver whose
+    lips are darker than his (L 75 skin, L 55 lips): with the lip weights the lips come out at the
+    driver's lip median plus the persona's lip detail (hand-computed, gain 75 / 45 clipped to 1.2),
+    the skin as before; without them the lips are the driver's skin plus 1.2 x 15: white."""
+    h, w = 80, 96
+    p = _face68(gap=4.0)
+    wl, ring = lip_weights(p, (h, w))
+    assert wl.max() == pytest.approx(1.0, abs=1e-3) and wl[5, 5] == 0.0
+    assert ring.sum() > 50 and not ring[int(p[62, 1]) + 2, int(p[62, 0])]  # the ring excludes the interior
+    outer = polygon_mask(p[48:60], (h, w)) > 0.5
+    src_lab = np.where(outer[..., None], np.float32([60.0, 30.0, 15.0]), np.float32([45.0, 14.0, 20.0]))
+    ref_lab = np.where(outer[..., None], np.float32([55.0, 35.0, 12.0]), np.float32([75.0, 10.0, 16.0]))
+    src, ref = _rgb(src_lab.astype(np.float32)), _rgb(ref_lab.astype(np.float32))
+    skin = ~cv2.dilate(outer.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    out = _lab(transfer_skin_colour(src, ref, skin, skin, sigma=np.inf, lips=(wl, ring)))
+    core = ring & (wl > 0.999)  # the weight is feathered at the lips' outline
+    assert core.sum() > 30
+    np.testing.assert_allclose(out[core], np.broadcast_to([55.0, 35.0, 12.0], out[core].shape), atol=0.4)
+    np.testing.assert_allclose(out[skin], np.broadcast_to([75.0, 10.0, 16.0], out[skin].shape), atol=0.4)
+    white = _lab(transfer_skin_colour(src, ref, skin, skin, sigma=np.inf))
+    assert np.median(white[ring][:, 0]) > 85.0  # 75 + 1.2 x 15 = 93, clipped to the sRGB gamut
+
+
+def test_mouth_closure_follows_the_lip_gap():
+    assert mouth_closure(_face68(gap=0.0)[60:68]) == 1.0
+    assert mouth_closure(_face68(gap=0.04 * 16)[60:68]) == pytest.approx(1.0)  # at `closed` x width 16
+    assert mouth_closure(_face68(gap=0.08 * 16)[60:68]) == pytest.approx(0.0)
+    assert 0.0 < mouth_closure(_face68(gap=0.06 * 16)[60:68]) < 1.0
+    assert mouth_closure(np.full((8, 2), np.nan)) == 0.0
+
+
+def test_fill_mouth_interior_replaces_the_teeth_by_the_lips_as_the_mouth_closes():
+    h, w = 80, 96
+    p = _face68(gap=10.0)
+    tex = np.zeros((h, w, 3), np.float32) + np.float32([0.55, 0.35, 0.3])  # lips/skin all round
+    inner = polygon_mask(p[60:68], (h, w)) > 0.5
+    tex[inner] = (0.95, 0.95, 0.9)  # teeth
+    open_ = fill_mouth_interior(tex, p[60:68], 0.0)
+    assert np.array_equal(open_, tex)
+    shut = fill_mouth_interior(tex, p[60:68], 1.0)
+    assert np.abs(shut[inner] - [0.55, 0.35, 0.3]).max() < 0.03  # no white left between the lips
+    far = ~cv2.dilate(inner.astype(np.uint8), np.ones((13, 13), np.uint8)).astype(bool)
+    assert np.array_equal(shut[far], tex[far])  # nothing else changes
+    half = fill_mouth_interior(tex, p[60:68], 0.5)
+    c = (int(round(p[62, 1])) + 3, int(round(p[62, 0])))
+    np.testing.assert_allclose(half[c], 0.5 * (tex[c] + shut[c]), atol=0.01)

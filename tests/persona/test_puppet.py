@@ -384,11 +384,17 @@ def test_puppeteer_weight_smoothing_zero_is_per_frame(driver_video, tiny_persona
 
     import facetex.persona.puppet as pp
 
+    from facetex.persona.composite import fill_mouth_interior, mouth_closure
+
     session = pp.prepare_puppetry(driver_video, tiny_persona, params=pp.PuppetParams(weight_smoothing=0.0))
     pup = session.puppeteer
     frames = [0, 3, 7]
     per_frame = pp.neutral_textures(tiny_persona, [pup.target(i) for i in frames],  # with the eyes' rest motion
                                     params=pup.params.texture_params())
+    closure = [mouth_closure(pup.motion.fiducials68[i][60:68]) for i in frames]
+    for a, b, c in zip(pup.textures(frames), per_frame, closure):  # the interior filled as the lips close
+        np.testing.assert_array_equal(a, fill_mouth_interior(b, pup.mean68[60:68], c))
+    pup.params = dataclasses.replace(pup.params, close_mouth=False)
     for a, b in zip(pup.textures(frames), per_frame):
         np.testing.assert_array_equal(a, b)
     pup.params = dataclasses.replace(pup.params, weight_smoothing=0.3)
