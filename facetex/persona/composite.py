@@ -69,6 +69,7 @@ __all__ = [
     "skin_low_pass",
     "transfer_skin_colour",
     "lip_weights",
+    "eye_weights",
     "skin_pixels",
     "occlusion_mask",
     "match_sharpness",
@@ -323,7 +324,7 @@ def _lightness_to_luminance(L):
 
 
 def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 / 3, 1.2), colour: str = "driver",
-                         light_limits=(0.5, 2.0), shrink: int = 1, lips=None) -> np.ndarray:
+                         light_limits=(0.5, 2.0), shrink: int = 1, lips=None, keep=None) -> np.ndarray:
     """``src`` (H, W, 3) sRGB with the low-frequency colour of ``ref`` (the same size, aligned),
     measured on skin pixels only (bool ``src_skin``, ``ref_skin``), the detail of ``src`` kept.
 
@@ -343,7 +344,10 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     or None: where the weight is 1 the low-frequency colour is the lips' own, out = r' + (g, 1, 1)
     (src − s'), r' and s' the two lip medians: lips are not skin, and the skin's field gave a
     dark persona's lips, lighter than her skin, a pale driver's skin tone plus that difference
-    (white lips; a pale driver's lips are darker than her skin).
+    (white lips; a pale driver's lips are darker than her skin). ``keep`` (colour "driver"):
+    weight (H, W) in [0, 1] or None: where it is 1 ``src`` is kept as it is (the eyeballs,
+    :func:`eye_weights`: iris and whites are not skin; with the skin's field and the bounded
+    lightness gain a dark persona's brown irises turned grey on a pale driver).
     Returns sRGB float32 in [0, 1]."""
     if colour not in COLOURS:
         raise BadInputError(f"unknown colour {colour!r}: use one of {', '.join(COLOURS)}")
@@ -390,6 +394,9 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     out = np.empty(a.shape, np.float32)
     for c in range(3):
         out[..., c] = g[c] * a[..., c] + field[..., c]
+    if keep is not None:
+        k = np.asarray(keep, np.float32)[..., None]
+        out += k * (a - out)
     return _rgb(out)
 
 
@@ -406,6 +413,18 @@ def lip_weights(points68, shape, *, feather: float = 0.02) -> tuple[np.ndarray, 
     ring = cv2.erode(ring, np.ones((3, 3), np.uint8)) > 0
     sig = max(0.75, feather * float(np.linalg.norm(p[36] - p[45])))
     return np.clip(cv2.GaussianBlur(outer.astype(np.float32), (0, 0), sig), 0, 1), ring
+
+
+def eye_weights(points68, shape, *, feather: float = 0.015) -> np.ndarray:
+    """Weight (H, W) float32 in [0, 1] of the eyeballs at iBUG landmarks ``points68``: both eye
+    outlines (36-41, 42-47, the lids' edges) feathered by ``feather`` x the eye-corner distance
+    (Gaussian sigma) inwards: the lids' skin outside them is not counted."""
+    p = np.asarray(points68, np.float64)
+    h, w = _shape2(shape)
+    m = np.maximum(polygon_mask(p[36:42], (h, w)), polygon_mask(p[42:48], (h, w)))
+    sig = max(0.5, feather * float(np.linalg.norm(p[36] - p[45])))
+    inner = cv2.erode((m > 0.5).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(np.float32)
+    return np.clip(cv2.GaussianBlur(inner, (0, 0), sig), 0, 1) * (m > 0.5)
 
 
 # ----------------------------------------------------------------------------- skin and occluders
@@ -829,7 +848,8 @@ class CompositeParams:
     would bring the driver's tone back); colour_sigma: the scale below which the colour is the
     driver's, as a fraction of the eye-corner distance, and colour_gain: the bounds of the
     lightness-detail gain (:func:`transfer_skin_colour`); lip_colour: with colour "driver" the
-    lips take the driver's lips' colour (:func:`lip_weights`), not the skin's. Chosen by the cheek ΔE (CIELAB) to the
+    lips take the driver's lips' colour (:func:`lip_weights`), not the skin's; eye_colour: the
+    eyeballs keep the persona's colour (:func:`eye_weights`). Chosen by the cheek ΔE (CIELAB) to the
     driver's own cheeks over 6 personas x 6 GRID clips (worst run, skin-only masks: mean shift 19,
     MKL 22 (and pink lips), per-channel histogram matching 27, smooth field at 0.4 / 0.25 / 0.15 /
     0.10 / 0.08 eye distances 19 / 16 / 12 / 7.8 / 6.2; 0.12 to 0.08 look alike at 100 %; with the
@@ -854,6 +874,7 @@ class CompositeParams:
     colour_sigma: float = 0.06
     colour_gain: tuple[float, float] = (2 / 3, 1.2)
     lip_colour: bool = True
+    eye_colour: bool = True
     occlusion: bool = True
     sharpen: float = 2.5
     poisson: bool = True
@@ -959,7 +980,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     if params.lighting in ("sh", "stats"):
         out = transfer_skin_colour(out, fr, pup_skin, drv_skin, sigma=max(1.0, params.colour_sigma * iod),
                                    gain=params.colour_gain, colour=params.colour, shrink=ks,
-                                   lips=lip_weights(p68 - [x0, y0], rg.shape) if params.lip_colour else None)
+                                   lips=lip_weights(p68 - [x0, y0], rg.shape) if params.lip_colour else None,
+                                   keep=eye_weights(p68 - [x0, y0], rg.shape) if params.eye_colour else None)
     if params.sharpen > 1:
         # after the colour transfer: a dark persona's detail is small in sRGB until it takes a pale
         # driver's tone (measured before, Williams' puppets were sharpened to 2x the driver's detail).

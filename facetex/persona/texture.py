@@ -78,6 +78,7 @@ import cv2
 import numpy as np
 
 from .._parallel import available_cpus
+from ..geometry.gaze import gaze_asymmetry, gaze_weights
 from ..errors import BadInputError, BadPersonaError
 from ._packed import Packed
 from .collection import (
@@ -139,7 +140,9 @@ class TextureParams:
     bands from the few photos nearest the expression, the coarse ones from the broad average;
     the eyes' whole expression-weighted pyramid, the rest of the face's two finest bands);
     eye_quality: exponent of each photo's eye-detail confidence in the eyes' detail weights
-    (:meth:`_Prepared.eye_quality`; 0: none); glasses: exponent of the penalty of photos with
+    (:meth:`_Prepared.eye_quality`; 0: none); gaze: that confidence is multiplied by
+    :func:`facetex.geometry.gaze.gaze_weights` with this sigma (0: off): a sharp photo looking
+    sideways gave a puppet whose eyes looked off camera whatever the driver did; glasses: exponent of the penalty of photos with
     eyeglasses in the eyes' and the face's weights (:meth:`_Prepared.glasses_free`; 0: none: a
     collection with a few glasses photos drew the frames as ghost rings round the puppet's eyes);
     restore: (region, levels): the finest ``levels`` bands of ``region`` get their photos' own
@@ -166,6 +169,7 @@ class TextureParams:
     neighbours: int | tuple = 3
     detail: tuple = (("eyes", 4.0, 5), ("face", 2.0, 2))
     eye_quality: float = 1.5
+    gaze: float = 0.3
     glasses: float = 4.0
     restore: tuple = (("face", 3), ("mouth", 3))
     restore_gain: float = 3.0
@@ -534,6 +538,7 @@ class _Prepared:
         self._packed: Packed | None = None  # the stored aligned photos (version-4 file)
         self._aligned_q: np.ndarray | None = None  # the same, unpacked (computed here)
         self._aligned_lsb: np.ndarray | None = None  # their images' 9th bits (computed or stored)
+        self._gaze = np.full(n, np.nan)  # each aligned photo's gaze asymmetry (made with the stacks)
         if not self._load(stored):
             self._compute(persona, built)
         if progress:
@@ -569,6 +574,7 @@ class _Prepared:
                     q = packed.photo(i, work["q"])
                 # stored or computed, the stacks are made from the same quantized aligned photo
                 ic = _dequantize_aligned(q, self._aligned_lsb[i], luts, work)
+                self._gaze[i] = gaze_asymmetry(ic[..., :3], self.points68)
                 for k, row in enumerate(_photo_rows_rgbc(ic, self.levels, tp, work)):
                     if sums is not None:  # the same sequential float64 sum as rows.sum(axis=0) over the chunk
                         sums[k] += row
@@ -935,8 +941,9 @@ class _Prepared:
         amplitude to the power ``eye_quality``), clipped to [1/4, 4]. Open, sharp eyes with visible
         whites and iris have the most energy there; shut, blurred or shadowed ones the least
         (the per-pixel L^alpha of Eq. 2 favoured JPEG blocks and noise: one number per photo over
-        the eyes does not). Computed from the stacks once."""
-        key = ("eye_quality", self.tp.eye_quality)
+        the eyes does not); times each photo's gaze weight (``tp.gaze``: photos looking sideways
+        count less). Computed from the stacks once."""
+        key = ("eye_quality", self.tp.eye_quality, self.tp.gaze)
         if key not in self._stage:
             from .composite import polygon_mask
 
@@ -967,7 +974,9 @@ class _Prepared:
             e = num / np.maximum(den, 1e-12)
             med = float(np.median(e)) if np.median(e) > 0 else 1.0
             q = np.clip((e / med) ** (self.tp.eye_quality / 2.0), 0.25, 4.0)
-            self._stage[key] = q
+            # not clipped: a sharp photo looking sideways must lose to the next nearest photos even
+            # when its expression weight is the largest (the 4th power of the eyes' detail weights)
+            self._stage[key] = q * gaze_weights(self._gaze, self.tp.gaze)
         return self._stage[key]
 
     def glasses_factors(self) -> dict[int, np.ndarray]:

@@ -650,3 +650,26 @@ def test_fill_mouth_interior_replaces_the_teeth_by_the_lips_as_the_mouth_closes(
     half = fill_mouth_interior(tex, p[60:68], 0.5)
     c = (int(round(p[62, 1])) + 3, int(round(p[62, 0])))
     np.testing.assert_allclose(half[c], 0.5 * (tex[c] + shut[c]), atol=0.01)
+
+
+def test_eyeballs_keep_the_personas_colour_the_lids_take_the_drivers():
+    """A dark persona's brown iris on a pale driver: with ``keep`` = the eye weights the eyeball is
+    the persona's own colour (Lab unchanged), the skin the driver's."""
+    from facetex.persona.composite import eye_weights
+
+    h, w = 80, 96
+    p = _face68()
+    p[36:42] = [(20, 30), (26, 26), (32, 26), (38, 30), (32, 34), (26, 34)]
+    p[42:48] = [(58, 30), (64, 26), (70, 26), (76, 30), (70, 34), (64, 34)]
+    ew = eye_weights(p, (h, w))
+    eyes = np.maximum(polygon_mask(p[36:42], (h, w)), polygon_mask(p[42:48], (h, w))) > 0.5
+    assert ew.max() > 0.95 and ew[~eyes].max() == 0.0  # nothing outside the lids' edges
+    src_lab = np.where(eyes[..., None], np.float32([25.0, 8.0, 14.0]), np.float32([40.0, 14.0, 20.0]))
+    ref_lab = np.broadcast_to(np.float32([75.0, 10.0, 16.0]), src_lab.shape)
+    src, ref = _rgb(src_lab.astype(np.float32)), _rgb(np.ascontiguousarray(ref_lab))
+    out = _lab(transfer_skin_colour(src, ref, ~eyes, ~eyes, sigma=np.inf, keep=ew))
+    core = ew > 0.99
+    assert core.sum() >= 6
+    np.testing.assert_allclose(out[core], np.broadcast_to([25.0, 8.0, 14.0], out[core].shape), atol=0.3)
+    grey = _lab(transfer_skin_colour(src, ref, ~eyes, ~eyes, sigma=np.inf))
+    assert np.median(grey[core][:, 0]) > 50  # without it: 75 + 1.2 x (25 - 40) = 57, a grey iris

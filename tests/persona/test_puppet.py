@@ -470,8 +470,19 @@ def test_eye_quality_ranks_a_photo_with_flat_eyes_last_and_detail_weights_are_op
     tp = tx.TextureParams()
     prep = tx.prepare_persona(tiny_persona, tp)
     q = prep.eye_quality()
-    assert q.shape == (len(tiny_persona),) and np.all((q >= 0.25) & (q <= 4.0))
+    assert q.shape == (len(tiny_persona),) and np.all((q > 0) & (q <= 4.0))
     import copy
+
+    from facetex.geometry.gaze import gaze_weights
+
+    # each photo's gaze is measured with the stacks; one looking far sideways loses its eye weight
+    assert np.isfinite(prep._gaze).all()
+    prep3 = copy.copy(prep)
+    prep3._stage, prep3._gaze = {}, prep._gaze.copy()
+    prep3._gaze[1] = np.median(prep._gaze) + 0.9
+    q3 = prep3.eye_quality()
+    assert q3[1] == pytest.approx(q[1] / gaze_weights(prep._gaze, tp.gaze)[1] * gaze_weights(prep3._gaze, tp.gaze)[1])
+    assert q3[1] < 0.01 * q[1] / gaze_weights(prep._gaze, tp.gaze)[1]
 
     prep2 = copy.copy(prep)
     prep2._stage = {}
