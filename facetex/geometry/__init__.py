@@ -6,6 +6,7 @@
 - :mod:`.frontalize`: head pose by PnP on a generic 3D face, frontalization
 - :mod:`.masks`: the FaceTex facial prior mask and the face-region mask
 - :mod:`.glasses`: eyeglasses in a face photo (the frame's bridge over the nose)
+- :mod:`.gaze`: sideways gaze in a face photo (the balance of the eyes' whites)
 """
 
 from .._lazy import lazy_attributes as _lazy_attributes

@@ -14,6 +14,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from .glasses import luminance_and_points
+
 __all__ = ["gaze_asymmetry", "gaze_weights"]
 
 #: (eye corners and outline, upper-lid pair, lower-lid pair) of the iBUG-68 eyes
@@ -41,12 +43,8 @@ def gaze_asymmetry(image, points68) -> float:
     there, averaged over both eyes. 0 when the whites show alike on both sides (looking at the
     camera), towards +1 when only the left half (image x) is white (the eyes look to the image's
     right), towards −1 the other way. NaN when the eyes are off the image or too small."""
-    img = np.asarray(image)
-    lum = img[..., :3].astype(np.float32) @ np.float32([0.299, 0.587, 0.114])
-    if img.dtype == np.uint8:
-        lum /= 255.0
-    p = np.asarray(points68, np.float64)
-    if p.shape != (68, 2) or not np.isfinite(p).all():
+    lum, p = luminance_and_points(image, points68)
+    if p is None:
         return float("nan")
     res = []
     for eye in _EYES:

@@ -17,18 +17,26 @@ import numpy as np
 __all__ = ["glasses_bridge_score", "glasses_weights"]
 
 
+def luminance_and_points(image, points68) -> tuple[np.ndarray, np.ndarray | None]:
+    """(luminance (H, W) float32 in [0, 1] of ``image`` (uint8 or float [0, 1], RGB(A)), its iBUG-68
+    points as float64 (68, 2) or None when they are not 68 finite points): what the per-photo
+    eye-region scores (bridge, gaze) start from."""
+    img = np.asarray(image)
+    lum = img[..., :3].astype(np.float32) @ np.float32([0.299, 0.587, 0.114])
+    if img.dtype == np.uint8:
+        lum /= 255.0
+    p = np.asarray(points68, np.float64)
+    return lum, (p if p.shape == (68, 2) and np.isfinite(p).all() else None)
+
+
 def glasses_bridge_score(image, points68) -> float:
     """Bridge-line score of one face ``image`` (H, W, 3) (uint8 or float [0, 1]) with its iBUG-68
     ``points68`` (68, 2): max over the rows of the box between the inner eye corners (middle 60 %
     of their distance; from 0.3 eye-centre distances above their line to 0.1 below) of the row's
     mean |d/dy| of the luminance (Gaussian sigma 1 px, Sobel), over the box's mean |d/dx| (+1e-3).
     NaN when the box is empty or off the image."""
-    img = np.asarray(image)
-    lum = img[..., :3].astype(np.float32) @ np.float32([0.299, 0.587, 0.114])
-    if img.dtype == np.uint8:
-        lum /= 255.0
-    p = np.asarray(points68, np.float64)
-    if p.shape != (68, 2) or not np.isfinite(p).all():
+    lum, p = luminance_and_points(image, points68)
+    if p is None:
         return float("nan")
     left, right = p[39], p[42]
     iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
