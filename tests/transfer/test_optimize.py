@@ -135,3 +135,23 @@ def test_convergence_checks_keep_the_lbfgs_history():
     b, ib = optimize_image(init, _l2_tv_builder(target), levels=1, iters=30, converge=(7, -1.0))
     assert ib["levels"][0]["iterations"] == ia["levels"][0]["iterations"]
     np.testing.assert_allclose(a, b, atol=1e-6)
+
+
+
+def test_deterministic_mode_is_on_while_optimising_and_restored_after():
+    import torch.utils.deterministic as td
+
+    seen = []
+
+    def build(level, scale, shape):
+        t = torch.full((1, 3) + tuple(shape), 0.25)
+
+        def loss(x):
+            seen.append((torch.are_deterministic_algorithms_enabled(), td.fill_uninitialized_memory))
+            return {"l2": (x - t).square().sum()}
+        return loss
+
+    before = (torch.are_deterministic_algorithms_enabled(), td.fill_uninitialized_memory)
+    optimize_image(np.full((8, 8, 3), 0.5, np.float32), build, levels=1, iters=3)
+    assert seen and all(s == (True, False) for s in seen)
+    assert (torch.are_deterministic_algorithms_enabled(), td.fill_uninitialized_memory) == before
