@@ -7,7 +7,8 @@ content/style/masks, style patches) are rebuilt per level by the caller's ``loss
 
 Choices and how they differ from the authors' code (``mylib/myoptimizer.lua``):
 
-- L-BFGS is ``torch.optim.LBFGS`` (a port of torch7 ``optim.lbfgs``, which mylbfgs copies),
+- L-BFGS is ``torch.optim.LBFGS``'s algorithm (a port of torch7 ``optim.lbfgs``, which mylbfgs
+  copies; run by ``_lbfgs.LBFGS``, the same iterates without torch's optimiser base class),
   history 25 (``nCorrection=25``). ``line_search="strong_wolfe"`` (default) is robust to the
   loss scale; ``line_search=None`` is CNNMRF's behaviour: no line search, step
   min(1, 1/‖g‖₁) first and 1 after. CNNMRF sets tolFun = tolX = 0 and always runs every
@@ -51,6 +52,7 @@ import torch.nn.functional as F
 import torch.utils.deterministic
 
 from ..errors import BadInputError
+from ._lbfgs import LBFGS
 
 __all__ = ["LevelLoss", "level_shapes", "optimize_image", "to_tensor", "to_image"]
 
@@ -74,6 +76,19 @@ def _resize(x: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
         return x.clone()
     shrink = shape[0] < x.shape[-2] or shape[1] < x.shape[-1]
     return F.interpolate(x, size=shape, mode="bilinear", align_corners=False, antialias=shrink)
+
+
+def _set_deterministic(mode: bool, warn_only: bool) -> None:
+    """``torch.use_deterministic_algorithms`` for eager code. The public call also sets the
+    compiler's copy of the flag, importing ``torch._inductor`` and ``torch._dynamo`` to do so
+    (1.1–1.5 CPU s per process); nothing here is compiled, so unless the compiler is loaded
+    already only the eager flag is set (see also _lbfgs.py)."""
+    import sys
+
+    if "torch._inductor.config" in sys.modules or not hasattr(torch._C, "_set_deterministic_algorithms"):
+        torch.use_deterministic_algorithms(mode, warn_only=warn_only)
+    else:
+        torch._C._set_deterministic_algorithms(mode, warn_only=warn_only)
 
 
 def level_shapes(shape: tuple[int, int], levels: int = 3, start_scale: float | None = None) -> list[tuple[float, tuple[int, int]]]:
@@ -137,7 +152,7 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
     det_before = torch.are_deterministic_algorithms_enabled()
     warn_before = torch.is_deterministic_algorithms_warn_only_enabled()
     fill_before = torch.utils.deterministic.fill_uninitialized_memory
-    torch.use_deterministic_algorithms(True, warn_only=True)
+    _set_deterministic(True, warn_only=True)
     # deterministic mode also fills every new tensor with NaN (a debugging aid against reading
     # uninitialised memory; it changes no result here): 10 % of a loss evaluation's time
     torch.utils.deterministic.fill_uninitialized_memory = False
@@ -224,7 +239,7 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
                         ask = min(chunk, n_iter - iterations)
                         cap = max(1, budget - evals if chunk_evals is None else min(budget - evals, chunk_evals))
                         if opt is None:
-                            opt = torch.optim.LBFGS([var], lr=1.0 if lr is None else lr, max_iter=ask,
+                            opt = LBFGS([var], lr=1.0 if lr is None else lr, max_iter=ask,
                                                     max_eval=cap, history_size=lbfgs_history,
                                                     tolerance_grad=tolerance_grad, line_search_fn=line_search)
                         else:  # the next chunk of the same L-BFGS run (its history is kept)
@@ -286,7 +301,7 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
             if callback is not None:
                 callback(image=to_image(x_prev), level=level, evaluation=evals)
     finally:
-        torch.use_deterministic_algorithms(det_before, warn_only=warn_before)
+        _set_deterministic(det_before, warn_only=warn_before)
         torch.utils.deterministic.fill_uninitialized_memory = fill_before
     info["seconds"] = time.perf_counter() - t_all
     return to_image(x_prev), info
