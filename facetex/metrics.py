@@ -182,10 +182,16 @@ def texture_similarity(image_a, image_b, *, points_a=None, points_b=None, gray: 
 DETAIL_SIGMA = 2.0  # px, native: the high-pass is luminance minus its Gaussian blur of this sigma
 
 
-def skin_detail(image, points68=None, *, sigma: float = DETAIL_SIGMA, source=None, per_patch: bool = False):
+MIN_SKIN_FRACTION = 0.2  # of a patch: with less skin than this a skin-only detail is NaN
+
+
+def skin_detail(image, points68=None, *, sigma: float = DETAIL_SIGMA, source=None, per_patch: bool = False,
+                mask=None):
     """Fine skin detail: std (0–255 scale) of ``L − G_sigma * L`` over the forehead and both
     cheek patches of :func:`skin_patch_frames`, at the image's own resolution (the patch
-    pixels are sampled with nearest-neighbour, so no interpolation smooths them)."""
+    pixels are sampled with nearest-neighbour, so no interpolation smooths them).
+    ``mask`` (H, W) in [0, 1]: only the patch pixels where it is > 0.5 count (NaN for a patch
+    with less than :data:`MIN_SKIN_FRACTION` of them)."""
     img = np.asarray(image, dtype=np.float32)
     if img.ndim != 3 or img.shape[2] < 3:
         raise BadInputError(f"expected an (H, W, 3) image, got shape {img.shape}")
@@ -195,11 +201,19 @@ def skin_detail(image, points68=None, *, sigma: float = DETAIL_SIGMA, source=Non
     lum = _luminance(img) * 255.0
     hp = lum - cv2.GaussianBlur(lum, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
     side = int(round(PATCH_SIZE / working_scale(img.shape)))
+    if mask is not None:
+        mask = np.asarray(mask, np.float32)
+        if mask.shape != img.shape[:2]:
+            raise BadInputError(f"mask has shape {mask.shape}, the image {img.shape[:2]}")
     values = {}
     for name, m in skin_patch_frames(p, img.shape).items():
         patch = cv2.warpAffine(hp, m, (side, side), flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_REFLECT)
-        values[name] = float(patch.std())
-    mean = float(np.mean(list(values.values())))
+        if mask is None:
+            values[name] = float(patch.std())
+            continue
+        keep = cv2.warpAffine(mask, m, (side, side), flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT) > 0.5
+        values[name] = float(patch[keep].std()) if keep.mean() >= MIN_SKIN_FRACTION else float("nan")
+    mean = float(np.nanmean(list(values.values()))) if mask is not None else float(np.mean(list(values.values())))
     return (mean, values) if per_patch else mean
 
 
@@ -291,7 +305,10 @@ def transfer_metrics(output, content, style, *, points=None, sources=(None, None
     lf = lowfreq_skin_delta_e(output, content, pts[1], skin=skin)
     stub = stubble_leakage(output, content, aligned_style, pts[1])
     marks = mark_survival(output, content, aligned_style, pts[1], skin=skin)
-    moved = detail_moved(output, content, style, pts[0], pts[1], pts[2])
+    from .geometry.skin import skin_mask
+
+    style_skin = skin_mask(_rgb01(style), pts[2], source=True)  # its bare skin: no beard, hair or shine
+    moved = detail_moved(output, content, style, pts[0], pts[1], pts[2], skins=(skin, style_skin))
     return {
         "E_content": e_c.mse_px2,
         "E_style": e_s.mse_px2,
@@ -321,6 +338,7 @@ def transfer_metrics(output, content, style, *, points=None, sources=(None, None
         "coverage": skin_coverage(output, content, pts[1], skin=skin),
         "detail_moved": moved["mean"],
         "detail_moved_cheeks": moved["cheeks_rougher"],
+        "detail_moved_cheeks_skin": moved["cheeks_rougher_skin"],
         "marks_content": marks["content"],
         "marks_kept": marks["kept"],
         "marks_style": marks["style"],
@@ -520,11 +538,18 @@ def mark_survival(output, content, aligned_style, points68, *, skin=None, style_
             "arrived": float(arrived.mean()) if len(mk_s) else float("nan")}
 
 
-def detail_moved(output, content, style, points_output, points_content, points_style) -> dict:
+def detail_moved(output, content, style, points_output, points_content, points_style, *, skins=None) -> dict:
     """Fraction of the way the fine skin detail (:func:`skin_detail`, per patch) moved from
     the content's level to the style's own: (d_out − d_con) / (d_sty − d_con), NaN where the two
     differ by < 0.1 (0–255). ``mean`` over the patches; ``cheeks_rougher`` over the cheeks
-    where the style is rougher than the content (NaN when none is)."""
+    where the style is rougher than the content (NaN when none is).
+
+    ``skins`` = (content skin, style skin), (H, W) masks of the content and the style image:
+    ``cheeks_rougher_skin`` is the same measure over the skin pixels of the patches only — the
+    output and the content on the content's skin, the style on its source skin (no moustache,
+    stubble, hair or highlights). The whole cheek patch reaches the nostril and the moustache's
+    corner, so on a bearded style ``cheeks_rougher`` also measures the beard, which the
+    transfer must not copy (issue 22)."""
     _, do = skin_detail(output, points_output, per_patch=True)
     _, dc = skin_detail(content, points_content, per_patch=True)
     _, ds = skin_detail(style, points_style, per_patch=True)
@@ -534,6 +559,17 @@ def detail_moved(output, content, style, points_output, points_content, points_s
         res[k] = (do[k] - dc[k]) / gap if abs(gap) >= 0.1 else float("nan")
     vals = [res[k] for k in SKIN_PATCHES if np.isfinite(res[k])]
     res["mean"] = float(np.mean(vals)) if vals else float("nan")
-    rough = [res[k] for k in ("left_cheek", "right_cheek") if ds[k] > dc[k] + 0.1]
-    res["cheeks_rougher"] = float(np.mean(rough)) if rough else float("nan")
+    res["cheeks_rougher"] = _rougher_cheeks(do, dc, ds)
+    if skins is not None:
+        _, do_s = skin_detail(output, points_content, per_patch=True, mask=skins[0])
+        _, dc_s = skin_detail(content, points_content, per_patch=True, mask=skins[0])
+        _, ds_s = skin_detail(style, points_style, per_patch=True, mask=skins[1])
+        res["cheeks_rougher_skin"] = _rougher_cheeks(do_s, dc_s, ds_s)
     return res
+
+
+def _rougher_cheeks(do, dc, ds) -> float:
+    """Mean fraction moved over the cheeks where the style is rougher by > 0.1 (NaN: none)."""
+    rough = [(do[k] - dc[k]) / (ds[k] - dc[k]) for k in ("left_cheek", "right_cheek")
+             if np.isfinite(ds[k]) and np.isfinite(dc[k]) and np.isfinite(do[k]) and ds[k] > dc[k] + 0.1]
+    return float(np.mean(rough)) if rough else float("nan")

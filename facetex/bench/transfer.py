@@ -67,7 +67,7 @@ METRIC_KEYS = ("E_content", "E_style", "E_content_rms_px", "E_style_rms_px", "S_
                "detail_content", "detail_style", "detail_ratio", "protected_change", "background_change",
                "lowfreq_dE", "lowfreq_dE_max_region", "hair_leakage", "hair_leakage_style", "stubble_output",
                "stubble_content", "stubble_style", "stubble_moved", "coverage", "detail_moved",
-               "detail_moved_cheeks", "marks_content", "marks_kept", "marks_style", "marks_arrived")
+               "detail_moved_cheeks", "detail_moved_cheeks_skin", "marks_content", "marks_kept", "marks_style", "marks_arrived")
 
 # Issue 22's pairs (content, style) of FRL London neutral portraits, chosen by looking at them:
 # the style has a fringe (F), stubble or a beard (B), shiny skin (S); the two differ in skin
@@ -123,6 +123,7 @@ TABLE_COLUMNS = (
     Column("coverage", "coverage", ".2f"),
     Column("detail_moved", "detail moved", "+.2f"),
     Column("detail_moved_cheeks", "detail moved cheeks", "+.2f"),
+    Column("detail_moved_cheeks_skin", "detail moved cheeks (skin)", "+.2f"),
     Column("marks_kept", "marks kept", ".2f"),
     Column("marks_arrived", "marks arrived", ".2f"),
     Column("time_s", "s / image", ".1f"),
@@ -137,7 +138,8 @@ PAIR_COLUMNS = (
     Column("stubble_output", "specks out", ".2f"), Column("stubble_content", "specks content", ".2f"),
     Column("stubble_style", "specks style", ".2f"), Column("stubble_moved", "stubble moved", "+.2f"),
     Column("coverage", "coverage", ".2f"), Column("detail_moved", "detail moved", "+.2f"),
-    Column("detail_moved_cheeks", "moved cheeks", "+.2f"), Column("marks_content", "marks c", "d"),
+    Column("detail_moved_cheeks", "moved cheeks", "+.2f"),
+    Column("detail_moved_cheeks_skin", "moved cheeks (skin)", "+.2f"), Column("marks_content", "marks c", "d"),
     Column("marks_kept", "kept", ".2f"), Column("marks_style", "marks s", "d"),
     Column("marks_arrived", "arrived", ".2f"), Column("protected_change", "protected Δ", ".2f"),
     Column("background_change", "background Δ", ".2f"), Column("time_s", "s", ".1f"),
@@ -279,7 +281,8 @@ def _table_markdown(rows, settings, pair_rows=()) -> str:
         "lip and chin, stubble moved = (output − content) / (style − content); coverage = fraction of the "
         "content's skin that changed (|Δ| blurred at 2 px > 1/255); detail moved = fraction of the way the "
         "σ = 2 px high-pass moved from the content's level to the style's own (cheeks: where the style is "
-        "rougher); marks kept / arrived = the content's blobs (LoG) found again in the output / the style's "
+        "rougher; (skin): the same over the patches' skin pixels only, the style's without its moustache, "
+        "stubble, hair or shine, which the whole cheek patch also measures); marks kept / arrived = the content's blobs (LoG) found again in the output / the style's "
         "that appear there. CPU s = process CPU time per image (the machine may be shared).",
         "",
         markdown_table(TABLE_COLUMNS, rows),

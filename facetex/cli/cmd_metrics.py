@@ -43,7 +43,8 @@ def run(args) -> int:
               f"{r['stubble_content']:.2f}, style {r['stubble_style']:.2f} "
               f"(moved {r['stubble_moved']:+.2f} of the way)")
         print(f"skin coverage (fraction changed): {r['coverage']:.2f}; fine detail moved {r['detail_moved']:+.2f} of "
-              f"the way (cheeks where the style is rougher {r['detail_moved_cheeks']:+.2f})")
+              f"the way (cheeks where the style is rougher {r['detail_moved_cheeks']:+.2f}, over their skin only "
+              f"{r['detail_moved_cheeks_skin']:+.2f})")
         print(f"marks: content {r['marks_content']:.0f} ({r['marks_kept']:.0%} kept), style {r['marks_style']:.0f} "
               f"({r['marks_arrived']:.0%} arrived)")
     return 0

@@ -62,6 +62,8 @@ class _Conv2d(nn.Conv2d):
         if k > 1:
             top, bottom = self._pad(x.shape[-2], k, self.stride[0])
             left, right = self._pad(x.shape[-1], k, self.stride[1])
+            if top == bottom and left == right:  # symmetric: the convolution pads (no padded copy)
+                return F.conv2d(x, self.weight, self.bias, self.stride, (top, left), self.dilation, self.groups)
             x = F.pad(x, (left, right, top, bottom))
         return super().forward(x)
 
@@ -135,6 +137,23 @@ class EfficientNetLite0Features(nn.Module):
         self.load_state_dict(torch.load(weights, map_location="cpu", weights_only=True), strict=True)
         self.requires_grad_(False)
         self.eval()
+
+    def fuse_batchnorm(self) -> "EfficientNetLite0Features":
+        """Fold every batch norm into the convolution before it, in place, and return the net:
+        the same function (to float rounding) with one operation fewer per layer forward and
+        backward (the transfer's loss evaluations; its state dict no longer matches the file)."""
+        from torch.nn.utils.fusion import fuse_conv_bn_eval
+
+        pairs = [(self, "_conv_stem", "_bn0"), (self, "_conv_head", "_bn1")]
+        for b in self._blocks:
+            pairs += [(b, "_expand_conv", "_bn0")] if b.expand else []
+            pairs += [(b, "_depthwise_conv", "_bn1"), (b, "_project_conv", "_bn2")]
+        for owner, conv, bn in pairs:
+            if isinstance(getattr(owner, bn), nn.BatchNorm2d):
+                setattr(owner, conv, fuse_conv_bn_eval(getattr(owner, conv), getattr(owner, bn)))
+                setattr(owner, bn, nn.Identity())
+        self.requires_grad_(False)
+        return self
 
     def train(self, mode: bool = True) -> "EfficientNetLite0Features":
         # Frozen network: batch-norm must keep using its ImageNet running statistics.

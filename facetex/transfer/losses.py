@@ -79,6 +79,7 @@ MRF_VARIANTS = {
 _BLOCK_ELEMENTS = 2**21  # elements (8 MiB in float32) per target-patch / scatter block
 _SCORE_ELEMENTS = 2**22  # elements (16 MiB) per block of target × style similarities
 _EPS = 1e-12
+_DENSE_ELEMENTS = 2**23  # patch elements (C·k² × target patches) up to which mrf_loss matches in one piece
 
 
 def _as_chw(feat: torch.Tensor, what: str) -> torch.Tensor:
@@ -233,6 +234,54 @@ def _match(feat: torch.Tensor, style: StylePatches, ys: torch.Tensor, xs: torch.
     return best_idx, best_ncc
 
 
+def _dense_maps(feat: torch.Tensor, style: StylePatches, chunk: int, active: torch.Tensor | None,
+                threshold: float | None):
+    """:func:`mrf_loss`'s matching and its count / R / Q maps for a stride-1 target grid in one
+    piece: the target patches are one ``unfold`` (im2col) and the maps one ``fold`` (col2im)
+    each, instead of per-block gathers and index-add scatters (the same sums; 2–3 times faster
+    at the default preset's sizes). For maps up to :data:`_DENSE_ELEMENTS` patch elements."""
+    import torch.nn.functional as F
+
+    c, h, w = feat.shape
+    k = style.size
+    cols = F.unfold(feat[None], k)[0]  # (C·k², L), patches in row-major order of their origins
+    n_t = cols.shape[1]
+    rows = None if active is None else torch.nonzero(active).reshape(-1)
+    t = cols.T if rows is None else cols.T.index_select(0, rows)  # (n, C·k²)
+    n, n_s = t.shape[0], len(style)
+    idx = torch.zeros(n, dtype=torch.long, device=feat.device)
+    if n:
+        step = max(1, min(_SCORE_ELEMENTS // max(1, min(chunk, n_s)), n))
+        chunk = max(1, min(chunk, n_s))
+        for t0 in range(0, n, step):
+            tb = t[t0:t0 + step]
+            best = torch.full((tb.shape[0],), -torch.inf, dtype=feat.dtype, device=feat.device)
+            bi = torch.zeros(tb.shape[0], dtype=torch.long, device=feat.device)
+            for s0 in range(0, n_s, chunk):
+                m, j = (tb @ style.unit[s0:s0 + chunk].T).max(dim=1)  # NCC × ‖target patch‖
+                better = m > best  # strict: the earlier chunk keeps ties, like a single argmax
+                best = torch.where(better, m, best)
+                bi = torch.where(better, j + s0, bi)
+            idx[t0:t0 + step] = bi
+            if threshold is not None:  # NaN for an all-zero patch (dropped), as in mrf.lua
+                ncc = best / tb.norm(dim=1)
+                bi_keep = ncc >= threshold
+                idx[t0:t0 + step] = torch.where(bi_keep, bi, torch.full_like(bi, -1))
+    keep_rows = torch.arange(n, device=feat.device) if rows is None else rows
+    if threshold is not None:
+        kept = idx >= 0
+        keep_rows, idx = keep_rows[kept], idx[kept]
+    matched = style.patches(idx)  # (n_kept, C·k²)
+    full = torch.zeros(c * k * k + k * k + k * k, n_t, dtype=feat.dtype, device=feat.device)
+    full[:c * k * k, keep_rows] = matched.T
+    full[c * k * k:c * k * k + k * k, keep_rows] = 1.0
+    full[c * k * k + k * k:, keep_rows] = matched.reshape(-1, c, k * k).square().sum(1).T
+    r_map = F.fold(full[None, :c * k * k], (h, w), k)[0]
+    count = F.fold(full[None, c * k * k:c * k * k + k * k], (h, w), k)[0]
+    q_map = F.fold(full[None, c * k * k + k * k:], (h, w), k)[0]
+    return count, r_map, q_map, int(len(keep_rows))
+
+
 def _prepare(target_feat, style, patch_size, style_stride):
     feat = _as_chw(target_feat, "target_feat")
     if not isinstance(style, StylePatches):
@@ -296,7 +345,10 @@ def mrf_loss(target_feat: torch.Tensor, style_feat: torch.Tensor | StylePatches,
         if tw is not None:  # patches with no weighted position contribute nothing: skip them
             wmax = torch.nn.functional.max_pool2d(tw[None], k, stride=1)[0, 0]
             active = (wmax[ys][:, xs] > 0).reshape(-1)
-        if matches is None:
+        dense = matches is None and target_stride == 1 and c * k * k * len(ys) * len(xs) <= _DENSE_ELEMENTS
+        if dense:
+            count, r_map, q_map, n_kept = _dense_maps(fd, style, chunk, active, threshold)
+        elif matches is None:
             idx, ncc = _match(fd, style, ys, xs, chunk, active)
         else:
             idx = matches.reshape(-1).to(feat.device)
@@ -306,27 +358,28 @@ def mrf_loss(target_feat: torch.Tensor, style_feat: torch.Tensor | StylePatches,
             if threshold is not None:
                 t = _gather_patches(fd, ys, xs, k)
                 ncc = (t * style.unit[idx]).sum(1) / t.norm(dim=1)
-        keep = None if threshold is None else ncc >= threshold
-        if active is not None:
-            keep = active if keep is None else keep & active
-        # Per-position coverage count, sum of matched values R and their squared norms Q.
-        count = torch.zeros(1, h, w, dtype=feat.dtype, device=feat.device)
-        r_map = torch.zeros(c, h, w, dtype=feat.dtype, device=feat.device)
-        q_map = torch.zeros(1, h, w, dtype=feat.dtype, device=feat.device)
-        rows = max(1, _BLOCK_ELEMENTS // (len(xs) * c * k * k))
-        for r0 in range(0, len(ys), rows):
-            r1 = min(r0 + rows, len(ys))
-            sl = slice(r0 * len(xs), r1 * len(xs))
-            s = style.patches(idx[sl])
-            ones = torch.ones(s.shape[0], k * k, dtype=feat.dtype, device=feat.device)
-            sq = s.reshape(s.shape[0], c, k * k).square().sum(1)
-            if keep is not None:
-                kb = keep[sl].to(feat.dtype)[:, None]
-                s, ones, sq = s * kb, ones * kb, sq * kb
-            _scatter_patches(r_map, s, ys[r0:r1], xs, k)
-            _scatter_patches(count, ones, ys[r0:r1], xs, k)
-            _scatter_patches(q_map, sq, ys[r0:r1], xs, k)
-        n_kept = len(ys) * len(xs) if keep is None else int(keep.sum())
+        if not dense:
+            keep = None if threshold is None else ncc >= threshold
+            if active is not None:
+                keep = active if keep is None else keep & active
+            # Per-position coverage count, sum of matched values R and their squared norms Q.
+            count = torch.zeros(1, h, w, dtype=feat.dtype, device=feat.device)
+            r_map = torch.zeros(c, h, w, dtype=feat.dtype, device=feat.device)
+            q_map = torch.zeros(1, h, w, dtype=feat.dtype, device=feat.device)
+            rows = max(1, _BLOCK_ELEMENTS // (len(xs) * c * k * k))
+            for r0 in range(0, len(ys), rows):
+                r1 = min(r0 + rows, len(ys))
+                sl = slice(r0 * len(xs), r1 * len(xs))
+                s = style.patches(idx[sl])
+                ones = torch.ones(s.shape[0], k * k, dtype=feat.dtype, device=feat.device)
+                sq = s.reshape(s.shape[0], c, k * k).square().sum(1)
+                if keep is not None:
+                    kb = keep[sl].to(feat.dtype)[:, None]
+                    s, ones, sq = s * kb, ones * kb, sq * kb
+                _scatter_patches(r_map, s, ys[r0:r1], xs, k)
+                _scatter_patches(count, ones, ys[r0:r1], xs, k)
+                _scatter_patches(q_map, sq, ys[r0:r1], xs, k)
+            n_kept = len(ys) * len(xs) if keep is None else int(keep.sum())
         weight = torch.ones_like(count) if cfg["weighting"] == "sum" else 0.5 / (count + 1e-10)
         if tw is not None:
             weight = weight * tw

@@ -7,7 +7,8 @@ content/style/masks, style patches) are rebuilt per level by the caller's ``loss
 
 Choices and how they differ from the authors' code (``mylib/myoptimizer.lua``):
 
-- L-BFGS is ``torch.optim.LBFGS`` (a port of torch7 ``optim.lbfgs``, which mylbfgs copies),
+- L-BFGS is ``torch.optim.LBFGS``'s algorithm (a port of torch7 ``optim.lbfgs``, which mylbfgs
+  copies; run by ``_lbfgs.LBFGS``, the same iterates without torch's optimiser base class),
   history 25 (``nCorrection=25``). ``line_search="strong_wolfe"`` (default) is robust to the
   loss scale; ``line_search=None`` is CNNMRF's behaviour: no line search, step
   min(1, 1/‖g‖₁) first and 1 after. CNNMRF sets tolFun = tolX = 0 and always runs every
@@ -20,7 +21,13 @@ Choices and how they differ from the authors' code (``mylib/myoptimizer.lua``):
   documented convergence test: max |gradient| ≤ ``tolerance_grad`` (1e-7), two restarts
   in a row that lower the loss by less than 1e-7 relative, or (``converge=(k, rtol)``, the
   paper preset) a best loss that fell by less than ``rtol`` over the last ``k`` iterations
-  (``info["levels"][k]["stop"]``).
+  or the last ⌈``eval_budget`` · k⌉ loss evaluations, whichever come first
+  (``info["levels"][k]["stop"]``): near a kink of the MRF loss (its matches flip) one
+  strong-Wolfe search can take 10–17 evaluations for a 0.3 % decrease, and on the default
+  preset's coarsest level such searches were half of its evaluations.
+- torch's L-BFGS evaluates its start point at every ``step()`` call; on a restart or a next
+  convergence chunk that is the point its line search evaluated last, so that evaluation
+  (loss and gradient) is reused, not recomputed (the same numbers, one evaluation fewer).
 - ``change_mask``: optimise ``z`` with ``x = x₀ + m ⊙ z`` instead of ``x`` (a hard
   constraint: pixels with m = 0 never change, whatever the curvature pairs do — a gradient
   mask > 0 alone is only a preconditioner under L-BFGS; findings: a pixel scaled by 0.05
@@ -42,8 +49,10 @@ from typing import Callable, Protocol
 import numpy as np
 import torch
 import torch.nn.functional as F
+import torch.utils.deterministic
 
 from ..errors import BadInputError
+from ._lbfgs import LBFGS
 
 __all__ = ["LevelLoss", "level_shapes", "optimize_image", "to_tensor", "to_image"]
 
@@ -67,6 +76,19 @@ def _resize(x: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
         return x.clone()
     shrink = shape[0] < x.shape[-2] or shape[1] < x.shape[-1]
     return F.interpolate(x, size=shape, mode="bilinear", align_corners=False, antialias=shrink)
+
+
+def _set_deterministic(mode: bool, warn_only: bool) -> None:
+    """``torch.use_deterministic_algorithms`` for eager code. The public call also sets the
+    compiler's copy of the flag, importing ``torch._inductor`` and ``torch._dynamo`` to do so
+    (1.1–1.5 CPU s per process); nothing here is compiled, so unless the compiler is loaded
+    already only the eager flag is set (see also _lbfgs.py)."""
+    import sys
+
+    if "torch._inductor.config" in sys.modules or not hasattr(torch._C, "_set_deterministic_algorithms"):
+        torch.use_deterministic_algorithms(mode, warn_only=warn_only)
+    else:
+        torch._C._set_deterministic_algorithms(mode, warn_only=warn_only)
 
 
 def level_shapes(shape: tuple[int, int], levels: int = 3, start_scale: float | None = None) -> list[tuple[float, tuple[int, int]]]:
@@ -129,7 +151,11 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
 
     det_before = torch.are_deterministic_algorithms_enabled()
     warn_before = torch.is_deterministic_algorithms_warn_only_enabled()
-    torch.use_deterministic_algorithms(True, warn_only=True)
+    fill_before = torch.utils.deterministic.fill_uninitialized_memory
+    _set_deterministic(True, warn_only=True)
+    # deterministic mode also fills every new tensor with NaN (a debugging aid against reading
+    # uninitialised memory; it changes no result here): 10 % of a loss evaluation's time
+    torch.utils.deterministic.fill_uninitialized_memory = False
     torch.manual_seed(seed)
     info = {"optimizer": optimizer, "level_init": level_init, "line_search": line_search if optimizer == "lbfgs" else None,
             "lbfgs_history": lbfgs_history, "clamp": clamp, "seed": seed, "levels": [], "loss_history": []}
@@ -171,15 +197,23 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
                 return v if mask is None else base + mask * v
 
             evals = 0
+            last = None  # (point, gradient, loss, terms) of the latest evaluation
 
             def closure():
-                nonlocal evals
+                nonlocal evals, last
+                if last is not None and torch.equal(var, last[0]):
+                    # torch's L-BFGS evaluates its start point at every step() call: on a restart
+                    # or the next convergence chunk that is the point its line search just evaluated
+                    var.grad = last[1].clone()
+                    return last[2]
                 opt.zero_grad(set_to_none=False)
                 x = image_of(var)
                 terms = level_loss(x)
                 total = sum(terms.values())
                 total.backward()
                 evals += 1
+                last = (var.detach().clone(), var.grad.detach().clone(), total.detach(),
+                        {k: float(v.detach()) for k, v in terms.items()})
                 value = float(total.detach())
                 info["loss_history"].append(value)
                 if progress is not None:
@@ -192,20 +226,26 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
             if n_iter > 0:
                 if optimizer == "lbfgs":
                     budget = max(1, int(round(eval_budget * n_iter)))
-                    stalls, last = 0, None
+                    stalls, last_value = 0, None
                     first = len(info["loss_history"])
                     chunk = n_iter if converge is None else max(1, int(converge[0]))
+                    # a convergence chunk also ends after eval_budget × its iterations in evaluations:
+                    # line searches that take many evaluations for little decrease (the MRF loss's
+                    # matches flipping at a kink) are checked like iterations
+                    chunk_evals = None if converge is None else max(1, math.ceil(eval_budget * chunk))
                     best_before = None  # best loss of the level at the previous convergence check
                     opt = None
                     while iterations < n_iter:
                         ask = min(chunk, n_iter - iterations)
+                        cap = max(1, budget - evals if chunk_evals is None else min(budget - evals, chunk_evals))
                         if opt is None:
-                            opt = torch.optim.LBFGS([var], lr=1.0 if lr is None else lr, max_iter=ask,
-                                                    max_eval=max(1, budget - evals), history_size=lbfgs_history,
+                            opt = LBFGS([var], lr=1.0 if lr is None else lr, max_iter=ask,
+                                                    max_eval=cap, history_size=lbfgs_history,
                                                     tolerance_grad=tolerance_grad, line_search_fn=line_search)
                         else:  # the next chunk of the same L-BFGS run (its history is kept)
-                            opt.param_groups[0].update(max_iter=ask, max_eval=max(1, budget - evals))
+                            opt.param_groups[0].update(max_iter=ask, max_eval=cap)
                         done_before = int(opt.state[var].get("n_iter", 0))
+                        evals_before = evals
                         opt.step(closure)
                         done = int(opt.state[var].get("n_iter", 0)) - done_before
                         iterations += done
@@ -214,7 +254,8 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
                         if evals >= budget:
                             stop = "evaluations"
                             break
-                        if done >= ask and converge is not None:  # the chunk ran through: convergence check
+                        ran_through = done >= ask or (chunk_evals is not None and evals - evals_before >= chunk_evals)
+                        if ran_through and converge is not None:  # convergence check
                             best = min(info["loss_history"][first:])
                             if best_before is not None and best_before - best <= converge[1] * abs(best_before):
                                 stop = f"converged: < {converge[1]:g} in {chunk} iterations"
@@ -226,14 +267,14 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
                             stop = "converged: gradient"
                             break
                         value = info["loss_history"][-1]
-                        if last is not None and last - value <= 1e-7 * max(abs(last), 1e-12):
+                        if last_value is not None and last_value - value <= 1e-7 * max(abs(last_value), 1e-12):
                             stalls += 1
                             if stalls >= 2:
                                 stop = "converged: no decrease after restarts"
                                 break
                         else:
                             stalls = 0
-                        last = value
+                        last_value = value
                         restarts += 1
                 else:
                     opt = torch.optim.Adam([var], lr=1e-2 if lr is None else lr)
@@ -244,9 +285,13 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
                 x = image_of(var).detach()
                 if clamp:
                     x = x.clamp(0.0, 1.0)
-            # Final value of every term at the level's result (one extra evaluation).
-            with torch.no_grad():
-                terms = {k: float(v.detach()) for k, v in level_loss(x).items()}
+            # Final value of every term at the level's result (one extra evaluation, unless the
+            # result is the point evaluated last)
+            if last is not None and torch.equal(x, image_of(last[0])):
+                terms = dict(last[3])
+            else:
+                with torch.no_grad():
+                    terms = {k: float(v.detach()) for k, v in level_loss(x).items()}
             x_prev = x
             z_prev = None if mask is None else var.detach()
             info["levels"].append({"level": level, "scale": scale, "shape": tuple(shape), "iterations": iterations,
@@ -256,6 +301,7 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
             if callback is not None:
                 callback(image=to_image(x_prev), level=level, evaluation=evals)
     finally:
-        torch.use_deterministic_algorithms(det_before, warn_only=warn_before)
+        _set_deterministic(det_before, warn_only=warn_before)
+        torch.utils.deterministic.fill_uninitialized_memory = fill_before
     info["seconds"] = time.perf_counter() - t_all
     return to_image(x_prev), info

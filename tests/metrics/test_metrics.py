@@ -1,5 +1,6 @@
 import json
 
+import cv2
 import numpy as np
 import pytest
 
@@ -100,7 +101,8 @@ def test_metrics_cli_json(capsys):
                         # issue 22
                         "lowfreq_dE", "lowfreq_dE_max_region", "hair_leakage", "hair_leakage_style",
                         "stubble_output", "stubble_content", "stubble_style", "stubble_moved", "coverage",
-                        "detail_moved", "detail_moved_cheeks", "marks_content", "marks_kept", "marks_style",
+                        "detail_moved", "detail_moved_cheeks", "detail_moved_cheeks_skin", "marks_content",
+                        "marks_kept", "marks_style",
                         "marks_arrived"}
     # doing nothing: no colour change, no coverage, no detail or stubble moved, every mark kept
     assert out["lowfreq_dE"] == 0.0 and out["coverage"] == 0.0 and out["stubble_output"] == out["stubble_content"]
@@ -122,6 +124,34 @@ def test_skin_detail_hand_computed(face):
     yy, xx = np.mgrid[0:400, 0:400]
     board = img + (((yy + xx) % 2) * 2 - 1)[..., None].astype(np.float32) * (4 / 255.0)  # ±4 in 0–255 units
     assert 3.8 < metrics.skin_detail(board, p68) < 4.05
+
+
+def test_detail_moved_on_skin_ignores_the_styles_moustache(face):
+    """Style: the content's ±2 checkerboard skin with a ±12 'moustache' band over the lower part
+    of the cheek patches (masked out of its skin); output: ±3 skin. Over the whole patch the style
+    looks far rougher and the output moved little; over skin pixels it moved half the way."""
+    _, p68 = face
+    yy, xx = np.mgrid[0:400, 0:400]
+    board = (((yy + xx) % 2) * 2 - 1)[..., None].astype(np.float32) / 255.0
+
+    def img(a):
+        return np.full((400, 400, 3), 0.5, np.float32) + a * board
+
+    frames = metrics.skin_patch_frames(p68, (400, 400))
+    band = np.zeros((400, 400), bool)  # the lower third of each cheek patch, in image pixels
+    for k in ("left_cheek", "right_cheek"):
+        to_image = cv2.invertAffineTransform(frames[k])
+        for v in np.linspace(27, 40, 14):
+            for u in np.linspace(0, 40, 41):
+                x, y = to_image @ [u, v, 1.0]
+                band[int(round(y)) - 1:int(round(y)) + 2, int(round(x)) - 1:int(round(x)) + 2] = True
+    content, output = img(2.0), img(3.0)
+    style = np.where(band[..., None], img(12.0), img(4.0))
+    skin = np.ones((400, 400), np.float32)
+    res = metrics.detail_moved(output, content, style, p68, p68, p68, skins=(skin, (~band).astype(np.float32)))
+    assert res["cheeks_rougher"] < 0.3  # the moustache makes the style look rough
+    assert res["cheeks_rougher_skin"] == pytest.approx(0.5, abs=0.05)
+    assert "cheeks_rougher_skin" not in metrics.detail_moved(output, content, style, p68, p68, p68)
 
 
 def test_protected_and_background_change_hand_computed(face):

@@ -189,3 +189,13 @@ def test_cli_identity_missing_file(capsys, tmp_path):
     assert code != 0
     err = capsys.readouterr().err
     assert "none.jpg" in err and len(err.strip().splitlines()) == 1
+
+
+def test_folded_affines_compute_the_same_features(net):
+    folded = FaceRecognitionNet().fold_affines()
+    assert not any(type(m).__name__ == "Affine" for m in folded.modules())
+    x = torch.rand(1, 3, 150, 150, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        a, b = net.features(x, ["level2", "level3", "descriptor"]), folded.features(x, ["level2", "level3", "descriptor"])
+    for k in a:
+        assert (a[k] - b[k]).abs().max() <= 1e-4 * a[k].abs().max(), k

@@ -94,3 +94,24 @@ def test_missing_weights_file(tmp_path):
 
     with pytest.raises(ModelNotFoundError):
         EfficientNetLite0Features(weights=tmp_path / "none.pth")
+
+
+def test_fused_batchnorm_computes_the_same_features():
+    plain, fused = EfficientNetLite0Features(), EfficientNetLite0Features().fuse_batchnorm()
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in fused.modules())
+    assert any(isinstance(m, torch.nn.BatchNorm2d) for m in plain.modules())
+    x = torch.rand(1, 3, 67, 50, generator=torch.Generator().manual_seed(0))  # odd sizes: asymmetric "same" pads
+    with torch.no_grad():
+        a, b = plain.features(x, ["block2", "block4", "block7"]), fused.features(x, ["block2", "block4", "block7"])
+    for k in a:
+        assert (a[k] - b[k]).abs().max() <= 1e-4 * a[k].abs().max(), k
+    assert not any(p.requires_grad for p in fused.parameters())
+
+
+def test_same_padding_equals_tensorflow_padding_for_symmetric_and_asymmetric_cases():
+    g = torch.Generator().manual_seed(1)
+    for k, stride, n, pads in ((3, 1, 9, (1, 1)), (5, 1, 8, (2, 2)), (3, 2, 8, (0, 1)), (5, 2, 8, (1, 2))):
+        conv = _Conv2d(4, 4, k, stride=stride, groups=4, same=True)
+        x = torch.rand(1, 4, n, n, generator=g)
+        ref = F.conv2d(F.pad(x, (pads[0], pads[1], pads[0], pads[1])), conv.weight, stride=stride, groups=4)
+        assert conv(x).shape == ref.shape and torch.allclose(conv(x), ref, atol=1e-6), (k, stride)

@@ -288,3 +288,29 @@ def test_channel_softmax_hand_case_and_gradcheck():
     assert torch.autograd.gradcheck(lambda t: channel_softmax(t, 0.7), (x,))
     with pytest.raises(BadInputError):
         channel_softmax(torch.zeros(3, 3))
+
+
+# ---------------------------------------------------------------- MRF, one-piece (unfold/fold) path
+@pytest.mark.parametrize("variant", ["paper", "reference"])
+@pytest.mark.parametrize("weighted", [False, True])
+def test_mrf_one_piece_path_equals_the_blockwise_path(monkeypatch, variant, weighted):
+    import facetex.transfer.losses as losses
+
+    g = torch.Generator().manual_seed(3)
+    t = torch.rand(6, 17, 13, generator=g)
+    t[:, :4, :4] = 0.0  # all-zero target patches: NaN NCC, dropped by the reference threshold
+    s = style_patches(torch.rand(6, 15, 11, generator=g), 3, 2)
+    tw = (torch.rand(17, 13, generator=g) > 0.6).float() if weighted else None
+    out = {}
+    for dense in (0, losses._DENSE_ELEMENTS):
+        monkeypatch.setattr(losses, "_DENSE_ELEMENTS", dense)
+        x = t.clone().requires_grad_(True)
+        loss = mrf_loss(x, s, variant=variant, target_weight=tw, reduction="mean")
+        loss.backward()
+        out[dense] = (loss.detach(), x.grad)
+    (v0, g0), (v1, g1) = out.values()
+    assert v0 > 0 and g0.abs().max() > 0
+    assert torch.allclose(v0, v1, rtol=1e-5) and torch.allclose(g0, g1, rtol=1e-5, atol=1e-7)
+    if weighted:  # no gradient where no weighted position is covered
+        cover = torch.nn.functional.max_pool2d(tw[None, None], 3, 1, padding=1)[0, 0] > 0
+        assert g1[:, ~cover].abs().max() == 0

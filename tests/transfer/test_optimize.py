@@ -135,3 +135,71 @@ def test_convergence_checks_keep_the_lbfgs_history():
     b, ib = optimize_image(init, _l2_tv_builder(target), levels=1, iters=30, converge=(7, -1.0))
     assert ib["levels"][0]["iterations"] == ia["levels"][0]["iterations"]
     np.testing.assert_allclose(a, b, atol=1e-6)
+
+
+
+def test_deterministic_mode_is_on_while_optimising_and_restored_after():
+    import torch.utils.deterministic as td
+
+    seen = []
+
+    def build(level, scale, shape):
+        t = torch.full((1, 3) + tuple(shape), 0.25)
+
+        def loss(x):
+            seen.append((torch.are_deterministic_algorithms_enabled(), td.fill_uninitialized_memory))
+            return {"l2": (x - t).square().sum()}
+        return loss
+
+    before = (torch.are_deterministic_algorithms_enabled(), td.fill_uninitialized_memory)
+    optimize_image(np.full((8, 8, 3), 0.5, np.float32), build, levels=1, iters=3)
+    assert seen and all(s == (True, False) for s in seen)
+    assert (torch.are_deterministic_algorithms_enabled(), td.fill_uninitialized_memory) == before
+
+
+@pytest.mark.parametrize("line_search", ["strong_wolfe", None])
+def test_own_lbfgs_gives_torchs_iterates_bitwise(line_search):
+    from facetex.transfer._lbfgs import LBFGS
+
+    g = torch.Generator().manual_seed(0)
+    a, target = torch.rand(40, 40, generator=g), torch.rand(40, generator=g)
+
+    def run(cls):
+        x = torch.zeros(40, requires_grad=True)
+        opt = cls([x], lr=1.0, max_iter=7, max_eval=12, history_size=5, line_search_fn=line_search)
+
+        def closure():
+            opt.zero_grad(set_to_none=False)
+            loss = (a @ x.tanh() - target).square().sum() + 0.1 * x.abs().pow(3).sum()  # not quadratic
+            loss.backward()
+            return loss
+
+        trace = []
+        for chunk in range(3):  # several step() calls keep the history, as optimize_image's chunks
+            opt.param_groups[0].update(max_iter=5 + chunk, max_eval=9 + chunk)
+            opt.step(closure)
+            trace.append((x.detach().clone(), opt.state[x]["n_iter"], opt.state[x]["func_evals"]))
+        return trace
+
+    ours, torchs = run(LBFGS), run(torch.optim.LBFGS)
+    assert ours[-1][1] > 10
+    for (xa, na, ea), (xb, nb, eb) in zip(ours, torchs):
+        assert torch.equal(xa, xb) and (na, ea) == (nb, eb)
+
+
+def test_optimising_loads_no_compiler():
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent("""
+        import sys, numpy as np, torch
+        from facetex.transfer.optimize import optimize_image
+        def build(level, scale, shape):
+            t = torch.full((1, 3) + tuple(shape), 0.25)
+            return lambda x: {"l2": (x - t).square().sum()}
+        optimize_image(np.full((8, 8, 3), 0.5, np.float32), build, levels=2, iters=3, converge=(2, 0.01))
+        print("torch._dynamo" in sys.modules, "torch._inductor" in sys.modules)
+    """)
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert res.stdout.split() == ["False", "False"]  # 1.1-1.5 CPU s per process when loaded
