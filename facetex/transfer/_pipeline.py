@@ -465,7 +465,7 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
         out_region, detail_info = transfer_skin_detail(out_region, style_native, skin_c, skin_s,
                                                        style_energy=energies, face_width=face_width(cpr),
                                                        params=dparams, own_zone=beard_zone_mask(cpr, (rh, rw)),
-                                                       return_info=True)
+                                                       own_detail=region, return_info=True)
     timings["detail_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     marks_info = None

@@ -105,7 +105,7 @@ def _check(name, a, shape=None, channels=None) -> np.ndarray:
 
 def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, style_energy=None,
                          face_width: float = REF_FACE_WIDTH, params: DetailParams = DetailParams(),
-                         own_zone=None, return_info: bool = False):
+                         own_zone=None, own_detail=None, return_info: bool = False):
     """Give ``output`` the style's fine skin detail at its own resolution (see module doc).
 
     ``output``, ``aligned_style``: (H, W, 3) float in [0, 1], the same geometry;
@@ -116,6 +116,9 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
     ``own_zone`` (H, W) bool: where the output keeps its own detail as it is, neither the
     style's nor a fill's — the content's beard zone: any pore of the style copied there reads
     as a stubble speck, and a gain towards a smoother style would erase the content's stubble.
+    ``own_detail`` (H, W, 3) or None: the image whose detail bands the zone takes (the pipeline
+    passes the content): the optimiser's own bands there carried a purple/green chroma speckle
+    and a faded moustache (FRL 042 ← 003); None keeps ``output``'s.
     Returns the new image (and with ``return_info`` a dict of per-band mean gains).
     """
     out = _check("output", output, channels=3)
@@ -136,6 +139,9 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
     ms = ms * _smooth_roughness_gate(e_targets, skin, max(sig), params)
     own = np.zeros(hw, bool) if own_zone is None else _check("own_zone", own_zone, hw) > 0
     own_soft = np.zeros(hw, np.float32)
+    b_own = b_out
+    if own.any() and own_detail is not None:
+        b_own, _ = band_stack(_check("own_detail", own_detail, hw, 3), sig)
     if own.any():  # feathered like the skin masks, so the zone leaves no seam
         own_soft = np.clip(_gauss(own.astype(np.float32), 0.01 * float(face_width)), 0, 1)
         ms = ms * (1.0 - own_soft)
@@ -166,9 +172,9 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
         ref = float(np.median(e_target[skin])) if skin.any() else float(np.median(e_target))
         e_out = band_energy(b_out[k], es)
         g_own = np.clip(np.sqrt((ref + params.eps) / (e_out + params.eps)), *params.own_gain_range)
-        g_own = g_own * (1.0 - own_soft) + own_soft  # as it is in the zone: a smoother style would erase stubble
-        new = both * (g_style[..., None] * b_sty[k]) + only_content * (g_own[..., None] * b_out[k]) \
-            + (1.0 - mc[..., None]) * b_out[k]
+        # in the zone the own detail as it is: a gain towards a smoother style would erase stubble
+        own_k = (1.0 - own_soft)[..., None] * g_own[..., None] * b_out[k] + own_soft[..., None] * b_own[k]
+        new = both * (g_style[..., None] * b_sty[k]) + only_content * own_k + (1.0 - mc[..., None]) * b_out[k]
         result += params.strength * (new - b_out[k])
         if skin.any():
             info["gain_style"].append(float(np.median(g_style[skin])))

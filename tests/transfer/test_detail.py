@@ -147,3 +147,14 @@ def test_the_own_zone_keeps_the_outputs_detail_and_the_rest_takes_the_styles():
     assert abs(ro[0][inside].std() / oo[0][inside].std() - 1.0) < 0.05  # as it is: not rescaled
     with pytest.raises(BadInputError):
         transfer_skin_detail(out, style, ones, ones, own_zone=zone[:50])
+    # with own_detail (the pipeline's content), the zone takes that image's bands instead of the
+    # output's (the optimiser's chroma speckle there is not the content's); outside nothing changes
+    content = _noise(14, 0.02)
+    res2 = transfer_skin_detail(out, style, ones, ones, face_width=330.0, own_zone=zone, own_detail=content)
+    r2, _ = band_stack(res2, (1.0,))
+    co, _ = band_stack(content, (1.0,))
+    assert corr(r2[0], co[0], inside) > 0.95 and abs(corr(r2[0], oo[0], inside)) < 0.1
+    assert abs(r2[0][inside].std() / co[0][inside].std() - 1.0) < 0.05
+    np.testing.assert_allclose(res2[:, :30], res[:, :30], atol=1e-6)
+    with pytest.raises(BadInputError):
+        transfer_skin_detail(out, style, ones, ones, own_zone=zone, own_detail=content[:50])
