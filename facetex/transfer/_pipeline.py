@@ -146,6 +146,10 @@ def estimate_transfer_memory(params: TransferParams, shape: tuple[int, int]) -> 
 
 
 # ---------------------------------------------------------------- losses per level
+#: a level's MRF loss matches against at least this many style patches (the most skin-like ones)
+MIN_STYLE_PATCHES = 16
+
+
 def _masked_style_patches(feat: torch.Tensor, mask: torch.Tensor, params: TransferParams) -> StylePatches:
     """Style patches whose centre lies in ``mask`` (> 0.5): the style's skin (or face),
     so its hair, background and any warp artefact never become texture sources."""
@@ -155,9 +159,16 @@ def _masked_style_patches(feat: torch.Tensor, mask: torch.Tensor, params: Transf
     m = _resize_level(mask, (h, w))[0, 0]
     ys = _grid(h, k, params.style_stride) + k // 2
     xs = _grid(w, k, params.style_stride) + k // 2
-    keep = (m[ys][:, xs] > 0.5).reshape(-1)
-    if int(keep.sum()) < 16:
-        return sp
+    vals = m[ys][:, xs].reshape(-1)
+    keep = vals > 0.5
+    if int(keep.sum()) < MIN_STYLE_PATCHES:
+        # a coarse level can hold fewer skin centres than that: the patches most inside the skin
+        # (all of them had let the style's hair and background be sources there, FRL 004 <- 005)
+        if not bool((vals > 0).any()):
+            return sp
+        n = min(MIN_STYLE_PATCHES, int((vals > 0).sum()))
+        keep = torch.zeros_like(keep)
+        keep[torch.argsort(vals, descending=True, stable=True)[:n]] = True
     return StylePatches(sp.unit[keep], sp.norm[keep], sp.channels, sp.size)
 
 

@@ -216,3 +216,26 @@ def test_no_style_hair_reaches_the_output():
     change = hp(luma(im["output_region"] - im["region"]))[fore]
     assert change.std() > 1e-3  # the forehead did change
     assert abs(np.corrcoef(change, strands)[0, 1]) < 0.15
+
+
+def test_style_patches_are_the_skin_ones_and_at_least_the_most_skin_like_few():
+    """Patches whose centre is skin; with fewer than MIN_STYLE_PATCHES skin centres (a coarse
+    level), the most skin-like ones, never the whole image (hair and background); a level with
+    no skin at all keeps every patch."""
+    import torch
+
+    from facetex.transfer._pipeline import MIN_STYLE_PATCHES, _masked_style_patches
+    from facetex.transfer.methods import preset
+
+    p = preset("facetex", "default")
+    feat = torch.rand(1, 4, 20, 20, generator=torch.Generator().manual_seed(0))
+    all_n = len(_masked_style_patches(feat, torch.ones(1, 1, 20, 20), p))
+    mask = torch.zeros(1, 1, 20, 20)
+    mask[..., :10, :] = 1.0  # the top half is skin
+    half = len(_masked_style_patches(feat, mask, p))
+    assert MIN_STYLE_PATCHES <= half < all_n
+    few = torch.zeros(1, 1, 20, 20)
+    few[..., 9:12, 9:12] = 1.0  # a few skin centres, a soft rim around them
+    few[..., 7:14, 7:14] = torch.maximum(few[..., 7:14, 7:14], torch.tensor(0.3))
+    assert len(_masked_style_patches(feat, few, p)) == MIN_STYLE_PATCHES
+    assert len(_masked_style_patches(feat, torch.zeros(1, 1, 20, 20), p)) == all_n
