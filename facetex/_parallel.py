@@ -26,3 +26,30 @@ def terminate_workers(executor) -> None:
             p.terminate()
         except (OSError, ValueError, AttributeError):
             pass
+
+
+def serialize_ast_parse() -> None:
+    """Make :func:`ast.parse` take a process-wide lock (once; idempotent). CPython 3.11's
+    conversion of a parsed tree to Python objects keeps its recursion depth in state shared by
+    all threads (CPython gh-106905), so two threads parsing at once can fail with "SystemError:
+    AST constructor recursion depth mismatch". numpy parses every ``.npy`` header with
+    ``ast.literal_eval`` and :mod:`inspect` parses signatures: ``facetex puppet`` loads the
+    persona on a thread while the main one imports and checks, and failed that way about once
+    in a few dozen runs. A workaround, written by hand: no library changes the interpreter's
+    ``ast`` module."""
+    import ast
+    import functools
+    import threading
+
+    if getattr(ast.parse, "_facetex_serialized", False):
+        return
+    lock = threading.RLock()
+    parse = ast.parse
+
+    @functools.wraps(parse)
+    def locked_parse(*args, **kwargs):
+        with lock:
+            return parse(*args, **kwargs)
+
+    locked_parse._facetex_serialized = True
+    ast.parse = locked_parse

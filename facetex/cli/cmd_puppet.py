@@ -95,6 +95,9 @@ def _start_loading(args):
     import threading
     from concurrent.futures import Future
 
+    from .._parallel import serialize_ast_parse
+
+    serialize_ast_parse()  # numpy's .npy headers and inspect parse Python on both threads
     fut = Future()
 
     def work():

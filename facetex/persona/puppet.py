@@ -841,6 +841,9 @@ def prepare_puppetry(driver, persona, *, driver_photos=None, max_frames: int | N
     else:
         raise BadInputError(f"unknown tracking {tracking!r}: use 'process', 'thread' or a DriverTracking")
     # one worker thread: the persona load, then the texture precomputation (cached on the persona)
+    from .._parallel import serialize_ast_parse
+
+    serialize_ast_parse()  # numpy's .npy headers and inspect parse Python on both threads
     with ThreadPoolExecutor(1, thread_name_prefix="facetex-puppet") as pool:
         if loading is not None:  # loaded and prepared by the caller's thread
             loaded = shaped = prepared = pool.submit(_loaded_early, loading, puppet_timings)
