@@ -26,8 +26,8 @@ looks pasted on unless its colour, lighting and outline come from the frame it s
 * **occlusion**: what lies over the driver's face (a fringe, glasses, a hand of another colour:
   not its skin by its own colour model, outside its eyes, brows and lips) stays in front of the
   puppet (:func:`occlusion_mask`);
-* **sharpness**: the puppet's fine detail is scaled to the driver's frame's (unsharp mask of
-  bounded gain, :func:`match_sharpness`): the persona's texture has been resampled four times
+* **sharpness**: the puppet's pixel-scale detail is raised to the driver's frame's (bounded
+  gain, :func:`match_sharpness`): the persona's texture has been resampled four times
   (frontalized, aligned, blended, rendered) and its small collections' photos are soft, so a
   puppet sat in a video frame as a smooth mask (skin detail 0.34-0.68 of the driver's, Laplacian
   variance, on the 44-71-photo personas);
@@ -595,6 +595,11 @@ def _mouth_frame(lips: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float
     return c, R, width, gap
 
 
+def _open_fade(width: float, gap: float, closed: float) -> float:
+    """0 for a lip gap up to ``closed`` x the mouth ``width``, 1 from twice that, smooth between."""
+    return float(_smoothstep(float(np.clip((gap / max(width, 1e-6) - closed) / closed, 0.0, 1.0))))
+
+
 def _pchip(x: np.ndarray, y: np.ndarray):
     """Monotone piecewise-cubic Hermite interpolant of the points (x, y) (x increasing, >= 2
     points; Fritsch-Carlson slopes with the end rule of scipy's PchipInterpolator, the end cubics
@@ -689,8 +694,7 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     cd, Rd, wd, gd = _mouth_frame(dp)
     cp, Rp, wp, gp = _mouth_frame(pp)
     # closed driver lips have no interior to show (their sliver would draw a red line): fade out
-    t = float(np.clip((gd / max(wd, 1e-6) - closed) / closed, 0.0, 1.0))
-    fade = _smoothstep(t)
+    fade = _open_fade(wd, gd, closed)
     arcs_p, arcs_d = _lip_arcs(pp, Rp, cp), _lip_arcs(dp, Rd, cd)
     if fade <= 0 or arcs_p is None or arcs_d is None:
         return none
@@ -758,7 +762,7 @@ def mouth_closure(inner_lips, closed: float = 0.04) -> float:
     if p.shape != (8, 2) or not np.isfinite(p).all():
         return 0.0
     _, _, wd, gd = _mouth_frame(p)
-    return float(1.0 - _smoothstep(np.clip((gd / max(wd, 1e-6) - closed) / closed, 0.0, 1.0)))
+    return 1.0 - _open_fade(wd, gd, closed)
 
 
 def fill_mouth_interior(texture, inner_lips, closure: float) -> np.ndarray:
@@ -989,11 +993,9 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         # and only what has the driver's skin colour (its hair, fringe, glasses and the background
         # at the outline would set a far higher target)
         skin_full = rg & ~feature_mask(p68 - [x0, y0], rg.shape)
-        if drv_skin is not None and ks > 1:
-            colour_skin = cv2.resize(drv_skin.astype(np.uint8), (bw, bh), interpolation=cv2.INTER_NEAREST) > 0
-        else:
-            colour_skin = drv_skin
-        if colour_skin is not None and (skin_full & colour_skin).sum() >= 64:
+        colour_skin = cv2.resize(drv_skin.astype(np.uint8), (bw, bh), interpolation=cv2.INTER_NEAREST) > 0 \
+            if ks > 1 else drv_skin
+        if (skin_full & colour_skin).sum() >= 64:
             skin_full = skin_full & colour_skin
         out, _ = match_sharpness(out, fr, skin_full, skin_full, max_gain=params.sharpen,
                                  coverage=np.asarray(coverage, np.float32)[box])

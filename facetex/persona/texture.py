@@ -78,8 +78,8 @@ import cv2
 import numpy as np
 
 from .._parallel import available_cpus
-from ..geometry.gaze import gaze_asymmetry, gaze_weights
 from ..errors import BadInputError, BadPersonaError
+from ..geometry.gaze import gaze_asymmetry, gaze_weights
 from ._packed import Packed
 from .collection import (
     Persona,

@@ -39,7 +39,7 @@ def _texture_net(name: str, device: str, vgg19_weights: str | None):
     if name == "effnet-lite0":
         from ..nets.effnet import EfficientNetLite0Features
 
-        net = EfficientNetLite0Features()
+        net = EfficientNetLite0Features().fuse_batchnorm()  # frozen: batch norms folded into the convolutions
     elif name == "vgg19":
         from ..nets.vgg import VGG19Features
 
@@ -52,8 +52,6 @@ def _texture_net(name: str, device: str, vgg19_weights: str | None):
         from ..nets.dlib_resnet import FaceRecognitionNet
 
         net = FaceRecognitionNet().fold_affines()
-    if hasattr(net, "fuse_batchnorm"):  # frozen: batch norms folded into the convolutions (speed)
-        net = net.fuse_batchnorm()
     return net.to(device).to(memory_format=torch.channels_last)  # see _features
 
 

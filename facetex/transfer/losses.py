@@ -195,6 +195,19 @@ class _PatchSSD(torch.autograd.Function):
         return g, None, None, None, None
 
 
+def _best_style_patch(t: torch.Tensor, style: StylePatches, chunk: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """(index, NCC × ‖target patch‖) of the most correlated style patch for each row of ``t``
+    (n, C·k²), over the style patches in chunks of ``chunk`` (the same argmax as one product)."""
+    best = torch.full((t.shape[0],), -torch.inf, dtype=t.dtype, device=t.device)
+    idx = torch.zeros(t.shape[0], dtype=torch.long, device=t.device)
+    for s0 in range(0, len(style), chunk):
+        m, j = (t @ style.unit[s0:s0 + chunk].T).max(dim=1)
+        better = m > best  # strict: the earlier chunk keeps ties, like a single argmax
+        best = torch.where(better, m, best)
+        idx = torch.where(better, j + s0, idx)
+    return idx, best
+
+
 def _match(feat: torch.Tensor, style: StylePatches, ys: torch.Tensor, xs: torch.Tensor, chunk: int,
            active: torch.Tensor | None = None):
     """Eq. 1: index of the most correlated style patch for each target patch, and its NCC.
@@ -216,14 +229,7 @@ def _match(feat: torch.Tensor, style: StylePatches, ys: torch.Tensor, xs: torch.
             if len(rows) == 0:
                 continue
             t = t[rows]
-        best = torch.full((t.shape[0],), -torch.inf, dtype=feat.dtype, device=feat.device)
-        idx = torch.zeros(t.shape[0], dtype=torch.long, device=feat.device)
-        for s0 in range(0, n_s, chunk):
-            score = t @ style.unit[s0:s0 + chunk].T  # NCC × ‖target patch‖: same argmax
-            m, j = score.max(dim=1)
-            better = m > best  # strict: the earlier chunk keeps ties, like a single argmax
-            best = torch.where(better, m, best)
-            idx = torch.where(better, j + s0, idx)
+        idx, best = _best_style_patch(t, style, chunk)
         ncc = best / t.norm(dim=1)  # NaN for an all-zero target patch, as in mrf.lua
         if rows is None:
             best_idx[sl] = idx
@@ -255,13 +261,7 @@ def _dense_maps(feat: torch.Tensor, style: StylePatches, chunk: int, active: tor
         chunk = max(1, min(chunk, n_s))
         for t0 in range(0, n, step):
             tb = t[t0:t0 + step]
-            best = torch.full((tb.shape[0],), -torch.inf, dtype=feat.dtype, device=feat.device)
-            bi = torch.zeros(tb.shape[0], dtype=torch.long, device=feat.device)
-            for s0 in range(0, n_s, chunk):
-                m, j = (tb @ style.unit[s0:s0 + chunk].T).max(dim=1)  # NCC × ‖target patch‖
-                better = m > best  # strict: the earlier chunk keeps ties, like a single argmax
-                best = torch.where(better, m, best)
-                bi = torch.where(better, j + s0, bi)
+            bi, best = _best_style_patch(tb, style, chunk)
             idx[t0:t0 + step] = bi
             if threshold is not None:  # NaN for an all-zero patch (dropped), as in mrf.lua
                 ncc = best / tb.norm(dim=1)

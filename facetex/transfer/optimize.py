@@ -239,9 +239,9 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
                         ask = min(chunk, n_iter - iterations)
                         cap = max(1, budget - evals if chunk_evals is None else min(budget - evals, chunk_evals))
                         if opt is None:
-                            opt = LBFGS([var], lr=1.0 if lr is None else lr, max_iter=ask,
-                                                    max_eval=cap, history_size=lbfgs_history,
-                                                    tolerance_grad=tolerance_grad, line_search_fn=line_search)
+                            opt = LBFGS([var], lr=1.0 if lr is None else lr, max_iter=ask, max_eval=cap,
+                                        history_size=lbfgs_history, tolerance_grad=tolerance_grad,
+                                        line_search_fn=line_search)
                         else:  # the next chunk of the same L-BFGS run (its history is kept)
                             opt.param_groups[0].update(max_iter=ask, max_eval=cap)
                         done_before = int(opt.state[var].get("n_iter", 0))
