@@ -29,75 +29,12 @@ __all__ = [
     "puppeteer",
 ]
 
-#: a path, a PIL image or an (H, W, 3) array (uint8, uint16, or float in [0, 1])
-ImageLike = Union[str, os.PathLike, "PILImage", np.ndarray]
+from .io import ImageLike, as_image  # noqa: E402  (re-exported: facetex.as_image)
 Progress = Union[bool, Callable[..., None], None]
 
 # --------------------------------------------------------------------------- inputs
 _MAX_ITERS = 100_000
 _MAX_LEVELS = 8
-
-
-def as_image(image: ImageLike, name: str = "image") -> np.ndarray:
-    """An image argument as float32 RGB (H, W, 3) in [0, 1].
-
-    Parameters
-    ----------
-    image : str, os.PathLike, PIL.Image.Image or numpy.ndarray
-        A file (read with :func:`facetex.read_image`: EXIF-rotated, alpha composited on
-        white), a PIL image, or an array: uint8 / uint16 (scaled by their maximum), float
-        in [0, 1], gray (H, W) or RGBA (H, W, 4) (alpha composited on white).
-    name : str
-        What the image is, for error messages ("content image").
-
-    Returns
-    -------
-    numpy.ndarray
-        float32 (H, W, 3) in [0, 1].
-
-    Raises
-    ------
-    FileNotFoundError
-        (:class:`facetex.BadImageError`) the file does not exist.
-    ValueError
-        (:class:`facetex.BadImageError`) unreadable file, wrong shape or dtype, a float image
-        in 0..255, NaN or infinite values.
-
-    Examples
-    --------
-    >>> import numpy as np, facetex
-    >>> facetex.as_image(np.zeros((40, 40, 3), np.uint8)).dtype
-    dtype('float32')
-    """
-    from .io import read_image, to_float32
-
-    if isinstance(image, (str, os.PathLike)):
-        return read_image(image)
-    if type(image).__module__.startswith("PIL.") and hasattr(image, "convert"):
-        mode = image.mode
-        rgba = "A" in mode or "transparency" in getattr(image, "info", {})
-        image = np.asarray(image.convert("RGBA" if rgba else "RGB"))
-    a = np.asarray(image)
-    if a.dtype == bool or not (np.issubdtype(a.dtype, np.floating) or a.dtype in (np.uint8, np.uint16)):
-        raise BadImageError(f"{name} has dtype {a.dtype}: give uint8, uint16 or float in [0, 1]")
-    if a.ndim == 2:
-        a = np.repeat(a[..., None], 3, axis=2)
-    if a.ndim != 3 or a.shape[2] not in (3, 4):
-        raise BadImageError(f"{name} must be an (H, W, 3) RGB image, got shape {a.shape}")
-    if np.issubdtype(a.dtype, np.floating):
-        if not np.all(np.isfinite(a)):
-            raise BadImageError(f"{name} contains NaN or infinite values")
-        lo, hi = float(a.min()), float(a.max())
-        if hi > 1.0 + 1e-3:
-            hint = ": divide by 255 (facetex takes floats in [0, 1], or uint8)" if hi <= 255.5 else ""
-            raise BadImageError(f"{name} is a float image with values up to {hi:.4g}, not in [0, 1]{hint}")
-        if lo < -1e-3:
-            raise BadImageError(f"{name} has negative values (min {lo:.4g}): give floats in [0, 1]")
-    f = np.clip(to_float32(a), 0.0, 1.0)
-    if f.shape[2] == 4:
-        alpha = f[..., 3:]
-        f = f[..., :3] * alpha + (1.0 - alpha)
-    return np.ascontiguousarray(f, dtype=np.float32)
 
 
 def parse_iters(iters: int | str | Sequence[int] | None, *, minimum: int = 1) -> tuple[int, ...] | None:
@@ -344,7 +281,7 @@ def transfer_with_info(
     Returns
     -------
     image : numpy.ndarray
-        float32 (H, W, 3) in [0, 1] at the content's size.
+        The output, float32 (H, W, 3) in [0, 1] at the content's size.
     info : dict
         Parameters, seed, timings, per-level losses, the working region ``region_box``
         (x0, y0, x1, y1) and, under ``"images"``, the working-region images.
@@ -476,7 +413,7 @@ def transfer(
     Returns
     -------
     numpy.ndarray
-        float32 (H, W, 3) in [0, 1] at the content's size.
+        The output, float32 (H, W, 3) in [0, 1] at the content's size.
 
     Raises
     ------
@@ -526,7 +463,7 @@ def transfer_step_image(content: np.ndarray, image: np.ndarray, box: Sequence[in
     Returns
     -------
     numpy.ndarray
-        float32 (H, W, 3) in [0, 1], the content's size.
+        The full-size image, float32 (H, W, 3) in [0, 1], the content's size.
     """
     import cv2
 
@@ -635,6 +572,7 @@ def load_persona(path: str | os.PathLike) -> "Persona":
     Returns
     -------
     facetex.persona.Persona
+        The person's photos, landmarks, flows, shape and texture stacks.
 
     Raises
     ------
@@ -691,7 +629,7 @@ def persona_texture(persona: PersonaLike, *, like: ImageLike | None = None,
     Returns
     -------
     numpy.ndarray
-        float32 (H, W, 3) in [0, 1] in the canonical frame.
+        The texture, float32 (H, W, 3) in [0, 1] in the canonical frame.
 
     Raises
     ------
@@ -737,6 +675,7 @@ def texture_params(*, weights: Literal["regional", "global"] = "regional", sigma
     Returns
     -------
     facetex.persona.TextureParams
+        The options, validated, for :func:`persona_texture` and :func:`facetex.puppeteer`.
 
     Raises
     ------
@@ -791,7 +730,7 @@ def persona_average(persona: PersonaLike, *, stage: Literal["a", "b", "c", "d"] 
     Returns
     -------
     numpy.ndarray
-        float32 (H, W, 3) in [0, 1] in the canonical frame.
+        The texture, float32 (H, W, 3) in [0, 1] in the canonical frame.
 
     Raises
     ------
@@ -812,13 +751,30 @@ def persona_average(persona: PersonaLike, *, stage: Literal["a", "b", "c", "d"] 
 
 @dataclass
 class Mesh:
-    """A textured triangle mesh: vertices (n, 3) in canonical px (OBJ axes: x right, y up,
-    z towards the viewer), faces (m, 3) vertex indices, uv (n, 2) in [0, 1], texture
-    (H, W, 3) float32, and where its depth came from: ``depth_source`` "collection" (the
-    person's photometric-stereo shape) or "generic"; ``depth_origin`` "stored" (validated at
-    build time), "computed" (an older persona, reconstructed and validated now) or None
-    (generic on request); ``shape_reason`` why that shape was used; ``shape_validation`` the
-    photometric validation's numbers and verdict (None with ``shape="generic"``)."""
+    """A textured triangle mesh and where its depth came from.
+
+    Parameters
+    ----------
+    vertices : numpy.ndarray
+        (n, 3) in canonical px (OBJ axes: x right, y up, z towards the viewer).
+    faces : numpy.ndarray
+        (m, 3) vertex indices.
+    uv : numpy.ndarray
+        (n, 2) texture coordinates in [0, 1].
+    texture : numpy.ndarray
+        (H, W, 3) float32.
+    depth_source : {"collection", "generic"}
+        The person's photometric-stereo shape or the generic one.
+    depth_origin : {"stored", "computed"} or None
+        "stored" (validated at build time), "computed" (an older persona, reconstructed and
+        validated now) or None (generic on request).
+    depth_photos : int
+        Photos the shape was reconstructed from.
+    shape_reason : str
+        Why that shape was used.
+    shape_validation : dict or None
+        The photometric validation's numbers and verdict (None with ``shape="generic"``).
+    """
 
     vertices: np.ndarray
     faces: np.ndarray
@@ -965,7 +921,7 @@ def puppeteer(driver: str | os.PathLike, puppet: PersonaLike, output: str | os.P
     Returns
     -------
     dict
-        frames, lost_frames, fps, audio, timings, shape sources, output.
+        The run's report: frames, lost_frames, fps, audio, timings, shape sources, output.
 
     Raises
     ------

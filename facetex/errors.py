@@ -13,13 +13,30 @@ catches ``facetex.read_image("missing.jpg")``; ``except facetex.BadImageError`` 
 
 from __future__ import annotations
 
+import inspect
 import os
+
+
+_PARAMETERS = """
+
+Parameters
+----------
+message : str
+    The cause, one line.
+path : str or os.PathLike, optional
+    The offending file; the message starts with it."""
 
 
 class FacetexError(Exception):
     """Base class of all facetex errors. ``path`` is the offending file, if any."""
 
     exit_code = 2
+
+    def __init_subclass__(cls, **kwargs):
+        # every error class documents the constructor it inherits (numpydoc's sections)
+        super().__init_subclass__(**kwargs)
+        if cls.__doc__ and "Parameters\n" not in cls.__doc__ and "__init__" not in cls.__dict__:
+            cls.__doc__ = inspect.cleandoc(cls.__doc__) + _PARAMETERS
 
     def __init__(self, message: str, path: str | os.PathLike | None = None):
         self.path = None if path is None else os.fspath(path)
@@ -92,3 +109,6 @@ def not_found_error(error: type) -> type:
     """The "file does not exist" variant of ``error`` (also a FileNotFoundError), or
     ``error`` itself when it has none."""
     return _NOT_FOUND.get(error, error)
+
+
+FacetexError.__doc__ = inspect.cleandoc(FacetexError.__doc__) + _PARAMETERS

@@ -21,7 +21,7 @@ import warnings
 from fractions import Fraction
 from io import BytesIO
 from pathlib import Path
-from typing import Callable, Iterable, Iterator
+from typing import TYPE_CHECKING, Callable, Iterable, Iterator, TypeVar, Union
 
 import av
 import cv2
@@ -32,8 +32,11 @@ from zlib import error as zlib_error
 
 from .errors import BadImageError, BadInputError, BadVideoError, FacetexError, OutputError, not_found_error
 
+if TYPE_CHECKING:
+    from PIL.Image import Image as PILImage
+
 __all__ = [
-    "read_image", "read_image_reduced", "read_image_uint8", "to_uint8", "to_float32",
+    "ImageLike", "as_image", "image_args", "read_image", "read_image_reduced", "read_image_uint8", "to_uint8", "to_float32",
     "check_input_file", "check_input_dir", "atomic_path", "check_output_path", "check_outputs",
     "write_files", "encode_image", "encode_json", "write_image", "write_json", "committed_outputs",
     "video_info", "iter_video_frames", "read_video", "write_video", "transcode_audio", "npz_members",
@@ -48,6 +51,108 @@ os.umask(_UMASK)
 
 
 # ----------------------------------------------------------------------------- images
+#: a path, a PIL image or an (H, W, 3) array (uint8, uint16, or float in [0, 1])
+ImageLike = Union[str, os.PathLike, "PILImage", np.ndarray]
+
+
+def as_image(image: ImageLike, name: str = "image") -> np.ndarray:
+    """An image argument as float32 RGB (H, W, 3) in [0, 1].
+
+    Parameters
+    ----------
+    image : str, os.PathLike, PIL.Image.Image or numpy.ndarray
+        A file (read with :func:`facetex.read_image`: EXIF-rotated, alpha composited on
+        white), a PIL image, or an array: uint8 / uint16 (scaled by their maximum), float
+        in [0, 1], gray (H, W) or RGBA (H, W, 4) (alpha composited on white).
+    name : str
+        What the image is, for error messages ("content image").
+
+    Returns
+    -------
+    numpy.ndarray
+        The image, float32 (H, W, 3) in [0, 1].
+
+    Raises
+    ------
+    FileNotFoundError
+        (:class:`facetex.BadImageError`) the file does not exist.
+    ValueError
+        (:class:`facetex.BadImageError`) unreadable file, wrong shape or dtype, a float image
+        in 0..255, NaN or infinite values.
+
+    Examples
+    --------
+    >>> import numpy as np, facetex
+    >>> facetex.as_image(np.zeros((40, 40, 3), np.uint8)).dtype
+    dtype('float32')
+    """
+    if isinstance(image, (str, os.PathLike)):
+        return read_image(image)
+    if type(image).__module__.startswith("PIL.") and hasattr(image, "convert"):
+        mode = image.mode
+        rgba = "A" in mode or "transparency" in getattr(image, "info", {})
+        image = np.asarray(image.convert("RGBA" if rgba else "RGB"))
+    a = np.asarray(image)
+    if a.dtype == bool or not (np.issubdtype(a.dtype, np.floating) or a.dtype in (np.uint8, np.uint16)):
+        raise BadImageError(f"{name} has dtype {a.dtype}: give uint8, uint16 or float in [0, 1]")
+    if a.ndim == 2:
+        a = np.repeat(a[..., None], 3, axis=2)
+    if a.ndim != 3 or a.shape[2] not in (3, 4):
+        raise BadImageError(f"{name} must be an (H, W, 3) RGB image, got shape {a.shape}")
+    if np.issubdtype(a.dtype, np.floating):
+        if not np.all(np.isfinite(a)):
+            raise BadImageError(f"{name} contains NaN or infinite values")
+        lo, hi = float(a.min()), float(a.max())
+        if hi > 1.0 + 1e-3:
+            hint = ": divide by 255 (facetex takes floats in [0, 1], or uint8)" if hi <= 255.5 else ""
+            raise BadImageError(f"{name} is a float image with values up to {hi:.4g}, not in [0, 1]{hint}")
+        if lo < -1e-3:
+            raise BadImageError(f"{name} has negative values (min {lo:.4g}): give floats in [0, 1]")
+    f = np.clip(to_float32(a), 0.0, 1.0)
+    if f.shape[2] == 4:
+        alpha = f[..., 3:]
+        f = f[..., :3] * alpha + (1.0 - alpha)
+    return np.ascontiguousarray(f, dtype=np.float32)
+
+
+_F = TypeVar("_F", bound=Callable)
+
+
+def image_args(*names: str, sources: dict[str, str] | None = None,
+               arrays: str = "float") -> Callable[[_F], _F]:
+    """Decorator: the named image parameters of a public function take every :data:`ImageLike`
+    (a path, a PIL image, a uint8 / uint16 or float [0, 1] array), converted by
+    :func:`as_image` (float32 RGB in [0, 1]; None passes through). ``sources`` maps an image
+    parameter to the function's parameter naming its file for error messages, filled with the
+    path when one is given. ``arrays="keep"``: uint8 (H, W, 3) arrays pass unchanged (callers
+    that work in uint8, e.g. the detector on video frames, pay no conversion)."""
+    import functools
+    import inspect
+
+    def wrap(fn: _F) -> _F:
+        sig = inspect.signature(fn)
+
+        @functools.wraps(fn)
+        def inner(*args, **kwargs):
+            bound = sig.bind(*args, **kwargs)
+            for name in names:
+                if name not in bound.arguments or bound.arguments[name] is None:
+                    continue
+                v = bound.arguments[name]
+                if isinstance(v, (str, os.PathLike)) and sources and name in sources \
+                        and bound.arguments.get(sources[name]) is None:
+                    bound.arguments[sources[name]] = os.fspath(v)
+                if arrays == "keep" and isinstance(v, np.ndarray) and v.dtype == np.uint8 and v.ndim == 3 \
+                        and v.shape[2] == 3:
+                    continue
+                bound.arguments[name] = as_image(v, name=name.replace("_", " "))
+            return fn(*bound.args, **bound.kwargs)
+
+        return inner  # type: ignore[return-value]
+
+    return wrap
+
+
 def to_float32(img: np.ndarray) -> np.ndarray:
     """uint8 / uint16 / float image -> float32 in [0, 1] (integers scaled by their max)."""
     img = np.asarray(img)
@@ -254,18 +359,38 @@ def _bytes_per_pixel(im: Image.Image, sixteen: bool) -> int:
     return 4 if bands > 1 or im.mode in ("I", "F") else 1
 
 
-def read_image(path, *, background: str = "white", max_pixels: int = MAX_IMAGE_PIXELS,
+def read_image(path: str | os.PathLike, *, background: str = "white", max_pixels: int = MAX_IMAGE_PIXELS,
                min_size: int = 16, reduce_to: int | None = None) -> np.ndarray:
     """Read any common image as float32 RGB (H, W, 3) in [0, 1].
 
-    EXIF orientation is applied; alpha / palette transparency is composited on
-    ``background`` ("white" or "black"); 16-bit PNG/TIFF keep their precision;
-    CMYK uses the embedded ICC profile when there is one; an animated or multi-page
-    image gives its first frame (with a warning). The declared size is checked from
-    the header, before any pixel is decoded: above ``max_pixels`` (default
-    :data:`MAX_IMAGE_PIXELS`) it is refused, unless ``reduce_to`` is given, in which case
-    the image is reduced on load to at most ``reduce_to`` pixels (for face detection). Any
-    image whose decoding would take more than :data:`IMAGE_MEMORY_BUDGET` is refused.
+    EXIF orientation is applied; 16-bit PNG/TIFF keep their precision; CMYK uses the
+    embedded ICC profile when there is one; an animated or multi-page image gives its first
+    frame (with a warning). The declared size is checked from the header, before any pixel
+    is decoded. Any image whose decoding would take more than :data:`IMAGE_MEMORY_BUDGET`
+    is refused.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The image file.
+    background : {"white", "black"}
+        What alpha / palette transparency is composited on.
+    max_pixels : int
+        Larger images (by their header) are refused, unless ``reduce_to`` is given.
+    min_size : int
+        Images with a side below this many pixels are refused.
+    reduce_to : int, optional
+        Reduce the image on load to at most this many pixels (for face detection).
+
+    Returns
+    -------
+    numpy.ndarray
+        The image, float32 (H, W, 3) in [0, 1].
+
+    Raises
+    ------
+    facetex.BadImageError
+        Missing, unreadable, corrupt, too small or too large file (one line naming it).
     """
     return read_image_reduced(path, reduce_to, background=background, max_pixels=max_pixels,
                               min_size=min_size)[0]
@@ -650,10 +775,30 @@ def write_image(path, image: np.ndarray, *, overwrite: bool = True, quality: int
                 bit_depth: int = 8, inputs=()) -> Path:
     """Write float [0, 1] / uint8 / uint16 RGB (or gray 2-D, or RGBA) atomically.
 
-    The format follows the extension (.png .jpg .jpeg .tif .tiff .webp);
-    ``bit_depth=16`` writes 16-bit PNG/TIFF. ``quality`` applies to JPEG and WebP.
-    Without ``overwrite`` an existing file (also one that appears while encoding) is
-    never replaced; ``inputs``: files the output must not be (see :func:`check_output_path`).
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output; its extension sets the format (.png .jpg .jpeg .tif .tiff .webp).
+    image : numpy.ndarray
+        (H, W, 3), (H, W) or (H, W, 4); float in [0, 1], uint8 or uint16.
+    overwrite : bool
+        False: an existing file (also one that appears while encoding) is never replaced.
+    quality : int
+        JPEG and WebP quality.
+    bit_depth : {8, 16}
+        16 writes 16-bit PNG/TIFF.
+    inputs : sequence of path
+        Files the output must not be (see :func:`check_output_path`).
+
+    Returns
+    -------
+    pathlib.Path
+        The written file.
+
+    Raises
+    ------
+    facetex.OutputError
+        The output cannot be written, exists without ``overwrite``, or is one of ``inputs``.
     """
     path = check_output_path(path, overwrite=overwrite, inputs=inputs, extensions=IMAGE_EXTENSIONS,
                              what="image")
@@ -823,7 +968,28 @@ def iter_video_frames(path, *, max_frames: int | None = None, uint8: bool = Fals
 
 def read_video(path, *, max_frames: int | None = None,
                progress: Callable | None = None) -> tuple[list[np.ndarray], float]:
-    """All frames (float32 RGB) and the frame rate of a video."""
+    """All frames (float32 RGB) and the frame rate of a video.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The video file.
+    max_frames : int, optional
+        Read at most this many frames.
+    progress : callable, optional
+        Called with ``n=1`` per decoded frame.
+
+    Returns
+    -------
+    frames : list of numpy.ndarray
+        The frames, float32 (H, W, 3) in [0, 1].
+    fps : float
+        The frame rate.
+
+    Raises
+    ------
+    facetex.BadVideoError
+        Missing, unreadable file or no video stream."""
     fps = video_info(path)["fps"]
     frames = []
     for f in iter_video_frames(path, max_frames=max_frames):
@@ -916,18 +1082,45 @@ def _audio_error(path: Path) -> str | None:
 
 def write_video(path, frames: Iterable[np.ndarray], fps: float, *, audio_from=None, crf: int = 18,
                 overwrite: bool = True, progress: Callable | None = None, inputs=()) -> Path:
-    """Write RGB frames (float [0,1] or uint8; an iterator is streamed) as H.264 video
-    (.mp4, .mov, .m4v or .mkv).
+    """Write RGB frames as H.264 video (.mp4, .mov, .m4v or .mkv), atomically.
 
     Encoder: libx264 (yuv420p, ``crf``); if this PyAV build lacks it, FFmpeg's default
     H.264 encoder (codec id lookup, e.g. libopenh264; ``crf`` may be ignored). Odd
     widths/heights are padded to even by repeating the last row/column, so the file
-    is up to 1 px larger. If ``audio_from`` has an audio stream, it is passed through
-    (AAC remuxed, other codecs re-encoded to AAC), starting with the video and
-    trimmed to its length; a file without audio adds none, and one whose audio cannot
-    be decoded gives a video without audio and a warning naming it. Written atomically
-    (an exclusive create unless ``overwrite``); ``audio_from`` and ``inputs`` must not be
-    the output. Errors reading ``audio_from`` name it, encoding errors name the output.
+    is up to 1 px larger.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output video.
+    frames : iterable of numpy.ndarray
+        (H, W, 3) float [0, 1] or uint8; an iterator is streamed.
+    fps : float
+        Frame rate.
+    audio_from : str or os.PathLike, optional
+        A file whose audio stream is passed through (AAC remuxed, other codecs re-encoded to
+        AAC), starting with the video and trimmed to its length; a file without audio adds
+        none, one whose audio cannot be decoded gives a video without audio and a warning.
+    crf : int
+        libx264's constant rate factor.
+    overwrite : bool
+        False: an exclusive create (an existing file is never replaced).
+    progress : callable, optional
+        Called with ``n=1`` per written frame.
+    inputs : sequence of path
+        Files the output must not be.
+
+    Returns
+    -------
+    pathlib.Path
+        The written file.
+
+    Raises
+    ------
+    facetex.BadVideoError
+        ``audio_from`` cannot be read (naming it).
+    facetex.OutputError
+        Encoding or writing failed (naming the output).
     """
     srcs = tuple(inputs or ()) + ((audio_from,) if audio_from is not None else ())
     path = check_output_path(path, overwrite=overwrite, inputs=srcs, extensions=VIDEO_EXTENSIONS, what="video")

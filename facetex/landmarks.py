@@ -34,6 +34,7 @@ import numpy as np
 
 from ._resources import model_path
 from .errors import BadInputError, NoFaceError
+from .io import ImageLike, image_args
 
 __all__ = [
     "Face",
@@ -98,9 +99,14 @@ def _scale_coords(a: np.ndarray, factor: float) -> np.ndarray:
 class Face:
     """One detected face.
 
-    box: (x0, y0, x1, y1) of the detector, pixels (may extend past the image edge).
-    points68: (68, 2) float64 iBUG landmarks (x, y), read-only.
-    score: detector confidence (HOG SVM margin or MMOD CNN confidence; not a probability).
+    Parameters
+    ----------
+    box : tuple of float
+        (x0, y0, x1, y1) of the detector, pixels (may extend past the image edge).
+    points68 : numpy.ndarray
+        (68, 2) float64 iBUG landmarks (x, y), read-only.
+    score : float
+        Detector confidence (HOG SVM margin or MMOD CNN confidence; not a probability).
     """
 
     box: tuple[float, float, float, float]
@@ -259,16 +265,34 @@ def _detect_rects(img8: np.ndarray, upsample: int, detector: str):
     raise BadInputError(f"unknown face detector {detector!r}: use 'hog' or 'cnn'")
 
 
+@image_args("image", arrays="keep")
 def detect_faces(
-    image: np.ndarray, *, upsample: int | None = 0, detector: Detector = "hog"
+    image: ImageLike, *, upsample: int | None = 0, detector: Detector = "hog"
 ) -> list[Face]:
     """All faces with 68 landmarks, largest box first.
 
-    ``upsample`` doubles the image that many times before detecting (finds smaller
-    faces, ~4x slower each). ``None`` means automatic: search at 1x, and if nothing
-    is found and the longer image side is at most :data:`AUTO_UPSAMPLE_MAX_SIDE`,
-    search again at 2x. ``detector``: dlib's HOG + SVM frontal detector (fast,
-    default) or its MMOD CNN (more robust to pose, ~50x slower on CPU).
+    Parameters
+    ----------
+    image : str, os.PathLike, PIL.Image.Image or numpy.ndarray
+        A file, a PIL image or an (H, W, 3) uint8 / uint16 / float [0, 1] array
+        (:func:`facetex.as_image`).
+    upsample : int, optional
+        Double the image that many times before detecting (finds smaller faces, ~4x slower
+        each). None: automatic, search at 1x, and if nothing is found and the longer side is
+        at most :data:`AUTO_UPSAMPLE_MAX_SIDE`, again at 2x.
+    detector : {"hog", "cnn"}
+        dlib's HOG + SVM frontal detector (fast) or its MMOD CNN (more robust to pose,
+        ~50x slower on CPU).
+
+    Returns
+    -------
+    list of Face
+        Largest box first; empty when there is no face.
+
+    Raises
+    ------
+    facetex.BadImageError
+        An unreadable file or an unusable array.
     """
     img8 = _as_uint8_rgb(image)
     if upsample is not None and (int(upsample) != upsample or upsample < 0):
@@ -286,8 +310,9 @@ def detect_faces(
     return faces
 
 
+@image_args("image", sources={"image": "source"}, arrays="keep")
 def detect_face(
-    image: np.ndarray,
+    image: ImageLike,
     *,
     face_index: int = 0,
     upsample: int | None = None,
@@ -296,9 +321,30 @@ def detect_face(
 ) -> Face:
     """The ``face_index``-th largest face (0 = largest).
 
-    ``upsample=None`` is automatic (see :func:`detect_faces`). Raises NoFaceError
-    naming ``source`` when there is no face, BadInputError when ``face_index`` is
-    out of range.
+    Parameters
+    ----------
+    image : str, os.PathLike, PIL.Image.Image or numpy.ndarray
+        A file, a PIL image or an (H, W, 3) uint8 / uint16 / float [0, 1] array.
+    face_index : int
+        Which face, by box size (0 = the largest).
+    upsample : int, optional
+        As in :func:`detect_faces` (None: automatic).
+    detector : {"hog", "cnn"}
+        As in :func:`detect_faces`.
+    source : str or os.PathLike, optional
+        The file to name in errors (the path itself when ``image`` is one).
+
+    Returns
+    -------
+    Face
+        Its box, 68 landmarks and detector score.
+
+    Raises
+    ------
+    facetex.NoFaceError
+        No face found (naming ``source``).
+    facetex.BadInputError
+        ``face_index`` out of range, or an unusable image.
     """
     faces = detect_faces(image, upsample=upsample, detector=detector)
     if not faces:
@@ -372,8 +418,9 @@ def _mesh_in_roi(img8: np.ndarray, centre, side, angle):
     return mesh, score
 
 
+@image_args("image", sources={"image": "source"}, arrays="keep")
 def face_mesh468(
-    image: np.ndarray,
+    image: ImageLike,
     face: Face | np.ndarray | None = None,
     *,
     return_score: bool = False,
@@ -382,9 +429,33 @@ def face_mesh468(
 ):
     """MediaPipe's 468-point face mesh, (468, 3) float64 (x, y, z) in image pixels.
 
+    Parameters
+    ----------
+    image : str, os.PathLike, PIL.Image.Image or numpy.ndarray
+        A file, a PIL image or an (H, W, 3) uint8 / uint16 / float [0, 1] array.
+    face : Face or numpy.ndarray, optional
+        The face (or its (68, 2) points) to mesh; default the largest detected.
+    return_score : bool
+        Also return the network's face-presence probability.
+    min_score : float
+        Below this presence probability the face counts as not found.
+    source : str or os.PathLike, optional
+        The file to name in errors (the path itself when ``image`` is one).
+
+    Returns
+    -------
+    numpy.ndarray or tuple
+        (468, 3) float64 (x, y, z); with ``return_score`` ``(mesh, score)``.
+
+    Raises
+    ------
+    facetex.NoFaceError
+        No face, or a presence probability below ``min_score``.
+
+    Notes
+    -----
     z is relative depth in the same pixel scale, MediaPipe convention (smaller =
-    closer to the camera, roughly zero-mean over the face). ``face`` is a
-    :class:`Face` or its (68, 2) points; without it the largest face is detected.
+    closer to the camera, roughly zero-mean over the face).
     The crop follows MediaPipe's detection-to-ROI rule: the face box (here the
     68 points' bounding box, which spans brows to chin like BlazeFace's box) made
     square on its longer side, enlarged 1.5x, rotated so the eye line (36 -> 45)
@@ -393,9 +464,7 @@ def face_mesh468(
     dlib's corners on the samples, so it is not done.) The mesh's outer eye and
     mouth corners (33, 263, 61, 291) lie ~2-3 px (about 3-4 % of the eye distance)
     from dlib's (36, 45, 48, 54) on 400 px portraits, mostly a slight upward
-    offset: the two annotation conventions differ. With ``return_score`` returns
-    ``(mesh, score)``, score being the network's face-presence probability;
-    below ``min_score`` raises NoFaceError.
+    offset: the two annotation conventions differ.
     """
     img8 = _as_uint8_rgb(image)
     if face is None:

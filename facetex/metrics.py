@@ -36,6 +36,7 @@ import cv2
 import numpy as np
 
 from .errors import BadInputError
+from .io import ImageLike, image_args
 
 WORKING_SIZE = 1000  # px, long edge at which the paper measures E and S
 PATCH_SIZE = 100  # px at WORKING_SIZE (§3.1: 100 × 100 skin patches)
@@ -84,10 +85,30 @@ def _points68(image, points68, source):
     return detect_face(image, source=source).points68
 
 
-def landmark_error(image_a, image_b, *, points_a=None, points_b=None, source_a=None, source_b=None) -> LandmarkError:
+@image_args("image_a", "image_b", sources={"image_a": "source_a", "image_b": "source_b"})
+def landmark_error(image_a: ImageLike, image_b: ImageLike, *, points_a: np.ndarray | None = None,
+                   points_b: np.ndarray | None = None, source_a: str | None = None,
+                   source_b: str | None = None) -> LandmarkError:
     """E(a, b) on the 66 FaceTex landmarks, each image's points scaled to a 1000 px long edge.
 
-    Landmarks are detected (largest face) unless ``points_*`` (68 × 2) are given."""
+    Parameters
+    ----------
+    image_a, image_b : str, os.PathLike, PIL.Image.Image or numpy.ndarray
+        Files, PIL images or (H, W, 3) uint8 / uint16 / float [0, 1] arrays.
+    points_a, points_b : numpy.ndarray, optional
+        Their (68, 2) landmarks; detected (largest face) when not given.
+    source_a, source_b : str, optional
+        The files to name in errors (the paths themselves when the images are paths).
+
+    Returns
+    -------
+    LandmarkError
+        ``mse_px2`` (E, px²) and ``rms_px``.
+
+    Raises
+    ------
+    facetex.NoFaceError
+        No face in an image whose points were not given."""
     from .landmarks import points66
 
     pa = points66(_points68(image_a, points_a, source_a))
@@ -157,14 +178,38 @@ def skin_patches(image, points68, *, gray: bool = True) -> dict[str, np.ndarray]
     }
 
 
-def texture_similarity(image_a, image_b, *, points_a=None, points_b=None, gray: bool = True,
-                       source_a=None, source_b=None, per_patch: bool = False):
+@image_args("image_a", "image_b", sources={"image_a": "source_a", "image_b": "source_b"})
+def texture_similarity(image_a: ImageLike, image_b: ImageLike, *, points_a: np.ndarray | None = None,
+                       points_b: np.ndarray | None = None, source_a: str | None = None,
+                       source_b: str | None = None, gray: bool = True, per_patch: bool = False) -> float | dict:
     """S(a, b): Eq. 8 on the forehead and both cheek patches, averaged over the three.
 
-    Gray (BT.601 luminance) by default, as texture is mostly luminance detail; with
-    ``gray=False`` the RGB values of a patch are correlated together. Patches of both
-    images are resampled to the same size (100 px at the 1000 px scale of ``image_a``).
-    ``per_patch=True`` also returns the three values."""
+    Patches of both images are resampled to the same size (100 px at the 1000 px scale of
+    ``image_a``).
+
+    Parameters
+    ----------
+    image_a, image_b : str, os.PathLike, PIL.Image.Image or numpy.ndarray
+        Files, PIL images or (H, W, 3) uint8 / uint16 / float [0, 1] arrays.
+    points_a, points_b : numpy.ndarray, optional
+        Their (68, 2) landmarks; detected (largest face) when not given.
+    source_a, source_b : str, optional
+        The files to name in errors (the paths themselves when the images are paths).
+    gray : bool
+        Correlate BT.601 luminance (texture is mostly luminance detail); False: the RGB
+        values of a patch together.
+    per_patch : bool
+        Also return the three patches' values.
+
+    Returns
+    -------
+    float or tuple
+        S in [-1, 1]; with ``per_patch`` ``(S, {patch: S})``.
+
+    Raises
+    ------
+    facetex.NoFaceError
+        No face in an image whose points were not given."""
     pa = _points68(image_a, points_a, source_a)
     pb = _points68(image_b, points_b, source_b)
     patches_a = skin_patches(image_a, pa, gray=gray)
@@ -266,10 +311,30 @@ def background_change(output, content, *, points=None, mesh=None, source=None) -
     return float(_abs_change(output, content)[bg].mean()) if bg.any() else 0.0
 
 
-def identity_distance(image_a, image_b, *, points_a=None, points_b=None, source_a=None, source_b=None) -> float:
+@image_args("image_a", "image_b", sources={"image_a": "source_a", "image_b": "source_b"})
+def identity_distance(image_a: ImageLike, image_b: ImageLike, *, points_a: np.ndarray | None = None,
+                      points_b: np.ndarray | None = None, source_a: str | None = None,
+                      source_b: str | None = None) -> float:
     """Euclidean distance of the FaceRecognitionNet (dlib ResNet) descriptors of two faces.
 
-    < 0.6 means the same person by dlib's convention."""
+    Parameters
+    ----------
+    image_a, image_b : str, os.PathLike, PIL.Image.Image or numpy.ndarray
+        Files, PIL images or (H, W, 3) uint8 / uint16 / float [0, 1] arrays.
+    points_a, points_b : numpy.ndarray, optional
+        Their (68, 2) landmarks; detected (largest face) when not given.
+    source_a, source_b : str, optional
+        The files to name in errors (the paths themselves when the images are paths).
+
+    Returns
+    -------
+    float
+        The distance; < 0.6 means the same person by dlib's convention.
+
+    Raises
+    ------
+    facetex.NoFaceError
+        No face in an image whose points were not given."""
     from .nets.dlib_resnet import face_descriptor
 
     da = face_descriptor(image_a, _points68(image_a, points_a, source_a))
@@ -277,14 +342,37 @@ def identity_distance(image_a, image_b, *, points_a=None, points_b=None, source_
     return float(np.linalg.norm(da - db))
 
 
-def transfer_metrics(output, content, style, *, points=None, sources=(None, None, None),
-                     aligned_style=None, content_mesh=None) -> dict:
+@image_args("output", "content", "style", "aligned_style")
+def transfer_metrics(output: ImageLike, content: ImageLike, style: ImageLike, *, points=None,
+                     sources=(None, None, None), aligned_style: ImageLike | None = None,
+                     content_mesh=None) -> dict:
     """All FaceTex metrics of a transfer output against its content and style images.
 
-    ``points`` may give the 68 landmarks of (output, content, style) to skip detection.
-    ``aligned_style``: the style warped onto the content geometry (as the transfer's
-    pre-warp makes it; computed here with :func:`facetex.geometry.align_style_to_content`
-    on the full images, Lanczos resampling, when not given) for ``detail_ratio``."""
+    Parameters
+    ----------
+    output, content, style : str, os.PathLike, PIL.Image.Image or numpy.ndarray
+        Files, PIL images or (H, W, 3) uint8 / uint16 / float [0, 1] arrays (any mix).
+    points : sequence of numpy.ndarray, optional
+        The (68, 2) landmarks of (output, content, style), to skip detection.
+    sources : tuple of str
+        The files of (output, content, style) to name in errors.
+    aligned_style : image, optional
+        The style warped onto the content geometry (as the transfer's pre-warp makes it;
+        default: :func:`facetex.geometry.align_style_to_content` on the full images, Lanczos
+        resampling), for ``detail_ratio`` and the detail measures.
+    content_mesh : numpy.ndarray, optional
+        The content's 468-point face mesh for ``background_change`` (default: computed).
+
+    Returns
+    -------
+    dict
+        Metric name -> value (E, S, identity, detail, protected and background change,
+        low-frequency ΔE, stubble, marks, detail moved; see ``facetex metrics --help``).
+
+    Raises
+    ------
+    facetex.NoFaceError
+        No face in an image whose points were not given."""
     images = (output, content, style)
     pts = list(points) if points is not None else [None, None, None]
     pts = [_points68(im, p, s) for im, p, s in zip(images, pts, sources)]
