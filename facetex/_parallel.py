@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
 
 
 def available_cpus() -> int:
@@ -53,3 +55,31 @@ def serialize_ast_parse() -> None:
 
     locked_parse._facetex_serialized = True
     ast.parse = locked_parse
+
+
+@contextlib.contextmanager
+def main_script_hidden():
+    """While worker processes start, the parent's ``__main__`` is not re-run in them.
+
+    multiprocessing's spawn and forkserver start methods import the parent's main script (or
+    ``-m`` module) in every child as ``__mp_main__``: a plain script calling
+    :func:`facetex.build_persona` without ``if __name__ == "__main__":`` ran itself again in
+    each worker, which then failed ("a worker process died"). facetex's workers run module
+    functions and need nothing from ``__main__``, so its ``__file__`` and ``__spec__`` are
+    hidden from :func:`multiprocessing.spawn.get_preparation_data` while processes start."""
+    main = sys.modules.get("__main__")
+    if main is None:
+        yield
+        return
+    missing = object()
+    saved = {a: main.__dict__.get(a, missing) for a in ("__file__", "__spec__")}
+    main.__dict__.pop("__file__", None)
+    main.__dict__["__spec__"] = None
+    try:
+        yield
+    finally:
+        for a, v in saved.items():
+            if v is missing:
+                main.__dict__.pop(a, None)
+            else:
+                main.__dict__[a] = v

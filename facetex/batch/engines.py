@@ -247,7 +247,10 @@ class _Worker:
         os.environ.update(env)  # a spawned interpreter starts with this environment (BLAS reads it once)
         try:
             self.process = ctx.Process(target=_worker_main, args=(child, os.getpid()), name="facetex-batch-worker")
-            self.process.start()
+            from .._parallel import main_script_hidden
+
+            with main_script_hidden():  # a user's plain script is not re-run in the worker
+                self.process.start()
         finally:
             for k, v in saved.items():
                 if v is None:

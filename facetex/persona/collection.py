@@ -670,7 +670,13 @@ class _Pool:
     def map(self, func, items, *, progress: Callable | None = None, **postfix) -> list:
         """``[func(x) for x in items]`` in order; progress(n=1, **postfix) per item."""
         items = list(items)
-        it = map(func, items) if self.pool is None or len(items) <= 1 else self.pool.map(func, items)
+        if self.pool is None or len(items) <= 1:
+            it = map(func, items)
+        else:
+            from .._parallel import main_script_hidden
+
+            with main_script_hidden():  # the workers start on submission: a plain script is not re-run
+                it = self.pool.map(func, items)
         out = []
         try:
             for r in it:
