@@ -11,7 +11,7 @@ def register(sub) -> None:
         description="Read run folders written by `facetex bench ...`, `facetex demo` or single runs with "
                     "sidecars, and write one HTML file with everything inside: settings, tables with "
                     "spread, figures with the paper's values as reference marks, image grids (click to "
-                    "compare at 100 %%), zoom panels, per-item metrics, provenance, and with two or more "
+                    "compare at 100 %), zoom panels, per-item metrics, provenance, and with two or more "
                     "folders a side-by-side comparison.")
     p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run folder(s)")
     p.add_argument("-o", "--output", required=True, metavar="REPORT.html", help="HTML file to write (+ .json sidecar)")
