@@ -14,6 +14,7 @@ import itertools
 import json
 import math
 import os
+import re
 import stat
 import tempfile
 import threading
@@ -35,7 +36,7 @@ from .errors import BadImageError, BadInputError, BadVideoError, FacetexError, O
 __all__ = [
     "read_image", "read_image_reduced", "read_image_uint8", "to_uint8", "to_float32",
     "check_input_file", "check_input_dir", "atomic_path", "check_output_path", "check_outputs",
-    "write_files", "encode_image", "encode_json", "write_image", "write_json", "committed_outputs",
+    "write_files", "temp_tag", "encode_image", "encode_json", "write_image", "write_json", "committed_outputs",
     "video_info", "iter_video_frames", "read_video", "write_video", "transcode_audio", "npz_members",
     "MAX_IMAGE_PIXELS", "DETECT_MAX_PIXELS", "IMAGE_MEMORY_BUDGET", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS",
 ]
@@ -491,9 +492,28 @@ def check_outputs(paths, *, overwrite: bool = False, inputs=()) -> list[Path]:
     return out
 
 
-def _temp_beside(path: Path) -> Path:
+_TEMP_TAG = ""  # see temp_tag()
+
+
+@contextlib.contextmanager
+def temp_tag(tag: str | None) -> Iterator[None]:
+    """Temporary files made inside (by any thread) are named ``.<stem>.<tag>.<random><ext>``:
+    a batch run puts its own tag there, so that it removes only temporaries it made, never a
+    user's hidden file that merely looks like one."""
+    global _TEMP_TAG
+    if tag and not re.fullmatch(r"[A-Za-z0-9]+", tag):
+        raise ValueError(f"a temporary-file tag is letters and digits, not {tag!r}")
+    old, _TEMP_TAG = _TEMP_TAG, tag or ""
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+        yield
+    finally:
+        _TEMP_TAG = old
+
+
+def _temp_beside(path: Path) -> Path:
+    prefix = f".{path.stem}.{_TEMP_TAG}." if _TEMP_TAG else f".{path.stem}."
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=path.suffix, dir=path.parent)
     except OSError as e:
         raise _write_error(path, e) from None
     os.close(fd)
@@ -567,12 +587,14 @@ def _commit(pairs, *, overwrite: bool, inputs=()) -> None:
         _SEEN_ABSENT.difference_update(os.path.abspath(f) for f, _ in done)  # ours now: "exists" next time
 
 
-def write_files(items, *, overwrite: bool = False, inputs=()) -> list[Path]:
+def write_files(items, *, overwrite: bool = False, inputs=(), reverse_commit: bool = False) -> list[Path]:
     """Write several outputs as one: ``items`` maps each path to its content (bytes, str,
     or a callable writing the given temporary path). All paths are checked
     (:func:`check_output_path`), all contents written to temporary files beside them, then
     all committed (exclusive create unless ``overwrite``); on any failure nothing new is
-    left and nothing replaced. Returns the paths."""
+    left and nothing replaced. Returns the paths. ``reverse_commit``: move the files into
+    place last written first (a sidecar written after its output but committed before it, so
+    that a process killed mid-commit leaves the sidecar, never an output without one)."""
     items = list(items.items()) if isinstance(items, dict) else list(items)
     paths = check_outputs([p for p, _ in items], overwrite=overwrite, inputs=inputs)
     temps: list[Path] = []
@@ -589,7 +611,8 @@ def write_files(items, *, overwrite: bool = False, inputs=()) -> list[Path]:
                 raise
             except OSError as e:
                 raise _write_error(path, e) from None
-        _commit(list(zip(temps, paths)), overwrite=overwrite, inputs=inputs)
+        pairs = list(zip(temps, paths))
+        _commit(pairs[::-1] if reverse_commit else pairs, overwrite=overwrite, inputs=inputs)
     finally:
         for t in temps:
             with contextlib.suppress(OSError):

@@ -65,8 +65,7 @@ class Claims:
     """Claims of items in ``folder`` by this process (run ``run``)."""
 
     def __init__(self, folder, *, timeout: float = 300.0, run: str | None = None):
-        self.folder = Path(folder)
-        self.folder.mkdir(parents=True, exist_ok=True)
+        self.folder = Path(folder)  # made by the caller before the first acquire()
         self.timeout = float(timeout)
         self.run = run or run_id()
         self._me = {"run": self.run, "host": _HOST, "pid": os.getpid(), "pid_start": _proc_start(os.getpid())}

@@ -37,13 +37,15 @@ def item_key(*parts) -> str:
 
 
 def _commit(files: dict, inputs=()) -> str | None:
-    """Write ``files`` ({path: bytes or callable(tmp)}) as one (exclusive creates). When all of
-    them already exist (another run computed the item after its claim expired) that is not an
-    error: returns a note instead."""
+    """Write ``files`` ({output: ..., sidecar: ...}, bytes or callable(tmp)) as one (exclusive
+    creates), the sidecar moved into place first: a commit cut short leaves a sidecar naming
+    its item, which the next run removes, never an output without a sidecar, which it would
+    have to take for a user's file. When all of them already exist (another run computed the
+    item after its claim expired) that is not an error: returns a note instead."""
     from ..io import write_files
 
     try:
-        write_files(files, overwrite=False, inputs=inputs)
+        write_files(files, overwrite=False, inputs=inputs, reverse_commit=True)
     except OutputError:
         if all(os.path.lexists(p) for p in files):
             return "written by another run"
@@ -190,7 +192,8 @@ def transfer_items(rows: Sequence[dict], out, *, method: str = "facetex", preset
                   "iters": list(iters) if iters is not None else None, "device": device}
         payload = dict(config, output=output, argv=argv, source=where)
         items.append(Item(key, "transfer", run_transfer_item, payload, (output, f"{output}.json"), config,
-                          Resources(cpus=cpus or 0, gpus=1.0 if device.startswith("cuda") else 0.0)))
+                          Resources(cpus=cpus or 0, gpus=1.0 if device.startswith("cuda") else 0.0),
+                          inputs=(content, style)))
     return items
 
 
@@ -293,5 +296,5 @@ def puppet_items(drivers, puppets, out, *, size: int | None = None, mode: str = 
                       "weights": weights, "max_frames": max_frames}
             payload = dict(config, output=output, argv=argv, source=f"{c.name} x {pp.name}")
             items.append(Item(key, "puppet", run_puppet_item, payload, (output, f"{output}.json"), config,
-                              Resources(cpus=cpus or 0)))
+                              Resources(cpus=cpus or 0), inputs=(config["driver"], config["puppet"])))
     return items

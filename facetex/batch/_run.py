@@ -10,8 +10,11 @@ removed), puts them back to "pending", releases the claims and re-raises.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 import socket
+import stat
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -23,7 +26,7 @@ from ._claims import Claims
 from ._state import BatchState, config_hash, utc_now
 from .engines import Engine, Outcome, Resources
 
-__all__ = ["Item", "BatchSummary", "run_batch", "map_items", "remove_item_temporaries"]
+__all__ = ["Item", "BatchSummary", "run_batch", "map_items", "remove_item_temporaries", "run_tag"]
 
 _HOST = socket.gethostname()
 
@@ -31,8 +34,9 @@ _HOST = socket.gethostname()
 @dataclass
 class Item:
     """One unit of work: ``fn(payload)`` writes ``outputs`` (absolute paths, the first one's
-    stem is ``key``) atomically with their sidecar. ``config`` is what makes the outputs what
-    they are: a finished item made with another config is an error, not a skip."""
+    stem is ``key``, the last one the sidecar) atomically. ``config`` is what makes the outputs
+    what they are: a finished item made with another config is an error, not a skip.
+    ``inputs``: the files it reads (no item of the run may write one of them)."""
 
     key: str
     kind: str
@@ -41,6 +45,7 @@ class Item:
     outputs: tuple[str, ...]
     config: dict
     resources: Resources = Resources()
+    inputs: tuple[str, ...] = ()
 
 
 @dataclass
@@ -75,18 +80,26 @@ class BatchSummary:
         return d
 
 
-def remove_item_temporaries(folder: Path, key: str) -> list[Path]:
-    """Remove the temporary files an interrupted or killed item left in ``folder``: facetex's
-    atomic writers name them ``.<output name>.<random><ext>`` (and a writer nested in another
-    ``..<output name>...``), and item keys contain no dots, so ``.`` + key + ``.`` is the item's."""
+def run_tag(run: str) -> str:
+    """The tag a run's workers put into their temporary files' names (letters and digits)."""
+    return hashlib.sha256(run.encode("utf-8")).hexdigest()[:12]
+
+
+def remove_item_temporaries(folder: Path, key: str, tags: Iterable[str]) -> list[Path]:
+    """Remove the temporary files that an interrupted or killed item of the runs tagged ``tags``
+    left in ``folder``: a batch worker's atomic writers name them ``.<output name>.<tag>.<random>
+    <ext>`` (a writer nested in another ``..<output name>.<tag>...``), and item keys contain no
+    dots. Anything else (a user's ``.<output name>.notes``) is not ours and stays."""
     removed = []
     prefix = f"{key}."
+    marks = [f".{t}." for t in tags if t]
     try:
         entries = list(os.scandir(folder))
     except OSError:
         return removed
     for e in entries:
-        if e.name.startswith(".") and e.name.lstrip(".").startswith(prefix) and e.is_file(follow_symlinks=False):
+        if e.name.startswith(".") and e.name.lstrip(".").startswith(prefix) and any(m in e.name for m in marks) \
+                and e.is_file(follow_symlinks=False):
             try:
                 os.unlink(e.path)
                 removed.append(Path(e.path))
@@ -97,6 +110,50 @@ def remove_item_temporaries(folder: Path, key: str) -> list[Path]:
 
 def _outputs_exist(item: Item) -> list[bool]:
     return [os.path.lexists(p) for p in item.outputs]
+
+
+def _made_by_batch(sidecar: str, key: str) -> bool:
+    """Whether ``sidecar`` is a batch item ``key``'s sidecar (a regular file whose provenance
+    names the item): the only half of an item a run may remove. Batch workers commit the
+    sidecar first, so a commit cut short leaves exactly that."""
+    try:
+        st = os.lstat(sidecar)
+        if not stat.S_ISREG(st.st_mode) or st.st_size > 16 * 2**20:
+            return False
+        with open(sidecar, encoding="utf-8") as fh:
+            record = json.load(fh)
+    except (OSError, ValueError):
+        return False
+    batch = record.get("batch") if isinstance(record, dict) else None
+    return isinstance(batch, dict) and batch.get("item") == key
+
+
+def _check_not_users(it: Item) -> None:
+    """Refuse (before any work) an unfinished item whose output names hold files the batch did
+    not make: an output without its sidecar, a sidecar that is not this item's."""
+    exists = _outputs_exist(it)
+    if all(exists) or not any(exists):
+        return
+    *outputs, sidecar = it.outputs
+    for p, e in zip(outputs, exists):
+        if e:
+            raise OutputError(f"exists without its sidecar {Path(sidecar).name}, so this batch did not make it and "
+                              "will not replace it: move it away, or choose another --out", path=p)
+    if not _made_by_batch(sidecar, it.key):
+        raise OutputError(f"exists without {Path(outputs[0]).name} and is not that batch item's sidecar: "
+                          "move it away, or choose another --out", path=sidecar)
+
+
+def _check_inputs_not_outputs(items: Sequence[Item]) -> None:
+    """No item may write a file another item reads (``--out .`` beside the inputs)."""
+    writers = {os.path.realpath(p): it for it in items for p in it.outputs}
+    for it in items:
+        for p in it.inputs:
+            other = writers.get(os.path.realpath(p))
+            if other is not None:
+                where = f" ({it.payload['source']})" if it.payload.get("source") else ""
+                raise BadInputError(f"is an input{where} and also the output of item {other.key}: choose another "
+                                    "--out", path=p)
 
 
 def _describe_settings_change(old: dict | None, new: dict) -> str:
@@ -126,8 +183,10 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
         if "." in it.key:
             raise BadInputError(f"item key {it.key!r} contains a dot")
         seen[it.key] = it
+    _check_inputs_not_outputs(items)
     state = BatchState(out)
     claims = Claims(state.claims, timeout=claim_timeout)
+    tag = run_tag(claims.run)
     summary = BatchSummary(run=claims.run, out=str(out), manifest=str(state.manifest), engine=engine.describe(),
                            total=len(items))
     hashes = {it.key: config_hash(it.config) for it in items}
@@ -156,6 +215,7 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
             summary.skipped_failed += 1
             summary.failures.append((it.key, rec.get("error")))
             continue
+        _check_not_users(it)
         todo.append(it)
         if rec is None:
             known[it.key] = {"kind": it.kind, "state": "pending"}
@@ -164,6 +224,7 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
         raise OutputError(f"holds {len(clashes)} item(s) made with other settings (e.g. {it.key}: "
                           f"{_describe_settings_change(rec.get('config'), it.config)}): choose another --out, or "
                           "remove those outputs", path=out)
+    state.create()
 
     running: dict[int, dict] = {}  # handle -> {item, attempt, submitted}
     elsewhere: dict[str, Item] = {}  # claimed by another run
@@ -184,15 +245,16 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
     def start(it: Item) -> None:
         attempts[it.key] = attempts.get(it.key, 0) + 1
         folder = Path(it.outputs[0]).parent
-        remove_item_temporaries(folder, it.key)
-        present = [p for p, e in zip(it.outputs, _outputs_exist(it)) if e]
-        for p in present:  # a commit cut short (killed between its renames): never half an item
-            try:
-                os.unlink(p)
+        rec = state.get(it.key)  # the run that held the item last (killed?) left its temporaries
+        remove_item_temporaries(folder, it.key, {tag, run_tag(str(rec.get("run")))} if rec else {tag})
+        sidecar = it.outputs[-1]
+        if not any(_outputs_exist(it)[:-1]) and _made_by_batch(sidecar, it.key):
+            try:  # a commit cut short (killed between its renames): never half an item
+                os.unlink(sidecar)
             except OSError:
                 pass
         payload = dict(it.payload, batch={"run": claims.run, "item": it.key, "attempt": attempts[it.key],
-                                          "engine": engine.name})
+                                          "engine": engine.name, "tag": tag})
         h = engine.submit(it.fn, payload, it.resources)
         running[h] = {"item": it, "submitted": time.time()}
         state.put(it.key, dict(base(it), state="running", host=_HOST, pid=os.getpid(), started=utc_now(),
@@ -239,7 +301,7 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
                                            "overhead_s": wall - (stats.get("seconds") or 0.0), "host": host,
                                            "pid": stats.get("pid"), "peak_rss_mb": stats.get("peak_rss_mb")})
             return
-        remove_item_temporaries(Path(it.outputs[0]).parent, it.key)
+        remove_item_temporaries(Path(it.outputs[0]).parent, it.key, [tag])
         if o.died and attempts.get(it.key, 0) <= max_retries:
             summary.retried += 1
             state.put(it.key, dict(base(it), state="pending", host=host, error=f"retrying: {o.error}"))
@@ -299,7 +361,7 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
         engine.cancel()
         for entry in running.values():
             it = entry["item"]
-            remove_item_temporaries(Path(it.outputs[0]).parent, it.key)
+            remove_item_temporaries(Path(it.outputs[0]).parent, it.key, [tag])
             try:
                 state.put(it.key, dict(base(it), state="pending", host=_HOST, error="interrupted"))
             except OSError:

@@ -40,7 +40,8 @@ def config_hash(config: dict) -> str:
 
 
 class BatchState:
-    """Records of the items in the batch folder ``out``."""
+    """Records of the items in the batch folder ``out`` (its folders made by :meth:`create`,
+    once a run has checked it may write there)."""
 
     def __init__(self, out):
         self.out = Path(out)
@@ -48,12 +49,14 @@ class BatchState:
         self.items = self.root / "items"
         self.claims = self.root / "claims"
         self.runs = self.root / "runs"
-        for d in (self.items, self.claims, self.runs):
-            d.mkdir(parents=True, exist_ok=True)
         self.manifest = self.out / "manifest.jsonl"
         self._last_manifest = 0.0
         self._dirty = True
         self._cache: dict[str, tuple[int, dict]] = {}  # key -> (mtime_ns, record) of the records read
+
+    def create(self) -> None:
+        for d in (self.items, self.claims, self.runs):
+            d.mkdir(parents=True, exist_ok=True)
 
     def path(self, key: str) -> Path:
         return self.items / f"{key}.json"
@@ -71,6 +74,8 @@ class BatchState:
     def all(self) -> dict[str, dict]:
         """Every record in the folder (a record is read again only when its file changed)."""
         out = {}
+        if not self.items.is_dir():
+            return out
         for entry in os.scandir(self.items):
             if not entry.name.endswith(".json") or entry.name.startswith("."):
                 continue

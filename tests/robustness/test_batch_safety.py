@@ -1,0 +1,74 @@
+"""Issue 23: ``facetex batch`` never deletes or replaces a file it did not make, and a run whose
+settings differ from its output folder's is refused (one line, before any work)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+
+import pytest
+
+from _robust import FACE, OTHER, assert_one_error, run_cli, snapshot
+
+T = ["--size", "64", "--iters", "2", "--jobs", "1"]  # one worker: about 4 s per item
+KEY = "frl_004_neutral__frl_005_neutral__facetex"
+
+
+@pytest.fixture
+def pairs(tmp_path):
+    """A pairs CSV of one pair (FACE, OTHER), and the folder it goes to."""
+    csv = tmp_path / "pairs.csv"
+    csv.write_text(f"content,style\n{FACE},{OTHER}\n")
+    return csv
+
+
+def _put(path, kind: str) -> None:
+    if kind == "file":
+        path.write_bytes(b"MINE\n")
+    elif kind == "symlink":
+        (path.parent / "elsewhere.txt").write_bytes(b"MINE\n")
+        path.symlink_to(path.parent / "elsewhere.txt")
+    elif kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "json":
+        path.write_text('{"mine": true}\n')
+
+
+@pytest.mark.parametrize("name, kind, cause", [
+    (f"{KEY}.png", "file", "exists without its sidecar"),
+    (f"{KEY}.png", "symlink", "exists without its sidecar"),
+    (f"{KEY}.png", "fifo", "exists without its sidecar"),
+    (f"{KEY}.png.json", "json", "not that batch item's sidecar"),
+    (f"{KEY}.png.json", "fifo", "not that batch item's sidecar"),  # not opened: no hang
+])
+def test_a_file_with_an_outputs_name_is_refused_not_replaced(tmp_path, capsys, pairs, name, kind, cause):
+    out = tmp_path / "o"
+    out.mkdir()
+    _put(out / name, kind)
+    before = snapshot(out) if kind != "fifo" else sorted(os.listdir(out))
+    r = run_cli(capsys, "batch", "transfer", pairs, "--out", out, *T)
+    assert_one_error(r, names=[name], cause=cause)
+    assert (snapshot(out) if kind != "fifo" else sorted(os.listdir(out))) == before  # nothing replaced or added
+
+
+def test_out_dot_where_an_input_is_another_rows_output_is_refused(tmp_path, capsys, monkeypatch):
+    for src, name in ((FACE, "a.jpg"), (OTHER, "b.jpg"), (FACE, "a__b__facetex.png")):
+        shutil.copy(src, tmp_path / name)
+    (tmp_path / "pairs.csv").write_text("content,style\na.jpg,b.jpg\na__b__facetex.png,b.jpg\n")
+    before = snapshot(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    r = run_cli(capsys, "batch", "transfer", "pairs.csv", "--out", ".", *T)
+    assert_one_error(r, names=["a__b__facetex.png", "pairs.csv"], cause="also the output of item a__b__facetex")
+    assert snapshot(tmp_path) == before
+
+
+def test_hidden_files_that_look_like_temporaries_are_kept(tmp_path, capsys, pairs):
+    out = tmp_path / "o"
+    out.mkdir()
+    mine = [out / f".{KEY}.png.notes", out / f".{KEY}.abcd1234.png", out / f".{KEY}.png.x1y2z3.json"]
+    for p in mine:
+        p.write_text("a user's hidden file\n")
+    r = run_cli(capsys, "batch", "transfer", pairs, "--out", out, *T)
+    assert r.code == 0, r.err
+    assert all(p.read_text() == "a user's hidden file\n" for p in mine)
+    assert sorted(p.name for p in out.iterdir() if p.name.startswith(".") and p not in mine) == [".facetex-batch"]
