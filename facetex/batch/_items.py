@@ -23,12 +23,24 @@ from ._run import Item
 from .engines import Resources
 
 __all__ = ["transfer_items", "persona_items", "puppet_items", "read_pairs_csv", "pairs_from_folders",
-           "run_transfer_item", "run_persona_item", "run_puppet_item", "item_key", "TRANSFER_COLUMNS",
-           "DRIVER_EXTENSIONS"]
+           "run_transfer_item", "run_persona_item", "run_puppet_item", "item_key", "folder_settings",
+           "TRANSFER_COLUMNS", "DRIVER_EXTENSIONS"]
 
 TRANSFER_COLUMNS = ("content", "style", "method", "preset", "seed")
 DRIVER_EXTENSIONS = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".mpg", ".mpeg", ".webm")
 _IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".webp", ".bmp")
+
+
+# per kind: the config keys every item of a run shares and its output's name does not show
+_FOLDER_SETTINGS = {"transfer": ("size", "iters", "device"), "persona": ("min_photos", "allow_mixed"),
+                    "puppet": ("size", "mode", "side_by_side", "lighting", "texture", "weights", "max_frames")}
+
+
+def folder_settings(items: Sequence[Item]) -> dict:
+    """The settings of a run of ``items`` (of one kind) that its output folder must keep (see
+    :func:`facetex.batch.run_batch`'s ``settings``)."""
+    kind = items[0].kind
+    return {"kind": kind, **{k: items[0].config.get(k) for k in _FOLDER_SETTINGS.get(kind, ())}}
 
 
 def item_key(*parts) -> str:

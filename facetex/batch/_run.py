@@ -60,22 +60,25 @@ class BatchSummary:
     done: int = 0  # computed by this run
     done_elsewhere: int = 0  # computed by another run meanwhile
     failed: int = 0
+    failed_elsewhere: int = 0  # failed in another run meanwhile (not retried here)
     retried: int = 0  # worker deaths that were retried
     remaining: int = 0
     seconds: float = 0.0
     computed: list = field(default_factory=list)  # keys computed by this run
     failures: list = field(default_factory=list)  # (key, error)
+    failures_elsewhere: list = field(default_factory=list)  # (key, run, error): another run's failures
     item_stats: list = field(default_factory=list)  # per computed item: key, seconds, overhead_s, host, pid, rss
 
     @property
     def ok(self) -> bool:
-        return self.failed == 0 and self.skipped_failed == 0 and self.remaining == 0
+        return self.failed == 0 and self.failed_elsewhere == 0 and self.skipped_failed == 0 and self.remaining == 0
 
     def as_dict(self) -> dict:
         d = {k: getattr(self, k) for k in ("run", "out", "manifest", "engine", "total", "skipped_done",
-                                           "skipped_failed", "done", "done_elsewhere", "failed", "retried",
+                                           "skipped_failed", "done", "done_elsewhere", "failed", "failed_elsewhere", "retried",
                                            "remaining", "seconds", "computed")}
         d["failures"] = [{"item": k, "error": e} for k, e in self.failures]
+        d["failures_elsewhere"] = [{"item": k, "run": r, "error": e} for k, r, e in self.failures_elsewhere]
         d["rate_per_min"] = 60.0 * self.done / self.seconds if self.seconds > 0 else None
         return d
 
@@ -163,15 +166,38 @@ def _describe_settings_change(old: dict | None, new: dict) -> str:
     return "; ".join(diff[:3]) or "other settings"
 
 
+def _check_folder_settings(state: BatchState, settings: dict) -> None:
+    """The first run in a folder records ``settings``; a run with other ones is refused (two runs
+    with other --size on one folder would mix outputs of both, under the same names)."""
+    from ..io import write_json
+
+    new = json.loads(json.dumps(settings, sort_keys=True, default=str))
+    path = state.root / "settings.json"
+    try:
+        write_json(path, new, overwrite=False)  # exclusive: of two runs starting at once, one records
+        return
+    except OutputError:
+        if not os.path.lexists(path):
+            raise
+    old = state.read_settings()
+    diff = [f"{k} {old.get(k)!r} (this run: {new.get(k)!r})" for k in sorted(set(old) | set(new))
+            if old.get(k) != new.get(k)]
+    if diff:
+        raise OutputError(f"holds a batch made with other settings: {'; '.join(diff)}: choose another --out, or "
+                          "run with the folder's settings", path=state.out)
+
+
 def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool = False, max_retries: int = 2,
               claim_timeout: float = 300.0, progress: Callable[..., None] | None = None, poll: float = 1.0,
-              record: dict | None = None, wait_for_others: bool = True) -> BatchSummary:
+              record: dict | None = None, wait_for_others: bool = True, settings: dict | None = None) -> BatchSummary:
     """Run ``items`` on ``engine`` (started by the caller), with ``out`` as the shared state
     (see the module docstring and :mod:`facetex.batch._state`). ``progress(**counts)`` is
     called after every change with the counts done, failed, remaining, running, waiting (items
     another run is computing) and done_elsewhere.
-    ``record``: extra fields for the run's record (command line, settings). Returns the
-    summary; raises OutputError before any work when a finished item was made with other
+    ``record``: extra fields for the run's record (command line, settings). ``settings``: what
+    every item shares and no output name shows (``--size`` ...); the folder keeps the first
+    run's, and a run with others is refused. Returns the summary; raises OutputError before
+    any work when the folder's settings differ or a finished item was made with other
     settings, and re-raises KeyboardInterrupt after cleaning up."""
     out = Path(out)
     items = list(items)
@@ -195,6 +221,7 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
     # -- what is left to do (checked before any work)
     todo: deque[Item] = deque()
     known: dict[str, dict] = {}
+    found: list[Item] = []  # finished items without a record (lost): recorded once the checks pass
     clashes = []
     for it in items:
         rec = state.get(it.key)
@@ -206,9 +233,8 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
         holder = claims.holder(it.key) if all(exists) else None
         if all(exists) and ((rec is not None and rec.get("state") == "done") or holder is None or holder["expired"]):
             summary.skipped_done += 1
-            if rec is None or rec.get("state") != "done":  # outputs whose record was lost: record them
-                state.put(it.key, {"kind": it.kind, "state": "done", "config_hash": hashes[it.key],
-                                   "outputs": list(it.outputs), "host": None, "note": "outputs found"})
+            if rec is None or rec.get("state") != "done":
+                found.append(it)
             continue
         if rec is not None and rec.get("state") == "failed" and not retry_failed and \
                 rec.get("config_hash") in (None, hashes[it.key]):  # failed with other settings: try the new ones
@@ -225,6 +251,11 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
                           f"{_describe_settings_change(rec.get('config'), it.config)}): choose another --out, or "
                           "remove those outputs", path=out)
     state.create()
+    if settings is not None:
+        _check_folder_settings(state, settings)
+    for it in found:
+        state.put(it.key, {"kind": it.kind, "state": "done", "config_hash": hashes[it.key],
+                           "outputs": list(it.outputs), "host": None, "note": "outputs found"})
 
     running: dict[int, dict] = {}  # handle -> {item, attempt, submitted}
     elsewhere: dict[str, Item] = {}  # claimed by another run
@@ -275,8 +306,8 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
                 if rec.get("state") == "failed" and rec.get("run") != claims.run and not retry_failed \
                         and it.key not in attempts:
                     claims.release(it.key)
-                    summary.failed += 1
-                    summary.failures.append((it.key, rec.get("error")))
+                    summary.failed_elsewhere += 1
+                    summary.failures_elsewhere.append((it.key, rec.get("run"), rec.get("error")))
                     continue
             start(it)
 
@@ -325,8 +356,8 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
                 if rec["state"] == "done" and all(_outputs_exist(it)):
                     summary.done_elsewhere += 1
                 elif rec["state"] == "failed" and not (retry_failed and rec.get("run") == claims.run):
-                    summary.failed += 1
-                    summary.failures.append((key, rec.get("error")))
+                    summary.failed_elsewhere += 1
+                    summary.failures_elsewhere.append((key, rec.get("run"), rec.get("error")))
                 else:
                     todo.append(it)
                 continue

@@ -58,6 +58,13 @@ class BatchState:
         for d in (self.items, self.claims, self.runs):
             d.mkdir(parents=True, exist_ok=True)
 
+    def read_settings(self) -> dict:
+        """The settings the folder's first run recorded (``settings.json``)."""
+        try:
+            return json.loads((self.root / "settings.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return {}
+
     def path(self, key: str) -> Path:
         return self.items / f"{key}.json"
 

@@ -115,7 +115,9 @@ def test_half_committed_item_and_stale_temporaries_are_redone(tmp_path, no_lefto
     out.mkdir()
     # a commit killed between its renames leaves the sidecar (committed first), which names its item
     (out / "item0.txt.json").write_text('{"batch": {"run": "killed-run", "item": "item0"}}')
-    BatchState(out).put("item0", {"kind": "test", "state": "running", "run": "killed-run"})
+    state = BatchState(out)
+    state.create()
+    state.put("item0", {"kind": "test", "state": "running", "run": "killed-run"})
     stale = out / f".item0.txt.{run_tag('killed-run')}.abcd1234.json"
     stale.write_text("the killed run's temporary file")
     (out / ".item0.txt.abcd1234.json").write_text("untagged: not a temporary of a batch run")

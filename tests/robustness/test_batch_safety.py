@@ -3,6 +3,7 @@ settings differ from its output folder's is refused (one line, before any work).
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 
@@ -72,3 +73,70 @@ def test_hidden_files_that_look_like_temporaries_are_kept(tmp_path, capsys, pair
     assert r.code == 0, r.err
     assert all(p.read_text() == "a user's hidden file\n" for p in mine)
     assert sorted(p.name for p in out.iterdir() if p.name.startswith(".") and p not in mine) == [".facetex-batch"]
+
+
+# ------------------------------------------------------------------------------ concurrency
+def test_a_run_with_other_settings_than_the_folders_is_refused(tmp_path, capsys, pairs):
+    out = tmp_path / "o"
+    assert run_cli(capsys, "batch", "transfer", pairs, "--out", out, *T).code == 0
+    other = tmp_path / "other.csv"  # another pair: no finished item clashes, the folder's settings do
+    other.write_text(f"content,style\n{OTHER},{FACE}\n")
+    before = snapshot(out)
+    r = run_cli(capsys, "batch", "transfer", other, "--out", out, "--size", "96", "--iters", "2", "--jobs", "1")
+    assert_one_error(r, names=[out], cause=r"other settings: size 64 \(this run: 96\)")
+    assert snapshot(out) == before
+
+
+def test_two_runs_at_once_with_other_settings_second_is_refused(tmp_path, capsys, pairs):
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "o"
+    first = subprocess.Popen([sys.executable, "-m", "facetex", "batch", "transfer", str(pairs), "--out", str(out),
+                              "-q", *T], stderr=subprocess.PIPE, text=True)
+    try:
+        record = out / ".facetex-batch" / "items" / f"{KEY}.json"
+        deadline = time.monotonic() + 120
+        while not record.exists() and first.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)  # the first run is computing its item
+        r = run_cli(capsys, "batch", "transfer", pairs, "--out", out, "--size", "96", "--iters", "2", "--jobs", "1")
+        assert_one_error(r, names=[out], cause=r"other settings: size 64 \(this run: 96\)")
+    finally:
+        _, err = first.communicate(timeout=180)
+    assert first.returncode == 0, err
+    from PIL import Image
+
+    assert Image.open(out / f"{KEY}.png").size is not None
+    assert sorted(p.name for p in out.iterdir()) == [".facetex-batch", f"{KEY}.png", f"{KEY}.png.json",
+                                                     "manifest.jsonl"]
+
+
+def test_another_runs_failure_is_not_reported_as_this_runs(tmp_path, capsys, pairs):
+    import socket
+    import threading
+
+    from facetex.batch._claims import _proc_start
+    from facetex.batch._state import BatchState
+
+    out = tmp_path / "o"
+    state = BatchState(out)
+    state.create()
+    state.put(KEY, {"kind": "transfer", "state": "running", "run": "other-run"})
+    claim = state.claims / f"{KEY}.0"  # held by a live process (this one) of another run
+    claim.write_text(json.dumps({"run": "other-run", "host": socket.gethostname(), "pid": os.getpid(),
+                                 "pid_start": _proc_start(os.getpid())}))
+
+    def the_other_run_fails():
+        state.put(KEY, {"kind": "transfer", "state": "failed", "run": "other-run", "error": "boom"})
+        claim.unlink()
+
+    timer = threading.Timer(1.0, the_other_run_fails)
+    timer.start()
+    try:
+        r = run_cli(capsys, "batch", "transfer", pairs, "--out", out, *T)
+    finally:
+        timer.join()
+    assert r.code == 4, r.err
+    assert f"item {KEY} failed in another run (other-run): boom" in r.err and f"{KEY} failed: boom" not in r.err
+    assert "0 failed, 1 failed in another run" in r.out
