@@ -35,7 +35,7 @@ from .errors import BadImageError, BadInputError, BadVideoError, FacetexError, O
 
 __all__ = [
     "read_image", "read_image_reduced", "read_image_uint8", "to_uint8", "to_float32",
-    "check_input_file", "check_input_dir", "atomic_path", "check_output_path", "check_outputs",
+    "check_input_file", "check_input_dir", "read_regular", "atomic_path", "check_output_path", "check_outputs",
     "write_files", "temp_tag", "encode_image", "encode_json", "write_image", "write_json", "committed_outputs",
     "video_info", "iter_video_frames", "read_video", "write_video", "transcode_audio", "npz_members",
     "MAX_IMAGE_PIXELS", "DETECT_MAX_PIXELS", "IMAGE_MEMORY_BUDGET", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS",
@@ -113,6 +113,20 @@ def check_input_file(path, error: type = BadInputError, *, what: str = "file") -
     if st.st_size == 0:
         raise error("empty file (0 bytes): re-export or replace it", path=path)
     return path
+
+
+def read_regular(path, limit: int | None = None) -> bytes:
+    """The bytes of ``path`` if it is a regular file, checked on the open file itself: not a
+    symlink, and a FIFO is neither waited for nor read (OSError otherwise; also when it is
+    larger than ``limit`` bytes)."""
+    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    with os.fdopen(fd, "rb") as fh:
+        st = os.fstat(fh.fileno())
+        if not stat.S_ISREG(st.st_mode):
+            raise OSError(errno.EINVAL, f"not a regular file ({_kind(st.st_mode)})", str(path))
+        if limit is not None and st.st_size > limit:
+            raise OSError(errno.EFBIG, f"larger than {limit} bytes", str(path))
+        return fh.read()
 
 
 def check_input_dir(path, error: type = BadInputError, *, what: str = "folder") -> Path:

@@ -14,7 +14,6 @@ import hashlib
 import json
 import os
 import socket
-import stat
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -119,12 +118,10 @@ def _made_by_batch(sidecar: str, key: str) -> bool:
     """Whether ``sidecar`` is a batch item ``key``'s sidecar (a regular file whose provenance
     names the item): the only half of an item a run may remove. Batch workers commit the
     sidecar first, so a commit cut short leaves exactly that."""
+    from ..io import read_regular
+
     try:
-        st = os.lstat(sidecar)
-        if not stat.S_ISREG(st.st_mode) or st.st_size > 16 * 2**20:
-            return False
-        with open(sidecar, encoding="utf-8") as fh:
-            record = json.load(fh)
+        record = json.loads(read_regular(sidecar, limit=16 * 2**20))
     except (OSError, ValueError):
         return False
     batch = record.get("batch") if isinstance(record, dict) else None
@@ -166,25 +163,32 @@ def _describe_settings_change(old: dict | None, new: dict) -> str:
     return "; ".join(diff[:3]) or "other settings"
 
 
-def _check_folder_settings(state: BatchState, settings: dict) -> None:
-    """The first run in a folder records ``settings``; a run with other ones is refused (two runs
-    with other --size on one folder would mix outputs of both, under the same names)."""
-    from ..io import write_json
-
-    new = json.loads(json.dumps(settings, sort_keys=True, default=str))
-    path = state.root / "settings.json"
-    try:
-        write_json(path, new, overwrite=False)  # exclusive: of two runs starting at once, one records
-        return
-    except OutputError:
-        if not os.path.lexists(path):
-            raise
+def _check_folder_settings(state: BatchState, new: dict) -> bool:
+    """Refuse a run whose settings differ from those the folder's first run recorded (two runs
+    with other --size on one folder would mix outputs of both, under the same names). Returns
+    whether the folder has recorded settings."""
     old = state.read_settings()
+    if old is None:
+        return False
     diff = [f"{k} {old.get(k)!r} (this run: {new.get(k)!r})" for k in sorted(set(old) | set(new))
             if old.get(k) != new.get(k)]
     if diff:
         raise OutputError(f"holds a batch made with other settings: {'; '.join(diff)}: choose another --out, or "
                           "run with the folder's settings", path=state.out)
+    return True
+
+
+def _record_folder_settings(state: BatchState, new: dict) -> None:
+    """Record ``new`` as the folder's settings; of two runs starting at once one records (an
+    exclusive create), the other is checked against it."""
+    from ..io import write_json
+
+    try:
+        write_json(state.settings_path, new, overwrite=False)
+    except OutputError:
+        if not os.path.lexists(state.settings_path):
+            raise
+        _check_folder_settings(state, new)
 
 
 def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool = False, max_retries: int = 2,
@@ -230,7 +234,7 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
                 rec.get("state") == "done" or all(exists)):
             clashes.append((it, rec))
             continue
-        holder = claims.holder(it.key) if all(exists) else None
+        holder = claims.holder(it.key)  # also: a claim file of the wrong shape is refused before any work
         if all(exists) and ((rec is not None and rec.get("state") == "done") or holder is None or holder["expired"]):
             summary.skipped_done += 1
             if rec is None or rec.get("state") != "done":
@@ -245,14 +249,17 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
         todo.append(it)
         if rec is None:
             known[it.key] = {"kind": it.kind, "state": "pending"}
+    if settings is not None:
+        settings = json.loads(json.dumps(settings, sort_keys=True, default=str))  # as it is stored
+        recorded = _check_folder_settings(state, settings)
     if clashes:
         it, rec = clashes[0]
         raise OutputError(f"holds {len(clashes)} item(s) made with other settings (e.g. {it.key}: "
                           f"{_describe_settings_change(rec.get('config'), it.config)}): choose another --out, or "
                           "remove those outputs", path=out)
     state.create()
-    if settings is not None:
-        _check_folder_settings(state, settings)
+    if settings is not None and not recorded:
+        _record_folder_settings(state, settings)
     for it in found:
         state.put(it.key, {"kind": it.kind, "state": "done", "config_hash": hashes[it.key],
                            "outputs": list(it.outputs), "host": None, "note": "outputs found"})

@@ -26,8 +26,9 @@ from typing import Sequence
 
 import numpy as np
 
+from ..io import read_regular
 from .compare import compare_rows, cell, metric_summary, _fmt
-from .runs import Run, read_regular
+from .runs import Run
 
 __all__ = ["build_report"]
 

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 import os
 import stat
@@ -32,12 +31,43 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .._schema import OBJECT, nullable, parse_json
 from ..errors import BadInputError
+from ..io import read_regular
 
-__all__ = ["Run", "Item", "load_run", "load_runs", "ReadGuard", "read_regular", "METHOD_ORDER"]
+__all__ = ["Run", "Item", "load_run", "load_runs", "ReadGuard", "METHOD_ORDER"]
 
 METHOD_ORDER = ("none", "gatys", "mrf", "facetex")  # "none": the content itself (no transfer)
 _IMAGE_EXT = (".png", ".jpg", ".jpeg", ".webp", ".tif", ".tiff")
+
+# The shapes of the JSON files a report reads (the fields it uses; others are free).
+_NAME = {"type": ["string", "number"]}
+_METRICS = nullable({"type": "object"})
+_BENCH_TRANSFER = {"type": "object", "properties": {
+    "settings": OBJECT,
+    "paper_table1": nullable({"type": "object", "additionalProperties": OBJECT}),
+    "pairs": {"type": "array", "items": {"type": "object", "required": ["content", "style"], "properties": {
+        "content": _NAME, "style": _NAME, "content_path": {"type": "string"}, "style_path": {"type": "string"},
+        "results": {"type": "object", "additionalProperties": {"type": "object", "properties": {
+            "image": nullable({"type": "string"}), "metrics": _METRICS}}}}}}}}
+_BENCH_PUPPET = {"type": "object", "properties": {
+    "settings": OBJECT,
+    "rows": {"type": "array", "items": {"type": "object", "properties": {
+        "run": nullable(_NAME), "clip": nullable(_NAME),
+        "media": nullable({"type": "object", "properties": {"contact_sheet": {"type": "string"}}})}}}}}
+_DEMO = {"type": "object", "properties": {
+    "inputs": {"type": "object", "properties": {"content": {"type": "string"}, "style": {"type": "string"}}},
+    "transfers": nullable({"type": "object", "additionalProperties": {"type": "object", "properties": {
+        "metrics": _METRICS}}})}}
+_INPUT = nullable({"type": "object", "properties": {"path": nullable({"type": "string"})}})
+_SIDECAR = {"type": "object", "properties": {
+    "inputs": nullable({"type": "object", "properties": {"content": _INPUT, "style": _INPUT}}),
+    "params": nullable({"type": "object", "properties": {"method": nullable({"type": "string"})}}),
+    "metrics": _METRICS,
+    "result": nullable({"type": "object", "properties": {"timings": nullable({"type": "object"})}})}}
+_RUN_JSON = {"type": "object", "properties": {
+    "command": {"type": "string"}, "command_line": {"type": "string"}, "created_utc": {"type": "string"},
+    "versions": nullable({"type": "object"}), "params": nullable({"type": "object"})}}
 
 
 @dataclass
@@ -99,16 +129,6 @@ class Run:
         return out
 
 
-def read_regular(path) -> bytes:
-    """The bytes of ``path`` if it is a regular file, checked on the open file itself (not a
-    symlink, and a FIFO is neither waited for nor read): OSError otherwise."""
-    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
-    with os.fdopen(fd, "rb") as fh:
-        if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
-            raise OSError(f"not a regular file: {path}")
-        return fh.read()
-
-
 class ReadGuard:
     """What a report may read: regular files (no symlinks, FIFOs or devices) whose resolved
     paths are inside ``roots``. Anything else a run folder holds or names is not read but
@@ -138,31 +158,41 @@ class ReadGuard:
             self.skipped.append(str(p))
         return False
 
-    def read_text(self, path) -> str | None:
-        """The UTF-8 text of ``path``, or None when it may not be read or is absent."""
+    def read_bytes(self, path) -> bytes | None:
+        """The bytes of ``path``, or None when it may not be read or is absent."""
         if not self.allows(path):
             return None
         try:
-            return read_regular(path).decode("utf-8")
+            return read_regular(path)
         except OSError:  # replaced meanwhile (by a FIFO, a link): not ours to read
             self.skipped.append(str(path))
             return None
 
+    def read_text(self, path, what: str = "text file") -> str | None:
+        """The UTF-8 text of ``path`` (None: see :meth:`read_bytes`)."""
+        data = self.read_bytes(path)
+        try:
+            return None if data is None else data.decode("utf-8")
+        except UnicodeDecodeError:
+            raise BadInputError(f"not a UTF-8 text file: not a {what}", path=path) from None
 
-def _read_json(path: Path, guard: ReadGuard):
-    text = guard.read_text(path)
-    if text is None:
+    def read_json(self, path, schema: dict, what: str):
+        """The JSON of ``path`` checked against ``schema`` (None: see :meth:`read_bytes`)."""
+        data = self.read_bytes(path)
+        return None if data is None else parse_json(data, schema, path=path, what=what)
+
+
+def _read_json(path: Path, guard: ReadGuard, schema: dict, what: str):
+    value = guard.read_json(path, schema, what)
+    if value is None:
         raise BadInputError("not a regular file inside the run folders: not read", path=path)
-    try:
-        return json.loads(text)
-    except ValueError as e:
-        raise BadInputError(f"unreadable JSON in a run folder ({type(e).__name__}: {e})", path=path) from None
+    return value
 
 
 def _tables(folder: Path, guard: ReadGuard) -> dict[str, str]:
     out = {}
     for p in sorted(folder.glob("table*.md")):
-        text = guard.read_text(p)
+        text = guard.read_text(p, "Markdown table")
         if text is not None:
             out[p.name] = text
     return out
@@ -178,10 +208,7 @@ def _bench_json(folder: Path, guard: ReadGuard) -> tuple[str | None, Path | None
     """(bench name, its JSON file) of a bench run folder, or (None, None)."""
     res = folder / "results.json"
     if guard.allows(res):
-        try:
-            bench = json.loads(guard.read_text(res) or "").get("bench")
-        except (ValueError, AttributeError):
-            bench = None
+        bench = guard.read_json(res, OBJECT, "bench results file").get("bench")
         if bench in ("transfer", "persona", "puppet"):
             return bench, res
     if guard.allows(folder / "pairs.json"):
@@ -194,7 +221,7 @@ def _bench_json(folder: Path, guard: ReadGuard) -> tuple[str | None, Path | None
 
 
 def _load_bench_transfer(folder: Path, run: Run, path: Path, guard: ReadGuard) -> None:
-    pj = _read_json(path, guard)
+    pj = _read_json(path, guard, _BENCH_TRANSFER, "bench transfer results file")
     run.kind = "bench transfer"
     run.settings = dict(pj.get("settings", {}))
     run.paper = {m: dict(v) for m, v in (pj.get("paper_table1") or {}).items()}
@@ -216,24 +243,22 @@ def _load_bench_transfer(folder: Path, run: Run, path: Path, guard: ReadGuard) -
                 it.metrics[m]["time_s"] = float(r["wall_s"])
         run.items.append(it)
     for sc in sorted((folder / "images").glob("*.json")):
-        try:
-            rec = json.loads(guard.read_text(sc) or "")
-        except ValueError:
-            continue
-        run.sidecars[f"images/{sc.name}"] = rec
+        rec = guard.read_json(sc, _SIDECAR, "sidecar")
+        if rec is not None:
+            run.sidecars[f"images/{sc.name}"] = rec
 
 
 def _load_bench_persona(folder: Path, run: Run, path: Path, guard: ReadGuard) -> None:
-    summary = _read_json(path, guard)
+    summary = _read_json(path, guard, OBJECT, "bench persona summary")
     run.kind = "bench persona"
     run.settings = {k: v for k, v in summary.items() if k not in ("rows", "skipped", "held_out", "teeth", "bench")}
-    text = guard.read_text(folder / "per_target.csv")
+    text = guard.read_text(folder / "per_target.csv", "CSV file")
     if text is not None:
         with io.StringIO(text, newline="") as fh:
             for row in csv.DictReader(fh):
                 it = Item(key=row.get("file", ""), label=row.get("file", ""))
                 for k, v in row.items():  # "<row>_<metric>", e.g. ours_mouth_ssim; px_<region>: mask sizes
-                    if "_" not in k or k in ("file",) or k.startswith("px_"):
+                    if not isinstance(k, str) or "_" not in k or k == "file" or k.startswith("px_"):
                         continue
                     method, metric = k.split("_", 1)
                     try:
@@ -244,7 +269,7 @@ def _load_bench_persona(folder: Path, run: Run, path: Path, guard: ReadGuard) ->
 
 
 def _load_bench_puppet(folder: Path, run: Run, path: Path, guard: ReadGuard) -> None:
-    res = _read_json(path, guard)
+    res = _read_json(path, guard, _BENCH_PUPPET, "bench puppet results file")
     run.kind = "bench puppet"
     run.settings = dict(res.get("settings", {}))
     for r in res.get("rows", []):
@@ -261,7 +286,7 @@ def _load_bench_puppet(folder: Path, run: Run, path: Path, guard: ReadGuard) -> 
 def _load_demo(folder: Path, run: Run, guard: ReadGuard) -> None:
     from .._resources import sample_path
 
-    summary = _read_json(folder / "summary.json", guard)
+    summary = _read_json(folder / "summary.json", guard, _DEMO, "demo summary")
     run.kind = "demo"
     run.settings = {k: v for k, v in summary.items() if k not in ("transfers",)}
     ins = summary.get("inputs", {})
@@ -287,9 +312,8 @@ def _load_outputs(folder: Path, run: Run, guard: ReadGuard) -> None:
         sc = img.with_name(img.name + ".json")
         if not os.path.lexists(sc) or not guard.allows(img):
             continue
-        try:
-            rec = json.loads(guard.read_text(sc) or "")
-        except ValueError:
+        rec = guard.read_json(sc, _SIDECAR, "sidecar")
+        if rec is None:
             continue
         run.sidecars[sc.name] = rec
         ins = rec.get("inputs") or {}
@@ -321,11 +345,7 @@ def load_run(path, guard: ReadGuard | None = None) -> Run:
     folder = check_input_dir(path, BadInputError, what="run folder")
     guard = guard or ReadGuard([folder])
     run = Run(path=folder, name=folder.resolve().name, kind="", skipped=guard.skipped)
-    if guard.allows(folder / "run.json"):
-        try:
-            run.provenance = json.loads(guard.read_text(folder / "run.json") or "")
-        except ValueError:
-            run.provenance = None
+    run.provenance = guard.read_json(folder / "run.json", _RUN_JSON, "run record (run.json)")
     bench, bench_json = _bench_json(folder, guard)
     if bench is not None:
         {"transfer": _load_bench_transfer, "persona": _load_bench_persona,

@@ -7,33 +7,14 @@ from __future__ import annotations
 import base64
 import json
 import os
+import shutil
 
-import numpy as np
 import pytest
-from PIL import Image
 
-from _robust import run_cli, snapshot
+from _robust import bench_run_folder, run_cli, snapshot, tiny_png
 
 SECRET = b"-----BEGIN OPENSSH PRIVATE KEY-----\nb3BlbnNzaC1rZXktdjEAAAAA\n-----END OPENSSH PRIVATE KEY-----\n"
 pytestmark = pytest.mark.timeout(120)  # a FIFO that is opened blocks forever: fail instead
-
-
-def _png(path, value: int = 128):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(np.full((48, 48, 3), value, np.uint8)).save(path)
-    return path
-
-
-def _bench_run(folder, *, image="images/a__b__facetex.png", style_path=None):
-    """A minimal `facetex bench transfer` folder: results.json naming one output image."""
-    folder.mkdir()
-    _png(folder / "images" / "a__b__facetex.png")
-    pair = {"content": "a", "style": "b", "results": {"facetex": {"image": image, "metrics": {"E_content": 1.0}}}}
-    if style_path is not None:
-        pair["style_path"] = str(style_path)
-    (folder / "results.json").write_text(json.dumps({"bench": "transfer", "settings": {"size": 64}, "pairs": [pair]}))
-    (folder / "table.md").write_text("| method | E |\n|---|---|\n| facetex | 1.0 |\n")
-    return folder
 
 
 @pytest.fixture
@@ -64,18 +45,18 @@ def _assert_skipped(r, page: str, *names):
 def test_files_outside_the_run_folder_are_not_embedded(tmp_path, capsys, secret, how):
     run = tmp_path / "run"
     if how == "symlink":  # images/*.png a link to a private key
-        _bench_run(run)
+        bench_run_folder(run)
         (run / "images" / "a__b__facetex.png").unlink()
         (run / "images" / "a__b__facetex.png").symlink_to(secret)
         name = "a__b__facetex.png"
     elif how == "style_path":
-        _bench_run(run, style_path=secret)
+        bench_run_folder(run, style_path=secret)
         name = secret.name
     elif how == "dotdot":  # "image": "../private/id_ed25519.png"
-        _bench_run(run, image=f"../{secret.parent.name}/{secret.name}")
+        bench_run_folder(run, image=f"../{secret.parent.name}/{secret.name}")
         name = secret.name
     else:
-        _bench_run(run, image=str(secret))
+        bench_run_folder(run, image=str(secret))
         name = secret.name
     before = snapshot(run)
     r, page = _report(capsys, tmp_path, run)
@@ -84,9 +65,8 @@ def test_files_outside_the_run_folder_are_not_embedded(tmp_path, capsys, secret,
 
 
 def test_a_symlinked_folder_inside_the_run_is_outside(tmp_path, capsys, secret):
-    run = _bench_run(tmp_path / "run")
-    (run / "images" / "a__b__facetex.png").unlink()
-    (run / "images").rmdir()
+    run = bench_run_folder(tmp_path / "run")
+    shutil.rmtree(run / "images")
     (run / "images").symlink_to(secret.parent)  # images/ -> private/
     os.rename(secret, secret.parent / "a__b__facetex.png")
     r, page = _report(capsys, tmp_path, run)
@@ -95,7 +75,7 @@ def test_a_symlinked_folder_inside_the_run_is_outside(tmp_path, capsys, secret):
 
 @pytest.mark.parametrize("what", ["table.md", "images/a__b__facetex.png"])
 def test_fifos_and_devices_are_skipped_not_opened(tmp_path, capsys, what):
-    run = _bench_run(tmp_path / "run")
+    run = bench_run_folder(tmp_path / "run")
     (run / what).unlink()
     os.mkfifo(run / what)
     r, page = _report(capsys, tmp_path, run)
@@ -103,7 +83,7 @@ def test_fifos_and_devices_are_skipped_not_opened(tmp_path, capsys, what):
 
 
 def test_a_device_table_is_skipped(tmp_path, capsys):
-    run = _bench_run(tmp_path / "run")
+    run = bench_run_folder(tmp_path / "run")
     (run / "table_zero.md").symlink_to("/dev/zero")
     r, page = _report(capsys, tmp_path, run)
     _assert_skipped(r, page, "table_zero.md")
@@ -112,7 +92,7 @@ def test_a_device_table_is_skipped(tmp_path, capsys):
 def test_a_fifo_output_with_a_sidecar_is_skipped(tmp_path, capsys):
     """A folder of single-run outputs: one real output, one FIFO named like an output."""
     run = tmp_path / "run"
-    _png(run / "a.png")
+    tiny_png(run / "a.png")
     rec = {"command": "transfer", "params": {"method": "facetex"}, "inputs": {}}
     (run / "a.png.json").write_text(json.dumps(rec))
     os.mkfifo(run / "b.png")
@@ -122,7 +102,7 @@ def test_a_fifo_output_with_a_sidecar_is_skipped(tmp_path, capsys):
 
 
 def test_compare_skips_them_too(tmp_path, capsys):
-    a, b = _bench_run(tmp_path / "a"), _bench_run(tmp_path / "b")
+    a, b = bench_run_folder(tmp_path / "a"), bench_run_folder(tmp_path / "b")
     (b / "table.md").unlink()
     os.mkfifo(b / "table.md")
     r = run_cli(capsys, "compare", a, b)
