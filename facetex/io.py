@@ -35,7 +35,7 @@ from .errors import BadImageError, BadInputError, BadVideoError, FacetexError, O
 
 __all__ = [
     "read_image", "read_image_reduced", "read_image_uint8", "to_uint8", "to_float32",
-    "check_input_file", "check_input_dir", "read_regular", "atomic_path", "check_output_path", "check_outputs",
+    "check_input_file", "check_input_dir", "as_path", "read_regular", "atomic_path", "check_output_path", "check_outputs",
     "write_files", "temp_tag", "encode_image", "encode_json", "write_image", "write_json", "committed_outputs",
     "video_info", "iter_video_frames", "read_video", "write_video", "transcode_audio", "npz_members",
     "MAX_IMAGE_PIXELS", "DETECT_MAX_PIXELS", "IMAGE_MEMORY_BUDGET", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS",
@@ -81,6 +81,14 @@ def _kind(mode: int) -> str:
     return next((name for test, name in _FILE_KINDS if test(mode)), "not a regular file")
 
 
+def as_path(path, error: type = BadInputError, what: str = "file") -> Path:
+    """``path`` as a Path, or ``error`` when it is not a path (None, a number, a BytesIO, a list)."""
+    if isinstance(path, (str, os.PathLike)):
+        return Path(path)
+    hint = ": to read bytes in memory, open them with PIL.Image.open and pass that to facetex.as_image" if hasattr(path, "read") else ""
+    raise error(f"the {what} must be a path (str or os.PathLike), not {type(path).__name__}{hint}")
+
+
 def _stat_error(path: Path, e: OSError, error: type, what: str):
     if e.errno == errno.ELOOP:
         return error("symlink loop: the path points back to itself; fix the link", path=path)
@@ -99,7 +107,7 @@ def check_input_file(path, error: type = BadInputError, *, what: str = "file") -
     """Raise ``error`` (naming ``path``) unless it is a non-empty regular file (symlinks
     followed). FIFOs and devices are refused before anything opens them: reading a FIFO
     blocks and /dev/zero never ends."""
-    path = Path(path)
+    path = as_path(path, error, what)
     try:
         st = os.stat(path)
     except OSError as e:
@@ -131,7 +139,7 @@ def read_regular(path, limit: int | None = None) -> bytes:
 
 def check_input_dir(path, error: type = BadInputError, *, what: str = "folder") -> Path:
     """Raise ``error`` (naming ``path``) unless it is a readable directory (symlinks followed)."""
-    path = Path(path)
+    path = as_path(path, error, what)
     try:
         st = os.stat(path)
     except OSError as e:
@@ -446,7 +454,7 @@ def check_output_path(path, *, overwrite: bool = False, inputs=(), extensions=No
     writable; the path is not a directory, device or FIFO, not the same file as any of
     ``inputs`` (whatever ``overwrite`` says) and absent unless ``overwrite``; its extension
     (lower case) is one of ``extensions`` when given."""
-    path = Path(path)
+    path = as_path(path, OutputError, what)
 
     def check_extension():
         if extensions is not None and path.suffix.lower() not in extensions:
