@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import io
 import os
 import re
 import time
@@ -105,7 +106,7 @@ def read_pairs_csv(path) -> list[dict]:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
         raise BadInputError("not a UTF-8 text file: give a CSV file with columns content,style", path=path) from None
-    reader = csv.DictReader(text.splitlines())
+    reader = csv.DictReader(io.StringIO(text, newline=""))  # a quoted field may hold a line break
     cols = [c.strip().lower() for c in (reader.fieldnames or [])]
     if "content" not in cols or "style" not in cols:
         raise BadInputError(f"the first line must name the columns: content,style[,method,preset,seed] (got "
@@ -115,8 +116,8 @@ def read_pairs_csv(path) -> list[dict]:
         raise BadInputError(f"unknown column {unknown[0]!r}: the columns are {', '.join(TRANSFER_COLUMNS)}", path=path)
     reader.fieldnames = cols
     rows = []
-    for row in reader:
-        line = reader.line_num
+    for row in reader:  # the line the record starts on (a quoted field may hold line breaks)
+        line = reader.line_num - sum(v.count("\n") for v in row.values() if isinstance(v, str))
         r = {k: (v or "").strip() for k, v in row.items() if k is not None}
         if not any(r.values()):
             continue

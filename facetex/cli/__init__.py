@@ -206,6 +206,11 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout = stdout
 
 
+def _one_line(message) -> str:
+    """``message`` on one line: control characters (a line break in a file name) escaped."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(message))
+
+
 def _stdout_closed() -> int:
     """The reader of our stdout went away (``facetex landmarks --json | head``): stop quietly,
     as a command killed by SIGPIPE does (exit 141), and keep Python from complaining about the
@@ -255,7 +260,7 @@ def _run(argv: list[str], debug: bool) -> int:
     except FacetexError as exc:
         if debug:
             traceback.print_exc()
-        print(f"facetex: error: {exc}", file=sys.stderr)
+        print(f"facetex: error: {_one_line(exc)}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt as exc:
         return _interrupted(exc)
@@ -276,7 +281,7 @@ def _run(argv: list[str], debug: bool) -> int:
         if debug:
             traceback.print_exc()
         print(
-            f"facetex: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback)",
+            f"facetex: internal error: {type(exc).__name__}: {_one_line(exc)} (run with --debug for the traceback)",
             file=sys.stderr,
         )
         return 1

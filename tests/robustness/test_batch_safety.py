@@ -140,3 +140,19 @@ def test_another_runs_failure_is_not_reported_as_this_runs(tmp_path, capsys, pai
     assert r.code == 4, r.err
     assert f"item {KEY} failed in another run (other-run): boom" in r.err and f"{KEY} failed: boom" not in r.err
     assert "0 failed, 1 failed in another run" in r.out
+
+
+# ------------------------------------------------------------------------------ pairs CSV
+def test_a_quoted_line_break_in_a_csv_field_is_part_of_the_field(tmp_path, capsys):
+    from facetex.batch import read_pairs_csv
+
+    shutil.copy(FACE, tmp_path / "two\nlines.jpg")
+    csv = tmp_path / "pairs.csv"
+    csv.write_text(f'content,style\n"two\nlines.jpg",{OTHER}\n{OTHER},"two\nlines.jpg"\n')
+    rows = read_pairs_csv(csv)
+    assert [(os.path.basename(r["content"]), os.path.basename(r["style"])) for r in rows] == \
+        [("two\nlines.jpg", OTHER.name), (OTHER.name, "two\nlines.jpg")]
+    csv.write_text(f'content,style\n\n{FACE},{OTHER}\n"gone\nfile.jpg",{OTHER}\n')
+    r = run_cli(capsys, "batch", "transfer", csv, "--out", tmp_path / "o", *T)
+    assert_one_error(r, names=["pairs.csv"], cause=r"gone\\nfile\.jpg: content image not found.*pairs\.csv:4\)")
+    assert not (tmp_path / "o").exists()
