@@ -35,7 +35,8 @@ from .errors import BadImageError, BadInputError, BadVideoError, FacetexError, O
 
 __all__ = [
     "read_image", "read_image_reduced", "read_image_uint8", "to_uint8", "to_float32",
-    "check_input_file", "check_input_dir", "as_path", "read_regular", "atomic_path", "check_output_path", "check_outputs",
+    "check_input_file", "check_input_dir", "as_path", "read_regular", "atomic_path", "check_output_path",
+    "check_outputs",
     "write_files", "temp_tag", "encode_image", "encode_json", "write_image", "write_json", "committed_outputs",
     "video_info", "iter_video_frames", "read_video", "write_video", "transcode_audio", "npz_members",
     "MAX_IMAGE_PIXELS", "DETECT_MAX_PIXELS", "IMAGE_MEMORY_BUDGET", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS",
@@ -85,7 +86,8 @@ def as_path(path, error: type = BadInputError, what: str = "file") -> Path:
     """``path`` as a Path, or ``error`` when it is not a path (None, a number, a BytesIO, a list)."""
     if isinstance(path, (str, os.PathLike)):
         return Path(path)
-    hint = ": to read bytes in memory, open them with PIL.Image.open and pass that to facetex.as_image" if hasattr(path, "read") else ""
+    hint = ": to read bytes in memory, open them with PIL.Image.open and pass that to facetex.as_image" \
+        if hasattr(path, "read") else ""
     raise error(f"the {what} must be a path (str or os.PathLike), not {type(path).__name__}{hint}")
 
 

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
 from ..errors import BadInputError, OutputError
+from ..io import check_output_path, read_regular, write_json
 from ._claims import Claims
 from ._state import BatchState, config_hash, utc_now
 from .engines import Engine, Outcome, Resources
@@ -74,8 +75,8 @@ class BatchSummary:
 
     def as_dict(self) -> dict:
         d = {k: getattr(self, k) for k in ("run", "out", "manifest", "engine", "total", "skipped_done",
-                                           "skipped_failed", "done", "done_elsewhere", "failed", "failed_elsewhere", "retried",
-                                           "remaining", "seconds", "computed")}
+                                           "skipped_failed", "done", "done_elsewhere", "failed", "failed_elsewhere",
+                                           "retried", "remaining", "seconds", "computed")}
         d["failures"] = [{"item": k, "error": e} for k, e in self.failures]
         d["failures_elsewhere"] = [{"item": k, "run": r, "error": e} for k, r, e in self.failures_elsewhere]
         d["rate_per_min"] = 60.0 * self.done / self.seconds if self.seconds > 0 else None
@@ -118,8 +119,6 @@ def _made_by_batch(sidecar: str, key: str) -> bool:
     """Whether ``sidecar`` is a batch item ``key``'s sidecar (a regular file whose provenance
     names the item): the only half of an item a run may remove. Batch workers commit the
     sidecar first, so a commit cut short leaves exactly that."""
-    from ..io import read_regular
-
     try:
         record = json.loads(read_regular(sidecar, limit=16 * 2**20))
     except (OSError, ValueError):
@@ -181,8 +180,6 @@ def _check_folder_settings(state: BatchState, new: dict) -> bool:
 def _record_folder_settings(state: BatchState, new: dict) -> None:
     """Record ``new`` as the folder's settings; of two runs starting at once one records (an
     exclusive create), the other is checked against it."""
-    from ..io import write_json
-
     try:
         write_json(state.settings_path, new, overwrite=False)
     except OutputError:
@@ -257,6 +254,7 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
         raise OutputError(f"holds {len(clashes)} item(s) made with other settings (e.g. {it.key}: "
                           f"{_describe_settings_change(rec.get('config'), it.config)}): choose another --out, or "
                           "remove those outputs", path=out)
+    check_output_path(state.manifest, overwrite=True)  # a folder or FIFO of that name: refused before any work
     state.create()
     if settings is not None and not recorded:
         _record_folder_settings(state, settings)

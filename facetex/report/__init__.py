@@ -18,8 +18,8 @@ from .figures import face_box, metrics_figure, skin_box, zoom_panel
 from .html import build_report
 from .runs import Item, ReadGuard, Run, load_run, load_runs
 
-__all__ = ["Run", "Item", "load_run", "load_runs", "ReadGuard", "build_report", "write_report", "compare_rows", "compare_table",
-           "metric_summary", "zoom_panel", "metrics_figure", "face_box", "skin_box"]
+__all__ = ["Run", "Item", "load_run", "load_runs", "ReadGuard", "build_report", "write_report", "compare_rows",
+           "compare_table", "metric_summary", "zoom_panel", "metrics_figure", "face_box", "skin_box"]
 
 
 def write_report(run_dirs: Sequence, output, *, title: str | None = None, overwrite: bool = False,

@@ -40,7 +40,8 @@ REPORT_CASES = {  # name: (edit of a good run folder, file named, cause)
     "results-list": (_write("results.json", [1, 2]), "results.json", "whole file must be a JSON object, not a list"),
     "results-not-json": (_write("results.json", b'{"bench": "transfer", '), "results.json", "unreadable JSON"),
     "results-not-utf8": (_write("results.json", b'{"bench": "\xff\xfe"}'), "results.json", "not a UTF-8 text file"),
-    "pairs-object": (_edit_results(lambda r: r.update(pairs={})), "results.json", "pairs must be a list, not a JSON object"),
+    "pairs-object": (_edit_results(lambda r: r.update(pairs={})), "results.json",
+                     "pairs must be a list, not a JSON object"),
     "pairs-number": (_edit_results(lambda r: r.update(pairs=[7])), "results.json",
                      r"pairs\[0\] must be a JSON object, not an integer"),
     "pair-no-content": (_edit_results(lambda r: r["pairs"][0].pop("content")), "results.json",
@@ -127,7 +128,19 @@ def _internal_is_a_file(out):
     return ".facetex-batch"
 
 
+def _manifest(kind):
+    def make(out):
+        if kind == "folder":
+            (out / "manifest.jsonl").mkdir()
+        else:
+            os.mkfifo(out / "manifest.jsonl")
+        return "manifest.jsonl"
+    return make
+
+
 BATCH_CASES = {
+    "manifest-folder": (_manifest("folder"), "is a directory"),
+    "manifest-fifo": (_manifest("fifo"), "FIFO"),
     "internal-is-a-file": (_internal_is_a_file, "exists and is not a folder"),
     "items-is-a-file": (_state_file("items", b"x"), "exists and is not a folder"),
     "record-list": (_state_file(f"items/{KEY}.json", []), "batch item record: the whole file must be a JSON object"),
@@ -150,7 +163,7 @@ def test_batch_state_of_the_wrong_shape(tmp_path, capsys, case):
     out = tmp_path / "o"
     out.mkdir()
     name = make(out)
-    fifo = "fifo" in case
+    fifo = "fifo" in case or "manifest" in case
     before = sorted(os.listdir(out)) if fifo else snapshot(out)
     r = run_cli(capsys, "batch", "transfer", tmp_path / "pairs.csv", "--out", out, *T)
     assert_one_error(r, names=[name], cause=cause)
