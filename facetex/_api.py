@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterator, Literal, Sequence, Un
 
 import numpy as np
 
+from ._args import check_device, check_seed
 from .errors import BadImageError, BadInputError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -317,14 +318,13 @@ def transfer_with_info(
     params = transfer_params(method, preset, **opts)  # bad options fail before any image is read
     if save_every is not None and (not isinstance(save_every, (int, np.integer)) or save_every < 1):
         raise BadInputError(f"save_every must be a positive integer, not {save_every!r}")
-    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool):
-        raise BadInputError(f"seed must be an integer, not {seed!r}")
+    seed, device = check_seed(seed), check_device(device)
     c = as_image(content, "content image" + (f" {content_source}" if content_source else ""))
     s = as_image(style, "style image" + (f" {style_source}" if style_source else ""))
     start = _init_arg(init, c)
     total = int(sum(params.iters) * params.eval_budget) + params.levels  # the evaluation budget per level
     with _progress(progress, total, method, "eval") as bar:
-        return _run(c, s, method=method, preset=preset, seed=int(seed), device=device, progress=bar,
+        return _run(c, s, method=method, preset=preset, seed=seed, device=device, progress=bar,
                     callback=callback, save_every=save_every, content_points=content_points,
                     style_points=style_points, content_source=content_source, style_source=style_source,
                     max_memory=max_memory, init=start, **opts)
@@ -588,9 +588,11 @@ def load_persona(path: str | os.PathLike) -> "Persona":
     >>> len(p)  # usable photos  # doctest: +SKIP
     519
     """
-    from .errors import PersonaNotFoundError
+    from .errors import BadPersonaError, PersonaNotFoundError
+    from .io import as_path
     from .persona import load_persona as _load
 
+    path = as_path(path, BadPersonaError, "persona file")
     if not os.path.lexists(path):
         raise PersonaNotFoundError("persona file not found: build one with `facetex persona build`", path=path)
     return _load(path)

@@ -14,6 +14,7 @@ import itertools
 import json
 import math
 import os
+import re
 import stat
 import tempfile
 import threading
@@ -36,9 +37,10 @@ if TYPE_CHECKING:
     from PIL.Image import Image as PILImage
 
 __all__ = [
-    "ImageLike", "as_image", "image_args", "read_image", "read_image_reduced", "read_image_uint8", "to_uint8", "to_float32",
-    "check_input_file", "check_input_dir", "atomic_path", "check_output_path", "check_outputs",
-    "write_files", "encode_image", "encode_json", "write_image", "write_json", "committed_outputs",
+    "ImageLike", "as_image", "image_args", "read_image", "read_image_reduced", "read_image_uint8", "to_uint8",
+    "to_float32", "check_input_file", "check_input_dir", "as_path", "read_regular", "atomic_path",
+    "check_output_path", "check_outputs", "write_files", "temp_tag", "encode_image", "encode_json", "write_image",
+    "write_json", "committed_outputs",
     "video_info", "iter_video_frames", "read_video", "write_video", "transcode_audio", "npz_members",
     "MAX_IMAGE_PIXELS", "DETECT_MAX_PIXELS", "IMAGE_MEMORY_BUDGET", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS",
 ]
@@ -99,6 +101,8 @@ def as_image(image: ImageLike, name: str = "image") -> np.ndarray:
         a = np.repeat(a[..., None], 3, axis=2)
     if a.ndim != 3 or a.shape[2] not in (3, 4):
         raise BadImageError(f"{name} must be an (H, W, 3) RGB image, got shape {a.shape}")
+    if a.shape[0] == 0 or a.shape[1] == 0:
+        raise BadImageError(f"{name} has no pixels (shape {a.shape})")
     if np.issubdtype(a.dtype, np.floating):
         if not np.all(np.isfinite(a)):
             raise BadImageError(f"{name} contains NaN or infinite values")
@@ -185,6 +189,15 @@ def _kind(mode: int) -> str:
     return next((name for test, name in _FILE_KINDS if test(mode)), "not a regular file")
 
 
+def as_path(path, error: type = BadInputError, what: str = "file") -> Path:
+    """``path`` as a Path, or ``error`` when it is not a path (None, a number, a BytesIO, a list)."""
+    if isinstance(path, (str, os.PathLike)):
+        return Path(path)
+    hint = ": to read bytes in memory, open them with PIL.Image.open and pass that to facetex.as_image" \
+        if hasattr(path, "read") else ""
+    raise error(f"the {what} must be a path (str or os.PathLike), not {type(path).__name__}{hint}")
+
+
 def _stat_error(path: Path, e: OSError, error: type, what: str):
     if e.errno == errno.ELOOP:
         return error("symlink loop: the path points back to itself; fix the link", path=path)
@@ -203,7 +216,7 @@ def check_input_file(path, error: type = BadInputError, *, what: str = "file") -
     """Raise ``error`` (naming ``path``) unless it is a non-empty regular file (symlinks
     followed). FIFOs and devices are refused before anything opens them: reading a FIFO
     blocks and /dev/zero never ends."""
-    path = Path(path)
+    path = as_path(path, error, what)
     try:
         st = os.stat(path)
     except OSError as e:
@@ -219,9 +232,23 @@ def check_input_file(path, error: type = BadInputError, *, what: str = "file") -
     return path
 
 
+def read_regular(path, limit: int | None = None) -> bytes:
+    """The bytes of ``path`` if it is a regular file, checked on the open file itself: not a
+    symlink, and a FIFO is neither waited for nor read (OSError otherwise; also when it is
+    larger than ``limit`` bytes)."""
+    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    with os.fdopen(fd, "rb") as fh:
+        st = os.fstat(fh.fileno())
+        if not stat.S_ISREG(st.st_mode):
+            raise OSError(errno.EINVAL, f"not a regular file ({_kind(st.st_mode)})", str(path))
+        if limit is not None and st.st_size > limit:
+            raise OSError(errno.EFBIG, f"larger than {limit} bytes", str(path))
+        return fh.read()
+
+
 def check_input_dir(path, error: type = BadInputError, *, what: str = "folder") -> Path:
     """Raise ``error`` (naming ``path``) unless it is a readable directory (symlinks followed)."""
-    path = Path(path)
+    path = as_path(path, error, what)
     try:
         st = os.stat(path)
     except OSError as e:
@@ -556,7 +583,7 @@ def check_output_path(path, *, overwrite: bool = False, inputs=(), extensions=No
     writable; the path is not a directory, device or FIFO, not the same file as any of
     ``inputs`` (whatever ``overwrite`` says) and absent unless ``overwrite``; its extension
     (lower case) is one of ``extensions`` when given."""
-    path = Path(path)
+    path = as_path(path, OutputError, what)
 
     def check_extension():
         if extensions is not None and path.suffix.lower() not in extensions:
@@ -616,9 +643,28 @@ def check_outputs(paths, *, overwrite: bool = False, inputs=()) -> list[Path]:
     return out
 
 
-def _temp_beside(path: Path) -> Path:
+_TEMP_TAG = ""  # see temp_tag()
+
+
+@contextlib.contextmanager
+def temp_tag(tag: str | None) -> Iterator[None]:
+    """Temporary files made inside (by any thread) are named ``.<stem>.<tag>.<random><ext>``:
+    a batch run puts its own tag there, so that it removes only temporaries it made, never a
+    user's hidden file that merely looks like one."""
+    global _TEMP_TAG
+    if tag and not re.fullmatch(r"[A-Za-z0-9]+", tag):
+        raise ValueError(f"a temporary-file tag is letters and digits, not {tag!r}")
+    old, _TEMP_TAG = _TEMP_TAG, tag or ""
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+        yield
+    finally:
+        _TEMP_TAG = old
+
+
+def _temp_beside(path: Path) -> Path:
+    prefix = f".{path.stem}.{_TEMP_TAG}." if _TEMP_TAG else f".{path.stem}."
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=path.suffix, dir=path.parent)
     except OSError as e:
         raise _write_error(path, e) from None
     os.close(fd)
@@ -692,12 +738,14 @@ def _commit(pairs, *, overwrite: bool, inputs=()) -> None:
         _SEEN_ABSENT.difference_update(os.path.abspath(f) for f, _ in done)  # ours now: "exists" next time
 
 
-def write_files(items, *, overwrite: bool = False, inputs=()) -> list[Path]:
+def write_files(items, *, overwrite: bool = False, inputs=(), reverse_commit: bool = False) -> list[Path]:
     """Write several outputs as one: ``items`` maps each path to its content (bytes, str,
     or a callable writing the given temporary path). All paths are checked
     (:func:`check_output_path`), all contents written to temporary files beside them, then
     all committed (exclusive create unless ``overwrite``); on any failure nothing new is
-    left and nothing replaced. Returns the paths."""
+    left and nothing replaced. Returns the paths. ``reverse_commit``: move the files into
+    place last written first (a sidecar written after its output but committed before it, so
+    that a process killed mid-commit leaves the sidecar, never an output without one)."""
     items = list(items.items()) if isinstance(items, dict) else list(items)
     paths = check_outputs([p for p, _ in items], overwrite=overwrite, inputs=inputs)
     temps: list[Path] = []
@@ -714,7 +762,8 @@ def write_files(items, *, overwrite: bool = False, inputs=()) -> list[Path]:
                 raise
             except OSError as e:
                 raise _write_error(path, e) from None
-        _commit(list(zip(temps, paths)), overwrite=overwrite, inputs=inputs)
+        pairs = list(zip(temps, paths))
+        _commit(pairs[::-1] if reverse_commit else pairs, overwrite=overwrite, inputs=inputs)
     finally:
         for t in temps:
             with contextlib.suppress(OSError):

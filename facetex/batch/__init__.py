@@ -8,13 +8,13 @@
 - items of the three workloads: :func:`transfer_items`, :func:`persona_items`, :func:`puppet_items`.
 """
 
-from ._items import (pairs_from_folders, persona_items, puppet_items, read_pairs_csv, run_persona_item,
+from ._items import (folder_settings, pairs_from_folders, persona_items, puppet_items, read_pairs_csv, run_persona_item,
                      run_puppet_item, run_transfer_item, transfer_items)
-from ._run import BatchSummary, Item, map_items, run_batch
+from ._run import BatchSummary, Item, map_items, run_batch, run_tag
 from .engines import (Engine, EngineError, InlineEngine, LocalEngine, Outcome, RayEngine, Resources,
                       make_engine)
 
 __all__ = ["run_batch", "map_items", "Item", "BatchSummary", "Engine", "EngineError", "InlineEngine",
            "LocalEngine", "RayEngine", "Outcome", "Resources", "make_engine", "transfer_items", "persona_items",
            "puppet_items", "read_pairs_csv", "pairs_from_folders", "run_transfer_item", "run_persona_item",
-           "run_puppet_item"]
+           "run_puppet_item", "run_tag", "folder_settings"]

@@ -25,9 +25,14 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
+from .._schema import nullable
+from ._state import read_record
+
 __all__ = ["Claims", "Claim", "run_id"]
 
 _HOST = socket.gethostname()
+CLAIM = {"type": "object", "properties": {"run": {"type": "string"}, "host": {"type": "string"},
+                                          "pid": {"type": "integer"}, "pid_start": nullable({"type": "string"})}}
 
 
 def run_id() -> str:
@@ -65,8 +70,7 @@ class Claims:
     """Claims of items in ``folder`` by this process (run ``run``)."""
 
     def __init__(self, folder, *, timeout: float = 300.0, run: str | None = None):
-        self.folder = Path(folder)
-        self.folder.mkdir(parents=True, exist_ok=True)
+        self.folder = Path(folder)  # made by the caller before the first acquire()
         self.timeout = float(timeout)
         self.run = run or run_id()
         self._me = {"run": self.run, "host": _HOST, "pid": os.getpid(), "pid_start": _proc_start(os.getpid())}
@@ -98,12 +102,13 @@ class Claims:
             return None
         p = self._path(key, gen)
         try:
-            st = p.stat()
-            info = json.loads(p.read_text(encoding="utf-8") or "{}")
+            st = os.lstat(p)
         except FileNotFoundError:
             return None
-        except (OSError, ValueError):
-            info = {}
+        # empty or cut short: being written by its claimer (it expires by its age if that died)
+        info = read_record(p, CLAIM, "batch claim", tolerate_partial=True)
+        if info is None:
+            return None
         info = dict(info, generation=gen, age_s=max(0.0, time.time() - st.st_mtime))
         info["expired"] = self._expired(info)
         return info

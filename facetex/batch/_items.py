@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import io
 import os
 import re
 import time
@@ -23,12 +24,24 @@ from ._run import Item
 from .engines import Resources
 
 __all__ = ["transfer_items", "persona_items", "puppet_items", "read_pairs_csv", "pairs_from_folders",
-           "run_transfer_item", "run_persona_item", "run_puppet_item", "item_key", "TRANSFER_COLUMNS",
-           "DRIVER_EXTENSIONS"]
+           "run_transfer_item", "run_persona_item", "run_puppet_item", "item_key", "folder_settings",
+           "TRANSFER_COLUMNS", "DRIVER_EXTENSIONS"]
 
 TRANSFER_COLUMNS = ("content", "style", "method", "preset", "seed")
 DRIVER_EXTENSIONS = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".mpg", ".mpeg", ".webm")
 _IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".webp", ".bmp")
+
+
+# per kind: the config keys every item of a run shares and its output's name does not show
+_FOLDER_SETTINGS = {"transfer": ("size", "iters", "device"), "persona": ("min_photos", "allow_mixed"),
+                    "puppet": ("size", "mode", "side_by_side", "lighting", "texture", "weights", "max_frames")}
+
+
+def folder_settings(items: Sequence[Item]) -> dict:
+    """The settings of a run of ``items`` (of one kind) that its output folder must keep (see
+    :func:`facetex.batch.run_batch`'s ``settings``)."""
+    kind = items[0].kind
+    return {"kind": kind, **{k: items[0].config.get(k) for k in _FOLDER_SETTINGS.get(kind, ())}}
 
 
 def item_key(*parts) -> str:
@@ -37,13 +50,15 @@ def item_key(*parts) -> str:
 
 
 def _commit(files: dict, inputs=()) -> str | None:
-    """Write ``files`` ({path: bytes or callable(tmp)}) as one (exclusive creates). When all of
-    them already exist (another run computed the item after its claim expired) that is not an
-    error: returns a note instead."""
+    """Write ``files`` ({output: ..., sidecar: ...}, bytes or callable(tmp)) as one (exclusive
+    creates), the sidecar moved into place first: a commit cut short leaves a sidecar naming
+    its item, which the next run removes, never an output without a sidecar, which it would
+    have to take for a user's file. When all of them already exist (another run computed the
+    item after its claim expired) that is not an error: returns a note instead."""
     from ..io import write_files
 
     try:
-        write_files(files, overwrite=False, inputs=inputs)
+        write_files(files, overwrite=False, inputs=inputs, reverse_commit=True)
     except OutputError:
         if all(os.path.lexists(p) for p in files):
             return "written by another run"
@@ -91,7 +106,7 @@ def read_pairs_csv(path) -> list[dict]:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
         raise BadInputError("not a UTF-8 text file: give a CSV file with columns content,style", path=path) from None
-    reader = csv.DictReader(text.splitlines())
+    reader = csv.DictReader(io.StringIO(text, newline=""))  # a quoted field may hold a line break
     cols = [c.strip().lower() for c in (reader.fieldnames or [])]
     if "content" not in cols or "style" not in cols:
         raise BadInputError(f"the first line must name the columns: content,style[,method,preset,seed] (got "
@@ -101,8 +116,8 @@ def read_pairs_csv(path) -> list[dict]:
         raise BadInputError(f"unknown column {unknown[0]!r}: the columns are {', '.join(TRANSFER_COLUMNS)}", path=path)
     reader.fieldnames = cols
     rows = []
-    for row in reader:
-        line = reader.line_num
+    for row in reader:  # the line the record starts on (a quoted field may hold line breaks)
+        line = reader.line_num - sum(v.count("\n") for v in row.values() if isinstance(v, str))
         r = {k: (v or "").strip() for k, v in row.items() if k is not None}
         if not any(r.values()):
             continue
@@ -190,7 +205,8 @@ def transfer_items(rows: Sequence[dict], out, *, method: str = "facetex", preset
                   "iters": list(iters) if iters is not None else None, "device": device}
         payload = dict(config, output=output, argv=argv, source=where)
         items.append(Item(key, "transfer", run_transfer_item, payload, (output, f"{output}.json"), config,
-                          Resources(cpus=cpus or 0, gpus=1.0 if device.startswith("cuda") else 0.0)))
+                          Resources(cpus=cpus or 0, gpus=1.0 if device.startswith("cuda") else 0.0),
+                          inputs=(content, style)))
     return items
 
 
@@ -293,5 +309,5 @@ def puppet_items(drivers, puppets, out, *, size: int | None = None, mode: str = 
                       "weights": weights, "max_frames": max_frames}
             payload = dict(config, output=output, argv=argv, source=f"{c.name} x {pp.name}")
             items.append(Item(key, "puppet", run_puppet_item, payload, (output, f"{output}.json"), config,
-                              Resources(cpus=cpus or 0)))
+                              Resources(cpus=cpus or 0), inputs=(config["driver"], config["puppet"])))
     return items

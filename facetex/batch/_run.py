@@ -10,6 +10,8 @@ removed), puts them back to "pending", releases the claims and re-raises.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 import socket
 import time
@@ -19,11 +21,12 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
 from ..errors import BadInputError, OutputError
+from ..io import check_output_path, read_regular, write_json
 from ._claims import Claims
 from ._state import BatchState, config_hash, utc_now
 from .engines import Engine, Outcome, Resources
 
-__all__ = ["Item", "BatchSummary", "run_batch", "map_items", "remove_item_temporaries"]
+__all__ = ["Item", "BatchSummary", "run_batch", "map_items", "remove_item_temporaries", "run_tag"]
 
 _HOST = socket.gethostname()
 
@@ -31,8 +34,9 @@ _HOST = socket.gethostname()
 @dataclass
 class Item:
     """One unit of work: ``fn(payload)`` writes ``outputs`` (absolute paths, the first one's
-    stem is ``key``) atomically with their sidecar. ``config`` is what makes the outputs what
-    they are: a finished item made with another config is an error, not a skip."""
+    stem is ``key``, the last one the sidecar) atomically. ``config`` is what makes the outputs
+    what they are: a finished item made with another config is an error, not a skip.
+    ``inputs``: the files it reads (no item of the run may write one of them)."""
 
     key: str
     kind: str
@@ -41,6 +45,7 @@ class Item:
     outputs: tuple[str, ...]
     config: dict
     resources: Resources = Resources()
+    inputs: tuple[str, ...] = ()
 
 
 @dataclass
@@ -55,38 +60,49 @@ class BatchSummary:
     done: int = 0  # computed by this run
     done_elsewhere: int = 0  # computed by another run meanwhile
     failed: int = 0
+    failed_elsewhere: int = 0  # failed in another run meanwhile (not retried here)
     retried: int = 0  # worker deaths that were retried
     remaining: int = 0
     seconds: float = 0.0
     computed: list = field(default_factory=list)  # keys computed by this run
     failures: list = field(default_factory=list)  # (key, error)
+    failures_elsewhere: list = field(default_factory=list)  # (key, run, error): another run's failures
     item_stats: list = field(default_factory=list)  # per computed item: key, seconds, overhead_s, host, pid, rss
 
     @property
     def ok(self) -> bool:
-        return self.failed == 0 and self.skipped_failed == 0 and self.remaining == 0
+        return self.failed == 0 and self.failed_elsewhere == 0 and self.skipped_failed == 0 and self.remaining == 0
 
     def as_dict(self) -> dict:
         d = {k: getattr(self, k) for k in ("run", "out", "manifest", "engine", "total", "skipped_done",
-                                           "skipped_failed", "done", "done_elsewhere", "failed", "retried",
-                                           "remaining", "seconds", "computed")}
+                                           "skipped_failed", "done", "done_elsewhere", "failed", "failed_elsewhere",
+                                           "retried", "remaining", "seconds", "computed")}
         d["failures"] = [{"item": k, "error": e} for k, e in self.failures]
+        d["failures_elsewhere"] = [{"item": k, "run": r, "error": e} for k, r, e in self.failures_elsewhere]
         d["rate_per_min"] = 60.0 * self.done / self.seconds if self.seconds > 0 else None
         return d
 
 
-def remove_item_temporaries(folder: Path, key: str) -> list[Path]:
-    """Remove the temporary files an interrupted or killed item left in ``folder``: facetex's
-    atomic writers name them ``.<output name>.<random><ext>`` (and a writer nested in another
-    ``..<output name>...``), and item keys contain no dots, so ``.`` + key + ``.`` is the item's."""
+def run_tag(run: str) -> str:
+    """The tag a run's workers put into their temporary files' names (letters and digits)."""
+    return hashlib.sha256(run.encode("utf-8")).hexdigest()[:12]
+
+
+def remove_item_temporaries(folder: Path, key: str, tags: Iterable[str]) -> list[Path]:
+    """Remove the temporary files that an interrupted or killed item of the runs tagged ``tags``
+    left in ``folder``: a batch worker's atomic writers name them ``.<output name>.<tag>.<random>
+    <ext>`` (a writer nested in another ``..<output name>.<tag>...``), and item keys contain no
+    dots. Anything else (a user's ``.<output name>.notes``) is not ours and stays."""
     removed = []
     prefix = f"{key}."
+    marks = [f".{t}." for t in tags if t]
     try:
         entries = list(os.scandir(folder))
     except OSError:
         return removed
     for e in entries:
-        if e.name.startswith(".") and e.name.lstrip(".").startswith(prefix) and e.is_file(follow_symlinks=False):
+        if e.name.startswith(".") and e.name.lstrip(".").startswith(prefix) and any(m in e.name for m in marks) \
+                and e.is_file(follow_symlinks=False):
             try:
                 os.unlink(e.path)
                 removed.append(Path(e.path))
@@ -99,6 +115,46 @@ def _outputs_exist(item: Item) -> list[bool]:
     return [os.path.lexists(p) for p in item.outputs]
 
 
+def _made_by_batch(sidecar: str, key: str) -> bool:
+    """Whether ``sidecar`` is a batch item ``key``'s sidecar (a regular file whose provenance
+    names the item): the only half of an item a run may remove. Batch workers commit the
+    sidecar first, so a commit cut short leaves exactly that."""
+    try:
+        record = json.loads(read_regular(sidecar, limit=16 * 2**20))
+    except (OSError, ValueError):
+        return False
+    batch = record.get("batch") if isinstance(record, dict) else None
+    return isinstance(batch, dict) and batch.get("item") == key
+
+
+def _check_not_users(it: Item) -> None:
+    """Refuse (before any work) an unfinished item whose output names hold files the batch did
+    not make: an output without its sidecar, a sidecar that is not this item's."""
+    exists = _outputs_exist(it)
+    if all(exists) or not any(exists):
+        return
+    *outputs, sidecar = it.outputs
+    for p, e in zip(outputs, exists):
+        if e:
+            raise OutputError(f"exists without its sidecar {Path(sidecar).name}, so this batch did not make it and "
+                              "will not replace it: move it away, or choose another --out", path=p)
+    if not _made_by_batch(sidecar, it.key):
+        raise OutputError(f"exists without {Path(outputs[0]).name} and is not that batch item's sidecar: "
+                          "move it away, or choose another --out", path=sidecar)
+
+
+def _check_inputs_not_outputs(items: Sequence[Item]) -> None:
+    """No item may write a file another item reads (``--out .`` beside the inputs)."""
+    writers = {os.path.realpath(p): it for it in items for p in it.outputs}
+    for it in items:
+        for p in it.inputs:
+            other = writers.get(os.path.realpath(p))
+            if other is not None:
+                where = f" ({it.payload['source']})" if it.payload.get("source") else ""
+                raise BadInputError(f"is an input{where} and also the output of item {other.key}: choose another "
+                                    "--out", path=p)
+
+
 def _describe_settings_change(old: dict | None, new: dict) -> str:
     if not isinstance(old, dict):
         return "other settings"
@@ -106,15 +162,43 @@ def _describe_settings_change(old: dict | None, new: dict) -> str:
     return "; ".join(diff[:3]) or "other settings"
 
 
+def _check_folder_settings(state: BatchState, new: dict) -> bool:
+    """Refuse a run whose settings differ from those the folder's first run recorded (two runs
+    with other --size on one folder would mix outputs of both, under the same names). Returns
+    whether the folder has recorded settings."""
+    old = state.read_settings()
+    if old is None:
+        return False
+    diff = [f"{k} {old.get(k)!r} (this run: {new.get(k)!r})" for k in sorted(set(old) | set(new))
+            if old.get(k) != new.get(k)]
+    if diff:
+        raise OutputError(f"holds a batch made with other settings: {'; '.join(diff)}: choose another --out, or "
+                          "run with the folder's settings", path=state.out)
+    return True
+
+
+def _record_folder_settings(state: BatchState, new: dict) -> None:
+    """Record ``new`` as the folder's settings; of two runs starting at once one records (an
+    exclusive create), the other is checked against it."""
+    try:
+        write_json(state.settings_path, new, overwrite=False)
+    except OutputError:
+        if not os.path.lexists(state.settings_path):
+            raise
+        _check_folder_settings(state, new)
+
+
 def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool = False, max_retries: int = 2,
               claim_timeout: float = 300.0, progress: Callable[..., None] | None = None, poll: float = 1.0,
-              record: dict | None = None, wait_for_others: bool = True) -> BatchSummary:
+              record: dict | None = None, wait_for_others: bool = True, settings: dict | None = None) -> BatchSummary:
     """Run ``items`` on ``engine`` (started by the caller), with ``out`` as the shared state
     (see the module docstring and :mod:`facetex.batch._state`). ``progress(**counts)`` is
     called after every change with the counts done, failed, remaining, running, waiting (items
     another run is computing) and done_elsewhere.
-    ``record``: extra fields for the run's record (command line, settings). Returns the
-    summary; raises OutputError before any work when a finished item was made with other
+    ``record``: extra fields for the run's record (command line, settings). ``settings``: what
+    every item shares and no output name shows (``--size`` ...); the folder keeps the first
+    run's, and a run with others is refused. Returns the summary; raises OutputError before
+    any work when the folder's settings differ or a finished item was made with other
     settings, and re-raises KeyboardInterrupt after cleaning up."""
     out = Path(out)
     items = list(items)
@@ -126,8 +210,10 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
         if "." in it.key:
             raise BadInputError(f"item key {it.key!r} contains a dot")
         seen[it.key] = it
+    _check_inputs_not_outputs(items)
     state = BatchState(out)
     claims = Claims(state.claims, timeout=claim_timeout)
+    tag = run_tag(claims.run)
     summary = BatchSummary(run=claims.run, out=str(out), manifest=str(state.manifest), engine=engine.describe(),
                            total=len(items))
     hashes = {it.key: config_hash(it.config) for it in items}
@@ -136,6 +222,7 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
     # -- what is left to do (checked before any work)
     todo: deque[Item] = deque()
     known: dict[str, dict] = {}
+    found: list[Item] = []  # finished items without a record (lost): recorded once the checks pass
     clashes = []
     for it in items:
         rec = state.get(it.key)
@@ -144,26 +231,36 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
                 rec.get("state") == "done" or all(exists)):
             clashes.append((it, rec))
             continue
-        holder = claims.holder(it.key) if all(exists) else None
+        holder = claims.holder(it.key)  # also: a claim file of the wrong shape is refused before any work
         if all(exists) and ((rec is not None and rec.get("state") == "done") or holder is None or holder["expired"]):
             summary.skipped_done += 1
-            if rec is None or rec.get("state") != "done":  # outputs whose record was lost: record them
-                state.put(it.key, {"kind": it.kind, "state": "done", "config_hash": hashes[it.key],
-                                   "outputs": list(it.outputs), "host": None, "note": "outputs found"})
+            if rec is None or rec.get("state") != "done":
+                found.append(it)
             continue
         if rec is not None and rec.get("state") == "failed" and not retry_failed and \
                 rec.get("config_hash") in (None, hashes[it.key]):  # failed with other settings: try the new ones
             summary.skipped_failed += 1
             summary.failures.append((it.key, rec.get("error")))
             continue
+        _check_not_users(it)
         todo.append(it)
         if rec is None:
             known[it.key] = {"kind": it.kind, "state": "pending"}
+    if settings is not None:
+        settings = json.loads(json.dumps(settings, sort_keys=True, default=str))  # as it is stored
+        recorded = _check_folder_settings(state, settings)
     if clashes:
         it, rec = clashes[0]
         raise OutputError(f"holds {len(clashes)} item(s) made with other settings (e.g. {it.key}: "
                           f"{_describe_settings_change(rec.get('config'), it.config)}): choose another --out, or "
                           "remove those outputs", path=out)
+    check_output_path(state.manifest, overwrite=True)  # a folder or FIFO of that name: refused before any work
+    state.create()
+    if settings is not None and not recorded:
+        _record_folder_settings(state, settings)
+    for it in found:
+        state.put(it.key, {"kind": it.kind, "state": "done", "config_hash": hashes[it.key],
+                           "outputs": list(it.outputs), "host": None, "note": "outputs found"})
 
     running: dict[int, dict] = {}  # handle -> {item, attempt, submitted}
     elsewhere: dict[str, Item] = {}  # claimed by another run
@@ -184,15 +281,16 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
     def start(it: Item) -> None:
         attempts[it.key] = attempts.get(it.key, 0) + 1
         folder = Path(it.outputs[0]).parent
-        remove_item_temporaries(folder, it.key)
-        present = [p for p, e in zip(it.outputs, _outputs_exist(it)) if e]
-        for p in present:  # a commit cut short (killed between its renames): never half an item
-            try:
-                os.unlink(p)
+        rec = state.get(it.key)  # the run that held the item last (killed?) left its temporaries
+        remove_item_temporaries(folder, it.key, {tag, run_tag(str(rec.get("run")))} if rec else {tag})
+        sidecar = it.outputs[-1]
+        if not any(_outputs_exist(it)[:-1]) and _made_by_batch(sidecar, it.key):
+            try:  # a commit cut short (killed between its renames): never half an item
+                os.unlink(sidecar)
             except OSError:
                 pass
         payload = dict(it.payload, batch={"run": claims.run, "item": it.key, "attempt": attempts[it.key],
-                                          "engine": engine.name})
+                                          "engine": engine.name, "tag": tag})
         h = engine.submit(it.fn, payload, it.resources)
         running[h] = {"item": it, "submitted": time.time()}
         state.put(it.key, dict(base(it), state="running", host=_HOST, pid=os.getpid(), started=utc_now(),
@@ -213,8 +311,8 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
                 if rec.get("state") == "failed" and rec.get("run") != claims.run and not retry_failed \
                         and it.key not in attempts:
                     claims.release(it.key)
-                    summary.failed += 1
-                    summary.failures.append((it.key, rec.get("error")))
+                    summary.failed_elsewhere += 1
+                    summary.failures_elsewhere.append((it.key, rec.get("run"), rec.get("error")))
                     continue
             start(it)
 
@@ -239,7 +337,7 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
                                            "overhead_s": wall - (stats.get("seconds") or 0.0), "host": host,
                                            "pid": stats.get("pid"), "peak_rss_mb": stats.get("peak_rss_mb")})
             return
-        remove_item_temporaries(Path(it.outputs[0]).parent, it.key)
+        remove_item_temporaries(Path(it.outputs[0]).parent, it.key, [tag])
         if o.died and attempts.get(it.key, 0) <= max_retries:
             summary.retried += 1
             state.put(it.key, dict(base(it), state="pending", host=host, error=f"retrying: {o.error}"))
@@ -263,8 +361,8 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
                 if rec["state"] == "done" and all(_outputs_exist(it)):
                     summary.done_elsewhere += 1
                 elif rec["state"] == "failed" and not (retry_failed and rec.get("run") == claims.run):
-                    summary.failed += 1
-                    summary.failures.append((key, rec.get("error")))
+                    summary.failed_elsewhere += 1
+                    summary.failures_elsewhere.append((key, rec.get("run"), rec.get("error")))
                 else:
                     todo.append(it)
                 continue
@@ -299,7 +397,7 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
         engine.cancel()
         for entry in running.values():
             it = entry["item"]
-            remove_item_temporaries(Path(it.outputs[0]).parent, it.key)
+            remove_item_temporaries(Path(it.outputs[0]).parent, it.key, [tag])
             try:
                 state.put(it.key, dict(base(it), state="pending", host=_HOST, error="interrupted"))
             except OSError:

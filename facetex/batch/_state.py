@@ -22,12 +22,39 @@ import os
 import time
 from pathlib import Path
 
-from ..io import write_json
+from .._schema import OBJECT, check_shape, nullable, parse_json
+from ..errors import OutputError
+from ..io import read_regular, write_json
 
-__all__ = ["BatchState", "config_hash", "utc_now", "STATES"]
+__all__ = ["BatchState", "config_hash", "utc_now", "read_record", "STATES"]
 
 STATES = ("pending", "running", "done", "failed")
 _INTERNAL = ".facetex-batch"
+_STR = nullable({"type": "string"})
+RECORD = {"type": "object", "properties": {
+    "state": {"enum": list(STATES)}, "kind": _STR, "config_hash": _STR, "run": _STR, "error": _STR, "host": _STR,
+    "note": _STR, "attempts": {"type": "integer"}, "config": nullable(OBJECT),
+    "outputs": nullable({"type": "array", "items": {"type": "string"}})}}
+
+
+def read_record(path, schema: dict, what: str, *, tolerate_partial: bool = False) -> dict | None:
+    """A JSON record of the batch folder, checked against ``schema``: None when absent (or,
+    with ``tolerate_partial``, empty or cut short: a claim being written); one-line
+    OutputError naming it when it is not a regular file or of the wrong shape."""
+    advice = "remove it, or choose another --out"
+    try:
+        data = read_regular(path, limit=64 * 2**20)
+    except (FileNotFoundError, NotADirectoryError):  # a folder on the way that is not one: see create()
+        return None
+    except OSError as e:
+        raise OutputError(f"not a {what} ({e.strerror}); {advice}", path=path) from None
+    if not tolerate_partial:
+        return parse_json(data, schema, path=path, what=what, error=OutputError, advice=advice)
+    try:
+        value = json.loads(data or b"{}")
+    except ValueError:
+        return {}
+    return check_shape(value, schema, path=path, what=what, error=OutputError, advice=advice)
 
 
 def utc_now() -> str:
@@ -40,7 +67,8 @@ def config_hash(config: dict) -> str:
 
 
 class BatchState:
-    """Records of the items in the batch folder ``out``."""
+    """Records of the items in the batch folder ``out`` (its folders made by :meth:`create`,
+    once a run has checked it may write there)."""
 
     def __init__(self, out):
         self.out = Path(out)
@@ -48,21 +76,37 @@ class BatchState:
         self.items = self.root / "items"
         self.claims = self.root / "claims"
         self.runs = self.root / "runs"
-        for d in (self.items, self.claims, self.runs):
-            d.mkdir(parents=True, exist_ok=True)
         self.manifest = self.out / "manifest.jsonl"
         self._last_manifest = 0.0
         self._dirty = True
         self._cache: dict[str, tuple[int, dict]] = {}  # key -> (mtime_ns, record) of the records read
 
+    def create(self) -> None:
+        for d in (self.root, self.items, self.claims, self.runs):
+            try:
+                d.mkdir(parents=True, exist_ok=True)
+            except (FileExistsError, NotADirectoryError):
+                bad = next(p for p in (self.root, self.items, self.claims, self.runs) if not p.is_dir())
+                raise OutputError("exists and is not a folder: it holds a batch's state, so this is not a batch "
+                                  "folder; choose another --out", path=bad) from None
+            except OSError as e:
+                raise OutputError(f"cannot create the batch state folder ({e.strerror}): choose another --out",
+                                  path=d) from None
+
+    @property
+    def settings_path(self) -> Path:
+        return self.root / "settings.json"
+
+    def read_settings(self) -> dict | None:
+        """The settings the folder's first run recorded (None: no run has)."""
+        return read_record(self.settings_path, OBJECT, "batch settings record")
+
     def path(self, key: str) -> Path:
         return self.items / f"{key}.json"
 
     def get(self, key: str) -> dict | None:
-        try:
-            return json.loads(self.path(key).read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            return None
+        """The record of item ``key`` (None: none yet); OutputError when it is not one."""
+        return read_record(self.path(key), RECORD, "batch item record")
 
     def put(self, key: str, record: dict) -> None:
         write_json(self.path(key), dict(record, item=key, time=utc_now()), overwrite=True)
@@ -71,6 +115,8 @@ class BatchState:
     def all(self) -> dict[str, dict]:
         """Every record in the folder (a record is read again only when its file changed)."""
         out = {}
+        if not self.items.is_dir():
+            return out
         for entry in os.scandir(self.items):
             if not entry.name.endswith(".json") or entry.name.startswith("."):
                 continue
@@ -79,9 +125,10 @@ class BatchState:
                 mtime = entry.stat().st_mtime_ns
                 cached = self._cache.get(key)
                 if cached is None or cached[0] != mtime:
-                    with open(entry.path, encoding="utf-8") as fh:
-                        cached = self._cache[key] = (mtime, json.load(fh))
-            except (OSError, ValueError):
+                    cached = self._cache[key] = (mtime, read_record(entry.path, RECORD, "batch item record"))
+            except OSError:  # another item's broken record: this run's are checked by get()
+                continue
+            if cached[1] is None:
                 continue
             out[key] = cached[1]
         return out

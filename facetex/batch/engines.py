@@ -95,13 +95,23 @@ def _peak_rss_mb() -> float:
         return float("nan")
 
 
+def _call(fn: Callable, payload: Any) -> Any:
+    """``fn(payload)``, its temporary files tagged with the batch run's tag (``payload["batch"]["tag"]``),
+    so that the run can tell them from a user's files (see :func:`facetex.io.temp_tag`)."""
+    from ..io import temp_tag
+
+    batch = payload.get("batch") if isinstance(payload, dict) else None
+    with temp_tag(batch.get("tag") if isinstance(batch, dict) else None):
+        return fn(payload)
+
+
 def execute(fn: Callable, payload: Any, threads: int) -> tuple:
     """Run one item in a worker: ``(ok, value or error line, error type, stats)``. Errors of the
     item become one line; KeyboardInterrupt (a cancel) propagates after the item's clean-up."""
     t0 = time.perf_counter()
     _set_threads(threads)
     try:
-        value, ok, etype = fn(payload), True, None
+        value, ok, etype = _call(fn, payload), True, None
     except FacetexError as e:
         value, ok, etype = _one_line(str(e)), False, type(e).__name__
     except MemoryError:
@@ -190,7 +200,7 @@ class InlineEngine(Engine):
         if self.threads:
             return [_outcome(h, execute(fn, payload, self.threads), submitted)]
         t0 = time.perf_counter()
-        value = fn(payload)  # errors propagate, as before engines: the caller's own loop
+        value = _call(fn, payload)  # errors propagate, as before engines: the caller's own loop
         return [Outcome(h, True, value=value, stats={"host": socket.gethostname(), "pid": os.getpid(),
                                                        "seconds": time.perf_counter() - t0, "submitted": submitted,
                                                        "returned": time.time(), "peak_rss_mb": _peak_rss_mb()})]

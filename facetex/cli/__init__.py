@@ -17,7 +17,7 @@ import threading
 import traceback
 import warnings
 
-from ..errors import FacetexError, UsageError
+from ..errors import FacetexError, OutputError, UsageError
 
 
 class _Parser(argparse.ArgumentParser):
@@ -120,21 +120,95 @@ def _passive_openmp() -> None:
         os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 
+class _Stdout:
+    """sys.stdout while a command runs: a write or flush that fails (stdout closed with ``>&-``,
+    ``> /dev/full``) is an OutputError, one line, not a traceback. A reader that went away
+    (BrokenPipeError) is left to :func:`_stdout_closed`."""
+
+    def __init__(self, stream):
+        self._stream = stream
+        self.error: OutputError | None = None  # the first failed write (argparse's --version swallows it)
+
+    def _call(self, name, *args):
+        if self._stream is None:
+            self.error = OutputError("cannot write to stdout: it is closed (give the command an open stdout, "
+                                     "e.g. > /dev/null)")
+            raise self.error
+        try:
+            return getattr(self._stream, name)(*args)
+        except BrokenPipeError:
+            raise
+        except OSError as e:
+            self.error = self.error or OutputError(f"cannot write to stdout ({e.strerror or e})")
+            raise self.error from None
+
+    def write(self, text):
+        return self._call("write", text)
+
+    def flush(self):
+        if self._stream is not None:
+            return self._call("flush")
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+def _reserve_std_fds() -> None:
+    """Put /dev/null on file descriptors 0-2 that are closed (``>&-``): else the next file
+    opened (an output) would get that number, and a library printing to stdout would write
+    into it."""
+    import os
+
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            try:
+                got = os.open(os.devnull, os.O_RDWR)
+            except OSError:
+                return
+            if got != fd:  # a lower one was closed too: it is reserved in its own turn
+                os.dup2(got, fd)
+                os.close(got)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
+    _reserve_std_fds()
     _passive_openmp()
     debug = "--debug" in argv
-    with warnings.catch_warnings(), _signals_as_interrupts():
-        if not debug:
-            warnings.showwarning = _show_warning
-        code = _run(argv, debug)
+    out = _Stdout(sys.stdout)
+    stdout, sys.stdout = sys.stdout, out
     try:
-        sys.stdout.flush()
-    except BrokenPipeError:
-        return _stdout_closed()
-    except (OSError, ValueError):
-        pass
-    return code
+        try:
+            with warnings.catch_warnings(), _signals_as_interrupts():
+                if not debug:
+                    warnings.showwarning = _show_warning
+                code = _run(argv, debug)
+        except SystemExit as exc:  # --help, --version: argparse ignores a failed write
+            if out.error is not None and exc.code in (0, None):
+                print(f"facetex: error: {out.error}", file=sys.stderr)
+                _stdout_closed()
+                raise SystemExit(out.error.exit_code) from None
+            raise
+        try:
+            out.flush()
+        except BrokenPipeError:
+            return _stdout_closed()
+        except OutputError as exc:
+            print(f"facetex: error: {exc}", file=sys.stderr)
+            _stdout_closed()  # the unwritable buffer is dropped, not flushed again at exit
+            return exc.exit_code
+        except ValueError:  # closed by the command
+            pass
+        return code
+    finally:
+        sys.stdout = stdout
+
+
+def _one_line(message) -> str:
+    """``message`` on one line: control characters (a line break in a file name) escaped."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(message))
 
 
 def _stdout_closed() -> int:
@@ -186,7 +260,7 @@ def _run(argv: list[str], debug: bool) -> int:
     except FacetexError as exc:
         if debug:
             traceback.print_exc()
-        print(f"facetex: error: {exc}", file=sys.stderr)
+        print(f"facetex: error: {_one_line(exc)}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt as exc:
         return _interrupted(exc)
@@ -207,7 +281,7 @@ def _run(argv: list[str], debug: bool) -> int:
         if debug:
             traceback.print_exc()
         print(
-            f"facetex: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback)",
+            f"facetex: internal error: {type(exc).__name__}: {_one_line(exc)} (run with --debug for the traceback)",
             file=sys.stderr,
         )
         return 1

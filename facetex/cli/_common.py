@@ -8,13 +8,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import re
 import sys
 from contextlib import contextmanager
 
 from tqdm import tqdm
 
-_DEVICE = re.compile(r"^(cpu|cuda|cuda:\d+|mps)$")
+from .._args import DEVICE_PATTERN, SEED_MAX
 
 
 def bounded_int(lo: int | None = None, hi: int | None = None, what: str = "an integer"):
@@ -62,7 +61,7 @@ def finite_float(lo: float | None = None, hi: float | None = None, *, open_lo: b
 def device_name(text: str) -> str:
     """argparse type of ``--device``: the syntax only (availability: :func:`check_device`)."""
     t = text.strip().lower()
-    if not _DEVICE.match(t):
+    if not DEVICE_PATTERN.match(t):
         raise argparse.ArgumentTypeError(f"unknown device {text!r}: use cpu or cuda (cuda:N for a given GPU)")
     return t
 
@@ -70,25 +69,14 @@ def device_name(text: str) -> str:
 def check_device(device: str) -> str:
     """Raise BadInputError unless torch can run on ``device`` here (called at the start of a
     command that computes with torch, before reading any input)."""
-    import torch
+    from .._args import check_device as check
 
-    from ..errors import BadInputError
-
-    if device.startswith("cuda"):
-        if not torch.cuda.is_available():
-            raise BadInputError(f"--device {device}: CUDA is not available in this torch build "
-                                f"(torch {torch.__version__}); use --device cpu")
-        if ":" in device and int(device.split(":")[1]) >= torch.cuda.device_count():
-            raise BadInputError(f"--device {device}: only {torch.cuda.device_count()} CUDA device(s) found")
-    elif device == "mps":
-        mps = getattr(torch.backends, "mps", None)
-        if mps is None or not mps.is_available():
-            raise BadInputError(f"--device {device}: Apple MPS is not available here; use --device cpu")
-    return device
+    return check(device, what="--device")
 
 
 def add_seed_device(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--seed", type=bounded_int(0, SEED_MAX), default=0, metavar="N",
+                        help="random seed, 0 to 2**63 - 1 (default 0)")
     parser.add_argument("--device", type=device_name, default="cpu", metavar="{cpu,cuda,cuda:N,mps}",
                         help="torch device (default cpu; cuda needs a CUDA build of torch)")
 

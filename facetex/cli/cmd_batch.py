@@ -129,7 +129,7 @@ def _run(args, kind: str, items, inputs=()) -> int:
 
     from tqdm import tqdm
 
-    from ..batch import run_batch
+    from ..batch import folder_settings, run_batch
     from ..bench._common import check_out_dir
 
     out = _check_out(args, inputs)
@@ -158,7 +158,7 @@ def _run(args, kind: str, items, inputs=()) -> int:
         with engine:
             out = check_out_dir(out)
             summary = run_batch(items, out, engine, retry_failed=args.retry_failed, max_retries=args.max_retries,
-                                claim_timeout=args.claim_timeout, progress=progress,
+                                claim_timeout=args.claim_timeout, progress=progress, settings=folder_settings(items),
                                 record={"command": f"batch {kind}", "command_line": " ".join(_argv()),
                                         "engine": engine.describe()})
     except KeyboardInterrupt as exc:
@@ -175,9 +175,10 @@ def _run(args, kind: str, items, inputs=()) -> int:
             bar.close()
     s = summary
     rate = f", {60.0 * s.done / s.seconds:.2f} items/min" if s.seconds > 0 and s.done else ""
+    elsewhere = f"{s.failed_elsewhere} failed in another run, " if s.failed_elsewhere else ""
     line = (f"batch {kind}: {s.total} items in {out}: {s.done} computed, {s.skipped_done} already done, "
-            f"{s.done_elsewhere} by another run, {s.failed + s.skipped_failed} failed, {s.remaining} remaining "
-            f"({s.seconds:.1f} s{rate}; {engine.name} engine)")
+            f"{s.done_elsewhere} by another run, {s.failed + s.skipped_failed} failed, {elsewhere}"
+            f"{s.remaining} remaining ({s.seconds:.1f} s{rate}; {engine.name} engine)")
     if args.json:
         print_json(s.as_dict())
     else:
@@ -191,6 +192,8 @@ def _run(args, kind: str, items, inputs=()) -> int:
         say(args, f"wrote {s.manifest}")
     for key, err in s.failures[:10]:
         print(f"facetex: {kind} item {key} failed: {err}", file=sys.stderr)
+    for key, run, err in s.failures_elsewhere[:10]:
+        print(f"facetex: {kind} item {key} failed in another run ({run}): {err}", file=sys.stderr)
     if len(s.failures) > 10:
         print(f"facetex: ... and {len(s.failures) - 10} more failed items (see {s.manifest})", file=sys.stderr)
     if s.skipped_failed and not args.retry_failed:

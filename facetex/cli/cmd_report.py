@@ -16,6 +16,9 @@ def register(sub) -> None:
     p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run folder(s)")
     p.add_argument("-o", "--output", required=True, metavar="REPORT.html", help="HTML file to write (+ .json sidecar)")
     p.add_argument("--title", help="page title (default: the folders' names)")
+    p.add_argument("--data", action="append", default=[], metavar="DIR",
+                   help="also show the content and style images inside DIR (a bench's --data folder); files "
+                        "outside the run folders and these are skipped (repeatable)")
     add_overwrite(p)
     p.set_defaults(func=run_report)
 
@@ -30,20 +33,24 @@ def register(sub) -> None:
 
 
 def run_report(args) -> int:
+    from ..errors import BadInputError
+    from ..io import check_input_dir
     from ..report import write_report
 
-    out = write_report(args.runs, args.output, title=args.title, overwrite=args.overwrite)
+    for d in args.data:
+        check_input_dir(d, BadInputError, what="--data folder")
+    out = write_report(args.runs, args.output, title=args.title, overwrite=args.overwrite, also=args.data)
     wrote(args, out, f"{out}.json")
     return 0
 
 
 def run_compare(args) -> int:
     from ..errors import BadInputError
-    from ..report import compare_rows, compare_table, load_run
+    from ..report import compare_rows, compare_table, load_runs
 
     if len(args.runs) < 2:
         raise BadInputError("compare needs two or more run folders (see `facetex report` for one)")
-    runs = [load_run(d) for d in args.runs]
+    runs = load_runs(args.runs, images=False)  # a table of metrics: no image is read
     if args.json:
         print_json({"runs": [{"path": str(r.path), "kind": r.kind, "items": len(r.items)} for r in runs],
                     "rows": compare_rows(runs)})

@@ -390,7 +390,9 @@ def read_persona_header(path) -> dict:
     """The JSON header of a ``.persona`` file plus ``"size"`` (W, H) and ``"n_photos"``, without
     reading its arrays (cheap: for listings and checks). Same errors as :func:`load_persona`
     for missing, corrupt, foreign or too-new files."""
-    header, params, photos = _read_header(Path(path))
+    from ..io import as_path
+
+    header, params, photos = _read_header(as_path(path, BadPersonaError, "persona file"))
     return {**header, "size": tuple(params.size), "n_photos": len(photos)}
 
 

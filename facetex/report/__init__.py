@@ -16,15 +16,18 @@ from typing import Sequence
 from .compare import compare_rows, compare_table, metric_summary
 from .figures import face_box, metrics_figure, skin_box, zoom_panel
 from .html import build_report
-from .runs import Item, Run, load_run
+from .runs import Item, ReadGuard, Run, load_run, load_runs
 
-__all__ = ["Run", "Item", "load_run", "build_report", "write_report", "compare_rows", "compare_table",
-           "metric_summary", "zoom_panel", "metrics_figure", "face_box", "skin_box"]
+__all__ = ["Run", "Item", "load_run", "load_runs", "ReadGuard", "build_report", "write_report", "compare_rows",
+           "compare_table", "metric_summary", "zoom_panel", "metrics_figure", "face_box", "skin_box"]
 
 
-def write_report(run_dirs: Sequence, output, *, title: str | None = None, overwrite: bool = False) -> Path:
+def write_report(run_dirs: Sequence, output, *, title: str | None = None, overwrite: bool = False,
+                 also: Sequence = ()) -> Path:
     """Read ``run_dirs``, write the report page ``output`` (.html) and ``output.json`` (its
-    provenance: the run folders and their run.json hashes), both or neither.
+    provenance: the run folders and their run.json hashes), both or neither. Only regular
+    files inside ``run_dirs`` and ``also`` (e.g. a bench's data folder, for its content and
+    style images) are read; the others are skipped, with a warning (see :func:`load_runs`).
 
     Examples
     --------
@@ -36,11 +39,11 @@ def write_report(run_dirs: Sequence, output, *, title: str | None = None, overwr
 
     out = check_output_path(output, overwrite=overwrite, extensions=(".html", ".htm"), what="report")
     sidecar = check_output_path(f"{out}.json", overwrite=overwrite)
-    runs = [load_run(d) for d in run_dirs]
+    runs = load_runs(run_dirs, also=also)
     page = build_report(runs, title=title)
     inputs = {}
     for i, r in enumerate(runs):
-        inputs[f"run{i + 1}"] = r.path / "run.json" if (r.path / "run.json").is_file() else r.path
+        inputs[f"run{i + 1}"] = r.path / "run.json" if r.provenance is not None else r.path
     record = provenance(command="report", inputs=inputs, params={"title": title, "runs": [str(r.path) for r in runs]},
                         outputs=[out], kinds=[r.kind for r in runs], bytes=len(page.encode("utf-8")))
     write_files({out: page.encode("utf-8"), sidecar: encode_json(record)}, overwrite=overwrite)

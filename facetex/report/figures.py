@@ -120,6 +120,12 @@ def zoom_panel(crops: Sequence[tuple[str, np.ndarray, Sequence[int]]], *, gap: i
     return out
 
 
+def _plain(text) -> str:
+    """``text`` shown as it is: a ``$`` would start matplotlib's mathtext (method and metric
+    names come from run folders, and ``$\\foo$`` makes savefig raise)."""
+    return str(text).replace("$", r"\$")
+
+
 def metrics_figure(series: Mapping[str, Mapping[str, Sequence[float]]], metrics: Sequence[str], *,
                    paper: Mapping[str, Mapping[str, float]] | None = None, paper_label: str = "paper (other data)",
                    title: str = "", colours: Mapping[str, str] | None = None):
@@ -178,9 +184,9 @@ def metrics_figure(series: Mapping[str, Mapping[str, Sequence[float]]], metrics:
                 ax.annotate("paper", (g_i + 0.3, ref), xytext=(6, 0), textcoords="offset points", fontsize=7,
                             va="center")
         ax.set_xticks(range(len(groups)))
-        ax.set_xticklabels(groups, rotation=20 if len(groups) > 3 else 0, ha="right" if len(groups) > 3 else "center",
-                           fontsize=8)
-        ax.set_title(METRIC_LABELS.get(metric, metric), fontsize=8)
+        ax.set_xticklabels([_plain(g) for g in groups], rotation=20 if len(groups) > 3 else 0,
+                           ha="right" if len(groups) > 3 else "center", fontsize=8)
+        ax.set_title(METRIC_LABELS.get(metric, _plain(metric)), fontsize=8)
         ax.grid(axis="y", alpha=0.3)
     for k in range(n, rows * cols):
         axes[k // cols][k % cols].axis("off")
@@ -191,6 +197,6 @@ def metrics_figure(series: Mapping[str, Mapping[str, Sequence[float]]], metrics:
                                   label=f"{paper_label}: a reference, not comparable data"))
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8, frameon=False)
     if title:
-        fig.suptitle(title, fontsize=10)
+        fig.suptitle(_plain(title), fontsize=10)
     fig.tight_layout(rect=(0, 0.06, 1, 0.95 if title else 1))
     return fig

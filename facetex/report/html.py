@@ -26,6 +26,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ..io import read_regular
 from .compare import compare_rows, cell, metric_summary, _fmt
 from .runs import Run
 
@@ -45,7 +46,7 @@ def _file_uri(path: Path, *, max_side: int | None = None) -> str:
     is anything above ``max_side``)."""
     ext = path.suffix.lower()
     if ext in _MIME and max_side is None:
-        return _data_uri(path.read_bytes(), _MIME[ext])
+        return _data_uri(read_regular(path), _MIME[ext])
     from ..io import encode_image, read_image
 
     img = read_image(path)
@@ -393,6 +394,11 @@ def build_report(runs: Sequence[Run], *, title: str | None = None) -> str:
     body = [f"<h1>{_e(title)}</h1>",
             f"<p class='note'>Made by facetex {_e(__version__)} from {len(runs)} run folder(s). "
             "Everything (images included) is inside this file.</p>"]
+    skipped = list(dict.fromkeys(p for r in runs for p in r.skipped))
+    if skipped:
+        body.append(f"<p class='note'>Skipped {len(skipped)} file(s) that are not regular files inside the run "
+                    "folders (links, FIFOs, devices, or elsewhere): " + ", ".join(f"<code>{_e(p)}</code>" for p in
+                                                                                    skipped[:50]) + "</p>")
     if len(runs) > 1:
         body += ["<h2 id='compare'>Comparison of the runs</h2>", _comparison(runs)]
     for i, run in enumerate(runs):

@@ -13,22 +13,61 @@ A bench's ``results.json`` names its bench (``"bench": "persona"``); older folde
 ``summary.json``, puppet ``results.json`` without the key) are recognised by their files.
 - ``facetex demo``: ``summary.json`` + ``transfer_<method>.png``;
 - any folder of outputs with ``*.json`` sidecars (``facetex transfer -o DIR/x.png``).
+
+A run folder is data from anywhere, and a report is shared: every file is read through a
+:class:`ReadGuard`, which lets through only regular files (no symlinks, FIFOs or devices) whose
+resolved paths are inside the run folders given (or folders the user adds, such as a bench's
+``--data``, and facetex's own samples); the others are skipped and listed.
 """
 
 from __future__ import annotations
 
 import csv
-import json
+import io
 import math
+import os
+import stat
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .._schema import OBJECT, nullable, parse_json
 from ..errors import BadInputError
+from ..io import read_regular
 
-__all__ = ["Run", "Item", "load_run", "METHOD_ORDER"]
+__all__ = ["Run", "Item", "load_run", "load_runs", "ReadGuard", "METHOD_ORDER"]
 
 METHOD_ORDER = ("none", "gatys", "mrf", "facetex")  # "none": the content itself (no transfer)
 _IMAGE_EXT = (".png", ".jpg", ".jpeg", ".webp", ".tif", ".tiff")
+
+# The shapes of the JSON files a report reads (the fields it uses; others are free).
+_NAME = {"type": ["string", "number"]}
+_METRICS = nullable({"type": "object"})
+_BENCH_TRANSFER = {"type": "object", "properties": {
+    "settings": OBJECT,
+    "paper_table1": nullable({"type": "object", "additionalProperties": OBJECT}),
+    "pairs": {"type": "array", "items": {"type": "object", "required": ["content", "style"], "properties": {
+        "content": _NAME, "style": _NAME, "content_path": {"type": "string"}, "style_path": {"type": "string"},
+        "results": {"type": "object", "additionalProperties": {"type": "object", "properties": {
+            "image": nullable({"type": "string"}), "metrics": _METRICS}}}}}}}}
+_BENCH_PUPPET = {"type": "object", "properties": {
+    "settings": OBJECT,
+    "rows": {"type": "array", "items": {"type": "object", "properties": {
+        "run": nullable(_NAME), "clip": nullable(_NAME),
+        "media": nullable({"type": "object", "properties": {"contact_sheet": {"type": "string"}}})}}}}}
+_DEMO = {"type": "object", "properties": {
+    "inputs": {"type": "object", "properties": {"content": {"type": "string"}, "style": {"type": "string"}}},
+    "transfers": nullable({"type": "object", "additionalProperties": {"type": "object", "properties": {
+        "metrics": _METRICS}}})}}
+_INPUT = nullable({"type": "object", "properties": {"path": nullable({"type": "string"})}})
+_SIDECAR = {"type": "object", "properties": {
+    "inputs": nullable({"type": "object", "properties": {"content": _INPUT, "style": _INPUT}}),
+    "params": nullable({"type": "object", "properties": {"method": nullable({"type": "string"})}}),
+    "metrics": _METRICS,
+    "result": nullable({"type": "object", "properties": {"timings": nullable({"type": "object"})}})}}
+_RUN_JSON = {"type": "object", "properties": {
+    "command": {"type": "string"}, "command_line": {"type": "string"}, "created_utc": {"type": "string"},
+    "versions": nullable({"type": "object"}), "params": nullable({"type": "object"})}}
 
 
 @dataclass
@@ -59,6 +98,8 @@ class Run:
     paper: dict[str, dict[str, float]] = field(default_factory=dict)
     paper_source: str = ""
     sidecars: dict[str, dict] = field(default_factory=dict)  # relative path -> sidecar record
+    #: files named or found in the run folders that were not read (see ReadGuard)
+    skipped: list[str] = field(default_factory=list)
 
     @property
     def methods(self) -> list[str]:
@@ -88,43 +129,99 @@ class Run:
         return out
 
 
-def _read_json(path: Path):
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as e:
-        raise BadInputError(f"unreadable JSON in a run folder ({type(e).__name__}: {e})", path=path) from None
+class ReadGuard:
+    """What a report may read: regular files (no symlinks, FIFOs or devices) whose resolved
+    paths are inside ``roots``. Anything else a run folder holds or names is not read but
+    remembered in ``skipped``."""
+
+    def __init__(self, roots=(), *, images: bool = True):
+        from .._resources import sample_path
+
+        self.roots = [Path(r).resolve() for r in (*roots, sample_path())]
+        self.skipped: list[str] = []
+        self.images = images  # False: images are not looked at (``facetex compare``)
+
+    def image(self, path) -> bool:
+        """Whether the image ``path`` is shown (see :meth:`allows`)."""
+        return self.images and self.allows(path)
+
+    def allows(self, path) -> bool:
+        """Whether ``path`` may be read (an absent path is not, and is not "skipped")."""
+        p = Path(path)
+        try:
+            st = os.lstat(p)
+        except (OSError, ValueError):
+            return False
+        if stat.S_ISREG(st.st_mode) and any(p.resolve().is_relative_to(r) for r in self.roots):
+            return True
+        if str(p) not in self.skipped:
+            self.skipped.append(str(p))
+        return False
+
+    def read_bytes(self, path) -> bytes | None:
+        """The bytes of ``path``, or None when it may not be read or is absent."""
+        if not self.allows(path):
+            return None
+        try:
+            return read_regular(path)
+        except OSError:  # replaced meanwhile (by a FIFO, a link): not ours to read
+            self.skipped.append(str(path))
+            return None
+
+    def read_text(self, path, what: str = "text file") -> str | None:
+        """The UTF-8 text of ``path`` (None: see :meth:`read_bytes`)."""
+        data = self.read_bytes(path)
+        try:
+            return None if data is None else data.decode("utf-8")
+        except UnicodeDecodeError:
+            raise BadInputError(f"not a UTF-8 text file: not a {what}", path=path) from None
+
+    def read_json(self, path, schema: dict, what: str):
+        """The JSON of ``path`` checked against ``schema`` (None: see :meth:`read_bytes`)."""
+        data = self.read_bytes(path)
+        return None if data is None else parse_json(data, schema, path=path, what=what)
 
 
-def _tables(folder: Path) -> dict[str, str]:
-    return {p.name: p.read_text(encoding="utf-8") for p in sorted(folder.glob("table*.md"))}
+def _read_json(path: Path, guard: ReadGuard, schema: dict, what: str):
+    value = guard.read_json(path, schema, what)
+    if value is None:
+        raise BadInputError("not a regular file inside the run folders: not read", path=path)
+    return value
 
 
-def _figures(folder: Path) -> list[Path]:
+def _tables(folder: Path, guard: ReadGuard) -> dict[str, str]:
+    out = {}
+    for p in sorted(folder.glob("table*.md")):
+        text = guard.read_text(p, "Markdown table")
+        if text is not None:
+            out[p.name] = text
+    return out
+
+
+def _figures(folder: Path, guard: ReadGuard) -> list[Path]:
     names = ("grid", "scatter", "figure", "contact", "zoom", "teeth")
-    return sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png" and p.stem.startswith(names))
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png" and p.stem.startswith(names)
+                  and guard.image(p))
 
 
-def _bench_json(folder: Path) -> tuple[str | None, Path | None]:
+def _bench_json(folder: Path, guard: ReadGuard) -> tuple[str | None, Path | None]:
     """(bench name, its JSON file) of a bench run folder, or (None, None)."""
     res = folder / "results.json"
-    if res.is_file():
-        try:
-            bench = json.loads(res.read_text(encoding="utf-8")).get("bench")
-        except (OSError, ValueError, AttributeError):
-            bench = None
+    if guard.allows(res):
+        bench = guard.read_json(res, OBJECT, "bench results file").get("bench")
         if bench in ("transfer", "persona", "puppet"):
             return bench, res
-    if (folder / "pairs.json").is_file():
+    if guard.allows(folder / "pairs.json"):
         return "transfer", folder / "pairs.json"
-    if res.is_file() and (folder / "table.md").is_file():
+    if guard.allows(res) and guard.allows(folder / "table.md"):
         return "puppet", res
-    if (folder / "summary.json").is_file() and (folder / "per_target.csv").is_file():
+    if guard.allows(folder / "summary.json") and guard.allows(folder / "per_target.csv"):
         return "persona", folder / "summary.json"
     return None, None
 
 
-def _load_bench_transfer(folder: Path, run: Run, path: Path) -> None:
-    pj = _read_json(path)
+def _load_bench_transfer(folder: Path, run: Run, path: Path, guard: ReadGuard) -> None:
+    pj = _read_json(path, guard, _BENCH_TRANSFER, "bench transfer results file")
     run.kind = "bench transfer"
     run.settings = dict(pj.get("settings", {}))
     run.paper = {m: dict(v) for m, v in (pj.get("paper_table1") or {}).items()}
@@ -134,36 +231,34 @@ def _load_bench_transfer(folder: Path, run: Run, path: Path) -> None:
         it = Item(key=f"{c}__{s}", label=f"content {c} / style {s}")
         for name, key in (("style", "style_path"), ("content", "content_path")):
             path = Path(p.get(key, ""))
-            if path.is_file():
+            if p.get(key) and guard.image(path):
                 it.images[name] = path
         results = p.get("results", {})
         for m in sorted(results, key=lambda m: METHOD_ORDER.index(m) if m in METHOD_ORDER else 99):
             r = results[m]
-            if r.get("image") and (folder / r["image"]).is_file():
+            if r.get("image") and guard.image(folder / r["image"]):
                 it.images[m] = folder / r["image"]
             it.metrics[m] = {k: v for k, v in (r.get("metrics") or {}).items()}
             if isinstance(r.get("wall_s"), (int, float)):
                 it.metrics[m]["time_s"] = float(r["wall_s"])
         run.items.append(it)
     for sc in sorted((folder / "images").glob("*.json")):
-        try:
-            rec = json.loads(sc.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            continue
-        run.sidecars[f"images/{sc.name}"] = rec
+        rec = guard.read_json(sc, _SIDECAR, "sidecar")
+        if rec is not None:
+            run.sidecars[f"images/{sc.name}"] = rec
 
 
-def _load_bench_persona(folder: Path, run: Run, path: Path) -> None:
-    summary = _read_json(path)
+def _load_bench_persona(folder: Path, run: Run, path: Path, guard: ReadGuard) -> None:
+    summary = _read_json(path, guard, OBJECT, "bench persona summary")
     run.kind = "bench persona"
     run.settings = {k: v for k, v in summary.items() if k not in ("rows", "skipped", "held_out", "teeth", "bench")}
-    per = folder / "per_target.csv"
-    if per.is_file():
-        with open(per, newline="", encoding="utf-8") as fh:
+    text = guard.read_text(folder / "per_target.csv", "CSV file")
+    if text is not None:
+        with io.StringIO(text, newline="") as fh:
             for row in csv.DictReader(fh):
                 it = Item(key=row.get("file", ""), label=row.get("file", ""))
                 for k, v in row.items():  # "<row>_<metric>", e.g. ours_mouth_ssim; px_<region>: mask sizes
-                    if "_" not in k or k in ("file",) or k.startswith("px_"):
+                    if not isinstance(k, str) or "_" not in k or k == "file" or k.startswith("px_"):
                         continue
                     method, metric = k.split("_", 1)
                     try:
@@ -173,8 +268,8 @@ def _load_bench_persona(folder: Path, run: Run, path: Path) -> None:
                 run.items.append(it)
 
 
-def _load_bench_puppet(folder: Path, run: Run, path: Path) -> None:
-    res = _read_json(path)
+def _load_bench_puppet(folder: Path, run: Run, path: Path, guard: ReadGuard) -> None:
+    res = _read_json(path, guard, _BENCH_PUPPET, "bench puppet results file")
     run.kind = "bench puppet"
     run.settings = dict(res.get("settings", {}))
     for r in res.get("rows", []):
@@ -183,43 +278,42 @@ def _load_bench_puppet(folder: Path, run: Run, path: Path) -> None:
         it.metrics["puppet"] = {k: v for k, v in r.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
         media = r.get("media") or {}
         sheet = Path(media.get("contact_sheet", ""))
-        if sheet.is_file():
+        if media.get("contact_sheet") and guard.image(sheet):
             it.images["contact sheet"] = sheet
         run.items.append(it)
 
 
-def _load_demo(folder: Path, run: Run) -> None:
+def _load_demo(folder: Path, run: Run, guard: ReadGuard) -> None:
     from .._resources import sample_path
 
-    summary = _read_json(folder / "summary.json")
+    summary = _read_json(folder / "summary.json", guard, _DEMO, "demo summary")
     run.kind = "demo"
     run.settings = {k: v for k, v in summary.items() if k not in ("transfers",)}
     ins = summary.get("inputs", {})
     it = Item(key="demo", label=f"content {ins.get('content')} / style {ins.get('style')}")
     for name in ("style", "content"):
         p = sample_path(ins.get(name, "")) if ins.get(name) else None
-        if p is not None and p.is_file():
+        if p is not None and guard.image(p):
             it.images[name] = p
     for m, t in (summary.get("transfers") or {}).items():
         img = folder / f"transfer_{m}.png"
-        if img.is_file():
+        if guard.image(img):
             it.images[m] = img
         it.metrics[m] = {**(t.get("metrics") or {}), "time_s": t.get("seconds")}
     run.items.append(it)
 
 
-def _load_outputs(folder: Path, run: Run) -> None:
+def _load_outputs(folder: Path, run: Run, guard: ReadGuard) -> None:
     """A folder of outputs with sidecars: one item per output image whose sidecar names a
     content and a style (``facetex transfer``), grouped by (content, style)."""
     run.kind = "outputs"
     groups: dict[tuple, Item] = {}
     for img in sorted(p for p in folder.iterdir() if p.suffix.lower() in _IMAGE_EXT):
         sc = img.with_name(img.name + ".json")
-        if not sc.is_file():
+        if not os.path.lexists(sc) or not guard.allows(img):
             continue
-        try:
-            rec = json.loads(sc.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
+        rec = guard.read_json(sc, _SIDECAR, "sidecar")
+        if rec is None:
             continue
         run.sidecars[sc.name] = rec
         ins = rec.get("inputs") or {}
@@ -229,7 +323,7 @@ def _load_outputs(folder: Path, run: Run) -> None:
             groups[key] = Item(key=f"{Path(c).stem if c else '?'}__{Path(s).stem if s else '?'}",
                                label=f"content {Path(c).name if c else '?'} / style {Path(s).name if s else '?'}")
             for name, p in (("style", s), ("content", c)):
-                if p and Path(p).is_file():
+                if p and guard.image(p):
                     groups[key].images[name] = Path(p)
         method = (rec.get("params") or {}).get("method") or img.stem
         label = method if method not in groups[key].images else img.stem
@@ -241,30 +335,41 @@ def _load_outputs(folder: Path, run: Run) -> None:
     run.items.extend(groups.values())
 
 
-def load_run(path) -> Run:
-    """Read one run folder (see the module docstring for the layouts).
+def load_run(path, guard: ReadGuard | None = None) -> Run:
+    """Read one run folder (see the module docstring for the layouts), through ``guard``
+    (default: one that reads inside this folder only).
 
     Raises BadInputError naming the folder when it is missing or holds nothing a report can show."""
     from ..io import check_input_dir
 
     folder = check_input_dir(path, BadInputError, what="run folder")
-    run = Run(path=folder, name=folder.resolve().name, kind="")
-    if (folder / "run.json").is_file():
-        try:
-            run.provenance = json.loads((folder / "run.json").read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            run.provenance = None
-    bench, bench_json = _bench_json(folder)
+    guard = guard or ReadGuard([folder])
+    run = Run(path=folder, name=folder.resolve().name, kind="", skipped=guard.skipped)
+    run.provenance = guard.read_json(folder / "run.json", _RUN_JSON, "run record (run.json)")
+    bench, bench_json = _bench_json(folder, guard)
     if bench is not None:
         {"transfer": _load_bench_transfer, "persona": _load_bench_persona,
-         "puppet": _load_bench_puppet}[bench](folder, run, bench_json)
-    elif (folder / "summary.json").is_file() and any(folder.glob("transfer_*.png")):
-        _load_demo(folder, run)
+         "puppet": _load_bench_puppet}[bench](folder, run, bench_json, guard)
+    elif guard.allows(folder / "summary.json") and any(folder.glob("transfer_*.png")):
+        _load_demo(folder, run, guard)
     else:
-        _load_outputs(folder, run)
-    run.tables = _tables(folder)
-    run.figures = _figures(folder)
+        _load_outputs(folder, run, guard)
+    run.tables = _tables(folder, guard)
+    run.figures = _figures(folder, guard)
     if not run.items and not run.tables:
         raise BadInputError("nothing to report: not a run folder of facetex bench / demo, and no output images "
                             "with .json sidecars", path=folder)
     return run
+
+
+def load_runs(paths, *, also=(), images: bool = True) -> list[Run]:
+    """:func:`load_run` of each folder, all through one :class:`ReadGuard` of those folders and
+    ``also`` (folders the user lets the report read, e.g. a bench's ``--data``); one warning
+    lists the files skipped. ``images=False``: metrics only (no image is looked at)."""
+    guard = ReadGuard([*paths, *also], images=images)
+    runs = [load_run(p, guard) for p in paths]
+    if guard.skipped:
+        shown = ", ".join(guard.skipped[:5]) + (f" and {len(guard.skipped) - 5} more" if len(guard.skipped) > 5 else "")
+        warnings.warn(f"skipped {len(guard.skipped)} file(s) that are not regular files inside the run folders "
+                      f"(links, FIFOs, devices, or elsewhere): {shown}", stacklevel=2)
+    return runs

@@ -108,15 +108,34 @@ def test_finished_items_of_other_settings_are_refused_before_any_work(tmp_path, 
 
 
 def test_half_committed_item_and_stale_temporaries_are_redone(tmp_path, no_leftover_processes):
+    from facetex.batch import run_tag
+    from facetex.batch._state import BatchState
+
     out, log = tmp_path / "out", tmp_path / "log"
     out.mkdir()
-    (out / "item0.txt").write_text("image without its sidecar (a commit killed between its renames)")
-    (out / ".item0.txt.abcd1234.json").write_text("a killed writer's temporary file")
+    # a commit killed between its renames leaves the sidecar (committed first), which names its item
+    (out / "item0.txt.json").write_text('{"batch": {"run": "killed-run", "item": "item0"}}')
+    state = BatchState(out)
+    state.create()
+    state.put("item0", {"kind": "test", "state": "running", "run": "killed-run"})
+    stale = out / f".item0.txt.{run_tag('killed-run')}.abcd1234.json"
+    stale.write_text("the killed run's temporary file")
+    (out / ".item0.txt.abcd1234.json").write_text("untagged: not a temporary of a batch run")
     (out / ".item10.txt.keep").write_text("another item's name: not touched")
     with LocalEngine(1, threads=1) as eng:
         s = run_batch(_items(out, n=1, log=log), out, eng)
     assert s.done == 1 and (out / "item0.txt").read_text() == "item0 0\n"
-    assert not (out / ".item0.txt.abcd1234.json").exists() and (out / ".item10.txt.keep").exists()
+    assert not stale.exists() and (out / ".item0.txt.abcd1234.json").exists() and (out / ".item10.txt.keep").exists()
+
+
+def test_an_output_without_its_sidecar_is_refused_not_replaced(tmp_path, no_leftover_processes):
+    out, log = tmp_path / "out", tmp_path / "log"
+    out.mkdir()
+    (out / "item1.txt").write_text("MINE")
+    with LocalEngine(1, threads=1) as eng:
+        with pytest.raises(OutputError, match=r"item1.txt: exists without its sidecar item1.txt.json"):
+            run_batch(_items(out, n=2, log=log), out, eng)
+    assert (out / "item1.txt").read_text() == "MINE" and not log.exists()
 
 
 def test_interrupt_cancels_running_items_and_leaves_them_pending(tmp_path, no_leftover_processes):

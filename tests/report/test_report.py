@@ -14,9 +14,13 @@ from facetex.errors import BadInputError
 from facetex.report import compare_rows, load_run, metrics_figure, zoom_panel
 
 
-def test_load_bench_transfer_run(runs):
-    run = load_run(runs[0])
-    assert run.kind == "bench transfer" and len(run.items) == 3
+def test_load_bench_transfer_run(runs, frl):
+    from facetex.report import load_runs
+
+    alone = load_run(runs[0])  # the content and style images are outside the run folder: skipped
+    assert "style" not in alone.items[0].images and any(str(frl) in p for p in alone.skipped)
+    run, = load_runs([runs[0]], also=[frl])
+    assert run.kind == "bench transfer" and len(run.items) == 3 and not run.skipped
     assert run.methods == ["none", "gatys", "mrf", "facetex"]  # "none": the content, a baseline
     it = run.items[0]
     assert list(it.images)[:2] == ["style", "content"] and set(it.images) >= {"gatys", "mrf", "facetex"}
@@ -64,10 +68,12 @@ def test_bench_json_holds_no_image_data(runs):
         assert len(text) < 20_000 and '"images"' not in text, p
 
 
-def test_report_is_self_contained_and_complete(runs, tmp_path, capsys):
+def test_report_is_self_contained_and_complete(runs, frl, tmp_path, capsys):
     out = tmp_path / "report.html"
-    assert main(["report", str(runs[0]), str(runs[1]), "-o", str(out)]) == 0
-    assert capsys.readouterr().out.splitlines() == [f"wrote {out}", f"wrote {out}.json"]
+    # the bench's content and style images are in its --data folder: read only when given
+    assert main(["report", str(runs[0]), str(runs[1]), "-o", str(out), "--data", str(frl)]) == 0
+    captured = capsys.readouterr()
+    assert captured.out.splitlines() == [f"wrote {out}", f"wrote {out}.json"] and "skipped" not in captured.err
     page = out.read_text()
     # nothing outside the file: every src is a data URI
     srcs = re.findall(r"src='([^']*)'", page)

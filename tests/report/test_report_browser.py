@@ -48,9 +48,9 @@ def _console_lines(stderr: str, page: str) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def report(runs, tmp_path_factory):
+def report(runs, frl, tmp_path_factory):
     out = tmp_path_factory.mktemp("report") / "report.html"
-    assert main(["report", str(runs[0]), str(runs[1]), "-o", str(out)]) == 0
+    assert main(["report", str(runs[0]), str(runs[1]), "-o", str(out), "--data", str(frl)]) == 0
     return out
 
 

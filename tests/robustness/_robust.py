@@ -139,3 +139,30 @@ def helper_daemon(pid: int) -> bool:
     return b"forkserver" in cmd or b"resource_tracker" in cmd
 
 
+
+
+def tiny_png(path: Path, value: int = 128) -> Path:
+    """A 48 x 48 grey PNG (its folders made)."""
+    import numpy as np
+    from PIL import Image
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(np.full((48, 48, 3), value, np.uint8)).save(path)
+    return path
+
+
+def bench_run_folder(folder: Path, *, image: str = "images/a__b__facetex.png", style_path=None) -> Path:
+    """A minimal `facetex bench transfer` run folder: results.json naming one output image, a
+    table.md, run.json and the image's sidecar (a report of it takes well under a second)."""
+    import json
+
+    folder.mkdir()
+    tiny_png(folder / "images" / "a__b__facetex.png")
+    (folder / "images" / "a__b__facetex.json").write_text(json.dumps({"params": {"method": "facetex"}}))
+    pair = {"content": "a", "style": "b", "results": {"facetex": {"image": image, "metrics": {"E_content": 1.0}}}}
+    if style_path is not None:
+        pair["style_path"] = str(style_path)
+    (folder / "results.json").write_text(json.dumps({"bench": "transfer", "settings": {"size": 64}, "pairs": [pair]}))
+    (folder / "table.md").write_text("| method | E |\n|---|---|\n| facetex | 1.0 |\n")
+    (folder / "run.json").write_text(json.dumps({"command": "bench transfer", "command_line": "facetex bench"}))
+    return folder
