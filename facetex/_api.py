@@ -261,7 +261,8 @@ def transfer_with_info(
         torch device: "cpu", "cuda", "cuda:N".
     progress : bool or callable
         True shows a tqdm progress bar on stderr; a callable gets
-        ``progress(n=1, level=, loss=)`` per loss evaluation.
+        ``progress(n=1, level=, loss=, terms=)`` per loss evaluation (terms: each
+        weighted loss term's value).
     callback : callable, optional
         ``callback(image=, level=, evaluation=)`` every ``save_every`` loss evaluations and
         after each level, with the working region's image at that level's resolution

@@ -352,7 +352,9 @@ def add_bench_options(p, bench: str, data_help: str) -> None:
 
     p.add_argument("--data", metavar="DIR", default=None,
                    help=f"{data_help}; default ${DATA_ENV} (required when that is not set)")
-    p.add_argument("--out", metavar="DIR", default=default_out(bench),
+    from ..cli._common import add_output
+
+    add_output(p, dest="out", metavar="DIR", default=default_out(bench),
                    help=f"output folder (created; default {default_out(bench)}); gets run.json with the "
                         "command line, input hashes, settings and versions")
     add_json(p, "the run's summary")

@@ -445,7 +445,9 @@ def register_bench(sub) -> None:
     add_bench_options(p, "persona", f"data root holding {DATA_SUBFOLDER}/, or a folder of photos of one person")
     p.add_argument("--holdout", type=positive_int, default=20, help="photos held out as targets (default 20)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the held-out choice (default 0)")
-    p.add_argument("--jobs", type=bounded_int(1, 64), default=2, help="worker processes for the build (default 2)")
+    from ..cli._common import add_jobs
+
+    add_jobs(p, "worker processes for the build")
     p.add_argument("--weights", choices=("regional", "global"), default="regional",
                    help="weights of the 'ours' row (default regional; the 'paper' row always uses global)")
     p.add_argument("--neighbours", type=positive_int, default=None, metavar="K",
@@ -474,12 +476,12 @@ def _run_cli(args) -> int:
     total = args.holdout + 2 * max(0, n - args.holdout) + args.holdout  # hold-out choice, build, targets
     import contextlib
 
-    from ..cli._common import engine_from_args
+    from ..cli._common import engine_from_args, jobs_of
 
     engine = engine_from_args(args) if args.engine == "ray" else None  # local: the build's own --jobs workers
     with engine or contextlib.nullcontext(), \
             progress_bar(total=total, desc="bench persona", unit="step", disable=args.quiet) as update:
-        res = run_bench_persona(data, holdout=args.holdout, seed=args.seed, out=args.out, jobs=args.jobs,
+        res = run_bench_persona(data, holdout=args.holdout, seed=args.seed, out=args.out, jobs=jobs_of(args),
                                 sigma=args.sigma, exact=args.exact, weights=args.weights,
                                 neighbours=args.neighbours, progress=update, engine=engine)
     finish_bench(args, "persona", args.out, res["files"], inputs={"data": data}, settings={"data": str(data)},

@@ -1039,8 +1039,8 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
                    help="reuse the runs already in OUT/runs with the same settings (persona file, clip, options)")
     from ..cli._common import add_engine_options
 
-    add_engine_options(p, jobs_default=1, jobs_help="local: worker processes, one run each (default 1: the runs "
-                                                    "one after another in this process); ray: runs in flight")
+    add_engine_options(p, jobs_help="local: worker processes, one run each (default: the available CPUs); ray: "
+                                    "runs in flight")
     p.set_defaults(func=_run)
     return p
 

@@ -597,8 +597,8 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
     add_overwrite(p)
     from ..cli._common import add_engine_options
 
-    add_engine_options(p, jobs_default=1, jobs_help="local: worker processes, one (pair, method) each (default 1: "
-                                                    "one after another in this process); ray: items in flight")
+    add_engine_options(p, jobs_help="local: worker processes, one (pair, method) each (default: the available "
+                                    "CPUs; --jobs 1: one after another in this process); ray: items in flight")
     p.set_defaults(func=run)
     return p
 

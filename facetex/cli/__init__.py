@@ -93,11 +93,20 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 
 def _accept_debug_anywhere(parser: argparse.ArgumentParser) -> None:
-    """Let ``--debug`` also follow the sub-command (``facetex landmarks x.jpg --debug``)."""
+    """Let ``--debug`` also follow the sub-command (``facetex landmarks x.jpg --debug``), and give
+    every command ``-q/--quiet`` (the convention: no progress bar and no success message)."""
+    from ._common import add_quiet
+
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
             for p in action.choices.values():
-                p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+                if "--debug" not in p._option_string_actions:
+                    p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+                if not any(isinstance(a, argparse._SubParsersAction) for a in p._actions):
+                    if "--quiet" not in p._option_string_actions:
+                        add_quiet(p)
+                else:
+                    _accept_debug_anywhere(p)
                 _accept_debug_anywhere(p)
 
 
@@ -249,6 +258,9 @@ def _run(argv: list[str], debug: bool) -> int:
     if io is not None:  # not imported yet: nothing committed (and numpy/OpenCV not loaded before a
         io.committed_outputs(reset=True)  # puppet run starts its driver tracking: ~0.35 s)
     set_command(argv)
+    from ._common import reset_json
+
+    reset_json()
     args = None
     try:
         args = build_parser(_command_of(argv)).parse_args(argv)

@@ -94,6 +94,29 @@ def add_json(parser: argparse.ArgumentParser, what: str = "the result") -> None:
     parser.add_argument("--json", action="store_true", help=f"print {what} as JSON on stdout (nothing else)")
 
 
+def add_output(parser: argparse.ArgumentParser, *, dest: str = "output", **kwargs) -> None:
+    """The output option of every command: ``-o/--output``, with ``--out`` (the bench, batch and
+    demo commands' older spelling) as an alias."""
+    parser.add_argument("-o", "--output", "--out", dest=dest, **kwargs)
+
+
+def add_jobs(parser, what: str = "worker processes") -> None:
+    """``--jobs N``: the one default of every command, the CPUs this process may use."""
+    parser.add_argument("--jobs", type=bounded_int(1, 4096), default=None, metavar="N",
+                        help=f"{what} (default: the available CPUs)")
+
+
+def jobs_of(args) -> int:
+    """``--jobs`` with its default (the available CPUs) resolved."""
+    from .._parallel import available_cpus
+
+    return int(args.jobs) if getattr(args, "jobs", None) else available_cpus()
+
+
+#: whether this command printed its JSON already (:func:`wrote` then prints none)
+_json_printed = False
+
+
 def say(args, *lines: str) -> None:
     """Success lines (``wrote PATH``) on stdout, unless ``--quiet`` or ``--json``."""
     if getattr(args, "quiet", False) or getattr(args, "json", False):
@@ -102,14 +125,27 @@ def say(args, *lines: str) -> None:
         print(line)
 
 
-def wrote(args, *paths) -> None:
-    """``wrote PATH`` for each written file (see :func:`say`)."""
+def wrote(args, *paths, **summary) -> None:
+    """``wrote PATH`` for each written file (see :func:`say`); with ``--json`` (when the command
+    printed no JSON of its own) ``{"outputs": [...], **summary}`` instead."""
+    if getattr(args, "json", False):
+        if not _json_printed:
+            print_json({"outputs": [str(p) for p in paths], **summary})
+        return
     say(args, *(f"wrote {p}" for p in paths))
 
 
 def print_json(obj) -> None:
-    json.dump(obj, sys.stdout, indent=2)
+    global _json_printed
+    json.dump(obj, sys.stdout, indent=2, default=str)
     sys.stdout.write("\n")
+    _json_printed = True
+
+
+def reset_json() -> None:
+    """A new command (the CLI's ``main`` runs one per call): no JSON printed yet."""
+    global _json_printed
+    _json_printed = False
 
 
 def read_json_file(path, error=None, *, what: str = "JSON file"):

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ._common import (add_engine_options, add_json, add_quiet, add_seed_device, bounded_int, check_device,
+from ._common import (add_engine_options, add_json, add_output, add_quiet, add_seed_device, bounded_int, check_device,
                       finite_float, positive_int, print_json, say)
 
 EXIT_INCOMPLETE = 4  # the batch ended with failed (or unfinished) items
@@ -28,7 +28,7 @@ _pairs.__name__ = "pairs"
 
 
 def _batch_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", required=True, metavar="DIR",
+    add_output(p, dest="out", required=True, metavar="DIR",
                    help="output folder (created); gets the outputs with their sidecars and manifest.jsonl")
     add_engine_options(p)
     g = p.add_argument_group("resuming and faults")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import add_json, add_quiet, add_seed_device, bounded_int, check_device, print_json, progress_bar, say
+from ._common import add_json, add_output, add_quiet, add_seed_device, bounded_int, check_device, print_json, progress_bar, say
 
 CONTENT = "frl_004_neutral.jpg"
 STYLE = "frl_005_neutral.jpg"
@@ -23,7 +23,7 @@ def register(sub) -> None:
                                    "baselines) with its metrics on the bundled sample portraits (CC BY 4.0). "
                                    "Writes its files into --out (replacing an earlier demo's), each image "
                                    "with a JSON sidecar, and run.json for the folder.")
-    p.add_argument("--out", default="demo_out", help="output folder (default demo_out)")
+    add_output(p, dest="out", default="demo_out", metavar="DIR", help="output folder (default demo_out)")
     p.add_argument("--size", type=bounded_int(32, 4096), default=None, metavar="PX",
                    help=f"working size of the transfer (default: the sample faces' own size, at most "
                         f"{MAX_DEMO_SIZE}: they are never upscaled)")

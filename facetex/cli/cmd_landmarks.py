@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ._common import add_overwrite, nonnegative_int, print_json, wrote
+from ._common import add_output, add_overwrite, add_quiet, nonnegative_int, print_json, wrote
 
 
 def register(sub) -> None:
@@ -11,7 +11,7 @@ def register(sub) -> None:
     p.add_argument("--json", action="store_true",
                    help='print {"image": ..., "faces": [{"box": [x0,y0,x1,y1], "points68": [[x,y],...]}]} '
                         '(no face: "faces": [] and exit 0)')
-    p.add_argument("-o", "--output", metavar="OVERLAY",
+    add_output(p, metavar="OVERLAY",
                    help="write the image with boxes and numbered points (e.g. overlay.png; OVERLAY.json gets "
                         "the parameters)")
     p.add_argument("--upsample", type=nonnegative_int, default=None, metavar="N",

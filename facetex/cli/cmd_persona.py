@@ -3,8 +3,8 @@ collection (Tom Hanks Sec. 4-5)."""
 
 from __future__ import annotations
 
-from ._common import (add_json, add_overwrite, add_quiet, bounded_int, finite_float, positive_int, print_json,
-                      progress_bar, wrote)
+from ._common import (add_jobs, add_json, add_output, add_overwrite, add_quiet, bounded_int, finite_float,
+                      positive_int, print_json, progress_bar, wrote)
 
 
 def register(sub) -> None:
@@ -14,8 +14,8 @@ def register(sub) -> None:
 
     b = ps.add_parser("build", help="detect, frontalize and align a folder of photos into a .persona file")
     b.add_argument("photo_dir", metavar="PHOTO_DIR", help="folder of photos of one person (>= 10 usable)")
-    b.add_argument("-o", "--output", required=True, metavar="PERSON.persona", help="persona file to write")
-    b.add_argument("--jobs", type=bounded_int(1, 64), default=2, metavar="N", help="worker processes (default 2)")
+    add_output(b, required=True, metavar="PERSON.persona", help="persona file to write")
+    add_jobs(b, "worker processes")
     b.add_argument("--min-photos", type=bounded_int(3), default=10, metavar="N",
                    help="fewest usable photos accepted (default 10)")
     b.add_argument("--allow-mixed", action="store_true",
@@ -26,6 +26,7 @@ def register(sub) -> None:
                         "file; puppetry and texture synthesis then compute them when they start (~10 ms per photo)")
     add_overwrite(b)
     add_quiet(b)
+    add_json(b, "the written files and the build's summary")
     b.set_defaults(func=run_build)
 
     t = ps.add_parser("texture", help="synthesize a texture for a target expression")
@@ -35,7 +36,7 @@ def register(sub) -> None:
     g.add_argument("--fiducials", metavar="POINTS.json",
                    help='target fiducials in the canonical frame: a JSON list of 49 (or 68) [x, y] '
                         'or {"fiducials": [...]}')
-    t.add_argument("-o", "--output", required=True, metavar="OUT.png")
+    add_output(t, required=True, metavar="OUT.png", help="texture image to write (+ .json sidecar)")
     t.add_argument("--method", choices=("ours", "static", "weighted", "prewarp"), default="ours",
                    help="ours (default) or a Fig. 5 baseline")
     t.add_argument("--weights", choices=("regional", "global"), default="regional",
@@ -48,19 +49,23 @@ def register(sub) -> None:
                    help="--weights regional only: each region's sigma is the target's distance to its K-th "
                         "nearest photo / 2 (default 3)")
     add_overwrite(t)
+    add_quiet(t)
+    add_json(t, "the written files")
     t.set_defaults(func=run_texture)
 
     a = ps.add_parser("average", help="the persona's average face (Fig. 6 stages a-d)")
     a.add_argument("persona", metavar="PERSON.persona")
-    a.add_argument("-o", "--output", required=True, metavar="OUT.png")
+    add_output(a, required=True, metavar="OUT.png", help="average image to write (+ .json sidecar)")
     a.add_argument("--stage", choices=("a", "b", "c", "d"), default="d",
                    help="a: frontalized, b: + TPS, c: + dense warp, d: + multi-scale blend (default)")
     add_overwrite(a)
+    add_quiet(a)
+    add_json(a, "the written files")
     a.set_defaults(func=run_average)
 
     m = ps.add_parser("mesh", help="the persona's average 3D face as an .obj (+ .mtl, .png texture)")
     m.add_argument("persona", metavar="PERSON.persona")
-    m.add_argument("-o", "--output", required=True, metavar="FACE.obj",
+    add_output(m, required=True, metavar="FACE.obj",
                    help="mesh to write; FACE.mtl and FACE.png (stage-d average texture) go beside it")
     m.add_argument("--step", type=positive_int, default=1, metavar="N",
                    help="grid step of the mesh in canonical px (default 1; at most 1/8 of the frame width)")
@@ -99,6 +104,7 @@ def run_build(args) -> int:
     from ..persona import PersonaParams, build_persona
     from ..persona.collection import _list_photos
     from ..persona.identity import MixedCollectionError
+    from ._common import jobs_of
 
     from .._provenance import provenance
     from ..io import encode_json, write_files
@@ -111,13 +117,13 @@ def run_build(args) -> int:
     t0 = time.perf_counter()
     with progress_bar(total=2 * len(photos), desc="persona", unit="photo", disable=args.quiet) as update:
         try:
-            persona = build_persona(folder, jobs=args.jobs, progress=update, allow_mixed=args.allow_mixed,
+            persona = build_persona(folder, jobs=jobs_of(args), progress=update, allow_mixed=args.allow_mixed,
                                     params=PersonaParams(min_photos=args.min_photos))
         except MixedCollectionError as e:
             raise MixedCollectionError(f"{e.message}, or pass --allow-mixed to build from all of them",
                                        path=e.path, main=e.main, others=e.others, people=e.people) from None
     record = provenance(command="persona build", inputs={"photo_dir": folder},
-                        params={"jobs": args.jobs, "min_photos": args.min_photos, "allow_mixed": args.allow_mixed,
+                        params={"jobs": jobs_of(args), "min_photos": args.min_photos, "allow_mixed": args.allow_mixed,
                                 "texture_stacks": not args.no_texture_stacks, "persona_params": persona.params},
                         outputs=[out], photos_used=len(persona), skipped=persona.skipped,
                         seconds=time.perf_counter() - t0)
@@ -131,7 +137,8 @@ def run_build(args) -> int:
               f"({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
         for s in persona.skipped:
             print(f"  skipped {s['file']}: {s['reason']}", file=sys.stderr)
-    wrote(args, out, sidecar)
+    wrote(args, out, sidecar, photos_used=len(persona), skipped=persona.skipped,
+          seconds=round(time.perf_counter() - t0, 2))
     return 0
 
 
@@ -205,7 +212,7 @@ def run_texture(args) -> int:
         kw = {"fiducials": _read_fiducials(args.fiducials, size)}
     persona = load_persona(args.persona)
     t1 = time.perf_counter()
-    with progress_bar(desc="texture", unit="step") as update:
+    with progress_bar(desc="texture", unit="step", disable=args.quiet) as update:
         img = synthesize_texture(persona, method=args.method, params=tp, progress=update, **kw)
     t2 = time.perf_counter()
     from .._provenance import provenance

@@ -4,17 +4,20 @@ from __future__ import annotations
 
 import sys
 
-from ._common import (add_json, add_overwrite, add_quiet, bounded_int, finite_float, positive_int, print_json,
-                      progress_bar, wrote)
+from ._common import (add_json, add_output, add_overwrite, add_quiet, bounded_int, finite_float, positive_int,
+                      print_json, progress_bar, wrote)
 
 MAX_SIZE = 4096  # longer side of an output panel (px)
 
 
 def register(sub) -> None:
     p = sub.add_parser("puppet", help="drive a persona's 3D face with another person's video")
-    p.add_argument("--driver", required=True, help="driver video (MP4/MOV/MKV/AVI/MPG) showing one face")
-    p.add_argument("--puppet", required=True, help="puppet .persona file (facetex persona build)")
-    p.add_argument("-o", "--output", required=True, help="output H.264 .mp4 (the driver's audio is kept)")
+    # positionals as in the other commands; --driver/--puppet are the older spelling, kept
+    p.add_argument("driver_pos", nargs="?", metavar="DRIVER", help="driver video (MP4/MOV/MKV/AVI/MPG) showing one face")
+    p.add_argument("puppet_pos", nargs="?", metavar="PUPPET", help="puppet .persona file (facetex persona build)")
+    p.add_argument("--driver", help="the same as DRIVER")
+    p.add_argument("--puppet", help="the same as PUPPET")
+    add_output(p, required=True, metavar="OUT.mp4", help="output H.264 .mp4 (the driver's audio is kept)")
     p.add_argument("--driver-photos", help="folder of photos of the driver for its average shape "
                                            "(default: the video's frames)")
     p.add_argument("--side-by-side", action="store_true", help="put the driver frame left of the puppet")
@@ -54,7 +57,21 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def _merge_positionals(args) -> None:
+    """``DRIVER PUPPET`` or ``--driver/--puppet`` (not both, not neither) into ``args.driver``/``args.puppet``."""
+    from ..errors import BadInputError
+
+    for name in ("driver", "puppet"):
+        pos, opt = getattr(args, f"{name}_pos"), getattr(args, name)
+        if pos is not None and opt is not None and pos != opt:
+            raise BadInputError(f"two {name}s given ({pos} and --{name} {opt}): give one")
+        if pos is None and opt is None:
+            raise BadInputError(f"no {name} given: facetex puppet DRIVER PUPPET -o OUT.mp4")
+        setattr(args, name, opt if opt is not None else pos)
+
+
 def run(args) -> int:
+    _merge_positionals(args)
     # the driver's tracking starts first, in a child process: this one then checks the arguments,
     # imports the puppet code and loads the persona beside it (nothing is written before the checks)
     tracker = _start_tracking(args)

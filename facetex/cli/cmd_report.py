@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ._common import add_json, add_overwrite, print_json, wrote
+from ._common import add_json, add_output, add_overwrite, add_quiet, print_json, wrote
 
 
 def register(sub) -> None:
@@ -14,12 +14,14 @@ def register(sub) -> None:
                     "compare at 100 %), zoom panels, per-item metrics, provenance, and with two or more "
                     "folders a side-by-side comparison.")
     p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run folder(s)")
-    p.add_argument("-o", "--output", required=True, metavar="REPORT.html", help="HTML file to write (+ .json sidecar)")
+    add_output(p, required=True, metavar="REPORT.html", help="HTML file to write (+ .json sidecar)")
     p.add_argument("--title", help="page title (default: the folders' names)")
     p.add_argument("--data", action="append", default=[], metavar="DIR",
                    help="also show the content and style images inside DIR (a bench's --data folder); files "
                         "outside the run folders and these are skipped (repeatable)")
     add_overwrite(p)
+    add_quiet(p)
+    add_json(p, "the written files")
     p.set_defaults(func=run_report)
 
     c = sub.add_parser("compare", help="metrics of run folders side by side (mean ± std per method and metric)",

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ._common import add_overwrite, wrote
+from ._common import add_json, add_overwrite, add_quiet, wrote
 
 
 def register(sub) -> None:
@@ -12,6 +12,8 @@ def register(sub) -> None:
                                    "every command on. Existing files are kept unless --overwrite.")
     p.add_argument("folder", metavar="DIR", help="folder to create (or an existing one)")
     add_overwrite(p)
+    add_quiet(p)
+    add_json(p, "the written files")
     p.set_defaults(func=run)
 
 

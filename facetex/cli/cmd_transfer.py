@@ -13,8 +13,8 @@ import time
 import warnings
 from pathlib import Path
 
-from ._common import (add_overwrite, add_quiet, add_seed_device, bounded_int, check_device, finite_float,
-                      nonnegative_int, positive_int, progress_bar, say)
+from ._common import (add_json, add_output, add_overwrite, add_quiet, add_seed_device, bounded_int, check_device,
+                      finite_float, nonnegative_int, positive_int, progress_bar, wrote)
 
 MAX_ITERS = 100_000  # per level
 MAX_LEVELS = 8
@@ -76,7 +76,7 @@ def register(sub) -> None:
                     "parameter, input hashes, versions, timings).")
     p.add_argument("content", help="content face image (identity kept)")
     p.add_argument("style", help="style face image (texture source)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT",
+    add_output(p, required=True, metavar="OUT",
                    help="output image (.png/.jpg/.tif/.webp); OUT.json gets the parameters")
     p.add_argument("--method", choices=METHODS, default="facetex", help=_choices_help(METHOD_HELP, "facetex"))
     p.add_argument("--preset", choices=PRESETS, default="default", help=_choices_help(PRESET_HELP, "default"))
@@ -113,6 +113,7 @@ def register(sub) -> None:
     add_seed_device(p)
     add_overwrite(p)
     add_quiet(p)
+    add_json(p, "the written files, seed and timings")
     p.set_defaults(func=run)
 
 
@@ -177,20 +178,25 @@ def run(args) -> int:
         write_image(path, full, overwrite=args.overwrite or mine, inputs=inputs)
         if not mine:
             steps.append(path)
+            if not (args.quiet or args.json):
+                from tqdm import tqdm
+
+                tqdm.write(f"wrote {path}", file=sys.stdout)
 
     total = int(sum(params.iters) * params.eval_budget) + params.levels  # the evaluation budget per level
     evals = 0
     with warnings.catch_warnings(), progress_bar(total, desc=args.method, unit="eval", disable=args.quiet) as bar:
         warnings.simplefilter("always")  # advice (e.g. upscaling) is shown when it is known, before the work
 
-        def progress(n=1, level=0, loss=0.0, **terms):
+        def progress(n=1, level=0, loss=0.0, terms=None, **_):
             nonlocal evals
             evals += n
             bar(n, level=level, loss=f"{loss:.4g}")
             if args.print_every and evals % args.print_every == 0 and not args.quiet:
                 from tqdm import tqdm
 
-                tqdm.write(f"level {level} evaluation {evals}: loss {loss:.6g}", file=sys.stderr)
+                parts = "".join(f", {k} {v:.4g}" for k, v in (terms or {}).items())
+                tqdm.write(f"level {level} evaluation {evals}: loss {loss:.6g}{parts}", file=sys.stderr)
 
         t0 = time.perf_counter()
         image, info = transfer_with_info(
@@ -209,5 +215,5 @@ def run(args) -> int:
     # the image and its sidecar are committed together: never one without the other
     write_files({out: encode_image(out, image), sidecar: encode_json(record)}, overwrite=args.overwrite,
                 inputs=inputs)
-    say(args, f"wrote {out}", f"wrote {sidecar}")
+    wrote(args, out, sidecar, *steps, seed=args.seed, timings_s=info["timings"])
     return 0

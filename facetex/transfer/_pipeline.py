@@ -321,7 +321,7 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
     ``texture_net``, ``structure_weight`` …). Returns the output at the content's size and
     an info dict (parameters, timings, per-level loss terms, pre-warp folds, and under
     ``"images"`` the working-region images: content, pre-warped style at native and working
-    resolution, skin masks, the optimiser's output). ``progress(n=1, level=, loss=)`` is
+    resolution, skin masks, the optimiser's output). ``progress(n=1, level=, loss=, terms=)`` is
     called per loss evaluation; ``callback(image=, level=, evaluation=, full_image=, box=)``
     every ``save_every`` evaluations and after each level: ``image`` is the working region at
     the level's size, ``full_image`` the full-size picture of that step (pasted as the output

@@ -118,7 +118,7 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
     ``loss_builder(level, scale, (h, w))`` prepares that level's targets and returns a callable
     ``x (1, 3, h, w) -> {name: weighted scalar}``; the objective is the sum of the terms.
     ``iters`` is per level (an int is used for every level). ``optimizer`` "lbfgs" or "adam"
-    (``lr`` default 1 for L-BFGS, 0.01 for Adam). ``progress(n=1, level=, loss=)`` is called
+    (``lr`` default 1 for L-BFGS, 0.01 for Adam). ``progress(n=1, level=, loss=, terms=)`` (terms: each weighted loss term's value) is called
     once per function evaluation; ``callback(image=, level=, evaluation=)`` every
     ``save_every`` evaluations (if set) and after each level, with the (h, w, 3) image.
     ``level_init``: "upsample" starts each level from the previous result upsampled (CNNMRF);
@@ -217,7 +217,7 @@ def optimize_image(init: np.ndarray, loss_builder: Callable[[int, float, tuple[i
                 value = float(total.detach())
                 info["loss_history"].append(value)
                 if progress is not None:
-                    progress(n=1, level=level, loss=value)
+                    progress(n=1, level=level, loss=value, terms=last[3])
                 if callback is not None and save_every and evals % save_every == 0:
                     callback(image=to_image(x), level=level, evaluation=evals)
                 return total

@@ -174,7 +174,7 @@ def test_cli_runs_every_puppet_on_every_clip(fake_runs, tmp_path, capsys):
     bench.register_bench(parser.add_subparsers())
     out = tmp_path / "o"
     args = parser.parse_args(["puppet", "--drivers", str(clips), "--puppets", *map(str, personas), "--out", str(out),
-                              "--no-partial", "--size", "64", "--json"])
+                              "--no-partial", "--size", "64", "--json", "--jobs", "1"])
     assert args.func(args) == 0
     assert calls == [("reference", "Anna"), ("reference", "Bert"), ("Anna", "c1", 64), ("Anna", "c2", 64),
                      ("Bert", "c1", 64), ("Bert", "c2", 64)]
@@ -194,7 +194,7 @@ def test_cli_runs_every_puppet_on_every_clip(fake_runs, tmp_path, capsys):
     # --puppet is the same option; --resume reuses the stored runs (and the identity references)
     calls.clear()
     args = parser.parse_args(["puppet", "--drivers", str(clips), "--puppet", str(personas[1]), "--out", str(out),
-                              "--no-partial", "--size", "64", "--resume", "-q"])
+                              "--no-partial", "--size", "64", "--resume", "-q", "--jobs", "1"])
     assert args.func(args) == 0
     assert calls == []
     assert [r["run"] for r in json.loads((out / "results.json").read_text())["rows"]] == ["Bert/c1", "Bert/c2"]

@@ -264,7 +264,7 @@ def _fake_bench_parser(monkeypatch):
 
 def test_cli_parser_and_run(data, tmp_path, monkeypatch, capsys):
     fake, parser = _fake_bench_parser(monkeypatch)
-    args = parser.parse_args(["transfer", "--data", str(data), "--out", str(tmp_path / "o"), "--pairs", "1",
+    args = parser.parse_args(["transfer", "--data", str(data), "--out", str(tmp_path / "o"), "--pairs", "1", "--jobs", "1",
                               "--methods", "mrf", "--seed", "2", "--preset", "paper", "--json"])
     assert args.func(args) == 0
     printed = json.loads(capsys.readouterr().out)
@@ -276,7 +276,7 @@ def test_cli_parser_and_run(data, tmp_path, monkeypatch, capsys):
     assert run["command"] == "bench transfer" and run["seed"] == 2 and run["params"]["preset"] == "paper"
     assert run["inputs"]["data"]["files"] >= 2 and len(run["inputs"]["data"]["sha256_of_files"]) == 64
     # --iters reaches the transfer; without --json the table and `wrote` lines are printed
-    args = parser.parse_args(["transfer", "--data", str(data), "--out", str(tmp_path / "q"), "--pairs", "1",
+    args = parser.parse_args(["transfer", "--data", str(data), "--out", str(tmp_path / "q"), "--pairs", "1", "--jobs", "1",
                               "--methods", "gatys", "--iters", "2,2"])
     assert args.func(args) == 0
     text = capsys.readouterr().out
@@ -381,7 +381,7 @@ def test_pair_list_explicit_and_named(data, tmp_path, monkeypatch):
     # the run takes the list's first --pairs pairs, passes --keep-shading / --marks on, and writes
     # the per-pair table
     fake, parser = _fake_bench_parser(monkeypatch)
-    args = parser.parse_args(["transfer", "--data", str(data), "--out", str(tmp_path / "o"), "--pairs", "1",
+    args = parser.parse_args(["transfer", "--data", str(data), "--out", str(tmp_path / "o"), "--pairs", "1", "--jobs", "1",
                               "--methods", "facetex", "--pair-list", "005:003,004:008", "--keep-shading", "off",
                               "--marks", "style", "-q"])
     assert args.func(args) == 0

@@ -36,7 +36,7 @@ def make_run(out, data, monkeypatch, *, weight=1.0, seed=0, methods="gatys,mrf,f
     monkeypatch.setattr("facetex.metrics.transfer_metrics", quick_metrics)
     parser = argparse.ArgumentParser()
     bench.register_bench(parser.add_subparsers())
-    args = parser.parse_args(["transfer", "--data", str(data), "--out", str(out), "--pairs", "3",
+    args = parser.parse_args(["transfer", "--data", str(data), "--out", str(out), "--pairs", "3", "--jobs", "1",
                               "--methods", methods, "--seed", str(seed), "-q"])
     assert args.func(args) == 0
     return out

@@ -113,7 +113,7 @@ EARLY = [
     ("bench-puppet-clips-zero", ["bench", "puppet", "--clips", "0", "--out", "@b"], [], r"--clips.*at least 1"),
     ("bench-transfer-cuda-missing", ["bench", "transfer", "--device", "cuda", "--out", "@b"], [],
      r"CUDA is not available"),
-    ("bench-persona-jobs-zero", ["bench", "persona", "--jobs", "0", "--out", "@b"], [], r"--jobs.*from 1 to 64"),
+    ("bench-persona-jobs-zero", ["bench", "persona", "--jobs", "0", "--out", "@b"], [], r"--jobs.*from 1 to \d+"),
 ]
 
 
