@@ -352,6 +352,8 @@ def _stack_members(header: dict, n: int, size=(0, 0)) -> tuple[dict, dict]:
             and all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 2**26 for v in static)):
         raise ValueError("texture_stacks")
     out = {f"texture_static_{k}": (np.float32, (m,)) for k, m in enumerate(static)}
+    if meta.get("glasses") is True:  # each photo's eyeglasses score (-1: none), made with the stacks
+        out["texture_glasses_scores"] = (np.float64, (n,))
     if header["version"] >= 4:
         aligned = meta.get("aligned")
         rng = aligned.get("conf_range") if isinstance(aligned, dict) else None

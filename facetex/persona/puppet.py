@@ -797,10 +797,28 @@ def load_puppet(persona, params: PuppetParams = PuppetParams()) -> tuple:
     texture stacks (with the blend's band energy, eye quality and glasses factors). :func:`prepare_puppetry` does
     this beside the driver's tracking; the CLI starts it on a thread before its own imports and
     hands it over (``loading``)."""
+    import threading
+
     timings: dict = {}
     loaded = _Done(_load_puppet(persona, timings))
-    _puppet_shape(loaded, params, timings)
-    _prepare_puppet_texture(loaded, params, timings)
+    # the texture stacks on a second thread beside the shape: both release the GIL in most of their
+    # work (zlib, OpenCV, numpy), and neither needs the other
+    failed: list = []
+
+    def texture():
+        try:
+            _prepare_puppet_texture(loaded, params, timings)
+        except BaseException as e:  # noqa: BLE001 - re-raised on this thread
+            failed.append(e)
+
+    t = threading.Thread(target=texture, name="facetex-puppet-texture", daemon=True)
+    t.start()
+    try:
+        _puppet_shape(loaded, params, timings)
+    finally:
+        t.join()
+    if failed:
+        raise failed[0]
     return loaded.value, timings
 
 
