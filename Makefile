@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.facetex-installed
 DEMO_OUT ?= demo_out
 
-.PHONY: install demo test test-slow browser-deps bench clean
+.PHONY: install demo test test-slow docs browser-deps bench clean
 
 install: $(STAMP)
 
@@ -25,6 +25,11 @@ test-slow: $(STAMP)
 	# pytest exits 5 when no test is marked slow: that is not a failure
 	$(PY) -m pytest -q -m slow || [ $$? -eq 5 ]
 
+# the documentation site (docs/, mkdocs.yml) into site/; warnings are errors
+docs: $(STAMP)
+	$(PY) -m pip install -q -e '.[docs]'
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict -q
+
 # Debian's Chromium for the report's browser test (tests/report/test_report_browser.py);
 # CI runs this as root before the tests. Elsewhere: run it with sudo, or the test is skipped.
 browser-deps:
@@ -33,4 +38,4 @@ browser-deps:
 	else echo "make browser-deps: Chromium is missing; run 'sudo make browser-deps' (the browser test is skipped without it)"; fi
 
 clean:
-	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache
+	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache site
