@@ -557,7 +557,10 @@ def build_persona(photo_dir: str | os.PathLike, *, jobs: int = 2, min_photos: in
 
     folder = check_input_dir(photo_dir, BadInputError, what="photo folder")
     n = len(files) if files is not None else len(_list_photos(folder))
-    with _progress(progress, 2 * n, "persona", "photo") as bar:
+    from .persona.collection import SHAPE_STEPS
+
+    # two passes over the photos, then the average shape's steps (each stage named on the bar)
+    with _progress(progress, 2 * n + SHAPE_STEPS, "persona", "step") as bar:
         return _build(folder, jobs=int(jobs), progress=bar, params=PersonaParams(min_photos=int(min_photos)),
                       files=files, allow_mixed=allow_mixed)
 

@@ -103,6 +103,7 @@ def run_build(args) -> int:
     from ..io import check_input_dir, check_output_path
     from ..persona import PersonaParams, build_persona
     from ..persona.collection import _list_photos
+    from ..persona.collection import SHAPE_STEPS
     from ..persona.identity import MixedCollectionError
     from ._common import jobs_of
 
@@ -115,23 +116,30 @@ def run_build(args) -> int:
                             what="persona file")
     sidecar = check_output_path(f"{out}.json", overwrite=args.overwrite, inputs=photos)
     t0 = time.perf_counter()
-    with progress_bar(total=2 * len(photos), desc="persona", unit="photo", disable=args.quiet) as update:
+    stacks = not args.no_texture_stacks
+    # two passes over the photos, the shape's steps, then the texture stacks made while saving
+    total = 2 * len(photos) + SHAPE_STEPS + int(stacks)
+    with progress_bar(total=total, desc="persona", unit="step", disable=args.quiet) as update:
         try:
             persona = build_persona(folder, jobs=jobs_of(args), progress=update, allow_mixed=args.allow_mixed,
                                     params=PersonaParams(min_photos=args.min_photos))
         except MixedCollectionError as e:
             raise MixedCollectionError(f"{e.message}, or pass --allow-mixed to build from all of them",
                                        path=e.path, main=e.main, others=e.others, people=e.people) from None
-    record = provenance(command="persona build", inputs={"photo_dir": folder},
-                        params={"jobs": jobs_of(args), "min_photos": args.min_photos, "allow_mixed": args.allow_mixed,
-                                "texture_stacks": not args.no_texture_stacks, "persona_params": persona.params},
-                        outputs=[out], photos_used=len(persona), skipped=persona.skipped,
-                        seconds=time.perf_counter() - t0)
-    # the persona and its sidecar are committed together
-    stacks = not args.no_texture_stacks
-    write_files({out: lambda tmp: persona.save(tmp, overwrite=True, texture_stacks=stacks),
-                 sidecar: encode_json(record)},
-                overwrite=args.overwrite, inputs=photos)
+        record = provenance(command="persona build", inputs={"photo_dir": folder},
+                            params={"jobs": jobs_of(args), "min_photos": args.min_photos,
+                                    "allow_mixed": args.allow_mixed, "texture_stacks": stacks,
+                                    "persona_params": persona.params},
+                            outputs=[out], photos_used=len(persona), skipped=persona.skipped,
+                            seconds=time.perf_counter() - t0)
+        if stacks:
+            update(n=0, stage="texture stacks")
+        # the persona and its sidecar are committed together
+        write_files({out: lambda tmp: persona.save(tmp, overwrite=True, texture_stacks=stacks),
+                     sidecar: encode_json(record)},
+                    overwrite=args.overwrite, inputs=photos)
+        if stacks:
+            update(n=1, stage="saved")
     if not args.quiet:
         print(f"{out}: {len(persona)} photos used, {len(persona.skipped)} skipped "
               f"({time.perf_counter() - t0:.1f} s)", file=sys.stderr)

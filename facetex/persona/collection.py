@@ -813,7 +813,7 @@ def build_persona(photo_dir, *, jobs: int = 2, progress: Callable | None = None,
     Last, the average 3D face (:func:`average_shape`) is stored as ``depth`` when it passed its
     photometric validation (all NaN otherwise), its report as ``shape_report``.
     ``progress(n=1, stage=...)`` is called once per photo for each of the two passes
-    (and with n=0, stage="shape" before the average depth).
+    (then :data:`SHAPE_STEPS` steps of the average shape, each stage named: :func:`average_shape`).
     ``files`` restricts the build to these paths (e.g. leave-out evaluation).
     Raises BadInputError (naming the folder) when it holds no images or fewer than
     ``params.min_photos`` usable photos. The photos must show one person
@@ -877,9 +877,7 @@ def _build(folder: Path, paths: list[Path], params: PersonaParams, pool: _Pool, 
         params=params,
         source=str(folder),
     )
-    if progress:
-        progress(n=0, stage="shape")
-    depth, count, report = average_shape(persona, maps=maps)
+    depth, count, report = average_shape(persona, maps=maps, progress=progress)
     persona.shape_report = report
     if report.get("accepted"):
         persona.depth, persona.depth_photos = depth, count
@@ -923,8 +921,12 @@ def _aligned_with_visibility(persona: Persona, idx: np.ndarray, maps: np.ndarray
     return remap_stack(persona.images[idx], amaps), remap_stack(persona.visibility[idx], amaps)
 
 
-def average_shape(persona: Persona, *, maps: np.ndarray | None = None,
-                  shape_photos: int | None = None) -> tuple[np.ndarray, int, dict]:
+#: progress steps of :func:`average_shape` (the build's bar counts them after its two passes over the photos)
+SHAPE_STEPS = 4
+
+
+def average_shape(persona: Persona, *, maps: np.ndarray | None = None, shape_photos: int | None = None,
+                  progress: Callable | None = None) -> tuple[np.ndarray, int, dict]:
     """The persona's average 3D face (Tom Hanks Sec. 4) with its photometric validation:
     (depth (H, W) float32 canonical px, NaN off the face region; training photos; report).
 
@@ -934,8 +936,18 @@ def average_shape(persona: Persona, *, maps: np.ndarray | None = None,
     collection flow), with their own visibility (the mirrored fill counts 0); then
     :func:`facetex.persona.shape.validate_shape` on the held-out photos (:func:`shape_split`).
     The report (JSON-able) holds the validation numbers and the verdict; the depth is the
-    reconstruction whether accepted or not (``report["accepted"]`` says which)."""
+    reconstruction whether accepted or not (``report["accepted"]`` says which). ``progress(n=,
+    stage=)``: :data:`SHAPE_STEPS` steps in all, each stage named before it runs (the whole stage
+    takes ~10 s for 500 photos: a bar standing at its end without a word looked stuck)."""
     from .shape import reconstruct_average_shape, validate_shape
+
+    done = 0
+
+    def step(stage: str, n: int = 1) -> None:
+        nonlocal done
+        if progress:
+            progress(n=n, stage=stage)
+        done += n
 
     W, H = persona.size
     n = len(persona)
@@ -943,21 +955,29 @@ def average_shape(persona: Persona, *, maps: np.ndarray | None = None,
     nan = np.full((H, W), np.nan, np.float32)
     base = {"method": "robust visible-half photometric stereo, symmetric, bas-relief fixed by the generic face",
             "train_photos": int(len(train)), "heldout_photos": int(len(held))}
+    def finish(*result):
+        step("shape done", SHAPE_STEPS - done)  # the bar ends its steps whichever way the stage ends
+        return result
+
     if len(held) < 3 or len(train) < 8:
-        return nan, 0, {**base, "accepted": False,
-                        "reason": f"too few photos ({n}) to reconstruct and validate a shape: at least "
-                                  f"{MIN_SHAPE_PHOTOS} usable photos are needed"}
+        return finish(nan, 0, {**base, "accepted": False,
+                               "reason": f"too few photos ({n}) to reconstruct and validate a shape: at least "
+                                         f"{MIN_SHAPE_PHOTOS} usable photos are needed"})
     region = face_region(persona.points68.mean(axis=0), (H, W))
+    step("shape: aligning photos", 0)
     imgs, vis = _aligned_with_visibility(persona, train, maps)
+    step("shape: photometric stereo")
     try:
         shape = reconstruct_average_shape(imgs, region, visibility=vis)
     except (BadInputError, np.linalg.LinAlgError) as e:
-        return nan, 0, {**base, "accepted": False, "reason": f"reconstruction failed ({e})"}
+        return finish(nan, 0, {**base, "accepted": False, "reason": f"reconstruction failed ({e})"})
     if not np.isfinite(shape.depth[region]).any():
-        return nan, 0, {**base, "accepted": False, "reason": "reconstruction gave no finite depth"}
+        return finish(nan, 0, {**base, "accepted": False, "reason": "reconstruction gave no finite depth"})
+    step("shape: aligning held-out photos")
     himgs, hvis = _aligned_with_visibility(persona, held, maps)
+    step("shape: validating")
     val = validate_shape(shape.depth, imgs, vis, himgs, hvis, region)
-    return shape.depth.astype(np.float32), int(len(train)), {**base, **val.as_dict()}
+    return finish(shape.depth.astype(np.float32), int(len(train)), {**base, **val.as_dict()})
 
 
 def average_depth(persona: Persona, *, maps: np.ndarray | None = None,

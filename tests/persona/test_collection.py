@@ -63,7 +63,7 @@ def photo_dir(tmp_path_factory):
 @pytest.fixture(scope="module")
 def persona(photo_dir):
     calls = []
-    p = build_persona(photo_dir, jobs=1, params=PARAMS, progress=lambda n=1, **kw: calls.append(kw))
+    p = build_persona(photo_dir, jobs=1, params=PARAMS, progress=lambda n=1, **kw: calls.append({"n": n, **kw}))
     p.progress_calls = calls
     return p
 
@@ -82,6 +82,12 @@ def test_build_keeps_good_photos_and_lists_skipped(persona):
     # one progress call per photo for the frontalization pass, per usable photo for the flows
     assert sum(c.get("stage") == "frontalize" for c in persona.progress_calls) == 14
     assert sum(c.get("stage") == "flow" for c in persona.progress_calls) == 12
+    # then the average shape's steps, each named before it runs (the bar does not stand still unnamed)
+    from facetex.persona.collection import SHAPE_STEPS
+
+    shape = [c for c in persona.progress_calls if str(c.get("stage", "")).startswith("shape")]
+    assert sum(c["n"] for c in shape) == SHAPE_STEPS
+    assert [c["stage"] for c in shape][:2] == ["shape: aligning photos", "shape: photometric stereo"]
     # mirrored copies have mirrored pose-corrected fiducials: x flips about the frame centre
     i, j = persona.photos.index("frl_004_neutral_0.jpg"), persona.photos.index("frl_004_neutral_1.jpg")
     assert abs(np.mean(persona.fiducials[i][:, 0]) + np.mean(persona.fiducials[j][:, 0]) - (W - 1)) < 3
