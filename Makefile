@@ -2,6 +2,7 @@
 VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.facetex-installed
+TEST_STAMP := $(VENV)/.facetex-test-installed
 DEMO_OUT ?= demo_out
 
 .PHONY: install demo test test-slow docs browser-deps bench clean
@@ -12,16 +13,21 @@ $(STAMP): pyproject.toml setup.py tools/install_torch.sh
 	python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	bash tools/install_torch.sh $(PY)
-	$(PY) -m pip install -q -e '.[test,ray]'
+	$(PY) -m pip install -q -e .
 	touch $(STAMP)
+
+# the test and Ray extras (~2 GB with Ray): only the tests need them, not the demo
+$(TEST_STAMP): $(STAMP)
+	$(PY) -m pip install -q -e '.[test,ray]'
+	touch $(TEST_STAMP)
 
 demo: $(STAMP)
 	$(VENV)/bin/facetex demo --out $(DEMO_OUT)
 
-test: $(STAMP)
+test: $(TEST_STAMP)
 	$(PY) -m pytest -q
 
-test-slow: $(STAMP)
+test-slow: $(TEST_STAMP)
 	# pytest exits 5 when no test is marked slow: that is not a failure
 	$(PY) -m pytest -q -m slow || [ $$? -eq 5 ]
 
