@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from typing import Sequence
 
-from ..bench._common import spread
+from .._stats import spread
 from .runs import Run
 
 __all__ = ["metric_summary", "compare_rows", "compare_table", "KEY_METRICS"]

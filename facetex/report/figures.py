@@ -155,7 +155,7 @@ def metrics_figure(series: Mapping[str, Mapping[str, Sequence[float]]], metrics:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..bench._common import spread
+    from .._stats import spread
 
     groups = list(series)
     n = len(metrics)
