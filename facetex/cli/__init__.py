@@ -92,6 +92,22 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def iter_commands(parser: argparse.ArgumentParser | None = None, prefix: tuple = ()):
+    """(name, parser) of every command of the CLI ("persona build", ...), each parser once (the
+    docs' CLI reference and the convention test walk the same tree)."""
+    parser = build_parser() if parser is None else parser
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if not subs:
+        yield " ".join(prefix), parser
+        return
+    for s in subs:
+        seen = set()
+        for name, p in s.choices.items():
+            if id(p) not in seen:
+                seen.add(id(p))
+                yield from iter_commands(p, prefix + (name,))
+
+
 def _accept_debug_anywhere(parser: argparse.ArgumentParser) -> None:
     """Let ``--debug`` also follow the sub-command (``facetex landmarks x.jpg --debug``), and give
     every command ``-q/--quiet`` (the convention: no progress bar and no success message)."""

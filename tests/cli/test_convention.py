@@ -5,7 +5,6 @@ shell script covering every command."""
 
 from __future__ import annotations
 
-import argparse
 import json
 import subprocess
 import sys
@@ -13,27 +12,13 @@ import sys
 import pytest
 
 from facetex._resources import sample_path
-from facetex.cli import build_parser, main
+from facetex.cli import iter_commands, main
 
 #: commands whose result is printed, not written
 PRINTS_ONLY = {"identity", "metrics", "compare", "completion", "samples"}
 
 
-def _leaves(parser=None, prefix=()):
-    parser = parser or build_parser()
-    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
-    if not subs:
-        yield " ".join(prefix), parser
-        return
-    for s in subs:
-        seen = set()
-        for name, p in s.choices.items():
-            if id(p) not in seen:
-                seen.add(id(p))
-                yield from _leaves(p, prefix + (name,))
-
-
-LEAVES = dict(_leaves())
+LEAVES = dict(iter_commands())
 
 
 def test_the_walk_finds_every_command():
