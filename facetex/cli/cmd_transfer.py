@@ -215,5 +215,5 @@ def run(args) -> int:
     # the image and its sidecar are committed together: never one without the other
     write_files({out: encode_image(out, image), sidecar: encode_json(record)}, overwrite=args.overwrite,
                 inputs=inputs)
-    wrote(args, out, sidecar, *steps, seed=args.seed, timings_s=info["timings"])
+    wrote(args, out, sidecar, steps=steps, seed=args.seed, timings_s=info["timings"])  # steps: each said when written
     return 0

@@ -85,3 +85,14 @@ def test_completion_scripts_cover_the_commands(shell):
         assert word in r.stdout
     if shell == "bash":
         assert subprocess.run(["bash", "-n"], input=r.stdout, text=True).returncode == 0  # valid syntax
+
+
+def test_transfer_says_each_step_file_once_and_prints_the_loss_terms(tmp_path, capsys):
+    face, other = str(sample_path("frl_004_neutral.jpg")), str(sample_path("frl_005_neutral.jpg"))
+    out = tmp_path / "o.png"
+    assert main(["transfer", face, other, "-o", str(out), "--size", "128", "--iters", "2,2,2",
+                 "--save-every", "3", "--print-every", "3"]) == 0
+    cap = capsys.readouterr()
+    steps = sorted(p.name for p in tmp_path.glob("o_level*_eval*.png"))
+    assert steps and all(cap.out.count(f"wrote {tmp_path / s}") == 1 for s in steps), cap.out
+    assert "loss" in cap.err and "structure" in cap.err and "tv" in cap.err  # the terms, not only the total
