@@ -324,7 +324,7 @@ def _lightness_to_luminance(L):
 
 
 def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 / 3, 1.2), colour: str = "driver",
-                         light_limits=(0.5, 2.0), shrink: int = 1, lips=None, keep=None) -> np.ndarray:
+                         light_limits=(0.5, 2.0), shrink: int = 1, lips=None, lids=None, keep=None) -> np.ndarray:
     """``src`` (H, W, 3) sRGB with the low-frequency colour of ``ref`` (the same size, aligned),
     measured on skin pixels only (bool ``src_skin``, ``ref_skin``), the detail of ``src`` kept.
 
@@ -347,7 +347,9 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     (white lips; a pale driver's lips are darker than her skin). ``keep`` (colour "driver"):
     weight (H, W) in [0, 1] or None: where it is 1 ``src`` is kept as it is (the eyeballs,
     :func:`eye_weights`: iris and whites are not skin; with the skin's field and the bounded
-    lightness gain a dark persona's brown irises turned grey on a pale driver).
+    lightness gain a dark persona's brown irises turned grey on a pale driver). ``lids`` (colour
+    "driver"): the same as ``lips`` for the skin round the eyes (:func:`lid_weights`): a dark
+    persona's lids, darker than her skin, kept that difference on a pale driver as dark rings.
     Returns sRGB float32 in [0, 1]."""
     if colour not in COLOURS:
         raise BadInputError(f"unknown colour {colour!r}: use one of {', '.join(COLOURS)}")
@@ -385,12 +387,16 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
         field[..., c] = sb[..., c] - g[c] * sa[..., c]
     field = full(field)
     a = _lab(src)
-    if lips is not None:
-        wl, lm = np.asarray(lips[0], np.float32), np.asarray(lips[1], bool)
+    ref_lab = None
+    for region in (lips, lids):
+        if region is None:
+            continue
+        wl, lm = np.asarray(region[0], np.float32), np.asarray(region[1], bool)
         if lm.sum() >= 8 and wl.max() > 0:
-            lip_field = np.median(_pixels(_lab(ref), lm), axis=0) - g * np.median(_pixels(a, lm), axis=0)
+            ref_lab = _lab(ref) if ref_lab is None else ref_lab
+            own = np.median(_pixels(ref_lab, lm), axis=0) - g * np.median(_pixels(a, lm), axis=0)
             for c in range(3):
-                field[..., c] += wl * (lip_field[c] - field[..., c])
+                field[..., c] += wl * (own[c] - field[..., c])
     out = np.empty(a.shape, np.float32)
     for c in range(3):
         out[..., c] = g[c] * a[..., c] + field[..., c]
@@ -413,6 +419,30 @@ def lip_weights(points68, shape, *, feather: float = 0.02) -> tuple[np.ndarray, 
     ring = cv2.erode(ring, np.ones((3, 3), np.uint8)) > 0
     sig = max(0.75, feather * float(np.linalg.norm(p[36] - p[45])))
     return np.clip(cv2.GaussianBlur(outer.astype(np.float32), (0, 0), sig), 0, 1), ring
+
+
+def _scaled(weights: tuple, strength: float) -> tuple:
+    """(weight x ``strength``, pixels): a region weight of :func:`transfer_skin_colour` in part."""
+    return np.asarray(weights[0], np.float32) * float(np.clip(strength, 0.0, 1.0)), weights[1]
+
+
+def lid_weights(points68, shape, *, margin: float = 0.045, feather: float = 0.015) -> tuple[np.ndarray, np.ndarray]:
+    """(weight (H, W) float32, bool (H, W)) of the lids round both eyes at iBUG landmarks
+    ``points68``: the eye outlines (36-41, 42-47) grown by ``margin`` x the face width (the
+    margin :func:`facetex.geometry.skin.feature_mask` leaves out of the skin) minus the eyeballs,
+    feathered by ``feather`` x the eye-corner distance, and the ring's pixels (a pixel in from
+    both edges) where its colour is measured (:func:`transfer_skin_colour`)."""
+    from ..geometry.masks import face_width
+
+    p = np.asarray(points68, np.float64)
+    h, w = _shape2(shape)
+    balls = np.maximum(polygon_mask(p[36:42], (h, w)), polygon_mask(p[42:48], (h, w))) > 0.5
+    r = max(1, int(round(margin * face_width(p))))
+    grown = cv2.dilate(balls.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0
+    ring = grown & ~balls
+    inner = cv2.erode(ring.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    sig = max(0.75, feather * float(np.linalg.norm(p[36] - p[45])))
+    return np.clip(cv2.GaussianBlur(grown.astype(np.float32), (0, 0), sig), 0, 1), inner
 
 
 def eye_weights(points68, shape, *, feather: float = 0.015) -> np.ndarray:
@@ -862,7 +892,12 @@ class CompositeParams:
     a dark persona over a pale driver) greyed the irises; an upper bound of 1.5 (a dark persona's
     skin is ~1.8x darker in L* than a pale driver's) blackened the eye sockets and nostrils and
     turned the lips white, 1.2 keeps them a face's (cheek ΔE 7.4 -> 6.7 on that pair);
-    occlusion: keep the driver's occluders in front (:func:`occlusion_mask`); sharpen: the
+    lid_colour: the lids round the eyes take the driver's lid lightness at this strength
+    (:func:`lid_weights`, 0: off, the default): a dark persona's dark lids looked like shadow rings
+    on pale drivers, and at 1 Williams' eye openness rose (0.83-0.90 -> 0.84-0.95 of the driver's)
+    and Bush/sbwe5n's mouth slope came into range (1.32 -> 1.20), but Chavez's deep-set eyes read
+    less open (pwij3p 0.83 -> 0.79, at 0.5 0.80) and Koizumi/id2 came out 80 % closer to the
+    persona (100 %); occlusion: keep the driver's occluders in front (:func:`occlusion_mask`); sharpen: the
     puppet's fine detail is raised towards the driver's frame's, at most by this gain (1: off;
     :func:`match_sharpness`); poisson:
     gradient-domain blending at the border; feather: width of the inward feather as a fraction of the eye-corner distance;
@@ -878,6 +913,7 @@ class CompositeParams:
     colour_sigma: float = 0.06
     colour_gain: tuple[float, float] = (2 / 3, 1.2)
     lip_colour: bool = True
+    lid_colour: float = 0.0
     eye_colour: bool = True
     occlusion: bool = True
     sharpen: float = 2.5
@@ -985,6 +1021,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         out = transfer_skin_colour(out, fr, pup_skin, drv_skin, sigma=max(1.0, params.colour_sigma * iod),
                                    gain=params.colour_gain, colour=params.colour, shrink=ks,
                                    lips=lip_weights(p68 - [x0, y0], rg.shape) if params.lip_colour else None,
+                                   lids=_scaled(lid_weights(p68 - [x0, y0], rg.shape), params.lid_colour)
+                                   if params.lid_colour > 0 else None,
                                    keep=eye_weights(p68 - [x0, y0], rg.shape) if params.eye_colour else None)
     if params.sharpen > 1:
         # after the colour transfer: a dark persona's detail is small in sRGB until it takes a pale

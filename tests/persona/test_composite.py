@@ -673,3 +673,32 @@ def test_eyeballs_keep_the_personas_colour_the_lids_take_the_drivers():
     np.testing.assert_allclose(out[core], np.broadcast_to([25.0, 8.0, 14.0], out[core].shape), atol=0.3)
     grey = _lab(transfer_skin_colour(src, ref, ~eyes, ~eyes, sigma=np.inf))
     assert np.median(grey[core][:, 0]) > 50  # without it: 75 + 1.2 x (25 - 40) = 57, a grey iris
+
+
+def test_lids_take_the_drivers_lid_lightness():
+    """A dark persona whose lids are much darker than her skin (L 25 lids, L 45 skin) on a pale
+    driver with lids barely darker than his skin (L 68 lids, L 75 skin): with the lid weights the
+    ring round the eyes comes out at the driver's lid median (hand-computed: no detail inside the
+    lids); with the skin's field alone at 75 + 1.2 x (25 - 45) = 51: a dark ring."""
+    from facetex.persona.composite import lid_weights
+
+    h, w = 80, 96
+    p = _face68(gap=4.0)
+    t = np.linspace(0, 2 * np.pi, 6, endpoint=False)
+    for k, cx in ((36, 30.0), (42, 66.0)):  # two eyes 36 px apart, 12 x 6 px
+        p[k:k + 6] = np.c_[cx + 6 * np.cos(t), 25 + 3 * np.sin(t)]
+    p[0], p[16] = (8.0, 30.0), (88.0, 30.0)  # a face 80 px wide: lids grown by 0.045 x 80 = 3.6 px
+    wl, ring = lid_weights(p, (h, w))
+    balls = np.maximum(polygon_mask(p[36:42], (h, w)), polygon_mask(p[42:48], (h, w))) > 0.5
+    assert ring.sum() > 20 and not (ring & balls).any()
+    lidzone = (wl > 0.5) & ~balls
+    src_lab = np.where(lidzone[..., None], np.float32([25.0, 12.0, 14.0]), np.float32([45.0, 14.0, 20.0]))
+    ref_lab = np.where(lidzone[..., None], np.float32([68.0, 11.0, 15.0]), np.float32([75.0, 10.0, 16.0]))
+    src, ref = _rgb(src_lab.astype(np.float32)), _rgb(ref_lab.astype(np.float32))
+    skin = ~cv2.dilate((wl > 0).astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    out = _lab(transfer_skin_colour(src, ref, skin, skin, sigma=np.inf, lids=(wl, ring)))
+    core = ring & (wl > 0.999)
+    assert core.sum() > 10
+    np.testing.assert_allclose(np.median(out[core][:, 0]), 68.0, atol=0.5)
+    ringed = _lab(transfer_skin_colour(src, ref, skin, skin, sigma=np.inf))
+    assert np.median(ringed[core][:, 0]) == pytest.approx(75 + 1.2 * (25 - 45), abs=1.0)
