@@ -45,6 +45,7 @@ import cv2
 import numpy as np
 
 from .._parallel import available_cpus
+from .._schema import check_shape
 from ..errors import BadImageError, BadInputError, BadPersonaError, FacetexError, PersonaNotFoundError
 from ._packed import Packed
 
@@ -293,6 +294,40 @@ def _bad(path, what: str) -> BadPersonaError:
     return BadPersonaError(f"{what}: rebuild it with `facetex persona build`", path=path)
 
 
+_NUMBER = {"type": "number"}
+#: what a header must hold (the texture stacks' description is checked by _stack_members); the
+#: parameters' ranges are generous: they only keep a crafted value from failing deep in a build
+_HEADER_SCHEMA = {
+    "type": "object",
+    "required": ["parameters", "photos"],
+    "properties": {
+        "parameters": {
+            "type": "object", "required": ["size"], "additionalProperties": False,
+            "properties": {
+                "size": {"type": "array", "minItems": 2, "maxItems": 2,
+                         "items": {"type": "integer", "minimum": 1, "maximum": 4096}},
+                "tps_smoothing": {"type": "number", "minimum": 0, "maximum": 1e6},
+                "flow_alpha": {"type": "number", "exclusiveMinimum": 0, "maximum": 1e6},
+                "subspace_rank": {"type": "integer", "minimum": 0, "maximum": 64},
+                "max_yaw": {"type": "number", "minimum": 0, "maximum": 180},
+                "dominant_ratio": {"type": "number", "minimum": 0, "maximum": 1},
+                "min_photos": {"type": "integer", "minimum": 1},
+                "flow_method": {"enum": ["variational", "dis", "dis_fast", "farneback"]},
+                "shape_photos": {"type": "integer", "minimum": 1},
+            },
+        },
+        "source": {"type": "string"},
+        "photos": {"type": "array", "items": {
+            "type": "object", "required": ["file"],
+            "properties": {"file": {"type": "string"}, "yaw": _NUMBER, "pitch": _NUMBER, "roll": _NUMBER}}},
+        "skipped": {"type": "array", "items": {"type": "object"}},
+        "depth_photos": {"type": ["integer", "null"], "minimum": 0},
+        "shape": {"type": ["object", "null"]},
+        "texture_stacks": {"type": ["object", "null"]},
+    },
+}
+
+
 def _read_header(path: Path) -> tuple[dict, PersonaParams, list[str]]:
     """Parse and validate only the JSON header member (no array is decompressed)."""
     from ..io import check_input_file
@@ -304,6 +339,9 @@ def _read_header(path: Path) -> tuple[dict, PersonaParams, list[str]]:
         with zipfile.ZipFile(path) as zf:
             if "header.npy" not in zf.namelist():
                 raise _bad(path, "not a persona file (no header)")
+            locked = [i.filename for i in zf.infolist() if i.flag_bits & 0x1]
+            if locked:  # zipfile would ask for a password (RuntimeError); facetex never writes them
+                raise _bad(path, f"corrupt persona file (member {locked[0]!r} is encrypted)")
             if zf.getinfo("header.npy").file_size > _MAX_HEADER_BYTES:
                 raise _bad(path, f"corrupt persona file (header member of {zf.getinfo('header.npy').file_size} "
                                  "bytes)")
@@ -319,19 +357,18 @@ def _read_header(path: Path) -> tuple[dict, PersonaParams, list[str]]:
     if not isinstance(header, dict) or header.get("format") != PERSONA_FORMAT:
         raise _bad(path, "not a persona file (unknown format)")
     version = header.get("version")
-    if not isinstance(version, int) or version > PERSONA_VERSION or version < 1:
+    if not isinstance(version, int) or isinstance(version, bool):  # true is no version 1
+        raise _bad(path, f"corrupt persona header (version must be an integer, not {json.dumps(version)[:40]})")
+    if version > PERSONA_VERSION or version < 1:
         raise BadPersonaError(
             f"persona format version {version!r} is not supported (this facetex reads up to "
             f"{PERSONA_VERSION}): upgrade facetex or rebuild the persona", path=path)
+    check_shape(header, _HEADER_SCHEMA, path=path, what="persona header", lead="corrupt persona header",
+                error=BadPersonaError, advice="rebuild it with `facetex persona build`")
     try:
         p = header["parameters"]
         params = PersonaParams(**{**p, "size": tuple(int(v) for v in p["size"])})
-        photos = [str(ph["file"]) for ph in header["photos"]]
-        if len(params.size) != 2:
-            raise ValueError(f"size {params.size}")
-        dp = header.get("depth_photos") if version >= 2 else None
-        if dp is not None and (not isinstance(dp, int) or dp < 0):
-            raise ValueError(f"depth_photos {dp!r}")
+        photos = [ph["file"] for ph in header["photos"]]
         _stack_members(header, len(photos), params.size)  # checks the stacks' description
     except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as e:
         raise _bad(path, f"corrupt persona header ({type(e).__name__}: {e})") from None
@@ -447,6 +484,7 @@ def load_persona(path) -> Persona:
     finite = ("fiducials", "points68", "poses", "subspace") + (("flows",) if version < 4 else ())
     if not all(_all_finite(arrays[k]) for k in finite):
         raise _bad(path, "persona arrays contain NaN or infinite values")
+    _check_ranges(path, arrays, params.size)
     arrays["subspace"] = arrays["subspace"].astype(np.float32)
     if depth_photos is not None and np.isinf(arrays["depth"]).any():
         raise _bad(path, "persona depth contains infinite values")
@@ -497,6 +535,18 @@ def _read_stored(raw, info: zipfile.ZipInfo) -> np.ndarray:
     if crc != info.CRC:
         raise zipfile.BadZipFile(f"bad CRC-32 for {info.filename}")
     return arr
+
+
+def _check_ranges(path: Path, arrays: dict, size) -> None:
+    """Refuse absurd (finite) values: landmarks far off the canonical frame (in canonical px, at
+    most one frame's side beyond it) or head angles beyond 180 degrees."""
+    side = float(max(size))
+    limits = {"fiducials": (-side, 2 * side), "points68": (-side, 2 * side), "poses": (-180.0, 180.0)}
+    for name, (lo, hi) in limits.items():
+        a = arrays[name]
+        if a.size and not (lo <= a.min() and a.max() <= hi):
+            worst = a.min() if a.min() < lo else a.max()
+            raise _bad(path, f"corrupt persona file (array {name!r} holds {worst:.4g}, outside [{lo:g}, {hi:g}])")
 
 
 def _all_finite(a: np.ndarray) -> bool:
