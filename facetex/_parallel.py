@@ -83,3 +83,36 @@ def main_script_hidden():
                 main.__dict__.pop(a, None)
             else:
                 main.__dict__[a] = v
+
+
+#: bytes of an AF_UNIX socket path (sun_path holds 108 with the closing NUL)
+_SOCKET_PATH_MAX = 107
+#: where multiprocessing's folder goes when TMPDIR is too long a path (the first writable one)
+_SHORT_TEMP_FOLDERS = ("/tmp", "/var/tmp", "/dev/shm")
+
+
+def short_socket_folder() -> None:
+    """Make multiprocessing's temporary folder (``pymp-*``, where the forkserver listens on an
+    AF_UNIX socket ``listener-*``) somewhere its socket path fits: under a long ``TMPDIR`` the
+    pool failed with "OSError: AF_UNIX path too long". The folder is then made in the first
+    writable one of /tmp, /var/tmp, /dev/shm (and removed at exit, as multiprocessing does);
+    when none fits, one error line (a shorter TMPDIR or one job)."""
+    import multiprocessing.util
+    import tempfile
+
+    from .errors import UsageError
+
+    socket_len = lambda folder: len(os.fsencode(folder)) + len("/listener-12345678")  # noqa: E731
+    if socket_len(tempfile.gettempdir()) + len("/pymp-12345678") <= _SOCKET_PATH_MAX:
+        return  # (made there on first use)
+    short = next((d for d in _SHORT_TEMP_FOLDERS if os.path.isdir(d) and os.access(d, os.W_OK | os.X_OK)), None)
+    saved = tempfile.tempdir
+    try:
+        tempfile.tempdir = short or saved
+        folder = multiprocessing.util.get_temp_dir()  # made once per process, then reused
+    finally:
+        tempfile.tempdir = saved
+    if socket_len(folder) > _SOCKET_PATH_MAX:
+        raise UsageError(f"the temporary folder {folder} is too long a path for the worker processes' socket "
+                         f"({len(os.fsencode(folder))} bytes; at most {_SOCKET_PATH_MAX - 18}): set a shorter "
+                         "TMPDIR, or use --jobs 1")

@@ -690,6 +690,9 @@ class _Pool:
 
     def __enter__(self):
         if self.jobs > 1:
+            from .._parallel import short_socket_folder
+
+            short_socket_folder()  # the forkserver's socket path must fit (a long TMPDIR)
             self.pool = ProcessPoolExecutor(self.jobs, mp_context=multiprocessing.get_context("forkserver"),
                                             initializer=_init_worker)
         return self
