@@ -174,11 +174,11 @@ class Persona:
         arrays.update({k: _packed_member(self, k) for k in _PACKED})
         if self.depth is not None:
             arrays["depth"] = np.asarray(self.depth, np.float32)
+        stacks = None
         if texture_stacks:
             from .texture import stored_stacks
 
             stacks = self.texture_stacks if _packed_stacks(self.texture_stacks) else stored_stacks(self)
-            header["texture_stacks"] = stacks["meta"]
             arrays.update(sorted(stacks["arrays"].items()))  # one member order, computed or as read
         members = {}
         for name, arr in arrays.items():
@@ -186,15 +186,23 @@ class Persona:
                 members[name], members[f"{name}_offsets"] = arr.blob, arr.offsets
             else:
                 members[name] = arr
-        head = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
+
+        def write(z, name, arr):
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            stored = name in _STORED or name.startswith("texture_")
+            info.compress_type = zipfile.ZIP_STORED if stored else zipfile.ZIP_DEFLATED
+            with z.open(info, "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.ascontiguousarray(arr), allow_pickle=False)
+
         with atomic_path(path, overwrite=overwrite) as tmp:
             with open(tmp, "wb") as fh, zipfile.ZipFile(fh, "w", allowZip64=True) as z:
-                for name, arr in {"header": head, **members}.items():
-                    info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-                    stored = name in _STORED or name.startswith("texture_")
-                    info.compress_type = zipfile.ZIP_STORED if stored else zipfile.ZIP_DEFLATED
-                    with z.open(info, "w", force_zip64=True) as f:
-                        np.lib.format.write_array(f, np.ascontiguousarray(arr), allow_pickle=False)
+                for name, arr in members.items():
+                    write(z, name, arr)
+                if stacks is not None:  # the header comes last: it names the CRC-32s just written
+                    crcs = {f"{k}.npy": z.getinfo(f"{k}.npy").CRC for k in _STACK_SOURCES if k in members}
+                    header["texture_stacks"] = {**stacks["meta"], "sources_crc32": stacks["meta"].get(
+                        "sources_crc32", crcs)}  # as read: the members they were made from
+                write(z, "header", np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8))
         return path
 
 
@@ -264,6 +272,11 @@ _PACKED = {"images": np.uint8, "visibility": np.uint8, "flows": np.int16}
 for _name in _PACKED:
     setattr(Persona, _name, _lazy_array(_name))
 
+
+#: members the texture stacks are made from: a header with stacks names their zip CRC-32s
+#: ("sources_crc32"); a file whose photos were replaced but not its stacks recomputes them
+_STACK_SOURCES = ("images", "images_offsets", "visibility", "visibility_offsets", "flows", "flows_offsets",
+                  "fiducials", "points68")
 
 #: members written uncompressed (an npz is a zip: np.load reads both kinds). Deflate saved
 #: 20-27 % of the raw images and flows of version-3 files but cost 1.7 s of every load of a
@@ -384,6 +397,9 @@ def _stack_members(header: dict, n: int, size=(0, 0)) -> tuple[dict, dict]:
         return {}, {}
     if not isinstance(meta, dict) or not isinstance(meta.get("key"), list):
         raise ValueError("texture_stacks")
+    crcs = meta.get("sources_crc32", {})
+    if not (isinstance(crcs, dict) and all(isinstance(v, int) and not isinstance(v, bool) for v in crcs.values())):
+        raise ValueError("texture_stacks.sources_crc32")
     static = meta.get("static")
     if not (isinstance(static, list) and len(static) <= 32
             and all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 2**26 for v in static)):
@@ -456,6 +472,7 @@ def load_persona(path) -> Persona:
                 raise _bad(path, f"persona file lacks arrays {missing}")
             arrays = {k: _read_stored(raw, files[k]) if files[k].compress_type == zipfile.ZIP_STORED
                       else _read_member(zf, files[k]) for k in names}
+            crcs = {f"{k}.npy": files[k].CRC for k in _STACK_SOURCES if k in files}  # checked as read
         bad = [k for k, a in arrays.items() if not isinstance(a, np.ndarray)]  # npz members that are not .npy
         if bad:
             raise _bad(path, f"corrupt persona file (members {bad} are not arrays)")
@@ -492,7 +509,17 @@ def load_persona(path) -> Persona:
     if shape_report is not None and not isinstance(shape_report, dict):
         raise _bad(path, "corrupt persona header (shape report is not an object)")
     stacks = None
-    if header.get("texture_stacks") is not None:  # version 3: float16 stacks; 4: packed aligned photos
+    made_from = (header.get("texture_stacks") or {}).get("sources_crc32")
+    if made_from is not None and made_from != crcs:  # the photos were replaced, not the stacks
+        import warnings
+
+        changed = sorted(set(made_from.items()) ^ set(crcs.items()))[0][0]
+        warnings.warn(f"{path}: its texture stacks were made from other photos ({changed} changed): "
+                      "recomputed (save the persona again to store them)", stacklevel=2)
+        for k in [k for k in plain if k.startswith("texture_")]:
+            arrays.pop(k)
+        packs.pop("texture_aligned", None)
+    elif header.get("texture_stacks") is not None:  # version 3: float16 stacks; 4: packed aligned photos
         names = [k for k in plain if k.startswith("texture_")]
         if not all(_all_finite(arrays[k]) for k in names):
             raise _bad(path, "persona texture stacks contain NaN or infinite values")

@@ -105,3 +105,67 @@ def test_rewritten_persona_unchanged_loads(capsys, tmp_path, outdir, persona_fil
     path = rewrite(persona_file, tmp_path / "same.persona", header=lambda h: None)
     run = run_cli(capsys, "persona", "average", path, "-o", outdir / "a.png")
     assert run.code == 0, run.err
+
+
+# ---------------------------------------------------------------- stacks bound to their photos
+def _replace_photos(src, dst):
+    """``src`` with other photos (its own, colours inverted) in images.npy, its stacks kept."""
+    from facetex.persona import load_persona
+    from facetex.persona._packed import Packed
+
+    packed = Packed.pack(255 - load_persona(src).images)
+    return rewrite(src, dst, arrays={"images": lambda a: packed.blob, "images_offsets": lambda a: packed.offsets})
+
+
+def test_replaced_photos_recompute_the_stacks(capsys, tmp_path, outdir, persona_file):
+    from facetex.persona import load_persona
+
+    path = _replace_photos(persona_file, tmp_path / "swapped.persona")
+    before = sha1s(path)
+    with pytest.warns(UserWarning, match=r"swapped.persona: its texture stacks were made from other photos "
+                                         r"\(images.npy changed\): recomputed"):
+        p = load_persona(path)
+    assert p.texture_stacks is None
+    fresh = tmp_path / "fresh.persona"  # the same photos, stacks computed from them
+    p.save(fresh, texture_stacks=False)
+    run = run_cli(capsys, "persona", "average", path, "-o", outdir / "swapped.png")
+    assert run.code == 0, run.err
+    assert "texture stacks were made from other photos" in run.err
+    assert run_cli(capsys, "persona", "average", fresh, "-o", outdir / "fresh.png").code == 0
+    assert run_cli(capsys, "persona", "average", persona_file, "-o", outdir / "old.png").code == 0
+    h = sha1s(*(outdir / f"{n}.png" for n in ("swapped", "fresh", "old")))
+    assert h[str(outdir / "swapped.png")] == h[str(outdir / "fresh.png")] != h[str(outdir / "old.png")]
+    assert sha1s(path) == before
+
+
+def test_saved_again_stores_stacks_of_the_new_photos(tmp_path, persona_file):
+    import warnings
+
+    from facetex.persona import load_persona
+
+    path = _replace_photos(persona_file, tmp_path / "swapped.persona")
+    with pytest.warns(UserWarning):
+        load_persona(path).save(tmp_path / "again.persona")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        again = load_persona(tmp_path / "again.persona")
+    assert again.texture_stacks is not None and "sources_crc32" in again.texture_stacks["meta"]
+
+
+def test_stacks_of_the_same_photos_are_used(persona_file):
+    import warnings
+
+    from facetex.persona import load_persona
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        p = load_persona(persona_file)
+    assert p.texture_stacks is not None and set(p.texture_stacks["meta"]["sources_crc32"]) >= {"images.npy",
+                                                                                               "fiducials.npy"}
+
+
+def test_bad_sources_crc32_is_one_line(capsys, tmp_path, outdir, persona_file):
+    path = rewrite(persona_file, tmp_path / "crc.persona",
+                   header=lambda h: h["texture_stacks"].__setitem__("sources_crc32", ["x"]))
+    run = run_cli(capsys, "persona", "average", path, "-o", outdir / "a.png")
+    assert_one_error(run, names=[path], cause=r"corrupt persona header.*sources_crc32")
