@@ -116,3 +116,51 @@ def short_socket_folder() -> None:
         raise UsageError(f"the temporary folder {folder} is too long a path for the worker processes' socket "
                          f"({len(os.fsencode(folder))} bytes; at most {_SOCKET_PATH_MAX - 18}): set a shorter "
                          "TMPDIR, or use --jobs 1")
+
+
+def die_with(pid: int, sig: int | None = None) -> None:
+    """Send this (worker) process ``sig`` (default SIGTERM: the work unwinds, temporary files go)
+    as soon as process ``pid``, the one that started it, has ended, also by SIGKILL, which no
+    cleanup code of its sees: its workers would otherwise run their task to the end (and write
+    its output) and wait for more. When ``pid`` is the parent, Linux's parent-death signal
+    (``prctl(PR_SET_PDEATHSIG)``) does it. A forkserver's workers are the forkserver's children,
+    and it lives as long as they do, so for them a daemon thread waits on a pidfd of ``pid``
+    (readable once it has exited; Linux >= 5.3), else polls it."""
+    import signal
+    import threading
+
+    sig = int(signal.SIGTERM if sig is None else sig)
+    if pid == os.getppid():
+        try:
+            import ctypes
+
+            ctypes.CDLL(None, use_errno=True).prctl(1, sig)  # PR_SET_PDEATHSIG
+            if os.getppid() != pid:  # it died before the prctl
+                os.kill(os.getpid(), sig)
+            return
+        except (OSError, AttributeError):  # not Linux: watch it as below
+            pass
+    try:
+        fd = os.pidfd_open(pid)
+    except (AttributeError, OSError):  # another OS, an old kernel, or pid already gone
+        fd = None
+
+    def watch():
+        if fd is not None:
+            import select
+
+            select.select([fd], [], [])
+        else:
+            import time
+
+            while True:
+                time.sleep(0.5)
+                try:
+                    os.kill(pid, 0)
+                except ProcessLookupError:
+                    break
+                except PermissionError:  # alive (another user's process with our pid: reused)
+                    pass
+        os.kill(os.getpid(), sig)
+
+    threading.Thread(target=watch, name="facetex-parent-watch", daemon=True).start()

@@ -637,10 +637,14 @@ def _list_photos(folder: Path) -> list[Path]:
     return files
 
 
-def _init_worker() -> None:
+def _init_worker(parent: int | None = None) -> None:
     import signal
 
+    from .._parallel import die_with
+
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the parent stops us
+    if parent is not None:
+        die_with(parent)  # also when the parent is SIGKILLed (it cannot stop us then)
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # torch (identity descriptor) is imported after this
     cv2.setNumThreads(1)
 
@@ -721,7 +725,7 @@ class _Pool:
 
             short_socket_folder()  # the forkserver's socket path must fit (a long TMPDIR)
             self.pool = ProcessPoolExecutor(self.jobs, mp_context=multiprocessing.get_context("forkserver"),
-                                            initializer=_init_worker)
+                                            initializer=_init_worker, initargs=(os.getpid(),))
         return self
 
     def __exit__(self, *exc):
