@@ -83,3 +83,84 @@ def main_script_hidden():
                 main.__dict__.pop(a, None)
             else:
                 main.__dict__[a] = v
+
+
+#: bytes of an AF_UNIX socket path (sun_path holds 108 with the closing NUL)
+_SOCKET_PATH_MAX = 107
+#: where multiprocessing's folder goes when TMPDIR is too long a path (the first writable one)
+_SHORT_TEMP_FOLDERS = ("/tmp", "/var/tmp", "/dev/shm")
+
+
+def short_socket_folder() -> None:
+    """Make multiprocessing's temporary folder (``pymp-*``, where the forkserver listens on an
+    AF_UNIX socket ``listener-*``) somewhere its socket path fits: under a long ``TMPDIR`` the
+    pool failed with "OSError: AF_UNIX path too long". The folder is then made in the first
+    writable one of /tmp, /var/tmp, /dev/shm (and removed at exit, as multiprocessing does);
+    when none fits, one error line (a shorter TMPDIR or one job)."""
+    import multiprocessing.util
+    import tempfile
+
+    from .errors import UsageError
+
+    socket_len = lambda folder: len(os.fsencode(folder)) + len("/listener-12345678")  # noqa: E731
+    if socket_len(tempfile.gettempdir()) + len("/pymp-12345678") <= _SOCKET_PATH_MAX:
+        return  # (made there on first use)
+    short = next((d for d in _SHORT_TEMP_FOLDERS if os.path.isdir(d) and os.access(d, os.W_OK | os.X_OK)), None)
+    saved = tempfile.tempdir
+    try:
+        tempfile.tempdir = short or saved
+        folder = multiprocessing.util.get_temp_dir()  # made once per process, then reused
+    finally:
+        tempfile.tempdir = saved
+    if socket_len(folder) > _SOCKET_PATH_MAX:
+        raise UsageError(f"the temporary folder {folder} is too long a path for the worker processes' socket "
+                         f"({len(os.fsencode(folder))} bytes; at most {_SOCKET_PATH_MAX - 18}): set a shorter "
+                         "TMPDIR, or use --jobs 1")
+
+
+def die_with(pid: int, sig: int | None = None) -> None:
+    """Send this (worker) process ``sig`` (default SIGTERM: the work unwinds, temporary files go)
+    as soon as process ``pid``, the one that started it, has ended, also by SIGKILL, which no
+    cleanup code of its sees: its workers would otherwise run their task to the end (and write
+    its output) and wait for more. When ``pid`` is the parent, Linux's parent-death signal
+    (``prctl(PR_SET_PDEATHSIG)``) does it. A forkserver's workers are the forkserver's children,
+    and it lives as long as they do, so for them a daemon thread waits on a pidfd of ``pid``
+    (readable once it has exited; Linux >= 5.3), else polls it."""
+    import signal
+    import threading
+
+    sig = int(signal.SIGTERM if sig is None else sig)
+    if pid == os.getppid():
+        try:
+            import ctypes
+
+            ctypes.CDLL(None, use_errno=True).prctl(1, sig)  # PR_SET_PDEATHSIG
+            if os.getppid() != pid:  # it died before the prctl
+                os.kill(os.getpid(), sig)
+            return
+        except (OSError, AttributeError):  # not Linux: watch it as below
+            pass
+    try:
+        fd = os.pidfd_open(pid)
+    except (AttributeError, OSError):  # another OS, an old kernel, or pid already gone
+        fd = None
+
+    def watch():
+        if fd is not None:
+            import select
+
+            select.select([fd], [], [])
+        else:
+            import time
+
+            while True:
+                time.sleep(0.5)
+                try:
+                    os.kill(pid, 0)
+                except ProcessLookupError:
+                    break
+                except PermissionError:  # alive (another user's process with our pid: reused)
+                    pass
+        os.kill(os.getpid(), sig)
+
+    threading.Thread(target=watch, name="facetex-parent-watch", daemon=True).start()

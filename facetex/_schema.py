@@ -42,9 +42,10 @@ def _validator(schema: dict):
     return v
 
 
-def check_shape(value, schema: dict, *, path, what: str, error: type = BadInputError, advice: str = ""):
+def check_shape(value, schema: dict, *, path, what: str, error: type = BadInputError, advice: str = "",
+                lead: str = ""):
     """``value`` if it matches ``schema``; else ``error`` naming ``path``, the first wrong field,
-    what it should be and ``advice`` (one line)."""
+    what it should be and ``advice`` (one line), after ``lead`` (default "not a ``what``")."""
     from jsonschema.exceptions import best_match
 
     err = best_match(_validator(schema).iter_errors(value))
@@ -57,7 +58,7 @@ def check_shape(value, schema: dict, *, path, what: str, error: type = BadInputE
     else:
         msg = f"{where}: {' '.join(err.message.split())}"
         msg = msg if len(msg) <= 160 else msg[:159] + "…"
-    raise error(f"not a {what}: {msg}" + (f"; {advice}" if advice else ""), path=path)
+    raise error(f"{lead or 'not a ' + what}: {msg}" + (f"; {advice}" if advice else ""), path=path)
 
 
 def parse_json(text: str | bytes, schema: dict, *, path, what: str, error: type = BadInputError, advice: str = ""):

@@ -104,14 +104,7 @@ def as_image(image: ImageLike, name: str = "image") -> np.ndarray:
     if a.shape[0] == 0 or a.shape[1] == 0:
         raise BadImageError(f"{name} has no pixels (shape {a.shape})")
     if np.issubdtype(a.dtype, np.floating):
-        if not np.all(np.isfinite(a)):
-            raise BadImageError(f"{name} contains NaN or infinite values")
-        lo, hi = float(a.min()), float(a.max())
-        if hi > 1.0 + 1e-3:
-            hint = ": divide by 255 (facetex takes floats in [0, 1], or uint8)" if hi <= 255.5 else ""
-            raise BadImageError(f"{name} is a float image with values up to {hi:.4g}, not in [0, 1]{hint}")
-        if lo < -1e-3:
-            raise BadImageError(f"{name} has negative values (min {lo:.4g}): give floats in [0, 1]")
+        check_float_pixels(a, name)
     f = np.clip(to_float32(a), 0.0, 1.0)
     if f.shape[2] == 4:
         alpha = f[..., 3:]
@@ -165,6 +158,20 @@ def to_float32(img: np.ndarray) -> np.ndarray:
     if img.dtype == np.uint16:
         return img.astype(np.float32) / 65535.0
     return img.astype(np.float32, copy=False)
+
+
+def check_float_pixels(a: np.ndarray, name: str, *, slack: float = 1e-3, path=None) -> None:
+    """BadImageError (naming ``path``) unless the float image ``a`` is finite and within
+    [-slack, 1 + slack]; a 0..255 image is told to divide by 255."""
+    if not np.all(np.isfinite(a)):
+        what = "only NaN or infinite values" if not np.isfinite(a).any() else "NaN or infinite values"
+        raise BadImageError(f"{name} contains {what}", path=path)
+    lo, hi = float(a.min()), float(a.max())
+    if hi > 1.0 + slack:
+        hint = ": divide by 255 (facetex takes floats in [0, 1], or uint8)" if hi <= 255.5 else ""
+        raise BadImageError(f"{name} is a float image with values up to {hi:.4g}, not in [0, 1]{hint}", path=path)
+    if lo < -slack:
+        raise BadImageError(f"{name} has negative values (min {lo:.4g}): give floats in [0, 1]", path=path)
 
 
 def to_uint8(img: np.ndarray) -> np.ndarray:
@@ -805,6 +812,8 @@ def encode_image(path, image: np.ndarray, *, quality: int = 95, bit_depth: int =
     if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] not in (1, 3, 4)) or img.size == 0:
         raise BadInputError(f"cannot write image of shape {img.shape}: need (H,W), (H,W,3) or (H,W,4)",
                             path=path)
+    if np.issubdtype(img.dtype, np.floating):  # processing may overshoot [0, 1] a little: clipped
+        check_float_pixels(img, "the image to write", slack=0.5, path=path)
     if bit_depth == 16:
         img = img if img.dtype == np.uint16 else np.clip(np.rint(to_float32(img) * 65535), 0, 65535
                                                          ).astype(np.uint16)
@@ -848,6 +857,9 @@ def write_image(path, image: np.ndarray, *, overwrite: bool = True, quality: int
     ------
     facetex.OutputError
         The output cannot be written, exists without ``overwrite``, or is one of ``inputs``.
+    facetex.BadImageError
+        A float image with NaN or infinite values, or far outside [0, 1] (a 0..255 image:
+        divide by 255); overshoots of up to 0.5 are clipped. Nothing is written.
     """
     path = check_output_path(path, overwrite=overwrite, inputs=inputs, extensions=IMAGE_EXTENSIONS,
                              what="image")

@@ -176,18 +176,22 @@ def _frontal_face_detector():
     detections, measured), so it is saved once to the cache folder, per dlib version."""
     import dlib
 
-    from ._resources import cache_dir
+    from ._resources import cache_dir, writable_cache_dir
 
-    path = cache_dir() / f"dlib-{dlib.__version__}-frontal_face_detector.svm"
+    name = f"dlib-{dlib.__version__}-frontal_face_detector.svm"
+    path = cache_dir() / name
     if path.is_file():
         try:
             return dlib.fhog_object_detector(str(path))
         except RuntimeError:  # damaged: saved again below
             pass
     det = dlib.get_frontal_face_detector()
+    folder = writable_cache_dir()
+    if folder is None:  # no cache here: built each time
+        return det
+    path = folder / name
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:  # atomically: processes building a persona in parallel may race here
-        path.parent.mkdir(parents=True, exist_ok=True)
         det.save(str(tmp))
         os.replace(tmp, path)
     except (OSError, RuntimeError):  # no writable cache: built each time

@@ -210,18 +210,6 @@ class InlineEngine(Engine):
 
 
 # ----------------------------------------------------------------------------- local pool
-def _die_with_parent() -> None:
-    """Linux: this process gets SIGTERM when its parent dies (even by SIGKILL), so no worker
-    outlives a killed batch."""
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):  # pragma: no cover - not Linux
-        pass
-
-
 def _interrupt(signum, frame):
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     raise KeyboardInterrupt(signal.Signals(signum).name)
@@ -229,9 +217,9 @@ def _interrupt(signum, frame):
 
 def _worker_main(conn, parent_pid: int) -> None:
     """A local worker: run (handle, fn, payload, threads) messages until None or EOF."""
-    _die_with_parent()
-    if os.getppid() != parent_pid:  # the parent died before prctl: do not linger
-        return
+    from .._parallel import die_with
+
+    die_with(parent_pid)  # SIGTERM when the batch dies, even by SIGKILL: no worker outlives it
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the terminal's Ctrl-C is the batch's to handle
     signal.signal(signal.SIGTERM, _interrupt)  # cancel: unwind, so temporary files are removed
     try:

@@ -201,6 +201,9 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     _reserve_std_fds()
     _passive_openmp()
+    from .._resources import matplotlib_outside_a_missing_home
+
+    matplotlib_outside_a_missing_home()
     debug = "--debug" in argv
     out = _Stdout(sys.stdout)
     stdout, sys.stdout = sys.stdout, out

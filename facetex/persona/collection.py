@@ -45,6 +45,7 @@ import cv2
 import numpy as np
 
 from .._parallel import available_cpus
+from .._schema import check_shape
 from ..errors import BadImageError, BadInputError, BadPersonaError, FacetexError, PersonaNotFoundError
 from ._packed import Packed
 
@@ -173,11 +174,11 @@ class Persona:
         arrays.update({k: _packed_member(self, k) for k in _PACKED})
         if self.depth is not None:
             arrays["depth"] = np.asarray(self.depth, np.float32)
+        stacks = None
         if texture_stacks:
             from .texture import stored_stacks
 
             stacks = self.texture_stacks if _packed_stacks(self.texture_stacks) else stored_stacks(self)
-            header["texture_stacks"] = stacks["meta"]
             arrays.update(sorted(stacks["arrays"].items()))  # one member order, computed or as read
         members = {}
         for name, arr in arrays.items():
@@ -185,15 +186,23 @@ class Persona:
                 members[name], members[f"{name}_offsets"] = arr.blob, arr.offsets
             else:
                 members[name] = arr
-        head = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
+
+        def write(z, name, arr):
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            stored = name in _STORED or name.startswith("texture_")
+            info.compress_type = zipfile.ZIP_STORED if stored else zipfile.ZIP_DEFLATED
+            with z.open(info, "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.ascontiguousarray(arr), allow_pickle=False)
+
         with atomic_path(path, overwrite=overwrite) as tmp:
             with open(tmp, "wb") as fh, zipfile.ZipFile(fh, "w", allowZip64=True) as z:
-                for name, arr in {"header": head, **members}.items():
-                    info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-                    stored = name in _STORED or name.startswith("texture_")
-                    info.compress_type = zipfile.ZIP_STORED if stored else zipfile.ZIP_DEFLATED
-                    with z.open(info, "w", force_zip64=True) as f:
-                        np.lib.format.write_array(f, np.ascontiguousarray(arr), allow_pickle=False)
+                for name, arr in members.items():
+                    write(z, name, arr)
+                if stacks is not None:  # the header comes last: it names the CRC-32s just written
+                    crcs = {f"{k}.npy": z.getinfo(f"{k}.npy").CRC for k in _STACK_SOURCES if k in members}
+                    header["texture_stacks"] = {**stacks["meta"], "sources_crc32": stacks["meta"].get(
+                        "sources_crc32", crcs)}  # as read: the members they were made from
+                write(z, "header", np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8))
         return path
 
 
@@ -264,6 +273,11 @@ for _name in _PACKED:
     setattr(Persona, _name, _lazy_array(_name))
 
 
+#: members the texture stacks are made from: a header with stacks names their zip CRC-32s
+#: ("sources_crc32"); a file whose photos were replaced but not its stacks recomputes them
+_STACK_SOURCES = ("images", "images_offsets", "visibility", "visibility_offsets", "flows", "flows_offsets",
+                  "fiducials", "points68")
+
 #: members written uncompressed (an npz is a zip: np.load reads both kinds). Deflate saved
 #: 20-27 % of the raw images and flows of version-3 files but cost 1.7 s of every load of a
 #: 519-photo persona (measured); packed members and the texture stacks (texture_*) are stored too.
@@ -293,6 +307,40 @@ def _bad(path, what: str) -> BadPersonaError:
     return BadPersonaError(f"{what}: rebuild it with `facetex persona build`", path=path)
 
 
+_NUMBER = {"type": "number"}
+#: what a header must hold (the texture stacks' description is checked by _stack_members); the
+#: parameters' ranges are generous: they only keep a crafted value from failing deep in a build
+_HEADER_SCHEMA = {
+    "type": "object",
+    "required": ["parameters", "photos"],
+    "properties": {
+        "parameters": {
+            "type": "object", "required": ["size"], "additionalProperties": False,
+            "properties": {
+                "size": {"type": "array", "minItems": 2, "maxItems": 2,
+                         "items": {"type": "integer", "minimum": 1, "maximum": 4096}},
+                "tps_smoothing": {"type": "number", "minimum": 0, "maximum": 1e6},
+                "flow_alpha": {"type": "number", "exclusiveMinimum": 0, "maximum": 1e6},
+                "subspace_rank": {"type": "integer", "minimum": 0, "maximum": 64},
+                "max_yaw": {"type": "number", "minimum": 0, "maximum": 180},
+                "dominant_ratio": {"type": "number", "minimum": 0, "maximum": 1},
+                "min_photos": {"type": "integer", "minimum": 1},
+                "flow_method": {"enum": ["variational", "dis", "dis_fast", "farneback"]},
+                "shape_photos": {"type": "integer", "minimum": 1},
+            },
+        },
+        "source": {"type": "string"},
+        "photos": {"type": "array", "items": {
+            "type": "object", "required": ["file"],
+            "properties": {"file": {"type": "string"}, "yaw": _NUMBER, "pitch": _NUMBER, "roll": _NUMBER}}},
+        "skipped": {"type": "array", "items": {"type": "object"}},
+        "depth_photos": {"type": ["integer", "null"], "minimum": 0},
+        "shape": {"type": ["object", "null"]},
+        "texture_stacks": {"type": ["object", "null"]},
+    },
+}
+
+
 def _read_header(path: Path) -> tuple[dict, PersonaParams, list[str]]:
     """Parse and validate only the JSON header member (no array is decompressed)."""
     from ..io import check_input_file
@@ -304,6 +352,9 @@ def _read_header(path: Path) -> tuple[dict, PersonaParams, list[str]]:
         with zipfile.ZipFile(path) as zf:
             if "header.npy" not in zf.namelist():
                 raise _bad(path, "not a persona file (no header)")
+            locked = [i.filename for i in zf.infolist() if i.flag_bits & 0x1]
+            if locked:  # zipfile would ask for a password (RuntimeError); facetex never writes them
+                raise _bad(path, f"corrupt persona file (member {locked[0]!r} is encrypted)")
             if zf.getinfo("header.npy").file_size > _MAX_HEADER_BYTES:
                 raise _bad(path, f"corrupt persona file (header member of {zf.getinfo('header.npy').file_size} "
                                  "bytes)")
@@ -319,19 +370,18 @@ def _read_header(path: Path) -> tuple[dict, PersonaParams, list[str]]:
     if not isinstance(header, dict) or header.get("format") != PERSONA_FORMAT:
         raise _bad(path, "not a persona file (unknown format)")
     version = header.get("version")
-    if not isinstance(version, int) or version > PERSONA_VERSION or version < 1:
+    if not isinstance(version, int) or isinstance(version, bool):  # true is no version 1
+        raise _bad(path, f"corrupt persona header (version must be an integer, not {json.dumps(version)[:40]})")
+    if version > PERSONA_VERSION or version < 1:
         raise BadPersonaError(
             f"persona format version {version!r} is not supported (this facetex reads up to "
             f"{PERSONA_VERSION}): upgrade facetex or rebuild the persona", path=path)
+    check_shape(header, _HEADER_SCHEMA, path=path, what="persona header", lead="corrupt persona header",
+                error=BadPersonaError, advice="rebuild it with `facetex persona build`")
     try:
         p = header["parameters"]
         params = PersonaParams(**{**p, "size": tuple(int(v) for v in p["size"])})
-        photos = [str(ph["file"]) for ph in header["photos"]]
-        if len(params.size) != 2:
-            raise ValueError(f"size {params.size}")
-        dp = header.get("depth_photos") if version >= 2 else None
-        if dp is not None and (not isinstance(dp, int) or dp < 0):
-            raise ValueError(f"depth_photos {dp!r}")
+        photos = [ph["file"] for ph in header["photos"]]
         _stack_members(header, len(photos), params.size)  # checks the stacks' description
     except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as e:
         raise _bad(path, f"corrupt persona header ({type(e).__name__}: {e})") from None
@@ -347,6 +397,9 @@ def _stack_members(header: dict, n: int, size=(0, 0)) -> tuple[dict, dict]:
         return {}, {}
     if not isinstance(meta, dict) or not isinstance(meta.get("key"), list):
         raise ValueError("texture_stacks")
+    crcs = meta.get("sources_crc32", {})
+    if not (isinstance(crcs, dict) and all(isinstance(v, int) and not isinstance(v, bool) for v in crcs.values())):
+        raise ValueError("texture_stacks.sources_crc32")
     static = meta.get("static")
     if not (isinstance(static, list) and len(static) <= 32
             and all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 2**26 for v in static)):
@@ -419,6 +472,7 @@ def load_persona(path) -> Persona:
                 raise _bad(path, f"persona file lacks arrays {missing}")
             arrays = {k: _read_stored(raw, files[k]) if files[k].compress_type == zipfile.ZIP_STORED
                       else _read_member(zf, files[k]) for k in names}
+            crcs = {f"{k}.npy": files[k].CRC for k in _STACK_SOURCES if k in files}  # checked as read
         bad = [k for k, a in arrays.items() if not isinstance(a, np.ndarray)]  # npz members that are not .npy
         if bad:
             raise _bad(path, f"corrupt persona file (members {bad} are not arrays)")
@@ -447,6 +501,7 @@ def load_persona(path) -> Persona:
     finite = ("fiducials", "points68", "poses", "subspace") + (("flows",) if version < 4 else ())
     if not all(_all_finite(arrays[k]) for k in finite):
         raise _bad(path, "persona arrays contain NaN or infinite values")
+    _check_ranges(path, arrays, params.size)
     arrays["subspace"] = arrays["subspace"].astype(np.float32)
     if depth_photos is not None and np.isinf(arrays["depth"]).any():
         raise _bad(path, "persona depth contains infinite values")
@@ -454,7 +509,17 @@ def load_persona(path) -> Persona:
     if shape_report is not None and not isinstance(shape_report, dict):
         raise _bad(path, "corrupt persona header (shape report is not an object)")
     stacks = None
-    if header.get("texture_stacks") is not None:  # version 3: float16 stacks; 4: packed aligned photos
+    made_from = (header.get("texture_stacks") or {}).get("sources_crc32")
+    if made_from is not None and made_from != crcs:  # the photos were replaced, not the stacks
+        import warnings
+
+        changed = sorted(set(made_from.items()) ^ set(crcs.items()))[0][0]
+        warnings.warn(f"{path}: its texture stacks were made from other photos ({changed} changed): "
+                      "recomputed (save the persona again to store them)", stacklevel=2)
+        for k in [k for k in plain if k.startswith("texture_")]:
+            arrays.pop(k)
+        packs.pop("texture_aligned", None)
+    elif header.get("texture_stacks") is not None:  # version 3: float16 stacks; 4: packed aligned photos
         names = [k for k in plain if k.startswith("texture_")]
         if not all(_all_finite(arrays[k]) for k in names):
             raise _bad(path, "persona texture stacks contain NaN or infinite values")
@@ -497,6 +562,18 @@ def _read_stored(raw, info: zipfile.ZipInfo) -> np.ndarray:
     if crc != info.CRC:
         raise zipfile.BadZipFile(f"bad CRC-32 for {info.filename}")
     return arr
+
+
+def _check_ranges(path: Path, arrays: dict, size) -> None:
+    """Refuse absurd (finite) values: landmarks far off the canonical frame (in canonical px, at
+    most one frame's side beyond it) or head angles beyond 180 degrees."""
+    side = float(max(size))
+    limits = {"fiducials": (-side, 2 * side), "points68": (-side, 2 * side), "poses": (-180.0, 180.0)}
+    for name, (lo, hi) in limits.items():
+        a = arrays[name]
+        if a.size and not (lo <= a.min() and a.max() <= hi):
+            worst = a.min() if a.min() < lo else a.max()
+            raise _bad(path, f"corrupt persona file (array {name!r} holds {worst:.4g}, outside [{lo:g}, {hi:g}])")
 
 
 def _all_finite(a: np.ndarray) -> bool:
@@ -560,10 +637,14 @@ def _list_photos(folder: Path) -> list[Path]:
     return files
 
 
-def _init_worker() -> None:
+def _init_worker(parent: int | None = None) -> None:
     import signal
 
+    from .._parallel import die_with
+
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the parent stops us
+    if parent is not None:
+        die_with(parent)  # also when the parent is SIGKILLed (it cannot stop us then)
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # torch (identity descriptor) is imported after this
     cv2.setNumThreads(1)
 
@@ -640,8 +721,11 @@ class _Pool:
 
     def __enter__(self):
         if self.jobs > 1:
+            from .._parallel import short_socket_folder
+
+            short_socket_folder()  # the forkserver's socket path must fit (a long TMPDIR)
             self.pool = ProcessPoolExecutor(self.jobs, mp_context=multiprocessing.get_context("forkserver"),
-                                            initializer=_init_worker)
+                                            initializer=_init_worker, initargs=(os.getpid(),))
         return self
 
     def __exit__(self, *exc):

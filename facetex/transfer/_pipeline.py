@@ -24,7 +24,7 @@ from ..errors import BadImageError, BadInputError, MemoryBudgetError
 from ..io import to_float32
 from .losses import (StylePatches, _grid, channel_softmax, gram_loss, gram_matrix, mrf_loss, mrf_memory_estimate,
                      style_patches, tv_loss)
-from .methods import TransferParams
+from .methods import TransferParams, working_shape
 from .methods import preset as make_preset
 from .optimize import _resize as _resize_level
 from .optimize import optimize_image, to_tensor
@@ -88,11 +88,6 @@ def _resize(image: np.ndarray, size_wh: tuple[int, int]) -> np.ndarray:
     shrink = size_wh[0] < image.shape[1]
     interp = cv2.INTER_AREA if shrink else cv2.INTER_CUBIC
     return np.clip(cv2.resize(image, size_wh, interpolation=interp), 0.0, 1.0).astype(np.float32)
-
-
-def _working_shape(h: int, w: int, size: int) -> tuple[int, int]:
-    s = size / max(h, w)
-    return max(8, round(h * s)), max(8, round(w * s))
 
 
 def _map_points(points, box, scale_xy):
@@ -350,7 +345,14 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
     box = face_crop_box(cp, content.shape) if params.crop == "face" else (0, 0, W, H)
     region = content[box[1]:box[3], box[0]:box[2]]
     rh, rw = region.shape[:2]
-    wh = _working_shape(rh, rw, params.size)
+    wh = working_shape(rh, rw, params.size)
+    if params.size < params.min_size((rh, rw)):  # an elongated region: its short side is too small
+        need = params.min_size((rh, rw))
+        raise BadInputError(f"the {'face' if params.crop == 'face' else 'image'} region of {rw}x{rh} px is "
+                            f"{wh[1]}x{wh[0]} px at size {params.size}, too narrow for {params.patch_size}-px "
+                            "MRF patches at the coarsest level: "
+                            + (f"use --size {need} or more" if need <= 4096 else "crop it less elongated"),
+                            path=content_source)
     scale_xy = (wh[1] / rw, wh[0] / rh)
     content_w = _resize(region, (wh[1], wh[0]))
     cpr = cp - [box[0], box[1]]

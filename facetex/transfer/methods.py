@@ -36,6 +36,7 @@ FaceTex, contrary to Table 1); 384 px × 3 levels × 100 iterations ran in 46 s 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 from ..errors import BadInputError
@@ -61,6 +62,11 @@ NET_LAYERS = {
 # VGG-Face relu4_2: mid-level maps on the 150 px face chip (17² and 8²); at weight 1 they
 # kept landmarks and identity best of level1..level4 and pairs of them (docs/texture-nets.md).
 STRUCTURE_LAYERS = ("level2", "level3")
+#: side of the deepest MRF layer's feature map (stride 8 in every network) for an input side n,
+#: measured: "same" padding rounds up, VGG's pooling down, dlib's unpadded convolutions lose 9 px
+#: (a lower bound, exact at most sides)
+MRF_FEATURE_SIDE = {"effnet-lite0": lambda n: -(-n // 8), "vgg19": lambda n: n // 8,
+                    "vgg19-random": lambda n: n // 8, "face-resnet": lambda n: (n - 9) // 8}
 PREVIEW_SIZE = 256  # px: the preview preset's working size
 PREVIEW_ITERS = (12, 12, 12)
 
@@ -130,6 +136,20 @@ class TransferParams:
         p.validate()
         return p
 
+    def min_size(self, region: tuple[int, int] = (1, 1)) -> int:
+        """Smallest ``size`` at which a working region of ``region``'s (h, w) proportions still
+        holds one MRF patch in the deepest MRF layer at the coarsest level (:data:`MRF_FEATURE_SIDE`;
+        ``size`` 32 without the MRF term, 4097 when none up to 4096 does)."""
+        if not (self.mrf_weight and self.mrf_layers):
+            return 32
+        coarsest = 2.0 ** -(max(1, self.levels) - 1)  # optimize.level_shapes' first scale
+        feature_side = MRF_FEATURE_SIDE.get(self.texture_net, lambda n: (n - 9) // 8)
+        for size in range(32, 4097):
+            side = math.ceil(min(working_shape(*region, size)) * coarsest)
+            if feature_side(side) >= self.patch_size:
+                return size
+        return 4097
+
     def validate(self) -> None:
         if self.method not in METHODS:
             raise BadInputError(f"unknown method {self.method!r}: use one of {', '.join(METHODS)}")
@@ -141,6 +161,9 @@ class TransferParams:
             raise BadInputError(f"{len(self.iters)} iteration counts for {self.levels} levels")
         if not 32 <= self.size <= 4096:
             raise BadInputError(f"size {self.size} px is out of range 32..4096")
+        if self.size < self.min_size():  # fails at the first level otherwise, after the set-up
+            raise BadInputError(f"size {self.size} px is too small for {self.patch_size}-px MRF patches at "
+                                f"{self.levels} levels: use --size {self.min_size()} or more")
         if self.style_region not in ("skin", "face", "image"):
             raise BadInputError(f"style_region must be 'skin', 'face' or 'image', not {self.style_region!r}")
         if self.target_region not in ("skin", "face", "image"):
@@ -161,6 +184,12 @@ class TransferParams:
                 raise BadInputError(f"{name} must be in (0, 1] (× the eye distance), got {getattr(self, name)}")
         if not 0.0 <= self.detail_strength <= 2.0:
             raise BadInputError(f"detail_strength must be in [0, 2], got {self.detail_strength}")
+
+
+def working_shape(h: int, w: int, size: int) -> tuple[int, int]:
+    """(h, w) of a working region of (h, w) px scaled to a long edge of ``size`` px (at least 8)."""
+    s = size / max(h, w)
+    return max(8, round(h * s)), max(8, round(w * s))
 
 
 def preset(method: str = "facetex", name: str = "default", texture_net: str | None = None) -> TransferParams:
