@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 import struct
 import zlib
 from pathlib import Path
@@ -381,3 +382,13 @@ def _no_orphans_inputs_intact(request):
         time.sleep(0.1)
     assert not new, f"child processes left running: {new}"
     assert not threads, f"threads left running: {threads}"
+
+
+@pytest.fixture(scope="module")
+def many_photos(tmp_path_factory, photo_dir):
+    """24 photos (the bundled faces four times): a build long enough to interrupt or kill."""
+    d = tmp_path_factory.mktemp("many")
+    for k in range(4):
+        for p in sorted(photo_dir.iterdir()):
+            shutil.copy(p, d / f"{k}_{p.name}")
+    return d

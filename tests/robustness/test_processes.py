@@ -4,7 +4,6 @@ workers that die with a SIGKILLed parent instead of running on."""
 from __future__ import annotations
 
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -52,15 +51,6 @@ def test_no_short_temp_folder_is_one_line(capsys, tmp_path, photo_dir, outdir, m
     assert_one_error(run, names=[tmp / "pymp-x"], cause=r"too long a path .*socket.*TMPDIR.*--jobs 1")
     assert snapshot(outdir) == {}
 
-
-@pytest.fixture(scope="module")
-def many_photos(tmp_path_factory, photo_dir):
-    """24 photos (the bundled faces four times): a build long enough to kill in the middle."""
-    d = tmp_path_factory.mktemp("many")
-    for k in range(4):
-        for p in sorted(photo_dir.iterdir()):
-            shutil.copy(p, d / f"{k}_{p.name}")
-    return d
 
 
 def test_sigkill_of_persona_build_leaves_no_process(many_photos, tmp_path):

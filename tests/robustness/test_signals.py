@@ -5,7 +5,6 @@ it kept (step files) instead of claiming "no partial output"."""
 from __future__ import annotations
 
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -98,15 +97,6 @@ def test_sigterm_puppet_in_process(capsys, videos, outdir, persona_file, monkeyp
     time.sleep(0.2)
     assert not [t for t in threading.enumerate() if t.name.startswith("facetex-puppet")]
 
-
-@pytest.fixture(scope="module")
-def many_photos(tmp_path_factory, photo_dir):
-    """24 photos (the bundled faces four times): a build that takes long enough to interrupt."""
-    d = tmp_path_factory.mktemp("many")
-    for k in range(4):
-        for p in sorted(photo_dir.iterdir()):
-            shutil.copy(p, d / f"{k}_{p.name}")
-    return d
 
 
 @pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
