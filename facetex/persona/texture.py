@@ -72,7 +72,7 @@ import math
 import zlib
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import cv2
 import numpy as np
@@ -82,8 +82,7 @@ from ..errors import BadInputError, BadPersonaError
 from ..geometry.gaze import gaze_asymmetry, gaze_weights
 from ..geometry.glasses import glasses_bridge_score
 from ._packed import Packed
-from .collection import (
-    Persona,
+from .align import (
     appearance_subspace,
     collection_flow,
     compose_map_flow,
@@ -93,6 +92,9 @@ from .collection import (
     tps_map,
     tps_maps,
 )
+
+if TYPE_CHECKING:
+    from .collection import Persona
 
 __all__ = [
     "TextureParams",
