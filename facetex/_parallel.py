@@ -57,6 +57,31 @@ def serialize_ast_parse() -> None:
     ast.parse = locked_parse
 
 
+#: a value of :func:`patched_items` that removes the key for the while
+REMOVE = object()
+
+
+@contextlib.contextmanager
+def patched_items(mapping, changes: dict):
+    """``mapping`` (a dict, ``os.environ``, a module's ``__dict__``) with ``changes`` applied for
+    the ``with`` block (a value :data:`REMOVE` deletes its key), then every key as it was."""
+    missing = object()
+    saved = {k: mapping.get(k, missing) for k in changes}
+    for k, v in changes.items():
+        if v is REMOVE:
+            mapping.pop(k, None)
+        else:
+            mapping[k] = v
+    try:
+        yield mapping
+    finally:
+        for k, v in saved.items():
+            if v is missing:
+                mapping.pop(k, None)
+            else:
+                mapping[k] = v
+
+
 @contextlib.contextmanager
 def main_script_hidden():
     """While worker processes start, the parent's ``__main__`` is not re-run in them.
@@ -71,18 +96,8 @@ def main_script_hidden():
     if main is None:
         yield
         return
-    missing = object()
-    saved = {a: main.__dict__.get(a, missing) for a in ("__file__", "__spec__")}
-    main.__dict__.pop("__file__", None)
-    main.__dict__["__spec__"] = None
-    try:
+    with patched_items(main.__dict__, {"__file__": REMOVE, "__spec__": None}):
         yield
-    finally:
-        for a, v in saved.items():
-            if v is missing:
-                main.__dict__.pop(a, None)
-            else:
-                main.__dict__[a] = v
 
 
 #: bytes of an AF_UNIX socket path (sun_path holds 108 with the closing NUL)

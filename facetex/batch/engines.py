@@ -240,21 +240,14 @@ def _worker_main(conn, parent_pid: int) -> None:
 
 class _Worker:
     def __init__(self, ctx, env: dict):
-        parent, child = ctx.Pipe()
-        saved = {k: os.environ.get(k) for k in env}
-        os.environ.update(env)  # a spawned interpreter starts with this environment (BLAS reads it once)
-        try:
-            self.process = ctx.Process(target=_worker_main, args=(child, os.getpid()), name="facetex-batch-worker")
-            from .._parallel import main_script_hidden
+        from .._parallel import main_script_hidden, patched_items
 
-            with main_script_hidden():  # a user's plain script is not re-run in the worker
-                self.process.start()
-        finally:
-            for k, v in saved.items():
-                if v is None:
-                    os.environ.pop(k, None)
-                else:
-                    os.environ[k] = v
+        parent, child = ctx.Pipe()
+        self.process = ctx.Process(target=_worker_main, args=(child, os.getpid()), name="facetex-batch-worker")
+        # a spawned interpreter starts with this environment (BLAS reads it once), and without
+        # re-running a user's plain script
+        with patched_items(os.environ, env), main_script_hidden():
+            self.process.start()
         child.close()
         self.conn = parent
         self.task: tuple | None = None  # (handle, submitted time)

@@ -277,9 +277,6 @@ def _run(argv: list[str], debug: bool) -> int:
     if io is not None:  # not imported yet: nothing committed (and numpy/OpenCV not loaded before a
         io.committed_outputs(reset=True)  # puppet run starts its driver tracking: ~0.35 s)
     set_command(argv)
-    from ._common import reset_json
-
-    reset_json()
     args = None
     try:
         args = build_parser(_command_of(argv)).parse_args(argv)

@@ -113,8 +113,6 @@ def jobs_of(args) -> int:
     return int(args.jobs) if getattr(args, "jobs", None) else available_cpus()
 
 
-#: whether this command printed its JSON already (:func:`wrote` then prints none)
-_json_printed = False
 
 
 def say(args, *lines: str) -> None:
@@ -126,26 +124,18 @@ def say(args, *lines: str) -> None:
 
 
 def wrote(args, *paths, **summary) -> None:
-    """``wrote PATH`` for each written file (see :func:`say`); with ``--json`` (when the command
-    printed no JSON of its own) ``{"outputs": [...], **summary}`` instead."""
+    """``wrote PATH`` for each written file (see :func:`say`); with ``--json``
+    ``{"outputs": [...], **summary}`` instead (commands with a JSON of their own print that and
+    do not call this)."""
     if getattr(args, "json", False):
-        if not _json_printed:
-            print_json({"outputs": [str(p) for p in paths], **summary})
+        print_json({"outputs": [str(p) for p in paths], **summary})
         return
     say(args, *(f"wrote {p}" for p in paths))
 
 
 def print_json(obj) -> None:
-    global _json_printed
     json.dump(obj, sys.stdout, indent=2, default=str)
     sys.stdout.write("\n")
-    _json_printed = True
-
-
-def reset_json() -> None:
-    """A new command (the CLI's ``main`` runs one per call): no JSON printed yet."""
-    global _json_printed
-    _json_printed = False
 
 
 def read_json_file(path, error=None, *, what: str = "JSON file"):

@@ -306,5 +306,5 @@ def run_mesh(args) -> int:
         import sys
 
         print(f"{out}: {mesh.depth_source} shape ({mesh.shape_reason})", file=sys.stderr)
-    wrote(args, *(paths[k] for k in ("obj", "mtl", "texture", "sidecar")))
+        wrote(args, *(paths[k] for k in ("obj", "mtl", "texture", "sidecar")))
     return 0

@@ -173,7 +173,8 @@ def _run(args, tracker, loading=None) -> int:
               "(not found, partly outside the frame or implausible; those frames show the driver)", file=sys.stderr)
     if args.json:
         print_json(report)
-    wrote(args, out, sidecar)
+    else:
+        wrote(args, out, sidecar)
     return 0
 
 

@@ -48,19 +48,8 @@ from .._parallel import available_cpus
 from .._schema import check_shape
 from ..errors import BadImageError, BadInputError, BadPersonaError, FacetexError, PersonaNotFoundError
 from ._packed import Packed
-from .align import (  # noqa: F401 - re-exported: the alignment's functions were defined here
-    TPS_GRID_STEP,
-    _flow_star,
-    appearance_subspace,
-    collection_flow,
-    compose_map_flow,
-    face_region,
-    project_onto_subspace,
-    quantize_flow,
-    remap_stack,
-    tps_map,
-    tps_maps,
-)
+from .align import (appearance_subspace, collection_flow, compose_map_flow, face_region, quantize_flow, remap_stack,
+                    tps_maps)
 
 __all__ = [
     "PersonaParams",

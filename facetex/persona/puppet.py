@@ -182,7 +182,8 @@ def puppet_average_shape(persona, params: PuppetParams = PuppetParams()) -> tupl
     """(depth (H, W) canonical px, mask (H, W) bool, source "collection" | "generic") of the
     persona's average 3D face (Tom Hanks §4): the one stored in the .persona (computed at
     build time), else computed now (version-1 files); cached on the persona object."""
-    from .collection import average_depth, face_region
+    from .align import face_region
+    from .collection import average_depth
     from .shape import checked_depth
 
     key = ("puppet_shape", params.max_depth_error, params.shape, params.shape_photos)
@@ -217,7 +218,8 @@ def driver_collection(track: DriverTrack, *, driver_photos=None, params: PuppetP
     frontalized video frames kept by :func:`~facetex.persona.driver.track_driver`, TPS-aligned to
     their mean fiducials."""
     from ..landmarks import POINTS49_INDEX
-    from .collection import PersonaParams, appearance_subspace, build_persona, face_region, remap_stack, tps_maps
+    from .align import appearance_subspace, face_region, remap_stack, tps_maps
+    from .collection import PersonaParams, build_persona
     from .shape import checked_depth
 
     W, H = params.driver.size
@@ -246,7 +248,7 @@ def collection_correspondence(driver_subspace: np.ndarray, driver_region: np.nda
     from the projection of the puppet's average onto the driver's appearance subspace to the
     puppet's average (illumination-matched pair; collection flow)."""
     from ..geometry.flow import map_from_flow, optical_flow
-    from .collection import project_onto_subspace
+    from .align import project_onto_subspace
 
     proj = np.clip(project_onto_subspace(puppet_average, driver_subspace, driver_region), 0, 1)
     flow = optical_flow(proj, puppet_average, alpha=params.flow_alpha, ratio=params.flow_ratio,
@@ -259,7 +261,7 @@ def landmark_correspondence(driver_points68, puppet_points68, shape, smoothing: 
     """(H, W, 2) puppet-frame (x, y) of every driver-frame pixel: the thin-plate spline (Eq. 1,
     ``smoothing`` λ) that maps the driver's mean landmarks (68, 2) onto the puppet's (both in the
     canonical frame). Smooth and fold-free, exact at the landmarks (module doc, 2)."""
-    from .collection import tps_map
+    from .align import tps_map
 
     d = np.asarray(driver_points68, np.float64)
     p = np.asarray(puppet_points68, np.float64)

@@ -11,7 +11,7 @@ from facetex._resources import sample_path
 from facetex.cli import main
 from facetex.io import read_image, write_image
 from facetex.persona import PersonaParams, average_face, build_persona, load_persona
-from facetex.persona.collection import face_region
+from facetex.persona.align import face_region
 from facetex.persona.mesh_io import read_obj
 from facetex.persona.shape import generic_depth_px
 

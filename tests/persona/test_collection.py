@@ -28,9 +28,9 @@ from facetex.persona.collection import (
     _process_star,
     average_depth,
     average_shape,
-    face_region,
     shape_split,
 )
+from facetex.persona.align import face_region
 
 SIZE = (96, 120)  # small canonical frame: fast flows
 PARAMS = PersonaParams(size=SIZE, min_photos=8)

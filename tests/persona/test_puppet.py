@@ -353,7 +353,7 @@ def test_stage_b_is_the_tps_alone_computed_on_first_use(tiny_persona):
     import dataclasses
 
     import facetex.persona.texture as tx
-    from facetex.persona.collection import remap_stack, tps_maps
+    from facetex.persona.align import remap_stack, tps_maps
 
     p = dataclasses.replace(tiny_persona, _cache={})
     prep = tx.prepare_persona(p)
