@@ -1018,8 +1018,6 @@ class _Prepared:
         made with the stacks or stored with them; computed from the photos otherwise (a file
         from before they were stored)."""
         if self._glasses is None:
-            from ..geometry.glasses import glasses_bridge_score
-
             P = self._persona_ref
             self._glasses = np.array([glasses_bridge_score(im, p) for im, p in zip(P.images, P.points68)], np.float64)
         return self._glasses
