@@ -805,6 +805,8 @@ def load_puppet(persona, params: PuppetParams = PuppetParams()) -> tuple:
     loaded = _Done(_load_puppet(persona, timings))
     # the texture stacks on a second thread beside the shape: both release the GIL in most of their
     # work (zlib, OpenCV, numpy), and neither needs the other
+    # (a daemon thread, not an executor's: the CLI loads on a daemon thread, and a command ending
+    # on an argument error must not wait at exit for the stacks)
     failed: list = []
 
     def texture():
