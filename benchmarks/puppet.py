@@ -97,7 +97,7 @@ def main(argv=None):
     load_before = os.getloadavg()
     cv2.setNumThreads(1)
     from facetex.persona import load_persona
-    from facetex.persona.puppet import TEXTURE_BATCH, output_size, prepare_puppetry
+    from facetex.puppet.puppetry import TEXTURE_BATCH, output_size, prepare_puppetry
 
     persona = load_persona(args.persona)
     t0 = time.perf_counter()

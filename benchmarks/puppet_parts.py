@@ -34,10 +34,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from facetex.geometry._generic_face import canonical_surface  # noqa: E402
 from facetex.geometry.frontalize import rotation_from_angles  # noqa: E402
-from facetex.persona.deform import DeformationTransfer  # noqa: E402
-from facetex.persona.mesh_io import depth_to_mesh  # noqa: E402
-from facetex.persona.render import render_layers, render_mesh  # noqa: E402
-from facetex.persona.shape import generic_depth_px, normals_from_depth, reconstruct_average_shape  # noqa: E402
+from facetex.puppet.deform import DeformationTransfer  # noqa: E402
+from facetex.puppet.mesh_io import depth_to_mesh  # noqa: E402
+from facetex.puppet.render import render_layers, render_mesh  # noqa: E402
+from facetex.puppet.shape import generic_depth_px, normals_from_depth, reconstruct_average_shape  # noqa: E402
 
 cv2.setNumThreads(1)
 
@@ -119,7 +119,7 @@ def main(argv=None):
         moving = float((np.linalg.norm(delta[mask], axis=1) > 0.5).mean())
         _, wall, cpu = timed(lambda: dt(delta), args.frames)
         rows.append((f"DeformationTransfer per frame, {name}", wall, cpu, f"{100 * moving:.0f}% move > 0.5 px"))
-    from facetex.persona.deform import huber_rof
+    from facetex.puppet.deform import huber_rof
 
     field = rng.standard_normal((h, w)).astype(np.float32)
     _, wall, cpu = timed(lambda: huber_rof(field, mask=mask), args.frames)
@@ -141,7 +141,7 @@ def main(argv=None):
                                                      supersample=ss), args.renders)
         rows.append((f"render_layers 256x256, supersample {ss} (+ normals)", wall, cpu,
                      f"{lay.coverage.sum():.0f} px covered"))
-    from facetex.persona.composite import composite_face
+    from facetex.puppet.composite import composite_face
 
     lay = render_layers(v, f, uv, tex, rotation=A, translation=t, size=(256, 256), supersample=1)
     frame = np.clip(np.full((256, 256, 3), (0.55, 0.4, 0.3), np.float32)

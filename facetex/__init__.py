@@ -44,7 +44,7 @@ _LAZY = {
     "landmark_error": "metrics", "texture_similarity": "metrics", "identity_distance": "metrics",
     "transfer_metrics": "metrics",
 }
-_SUBPACKAGES = ("io", "landmarks", "nets", "geometry", "persona", "metrics", "bench", "report")
+_SUBPACKAGES = ("io", "landmarks", "nets", "geometry", "persona", "puppet", "metrics", "bench", "report")
 #: public functions that share their name with a subpackage: the function wins the attribute
 _FUNCTIONS_OVER_SUBPACKAGES = frozenset({"transfer"})
 

@@ -8,6 +8,7 @@ from . import landmarks as landmarks
 from . import metrics as metrics
 from . import nets as nets
 from . import persona as persona
+from . import puppet as puppet
 from . import report as report
 from ._api import Mesh as Mesh
 from ._api import as_image as as_image

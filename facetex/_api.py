@@ -797,7 +797,7 @@ class Mesh:
         """Write ``path`` (.obj) with its ``.mtl`` and ``.png`` texture beside it (and
         ``extra_files``, {path: bytes}), all or none."""
         from .errors import OutputError
-        from .persona.mesh_io import write_obj
+        from .puppet.mesh_io import write_obj
 
         path = Path(path)
         if path.suffix.lower() != ".obj":
@@ -841,8 +841,8 @@ def persona_mesh(persona: PersonaLike, *, step: int = 1,
     """
     from .persona import average_face
     from .persona.collection import average_shape, face_region
-    from .persona.mesh_io import depth_to_mesh
-    from .persona.shape import checked_depth, generic_depth_px
+    from .puppet.mesh_io import depth_to_mesh
+    from .puppet.shape import checked_depth, generic_depth_px
 
     if shape not in ("collection", "generic"):
         raise BadInputError(f"shape must be 'collection' or 'generic', not {shape!r}")
@@ -946,9 +946,9 @@ def puppeteer(driver: str | os.PathLike, puppet: PersonaLike, output: str | os.P
     ...                   side_by_side=True, progress=True)  # doctest: +SKIP
     """
     from .io import video_info
-    from .persona.composite import CompositeParams
-    from .persona.puppet import PuppetParams
-    from .persona.puppet import puppeteer as _puppeteer
+    from .puppet.composite import CompositeParams
+    from .puppet.puppetry import PuppetParams
+    from .puppet.puppetry import puppeteer as _puppeteer
 
     if texture not in ("ours", "static"):
         raise BadInputError(f"texture must be 'ours' or 'static', not {texture!r}")

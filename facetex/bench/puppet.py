@@ -440,7 +440,7 @@ def _face_region_mask(persona):
     """bool (H, W) mouth region of the persona's texture: the outer lips dilated by 0.15 of the eye distance."""
     import cv2
 
-    from ..persona.composite import polygon_mask
+    from ..geometry.masks import polygon_mask
 
     p = persona.points68.mean(axis=0)
     W, H = persona.size
@@ -488,9 +488,9 @@ def _evaluate_clip(clip: Path, persona, ref_desc, out: Path, *, size, max_frames
                    progress: Callable | None, name: str = "", cache: Path | None = None) -> dict:
     """One run: ``persona`` driven by ``clip``; its row of measures (module docstring) and media."""
     from ..io import write_image, write_video
-    from ..persona.composite import boundary_color_step
-    from ..persona.driver import mouth_opening
-    from ..persona.puppet import neutral_texture, prepare_puppetry, render_frames
+    from ..puppet.composite import boundary_color_step
+    from ..puppet.driver import mouth_opening
+    from ..puppet import neutral_texture, prepare_puppetry, render_frames
 
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -685,7 +685,7 @@ def shifted_clip(src, dst, *, start: float = 1 / 3, end: float = 2 / 3, shift: f
 def _partial_check(clip: Path, out: Path, max_frames) -> dict:
     """Rejection of half-out-of-frame faces: the clip slid out of its frame (:func:`shifted_clip`);
     ground truth from the unshifted clip's landmarks moved with the frame."""
-    from ..persona.driver import track_driver
+    from ..puppet.driver import track_driver
 
     ref = track_driver(clip, max_frames=max_frames)
     moved = out / f"partial_{clip.stem}.mp4"
@@ -764,7 +764,7 @@ def _bench_item(p: dict):
     """One item of the benchmark in a worker (``engine``): a persona's identity reference, a
     run's evaluation or the partial-face check; the persona is loaded once per worker."""
     from ..persona import load_persona
-    from ..persona.puppet import PuppetParams
+    from ..puppet.puppetry import PuppetParams
 
     if p["kind"] == "partial":
         return _partial_check(Path(p["clip"]), Path(p["out"]), p["max_frames"])
@@ -812,7 +812,7 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, puppe
     import hashlib
 
     from ..io import atomic_path
-    from ..persona.puppet import PuppetParams
+    from ..puppet.puppetry import PuppetParams
 
     drivers, puppet_paths = _data_paths(data, drivers, puppets if puppets is not None else puppet)
     if not drivers.exists():

@@ -96,8 +96,8 @@ def _single_threaded_blas() -> None:
 
 
 def _puppet_params(args):
-    from ..persona.composite import CompositeParams
-    from ..persona.puppet import PuppetParams
+    from ..puppet.composite import CompositeParams
+    from ..puppet.puppetry import PuppetParams
 
     return PuppetParams(texture=args.texture, weights=args.weights, correspondence=args.correspondence,
                         weight_smoothing=args.weight_smoothing,
@@ -105,7 +105,7 @@ def _puppet_params(args):
 
 
 def _start_loading(args):
-    """The persona's load and precomputation (:func:`~facetex.persona.puppet.load_puppet`) on a
+    """The persona's load and precomputation (:func:`~facetex.puppet.puppetry.load_puppet`) on a
     thread, beside this one's checks and imports (~1 s; the load and the texture stacks are mostly
     zlib, OpenCV and numpy, which release the GIL): a future. A daemon thread: an error in the
     arguments ends the command without waiting for it."""
@@ -121,7 +121,7 @@ def _start_loading(args):
         if not fut.set_running_or_notify_cancel():
             return
         try:
-            from ..persona.puppet import load_puppet
+            from ..puppet.puppetry import load_puppet
 
             fut.set_result(load_puppet(args.puppet, _puppet_params(args)))
         except BaseException as e:  # noqa: BLE001 - handed to the puppetry, which re-raises it
@@ -151,7 +151,7 @@ def _run(args, tracker, loading=None) -> int:
     from ..io import write_json
 
     hashing = hash_in_background(inputs)  # beside the setup, not after the rendering
-    from ..persona.puppet import puppeteer
+    from ..puppet.puppetry import puppeteer
 
     params = _puppet_params(args)
     with progress_bar(2 * n, desc="puppet", unit="frame", disable=args.quiet) as bar:
@@ -180,10 +180,10 @@ def _run(args, tracker, loading=None) -> int:
 
 def _start_tracking(args):
     """The driver's tracking in a child process, with the parameters
-    :func:`~facetex.persona.puppet.prepare_puppetry` derives (it checks them): the default
+    :func:`~facetex.puppet.puppetry.prepare_puppetry` derives (it checks them): the default
     DriverParams in the persona's canonical frame (read by the child: nothing heavy is imported
     here)."""
-    from ..persona._tracking import DriverTracking
+    from ..puppet._tracking import DriverTracking
 
     return DriverTracking(args.driver, size_of=args.puppet, max_frames=args.max_frames, params=None,
                           frontal_images=args.driver_photos is None and args.correspondence == "flow")

@@ -1,4 +1,5 @@
-"""Face masks from 68 landmarks: FaceTex's facial prior (§2.2, §3.1) and a soft face region.
+"""Face masks from 68 landmarks: FaceTex's facial prior (§2.2, §3.1), a soft face region, and
+anti-aliased polygon and feature masks (the puppet's composite and the persona's textures use them).
 
 Facial prior (FaceTex §3.1 "Implementation details"): the contours of the meso-structures
 (face outline, brows, eyes, nose, lips) are drawn from the landmarks with a 40 px line,
@@ -36,6 +37,10 @@ __all__ = [
     "facial_prior_mask",
     "face_mask",
     "prior_mask",
+    "polygon_mask",
+    "inner_feather",
+    "feature_mask",
+    "smoothstep",
 ]
 
 #: Face width |p16 - p0| (px) of the paper's 1000 px headshots, to which the paper's line
@@ -169,3 +174,67 @@ def face_mask(points68, shape, *, feather: float | None = None) -> np.ndarray:
 def prior_mask(points68, shape, **prior_kw) -> np.ndarray:
     """Gradient-scaling mask: facial_prior_mask x face_mask (the authors' code multiplies too)."""
     return (facial_prior_mask(points68, shape, **prior_kw) * face_mask(points68, shape)).astype(np.float32)
+
+
+_SHIFT = 4  # sub-pixel bits of cv2 polygon filling
+
+
+def _shape2(shape) -> tuple[int, int]:
+    h, w = (int(v) for v in shape[:2])
+    return h, w
+
+
+def polygon_mask(points, shape, *, samples: int = 8) -> np.ndarray:
+    """Anti-aliased coverage (H, W) float32 in [0, 1] of the polygon ``points`` (N, 2) x, y
+    (pixel centres at integers): the fraction of ``samples`` x ``samples`` sub-pixel sample
+    points it covers (cv2.fillPoly on the fine grid, which also counts samples its edges touch:
+    the polygon grows by ~0.5 / ``samples`` px; its own LINE_AA grows it by ~0.5 px)."""
+    h, w = _shape2(shape)
+    p = np.asarray(points, np.float64)
+    out = np.zeros((h, w), np.float32)
+    if len(p) < 3 or not np.isfinite(p).all():
+        return out
+    x0, y0 = max(0, int(np.floor(p[:, 0].min()))), max(0, int(np.floor(p[:, 1].min())))
+    x1, y1 = min(w, int(np.ceil(p[:, 0].max())) + 1), min(h, int(np.ceil(p[:, 1].max())) + 1)
+    if x1 <= x0 or y1 <= y0:
+        return out
+    k = max(1, int(samples))
+    # sample (j, i) of the fine grid sits at ((j + 0.5) / k - 0.5, ...) in box pixels
+    q = (p - [x0, y0] + 0.5) * k - 0.5
+    fine = np.zeros(((y1 - y0) * k, (x1 - x0) * k), np.uint8)
+    cv2.fillPoly(fine, [np.round(q * (1 << _SHIFT)).astype(np.int32)], 255, cv2.LINE_8, _SHIFT)
+    out[y0:y1, x0:x1] = cv2.resize(fine, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA).astype(np.float32) / 255
+    return out
+
+
+def smoothstep(t):
+    """3t² − 2t³ of ``t`` in [0, 1] (clipped by the caller): a ramp with flat ends."""
+    return t * t * (3 - 2 * t)
+
+
+def inner_feather(mask, width: float) -> np.ndarray:
+    """Alpha (H, W) float32 rising from 0 at the border of the bool ``mask`` to 1 at ``width``
+    px inside it (smoothstep of the distance); 0 outside: the feather never leaves the mask."""
+    m = np.asarray(mask, bool)
+    if width <= 0:
+        return m.astype(np.float32)
+    pad = cv2.copyMakeBorder(m.view(np.uint8), 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)  # (np.pad is slower)
+    d = cv2.distanceTransform(pad, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
+    t = np.clip((d - 0.5) / float(width), 0.0, 1.0)
+    return smoothstep(t).astype(np.float32)
+
+
+def feature_mask(points68, shape, *, dilate: float = 0.06) -> np.ndarray:
+    """bool (H, W): eyes, brows and lips of the iBUG-68 ``points68`` (frame px), each polygon
+    dilated by ``dilate`` x the outer eye-corner distance: the pixels that are not skin."""
+    p = np.asarray(points68, np.float64)
+    h, w = _shape2(shape)
+    m = np.zeros((h, w), np.float32)
+    for idx in (range(36, 42), range(42, 48), range(48, 60)):
+        m = np.maximum(m, polygon_mask(p[list(idx)], (h, w)))
+    for idx in (range(17, 22), range(22, 27)):  # brows: a band from the brow to its mirrored lower edge
+        b = p[list(idx)]
+        m = np.maximum(m, polygon_mask(np.r_[b, b[::-1] + [0, 0.08 * np.ptp(p[:, 1])]], (h, w)))
+    iod = float(np.linalg.norm(p[36] - p[45]))
+    k = max(1, int(round(dilate * iod)))
+    return cv2.dilate((m > 0.5).astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1,) * 2)) > 0

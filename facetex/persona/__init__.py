@@ -1,6 +1,7 @@
-"""Persona textures from a photo collection ("What makes Tom Hanks look like Tom Hanks", Sec. 4-6):
-collection, expression-dependent textures (global and regional weights), the average 3D face,
-and puppet compositing into a driver's frame."""
+"""Personas from a photo collection ("What makes Tom Hanks look like Tom Hanks", §5): the collection
+(frontalized, aligned photos and their collection flow), the expression weights and the
+expression-dependent textures. The puppetry that drives a persona with a video (§4, §6: shape,
+driver, deformation, rendering, compositing) is :mod:`facetex.puppet`."""
 
 from .._lazy import lazy_attributes as _lazy_attributes
 
@@ -12,22 +13,6 @@ _LAZY = {
     "build_persona": "collection",
     "load_persona": "collection",
     "read_persona_header": "collection",
-    "FACE_OVAL": "composite",
-    "CompositeParams": "composite",
-    "boundary_color_step": "composite",
-    "composite_face": "composite",
-    "feature_mask": "composite",
-    "fit_sh_lighting": "composite",
-    "inner_feather": "composite",
-    "linear_to_srgb": "composite",
-    "match_color_statistics": "composite",
-    "mouth_interior": "composite",
-    "poisson_blend": "composite",
-    "polygon_mask": "composite",
-    "relight": "composite",
-    "sh_basis": "composite",
-    "sh_shading": "composite",
-    "srgb_to_linear": "composite",
     "METHODS": "texture",
     "STAGES": "texture",
     "WEIGHTS": "texture",
@@ -55,21 +40,4 @@ __all__ = [
     "prepare_persona",
     "METHODS",
     "STAGES",
-    # compositing a puppet face into a driver frame (composite.py)
-    "FACE_OVAL",
-    "CompositeParams",
-    "composite_face",
-    "polygon_mask",
-    "inner_feather",
-    "feature_mask",
-    "srgb_to_linear",
-    "linear_to_srgb",
-    "sh_basis",
-    "fit_sh_lighting",
-    "sh_shading",
-    "relight",
-    "match_color_statistics",
-    "poisson_blend",
-    "mouth_interior",
-    "boundary_color_step",
 ]

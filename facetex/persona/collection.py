@@ -893,15 +893,15 @@ def average_shape(persona: Persona, *, maps: np.ndarray | None = None, shape_pho
     (depth (H, W) float32 canonical px, NaN off the face region; training photos; report).
 
     Robust, visibility-weighted photometric stereo
-    (:func:`facetex.persona.shape.reconstruct_average_shape`) on at most ``shape_photos``
+    (:func:`facetex.puppet.shape.reconstruct_average_shape`) on at most ``shape_photos``
     (default ``persona.params.shape_photos``) photos aligned to the neutral frame (TPS +
     collection flow), with their own visibility (the mirrored fill counts 0); then
-    :func:`facetex.persona.shape.validate_shape` on the held-out photos (:func:`shape_split`).
+    :func:`facetex.puppet.shape.validate_shape` on the held-out photos (:func:`shape_split`).
     The report (JSON-able) holds the validation numbers and the verdict; the depth is the
     reconstruction whether accepted or not (``report["accepted"]`` says which). ``progress(n=,
     stage=)``: :data:`SHAPE_STEPS` steps in all, each stage named before it runs (the whole stage
     takes ~10 s for 500 photos: a bar standing at its end without a word looked stuck)."""
-    from .shape import reconstruct_average_shape, validate_shape
+    from ..puppet.shape import reconstruct_average_shape, validate_shape
 
     done = 0
 
@@ -947,7 +947,7 @@ def average_depth(persona: Persona, *, maps: np.ndarray | None = None,
     """The persona's validated average 3D face: (depth (H, W) float32 canonical px, NaN off the
     face region, training photos) from :func:`average_shape` when it passed its photometric
     validation; all NaN and 0 otherwise (callers then fall back to the generic face,
-    :func:`facetex.persona.shape.checked_depth`)."""
+    :func:`facetex.puppet.shape.checked_depth`)."""
     depth, count, report = average_shape(persona, maps=maps, shape_photos=shape_photos)
     persona._cache["shape_report"] = report
     if not report.get("accepted"):

@@ -961,7 +961,7 @@ class _Prepared:
         count less). Computed from the stacks once."""
         key = ("eye_quality", self.tp.eye_quality, self.tp.gaze)
         if key not in self._stage:
-            from .composite import polygon_mask
+            from ..geometry.masks import polygon_mask
 
             p = self.points68
             iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))

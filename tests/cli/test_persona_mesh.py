@@ -12,8 +12,8 @@ from facetex.cli import main
 from facetex.io import read_image, write_image
 from facetex.persona import PersonaParams, average_face, build_persona, load_persona
 from facetex.persona.align import face_region
-from facetex.persona.mesh_io import read_obj
-from facetex.persona.shape import generic_depth_px
+from facetex.puppet.mesh_io import read_obj
+from facetex.puppet.shape import generic_depth_px
 
 SIZE = (96, 120)
 

@@ -24,7 +24,7 @@ T = ["--size", "64", "--iters", "2"]
 def no_work(monkeypatch):
     """Make any real work fail the test: reading an image, loading a persona, optimising, tracking."""
     import facetex.persona as persona
-    import facetex.persona.puppet as puppet
+    import facetex.puppet.puppetry as puppet
 
     def trap(*a, **k):
         raise AssertionError("the work started before the arguments were checked")

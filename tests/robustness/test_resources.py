@@ -121,7 +121,7 @@ def test_upsample_bounded(capsys, bad, outdir, n, cause):
 
 def test_puppet_size_bounded_in_api(tmp_path, videos, persona_file):
     from facetex.errors import BadInputError
-    from facetex.persona.puppet import puppeteer
+    from facetex.puppet.puppetry import puppeteer
 
     with pytest.raises(BadInputError, match="32..4096"):
         puppeteer(videos["face.mp4"], persona_file, tmp_path / "o.mp4", size=99999)

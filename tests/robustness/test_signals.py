@@ -70,7 +70,7 @@ def test_interrupted_save_every_keeps_and_names_step_files(capsys, bad, outdir, 
 @pytest.mark.skipif(not has_command("puppet"), reason="no puppet command")
 def test_sigterm_puppet_in_process(capsys, videos, outdir, persona_file, monkeypatch):
     """SIGTERM while the driver is tracked (in its child process): no output, the child stopped."""
-    from facetex.persona._tracking import DriverTracking
+    from facetex.puppet._tracking import DriverTracking
 
     real = DriverTracking.result
     children = []

@@ -53,12 +53,10 @@ import cv2
 import numpy as np
 
 from ..errors import BadInputError
+from ..geometry.masks import feature_mask, inner_feather, polygon_mask, smoothstep
 
 __all__ = [
     "FACE_OVAL",
-    "polygon_mask",
-    "inner_feather",
-    "feature_mask",
     "srgb_to_linear",
     "linear_to_srgb",
     "sh_basis",
@@ -88,7 +86,6 @@ FACE_OVAL = (10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365
 #: iBUG-68 inner-lip contour, in order (left corner, upper lip, right corner, lower lip).
 INNER_LIPS = (60, 61, 62, 63, 64, 65, 66, 67)
 
-_SHIFT = 4  # sub-pixel bits of cv2 polygon filling
 _LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)  # linear-light luminance (Rec. 709)
 
 
@@ -120,62 +117,6 @@ def _shift(img: np.ndarray, by) -> np.ndarray:
     for c in range(3):
         np.add(img[..., c], by[c], out=out[..., c])
     return out
-
-
-def polygon_mask(points, shape, *, samples: int = 8) -> np.ndarray:
-    """Anti-aliased coverage (H, W) float32 in [0, 1] of the polygon ``points`` (N, 2) x, y
-    (pixel centres at integers): the fraction of ``samples`` x ``samples`` sub-pixel sample
-    points it covers (cv2.fillPoly on the fine grid, which also counts samples its edges touch:
-    the polygon grows by ~0.5 / ``samples`` px; its own LINE_AA grows it by ~0.5 px)."""
-    h, w = _shape2(shape)
-    p = np.asarray(points, np.float64)
-    out = np.zeros((h, w), np.float32)
-    if len(p) < 3 or not np.isfinite(p).all():
-        return out
-    x0, y0 = max(0, int(np.floor(p[:, 0].min()))), max(0, int(np.floor(p[:, 1].min())))
-    x1, y1 = min(w, int(np.ceil(p[:, 0].max())) + 1), min(h, int(np.ceil(p[:, 1].max())) + 1)
-    if x1 <= x0 or y1 <= y0:
-        return out
-    k = max(1, int(samples))
-    # sample (j, i) of the fine grid sits at ((j + 0.5) / k - 0.5, ...) in box pixels
-    q = (p - [x0, y0] + 0.5) * k - 0.5
-    fine = np.zeros(((y1 - y0) * k, (x1 - x0) * k), np.uint8)
-    cv2.fillPoly(fine, [np.round(q * (1 << _SHIFT)).astype(np.int32)], 255, cv2.LINE_8, _SHIFT)
-    out[y0:y1, x0:x1] = cv2.resize(fine, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA).astype(np.float32) / 255
-    return out
-
-
-def _smoothstep(t):
-    """3t² − 2t³ of ``t`` in [0, 1] (clipped by the caller): a ramp with flat ends."""
-    return t * t * (3 - 2 * t)
-
-
-def inner_feather(mask, width: float) -> np.ndarray:
-    """Alpha (H, W) float32 rising from 0 at the border of the bool ``mask`` to 1 at ``width``
-    px inside it (smoothstep of the distance); 0 outside: the feather never leaves the mask."""
-    m = np.asarray(mask, bool)
-    if width <= 0:
-        return m.astype(np.float32)
-    pad = cv2.copyMakeBorder(m.view(np.uint8), 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)  # (np.pad is slower)
-    d = cv2.distanceTransform(pad, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
-    t = np.clip((d - 0.5) / float(width), 0.0, 1.0)
-    return _smoothstep(t).astype(np.float32)
-
-
-def feature_mask(points68, shape, *, dilate: float = 0.06) -> np.ndarray:
-    """bool (H, W): eyes, brows and lips of the iBUG-68 ``points68`` (frame px), each polygon
-    dilated by ``dilate`` x the outer eye-corner distance: the pixels that are not skin."""
-    p = np.asarray(points68, np.float64)
-    h, w = _shape2(shape)
-    m = np.zeros((h, w), np.float32)
-    for idx in (range(36, 42), range(42, 48), range(48, 60)):
-        m = np.maximum(m, polygon_mask(p[list(idx)], (h, w)))
-    for idx in (range(17, 22), range(22, 27)):  # brows: a band from the brow to its mirrored lower edge
-        b = p[list(idx)]
-        m = np.maximum(m, polygon_mask(np.r_[b, b[::-1] + [0, 0.08 * np.ptp(p[:, 1])]], (h, w)))
-    iod = float(np.linalg.norm(p[36] - p[45]))
-    k = max(1, int(round(dilate * iod)))
-    return cv2.dilate((m > 0.5).astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1,) * 2)) > 0
 
 
 # ----------------------------------------------------------------------------- lighting
@@ -627,7 +568,7 @@ def _mouth_frame(lips: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float
 
 def _open_fade(width: float, gap: float, closed: float) -> float:
     """0 for a lip gap up to ``closed`` x the mouth ``width``, 1 from twice that, smooth between."""
-    return float(_smoothstep(float(np.clip((gap / max(width, 1e-6) - closed) / closed, 0.0, 1.0))))
+    return float(smoothstep(float(np.clip((gap / max(width, 1e-6) - closed) / closed, 0.0, 1.0))))
 
 
 def _pchip(x: np.ndarray, y: np.ndarray):
@@ -750,7 +691,7 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     # edge); an opening thinner than a pixel is covered by its thickness (closed lips: nothing)
     r = np.clip((depth + 0.5) / width, 0.0, 1.0)
     alpha = np.zeros((h, w), np.float32)
-    alpha[y0:y1, x0:x1] = _smoothstep(r) * np.clip(gap, 0.0, 1.0) * fade
+    alpha[y0:y1, x0:x1] = smoothstep(r) * np.clip(gap, 0.0, 1.0) * fade
     if alpha.max() <= 0:
         return none
     # the same place in the driver's mouth: fraction along the corner line and across the gap
@@ -773,7 +714,7 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
         unlike = np.maximum(np.linalg.norm(lab[..., 1:] - lip_lab[1:], axis=-1), lab[..., 0] - lip_lab[0])
         lo, hi = lip_key
         k = np.clip((unlike - lo) / max(hi - lo, 1e-6), 0.0, 1.0)
-        k = _smoothstep(k).astype(np.float32)
+        k = smoothstep(k).astype(np.float32)
         # smoothed over the mouth opening only (normalized convolution): the box's pixels outside
         # the lips sample the driver's lips and would darken a thin opening's key
         inside = (alpha[y0:y1, x0:x1] > 0).astype(np.float32)

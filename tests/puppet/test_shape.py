@@ -6,8 +6,8 @@ from scipy import ndimage
 
 from facetex.errors import BadInputError
 from facetex.geometry._generic_face import canonical_surface
-from facetex.persona.mesh_io import depth_to_mesh, read_obj, write_obj
-from facetex.persona.shape import (
+from facetex.puppet.mesh_io import depth_to_mesh, read_obj, write_obj
+from facetex.puppet.shape import (
     checked_depth,
     fit_albedo,
     linear_luma,

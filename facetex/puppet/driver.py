@@ -25,7 +25,7 @@ frame. Then:
    landmarks (regression slope; dlib's own tracked opening follows the opening measured on
    720 px upscaled frames with slope 1.0). The un-posed dlib landmarks of every frame
    (``fiducials68``) are therefore kept: the puppet's lips and jaw follow them
-   (:meth:`facetex.persona.puppet.Puppeteer.grid`, with :class:`LipFields`: two thin-plate
+   (:meth:`facetex.puppet.puppetry.Puppeteer.grid`, with :class:`LipFields`: two thin-plate
    splines, the upper lip's and the lower lip's with the jaw, joined across the mean mouth
    opening). ``mouth_correction=True`` also corrects the driver's own translation field
    (:class:`MouthCorrection`); off by default: carried through the collection flow onto a

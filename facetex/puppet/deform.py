@@ -1,7 +1,7 @@
 """Deformation transfer with magnitude adjustment (Tom Hanks §4, Figure 3).
 
 Meshes are depth-map meshes: (H, W, 3) arrays of vertex positions on an image
-grid (NaN or masked off the face), as made by :mod:`facetex.persona.shape`.
+grid (NaN or masked off the face), as made by :mod:`facetex.puppet.shape`.
 The driver's per-frame deformation Δ = M_D^i − M̄_D is moved onto the puppet's
 average mesh M_P, with its magnitude re-measured on the puppet's own geometry
 (a bigger eye gets a bigger blink) and regularised by Huber-ROF denoising.

@@ -7,7 +7,7 @@ import pytest
 from facetex.errors import BadInputError
 from facetex.geometry._generic_face import canonical_frame, canonical_surface, load_generic_face
 from facetex.geometry.frontalize import rotation_from_angles
-from facetex.persona.render import rasterize, render_layers, render_mesh, vertex_normals
+from facetex.puppet.render import rasterize, render_layers, render_mesh, vertex_normals
 
 W, H = 64, 48
 CX, CY = (W - 1) / 2, (H - 1) / 2
@@ -165,7 +165,7 @@ def test_layers_prefilter_removes_aliasing_of_a_minified_texture():
 def test_rasterize_fast_paths_match_general_path(monkeypatch):
     """Dropped faces (non-finite or behind-camera corners, degenerate, off-screen) leave the
     other faces' raster unchanged, and a run split into many chunks equals the one-chunk run."""
-    import facetex.persona.render as render_mod
+    import facetex.puppet.render as render_mod
 
     g = load_generic_face()
     size = (96, 120)

@@ -1,4 +1,4 @@
-"""Driver tracking in a child process (facetex.persona._tracking)."""
+"""Driver tracking in a child process (facetex.puppet._tracking)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import pytest
 
 from facetex.errors import BadInputError, FacetexError, NoFaceError
 from facetex.io import write_video
-from facetex.persona._tracking import DriverTracking
-from facetex.persona.driver import DriverParams, track_driver
+from facetex.puppet._tracking import DriverTracking
+from facetex.puppet.driver import DriverParams, track_driver
 
 
 @pytest.fixture(scope="module")
@@ -83,8 +83,8 @@ def test_errors_pickle_with_their_path():
 
 
 def test_puppetry_refuses_a_tracking_started_otherwise(driver, monkeypatch):
-    import facetex.persona.puppet as puppet
-    from facetex.persona.puppet import prepare_puppetry
+    import facetex.puppet.puppetry as puppet
+    from facetex.puppet.puppetry import prepare_puppetry
 
     monkeypatch.setattr(puppet, "_persona_size", lambda persona: (192, 240))  # only the size is read first
     job = DriverTracking(driver, process=False, max_frames=None, params=DriverParams(size=(10, 10)),

@@ -77,7 +77,7 @@ def tiny_persona(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def puppet_run(driver_video, tiny_persona, tmp_path_factory):
-    from facetex.persona.puppet import puppeteer
+    from facetex.puppet.puppetry import puppeteer
 
     out = tmp_path_factory.mktemp("out") / "puppet.mp4"
     records = []
@@ -119,15 +119,16 @@ def test_puppet_face_is_rendered_over_the_driver(puppet_run):
 
 @pytest.fixture(scope="module")
 def session(driver_video, tiny_persona):
-    from facetex.persona.puppet import prepare_puppetry
+    from facetex.puppet.puppetry import prepare_puppetry
 
     return prepare_puppetry(driver_video, tiny_persona)
 
 
 def test_composite_never_leaves_the_drivers_face_outline(session):
     """No halo: the puppet is drawn only inside the driver's own face outline."""
-    from facetex.persona.composite import FACE_OVAL, polygon_mask
-    from facetex.persona.puppet import render_frames
+    from facetex.geometry.masks import polygon_mask
+    from facetex.puppet.composite import FACE_OVAL
+    from facetex.puppet.puppetry import render_frames
 
     scale = 160 / session.track.frame_size[0]
     for r in render_frames(session, size=160, max_frames=N_MORPH):
@@ -143,8 +144,8 @@ def test_composite_never_leaves_the_drivers_face_outline(session):
 def test_open_mouth_shows_the_drivers_mouth_interior(session):
     from dataclasses import replace
 
-    from facetex.persona.composite import polygon_mask
-    from facetex.persona.puppet import render_frames
+    from facetex.geometry.masks import polygon_mask
+    from facetex.puppet.puppetry import render_frames
 
     recs = {r["index"]: r for r in render_frames(session, size=160, keep=True)}
     pup = session.puppeteer
@@ -167,7 +168,7 @@ def test_open_mouth_shows_the_drivers_mouth_interior(session):
 
 
 def test_face_mode_draws_the_puppet_alone(session):
-    from facetex.persona.puppet import render_frames
+    from facetex.puppet.puppetry import render_frames
 
     plain = np.asarray(session.puppeteer.params.plain, np.float32)
     for r in render_frames(session, size=160, mode="face", max_frames=3):
@@ -179,7 +180,7 @@ def test_face_mode_draws_the_puppet_alone(session):
 
 
 def test_no_face_video_raises_and_writes_nothing(tmp_path, tiny_persona):
-    from facetex.persona.puppet import puppeteer
+    from facetex.puppet.puppetry import puppeteer
 
     blank = tmp_path / "blank.mp4"
     write_video(blank, [np.full((96, 96, 3), 0.3, np.float32)] * 3, fps=10)
@@ -193,7 +194,7 @@ def test_no_face_video_raises_and_writes_nothing(tmp_path, tiny_persona):
 
 def test_neutral_texture_weights_follow_expression(tiny_persona):
     from facetex.persona import TextureParams, blend_textures
-    from facetex.persona.puppet import PuppetParams, neutral_texture
+    from facetex.puppet import PuppetParams, neutral_texture
 
     p = tiny_persona
     smiling = np.array(["smiling" in f for f in p.photos])
@@ -246,7 +247,7 @@ def test_cli_puppet(tmp_path, driver_video, tiny_persona, capsys):
 
 
 def test_batched_textures_match_per_frame(tiny_persona):
-    from facetex.persona.puppet import neutral_texture, neutral_textures
+    from facetex.puppet import neutral_texture, neutral_textures
 
     p = tiny_persona
     targets = [p.fiducials[0], p.fiducials[5], p.mean_fiducials]
@@ -260,7 +261,7 @@ def test_batched_textures_match_per_frame(tiny_persona):
 
 
 def test_render_frames_do_not_depend_on_the_batch_size(driver_video, tiny_persona, monkeypatch):
-    import facetex.persona.puppet as pp
+    import facetex.puppet.puppetry as pp
 
     session = pp.prepare_puppetry(driver_video, tiny_persona)
     ref = [r["puppet"] for r in pp.render_frames(session, size=96)]
@@ -273,7 +274,7 @@ def test_render_frames_do_not_depend_on_the_batch_size(driver_video, tiny_person
 
 def test_render_frames_equal_frames_rendered_alone_in_order(session):
     """Frames are rendered on a thread pool: each equals its own render, in the video's order."""
-    import facetex.persona.puppet as pp
+    import facetex.puppet.puppetry as pp
 
     recs = list(pp.render_frames(session, size=96, keep=True))
     assert [r["index"] for r in recs] == list(range(session.track.n_frames))
@@ -309,8 +310,8 @@ def test_puppet_lips_open_and_close_with_the_drivers(driver_video, tiny_persona)
     by the ratio of eye distances, around the same mean (rest motion): slope ~1, not ~0.4.
     (The half-size test persona's lips are ~2 px apart: a 1 px grid resolves them as the default
     2 px grid resolves a full-size persona's.)"""
-    from facetex.persona.driver import DriverParams
-    from facetex.persona.puppet import PuppetParams, prepare_puppetry
+    from facetex.puppet.driver import DriverParams
+    from facetex.puppet.puppetry import PuppetParams, prepare_puppetry
 
     session = prepare_puppetry(driver_video, tiny_persona, params=PuppetParams(driver=DriverParams(grid_step=1)))
     pup, m = session.puppeteer, session.motion
@@ -329,7 +330,7 @@ def test_puppet_lips_open_and_close_with_the_drivers(driver_video, tiny_persona)
 
 
 def test_landmark_correspondence_is_exact_at_the_landmarks_and_does_not_fold(tiny_persona):
-    from facetex.persona.puppet import landmark_correspondence
+    from facetex.puppet import landmark_correspondence
 
     P = tiny_persona.points68.mean(axis=0)
     c0 = P.mean(axis=0)
@@ -382,9 +383,8 @@ def test_sequence_weights_blend_like_per_frame_textures_and_keep_totals(tiny_per
 def test_puppeteer_weight_smoothing_zero_is_per_frame(driver_video, tiny_persona):
     import dataclasses
 
-    import facetex.persona.puppet as pp
-
-    from facetex.persona.composite import fill_mouth_interior, mouth_closure
+    import facetex.puppet as pp
+    from facetex.puppet.composite import fill_mouth_interior, mouth_closure
 
     session = pp.prepare_puppetry(driver_video, tiny_persona, params=pp.PuppetParams(weight_smoothing=0.0))
     pup = session.puppeteer
@@ -410,8 +410,8 @@ def test_brow_rest_gives_the_puppets_mean_brows_the_drivers_tilt_and_height():
     from types import SimpleNamespace
 
     from facetex.geometry._generic_face import load_generic_face
-    from facetex.persona.driver import brow_heights
-    from facetex.persona.puppet import Puppeteer
+    from facetex.puppet.driver import brow_heights
+    from facetex.puppet.puppetry import Puppeteer
 
     g = load_generic_face().points68[:, :2]
     g = g / np.linalg.norm(g[36] - g[45])
@@ -437,8 +437,8 @@ def test_puppet_lids_follow_the_drivers_and_narrow_eyes_open(driver_video, tiny_
     """The puppet's eyelid gaps (its mesh, canonical px) follow the driver's scaled by the ratio of
     eye distances (slope ~1), and are at least the driver's mean gap (eye rest); without lid sync
     and eye rest they do not follow."""
-    from facetex.persona.driver import _LOWER_LIDS, _UPPER_LIDS, DriverParams
-    from facetex.persona.puppet import PuppetParams, prepare_puppetry
+    from facetex.puppet.driver import _LOWER_LIDS, _UPPER_LIDS, DriverParams
+    from facetex.puppet.puppetry import PuppetParams, prepare_puppetry
 
     def gaps(params):
         session = prepare_puppetry(driver_video, tiny_persona, params=params)
@@ -593,7 +593,7 @@ def test_a_persona_loaded_beforehand_gives_the_same_frames(driver_video, tiny_pe
     import dataclasses
     from concurrent.futures import ThreadPoolExecutor
 
-    import facetex.persona.puppet as pp
+    import facetex.puppet.puppetry as pp
 
     fresh = dataclasses.replace(tiny_persona, _cache={})
     with ThreadPoolExecutor(1) as pool:

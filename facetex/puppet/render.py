@@ -12,7 +12,7 @@ the camera) go to the camera as X_c = R X + t; a pinhole projects them to
 ``(focal * x_c / z_c + cx, focal * y_c / z_c + cy)``, a weak-perspective camera to
 ``(focal * x_c / t_z + cx, ...)``; (cx, cy) = ((W - 1) / 2, (H - 1) / 2) with pixel
 centres at integer coordinates. Texture coordinates follow
-:mod:`facetex.persona.mesh_io` (u right, v down, texel edges at 0 and 1).
+:mod:`facetex.puppet.mesh_io` (u right, v down, texel edges at 0 and 1).
 """
 
 from __future__ import annotations

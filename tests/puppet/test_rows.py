@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from facetex.persona._rows import scatter_rows
+from facetex.puppet._rows import scatter_rows
 
 
 def test_scatter_rows_equals_fancy_assignment():

@@ -2,12 +2,12 @@
 
 dlib's model loading (~1.2 s) and its landmark fits hold the GIL, so on a thread they stall
 the persona loading and texture precomputation that run beside them. A child process has its
-own interpreter. It is a plain ``python -m facetex.persona._tracking`` subprocess (not
+own interpreter. It is a plain ``python -m facetex.puppet._tracking`` subprocess (not
 multiprocessing): it does not re-import the caller's ``__main__``, and unlike ``fork`` it is
 safe after OpenCV's thread pool has run (a forked child hangs in OpenCV's parallel code).
 
 Protocol (pickle over pipes): the parent writes ``{"path", "size_of", "kwargs"}`` of
-:func:`~facetex.persona.driver.track_driver` to the child's stdin; the child writes
+:func:`~facetex.puppet.driver.track_driver` to the child's stdin; the child writes
 ``("progress", lost)`` per frame, then ``("done", DriverTrack)`` or ``("error", exception)``
 to its stdout (library output in the child goes to stderr)."""
 
@@ -24,11 +24,11 @@ from typing import Callable
 
 from ..errors import FacetexError
 
-_MODULE = "facetex.persona._tracking"
+_MODULE = "facetex.puppet._tracking"
 
 
 class DriverTracking:
-    """:func:`~facetex.persona.driver.track_driver` of one video, started now and collected by
+    """:func:`~facetex.puppet.driver.track_driver` of one video, started now and collected by
     :meth:`result`. ``process``: in a child process (the default), else on the caller's thread
     when :meth:`result` is called (also the fallback when no child process can be started).
 
@@ -99,7 +99,7 @@ def _resolved(size_of, kwargs) -> dict:
         return kwargs
     from dataclasses import replace
 
-    from .collection import read_persona_header
+    from ..persona.collection import read_persona_header
     from .driver import DriverParams
 
     params = kwargs.get("params") or DriverParams()

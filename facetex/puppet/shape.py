@@ -73,7 +73,7 @@ class AverageShape:
     lighting: np.ndarray
 
     def mesh(self, *, step: int = 1):
-        """(vertices, faces, uv) of the depth map, see :func:`facetex.persona.mesh_io.depth_to_mesh`."""
+        """(vertices, faces, uv) of the depth map, see :func:`facetex.puppet.mesh_io.depth_to_mesh`."""
         from .mesh_io import depth_to_mesh
 
         return depth_to_mesh(self.depth, self.mask, step=step)

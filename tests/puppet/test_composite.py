@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from facetex.errors import BadInputError
-from facetex.persona.composite import (
+from facetex.puppet.composite import (
     CompositeParams,
     boundary_color_step,
     composite_face,
@@ -214,7 +214,7 @@ def driver_face():
     from facetex._resources import sample_path
     from facetex.geometry.skin import face_region_mask
     from facetex.landmarks import detect_face, face_mesh468
-    from facetex.persona.composite import FACE_OVAL
+    from facetex.puppet.composite import FACE_OVAL
 
     img = cv2.imread(str(sample_path("frl_004_neutral.jpg")))[..., ::-1].astype(np.float32) / 255.0
     f = detect_face(img)
@@ -431,7 +431,7 @@ def test_mouth_interior_moves_the_drivers_mouth_into_the_puppets_lips():
 def test_pchip_matches_scipy():
     from scipy.interpolate import PchipInterpolator
 
-    from facetex.persona.composite import _pchip
+    from facetex.puppet.composite import _pchip
 
     rng = np.random.default_rng(0)
     for n in (2, 3, 5, 8):
@@ -655,7 +655,7 @@ def test_fill_mouth_interior_replaces_the_teeth_by_the_lips_as_the_mouth_closes(
 def test_eyeballs_keep_the_personas_colour_the_lids_take_the_drivers():
     """A dark persona's brown iris on a pale driver: with ``keep`` = the eye weights the eyeball is
     the persona's own colour (Lab unchanged), the skin the driver's."""
-    from facetex.persona.composite import eye_weights
+    from facetex.puppet.composite import eye_weights
 
     h, w = 80, 96
     p = _face68()
@@ -680,7 +680,7 @@ def test_lids_take_the_drivers_lid_lightness():
     driver with lids barely darker than his skin (L 68 lids, L 75 skin): with the lid weights the
     ring round the eyes comes out at the driver's lid median (hand-computed: no detail inside the
     lids); with the skin's field alone at 75 + 1.2 x (25 - 45) = 51: a dark ring."""
-    from facetex.persona.composite import lid_weights
+    from facetex.puppet.composite import lid_weights
 
     h, w = 80, 96
     p = _face68(gap=4.0)

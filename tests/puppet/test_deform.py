@@ -5,7 +5,7 @@ import pytest
 from skimage.restoration import denoise_tv_chambolle
 
 from facetex.errors import BadInputError
-from facetex.persona.deform import DeformationTransfer, DeformParams, huber_rof, invert_map, transfer_deformation
+from facetex.puppet.deform import DeformationTransfer, DeformParams, huber_rof, invert_map, transfer_deformation
 
 H, W = 60, 50
 

@@ -1,6 +1,6 @@
 """Depth-map meshes and Wavefront .obj export (viewable in Blender, MeshLab, any 3D viewer).
 
-Mesh convention (as the generic face and :mod:`facetex.persona.shape`): vertices in
+Mesh convention (as the generic face and :mod:`facetex.puppet.shape`): vertices in
 OpenCV camera axes (x right, y down, z away from the camera); ``uv`` in [0, 1] with
 u to the right and v DOWN the texture image, pixel edges at 0 and 1 (texel centre
 of column j at (j + 0.5) / W). Faces are counter-clockwise seen from the camera in

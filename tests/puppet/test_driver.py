@@ -8,7 +8,7 @@ import pytest
 
 from facetex.errors import NoFaceError
 from facetex.io import write_video
-from facetex.persona.driver import (
+from facetex.puppet.driver import (
     DriverParams,
     GridInterpolator,
     driver_motion,
@@ -162,7 +162,7 @@ def _generic68(scale=100.0):
 
 
 def test_lip_fields_let_the_lips_part():
-    from facetex.persona.driver import LipFields
+    from facetex.puppet.driver import LipFields
 
     p = _generic68()
     gy, gx = np.mgrid[0:400:2, 0:400:2].astype(float)
@@ -192,7 +192,7 @@ def _lip_grid():
     """A 2 px grid mesh (h, w, 3) over a face with parted lips (the generic face's, tilted by 8
     degrees: its lip line slopes across the grid's rows) and the motion of lips that close past
     each other: the lower inner lip rises 2 px above the upper one."""
-    from facetex.persona.driver import LipFields
+    from facetex.puppet.driver import LipFields
 
     p = _generic68()
     p[[65, 66, 67, 55, 56, 57, 58, 59]] += [0, 10.0]  # parted lips: a mouth band ~10 px tall
@@ -209,7 +209,7 @@ def _lip_grid():
 
 
 def _flipped(rest, g):
-    from facetex.persona.mesh_io import depth_to_mesh
+    from facetex.puppet.mesh_io import depth_to_mesh
 
     mask = np.ones(rest.shape[:2], bool)
     _, faces, _ = depth_to_mesh(np.zeros(rest.shape[:2]), mask)
@@ -223,7 +223,7 @@ def _flipped(rest, g):
 
 
 def test_unfold_columns_lets_crossing_lips_meet_without_folding_the_grid():
-    from facetex.persona.driver import unfold_columns
+    from facetex.puppet.driver import unfold_columns
 
     p, rest, g = _lip_grid()
     mask = np.ones(rest.shape[:2], bool)
@@ -247,9 +247,9 @@ def test_closed_lips_render_as_a_smooth_line():
     """The closed lips' line, rendered: a texture whose mouth band (between the inner lips) is
     dark, closed past itself by the lip fields. Folded, the z-buffer cuts the line along the
     grid's triangles (steps of a grid cell); unfolded it is a smooth thin line."""
-    from facetex.persona.driver import unfold_columns
-    from facetex.persona.mesh_io import depth_to_mesh
-    from facetex.persona.render import render_layers
+    from facetex.puppet.driver import unfold_columns
+    from facetex.puppet.mesh_io import depth_to_mesh
+    from facetex.puppet.render import render_layers
 
     p, rest, g = _lip_grid()
     tex = np.full((400, 400, 3), 0.8, np.float32)
@@ -289,7 +289,7 @@ def test_closed_lips_render_as_a_smooth_line():
 
 
 def test_unfold_columns_ignores_invalid_vertices():
-    from facetex.persona.driver import unfold_columns
+    from facetex.puppet.driver import unfold_columns
 
     _, rest, g = _lip_grid()
     mask = np.ones(rest.shape[:2], bool)
@@ -325,7 +325,7 @@ def test_mouth_correction_follows_the_landmarks(tracked):
 def _mesh_at(points68):
     """A stand-in face mesh: 468 points spread over the landmarks' hull, with the MediaPipe corner
     vertices on dlib's corners."""
-    from facetex.persona.driver import _DLIB_CORNERS, _MESH_CORNERS
+    from facetex.puppet.driver import _DLIB_CORNERS, _MESH_CORNERS
 
     rng = np.random.default_rng(0)
     w = rng.dirichlet(np.ones(68), size=468)
@@ -335,7 +335,7 @@ def _mesh_at(points68):
 
 
 def test_face_rejection_of_partial_and_inconsistent_faces():
-    from facetex.persona.driver import face_rejection
+    from facetex.puppet.driver import face_rejection
 
     p = _generic68(60.0)  # face around x, y = 200 in a 400 x 400 frame
     assert face_rejection(p, _mesh_at(p), (400, 400)) == ""
@@ -348,7 +348,7 @@ def test_face_rejection_of_partial_and_inconsistent_faces():
 
 
 def test_implausible_shapes_flags_a_squashed_face():
-    from facetex.persona.driver import implausible_shapes
+    from facetex.puppet.driver import implausible_shapes
 
     rng = np.random.default_rng(1)
     p = _generic68(60.0)
@@ -409,7 +409,7 @@ def _lift_all(points, mesh, triangles):
 def test_lift_points_equals_search_over_all_triangles():
     from scipy.spatial import Delaunay
 
-    from facetex.persona.driver import _lift_points
+    from facetex.puppet.driver import _lift_points
 
     rng = np.random.default_rng(3)
     base = rng.uniform(0, 100, (120, 2))
@@ -423,7 +423,7 @@ def test_lift_points_equals_search_over_all_triangles():
 
 # ----------------------------------------------------------------------------- brows
 def test_brow_heights_hand_computed():
-    from facetex.persona.driver import brow_heights
+    from facetex.puppet.driver import brow_heights
 
     p = np.zeros((68, 2))
     p[36:42] = [10.0, 50.0]  # eye centres 40 px apart on a level line y = 50
@@ -437,7 +437,7 @@ def test_brow_heights_hand_computed():
 
 
 def test_brow_fields_move_the_brows_and_hold_eyes_lips_and_hairline():
-    from facetex.persona.driver import BrowFields
+    from facetex.puppet.driver import BrowFields
 
     p = _generic68()
     gy, gx = np.mgrid[0:400:2, 0:400:2].astype(float)
@@ -461,7 +461,7 @@ def test_brow_fields_move_the_brows_and_hold_eyes_lips_and_hairline():
 
 
 def test_eye_openness_hand_computed():
-    from facetex.persona.driver import eye_openness
+    from facetex.puppet.driver import eye_openness
 
     p = np.zeros((68, 2))
     for c0, u0, u1, c1, l1, l0 in ((36, 37, 38, 39, 40, 41), (42, 43, 44, 45, 46, 47)):
@@ -475,7 +475,7 @@ def test_eye_openness_hand_computed():
 
 
 def test_lid_fields_close_the_lids_and_hold_the_rest():
-    from facetex.persona.driver import LidFields
+    from facetex.puppet.driver import LidFields
 
     p = _generic68()
     gy, gx = np.mgrid[0:400:2, 0:400:2].astype(float)
