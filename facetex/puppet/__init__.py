@@ -4,7 +4,7 @@ another person's video. The data flow, one module each: the driver's tracking an
 correspondence (:mod:`~facetex.puppet.correspondence`), the deformation transfer
 (:mod:`~facetex.puppet.deform`), the per-frame puppet (:mod:`~facetex.puppet.puppeteer`), its
 rendering (:mod:`~facetex.puppet.render`) and its compositing into the driver's frame
-(:mod:`~facetex.puppet.composite`); :mod:`~facetex.puppet.puppetry` runs them over a video. The
+(:mod:`~facetex.puppet.composite`, with :mod:`~facetex.puppet.lighting` and :mod:`~facetex.puppet.mouth`); :mod:`~facetex.puppet.puppetry` runs them over a video. The
 persona itself (photo collection, expression-dependent textures) is :mod:`facetex.persona`."""
 
 from .._lazy import lazy_attributes as _lazy_attributes
@@ -41,15 +41,15 @@ _LAZY = {
     "CompositeParams": "composite",
     "boundary_color_step": "composite",
     "composite_face": "composite",
-    "fit_sh_lighting": "composite",
-    "linear_to_srgb": "composite",
-    "match_color_statistics": "composite",
-    "mouth_interior": "composite",
+    "fit_sh_lighting": "lighting",
+    "linear_to_srgb": "lighting",
+    "match_color_statistics": "lighting",
+    "mouth_interior": "mouth",
     "poisson_blend": "composite",
-    "relight": "composite",
-    "sh_basis": "composite",
-    "sh_shading": "composite",
-    "srgb_to_linear": "composite",
+    "relight": "lighting",
+    "sh_basis": "lighting",
+    "sh_shading": "lighting",
+    "srgb_to_linear": "lighting",
 }
 
 __getattr__, __dir__ = _lazy_attributes(__name__, globals(), _LAZY)

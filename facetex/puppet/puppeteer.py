@@ -9,10 +9,12 @@ import cv2
 import numpy as np
 
 from ..errors import BadInputError
-from .composite import FACE_OVAL, INNER_LIPS, composite_face, mouth_interior
+from .composite import FACE_OVAL, INNER_LIPS, composite_face
 from .correspondence import DriverCollection, collection_correspondence, landmark_correspondence, puppet_average_shape
 from .deform import DeformationTransfer
-from .driver import DriverMotion, DriverTrack, unfold_columns
+from .driver import DriverTrack
+from .motion import DriverMotion, unfold_columns
+from .mouth import mouth_interior
 from .params import CORRESPONDENCES, TEXTURES, PuppetParams
 
 __all__ = [
@@ -29,7 +31,7 @@ __all__ = [
 def target_fiducials(persona, motion: DriverMotion, i: int) -> np.ndarray:
     """F^T (49, 2) for frame i: the puppet's mean fiducials plus the driver's expression
     offset, scaled by the ratio of eye-centre distances."""
-    from .driver import _iod49
+    from .motion import _iod49
 
     M = persona.mean_fiducials
     k = _iod49(M) / max(motion.iod, 1e-9)
@@ -81,13 +83,13 @@ def grid_normals(grid: np.ndarray) -> np.ndarray:
 
 
 def landmark_field(persona, kind: str, step: int):
-    """The persona's :class:`~facetex.puppet.driver.LipFields` ("lips"), ``BrowFields`` ("brows")
+    """The persona's :class:`~facetex.puppet.motion.LipFields` ("lips"), ``BrowFields`` ("brows")
     or ``LidFields`` ("lids") at its mean landmarks on its depth-map grid of ``step`` px, cached on
     the persona: they depend on the persona alone, so the puppet's setup makes them beside the
     driver's tracking (:func:`prepare_puppetry`)."""
     key = ("landmark_field", kind, int(step))
     if key not in persona._cache:
-        from .driver import BrowFields, LidFields, LipFields
+        from .motion import BrowFields, LidFields, LipFields
 
         W, H = persona.size
         gy, gx = np.mgrid[0:H:step, 0:W:step].astype(np.float64)
@@ -161,14 +163,14 @@ class Puppeteer:
         self.mean68 = persona.points68.mean(axis=0)  # the texture's frame (its 49 points: the mean fiducials)
         self.lip_fields = None
         if self.motion.fiducials68 is not None and (params.mouth_rest or params.lip_sync):
-            from .driver import _iod49
+            from .motion import _iod49
 
             self.lip_fields = landmark_field(persona, "lips", st)
             self.lip_scale = _iod49(persona.mean_fiducials) / max(motion.iod, 1e-9)
         self.rest_move = self._rest_motion() if params.mouth_rest and self.lip_fields is not None else None
         self.brow_fields = self.brow_rest = None
         if self.motion.fiducials68 is not None and (params.brow_rest or params.brow_sync):
-            from .driver import _iod49
+            from .motion import _iod49
 
             self.brow_fields = landmark_field(persona, "brows", st)
             self.brow_scale = _iod49(persona.mean_fiducials) / max(motion.iod, 1e-9)
@@ -176,7 +178,7 @@ class Puppeteer:
                 self.brow_rest = self._brow_rest_motion()
         self.lid_fields, self.eye_move = None, None
         if self.motion.fiducials68 is not None and (params.eye_rest or params.lid_sync):
-            from .driver import _iod49
+            from .motion import _iod49
 
             self.lid_fields = landmark_field(persona, "lids", st)
             self.lid_scale = _iod49(persona.mean_fiducials) / max(motion.iod, 1e-9)
@@ -214,7 +216,7 @@ class Puppeteer:
         the tilt and mean height above the eye line (over the eye distance) of the driver's mean
         brow: the difference of the two least-squares lines (height on position along the eye
         line), moved along the eye line's normal. The brow's own curve stays the puppet's."""
-        from .driver import brow_heights
+        from .motion import brow_heights
 
         m = self.motion
         P, D = self.mean68, m.fiducials68[m.found].mean(axis=0)
@@ -239,7 +241,7 @@ class Puppeteer:
         that gap, 70 % by the upper lid. Why: LFW collections' mean eyes are narrow (news photos:
         squints, smiles, flash; eye aspect ratio 0.21-0.29 against 0.31-0.34 of GRID speakers), and
         a puppet whose eyes are a third narrower than the driver's reads as half shut."""
-        from .driver import _LOWER_LIDS, _UPPER_LIDS
+        from .motion import _LOWER_LIDS, _UPPER_LIDS
 
         m = self.motion
         P = self.mean68
@@ -274,12 +276,12 @@ class Puppeteer:
         """Puppet mesh (h, w, 3) on its depth-map grid for frame i (M_P^i, Tom Hanks §4).
 
         Beyond the paper: its lip and jaw landmarks then move exactly as the driver's
-        (scaled by the ratio of eye distances; :class:`facetex.puppet.driver.LipFields`), on top of
+        (scaled by the ratio of eye distances; :class:`facetex.puppet.motion.LipFields`), on top of
         the constant rest motion (:mod:`facetex.puppet.puppetry` doc): the deformation transfer's magnitude adjustment and
         Huber-ROF smoothing shrink the thin, fast lip motion by 10-25 % on GRID clips. Lips that
         close further than the puppet's mouth band is tall meet instead of folding the grid over
-        (:func:`facetex.puppet.driver.unfold_columns`). The brows likewise follow the driver's
-        brow landmarks relative to the eye corners (:class:`facetex.puppet.driver.BrowFields`; the
+        (:func:`facetex.puppet.motion.unfold_columns`). The brows likewise follow the driver's
+        brow landmarks relative to the eye corners (:class:`facetex.puppet.motion.BrowFields`; the
         face mesh moved them 0.2-0.4x as far), from the brow rest (:meth:`_brow_rest_motion`)."""
         g = self.transfer(self.motion.delta_field(i))
         g = self._lids(i, g)
@@ -330,7 +332,7 @@ class Puppeteer:
 
     def _lids(self, i: int, g: np.ndarray) -> np.ndarray:
         """The grid ``g`` with the puppet's eyelid landmarks moved as the driver's (scaled by the
-        ratio of eye distances) on top of the eyes' rest motion (:class:`facetex.puppet.driver.LidFields`):
+        ratio of eye distances) on top of the eyes' rest motion (:class:`facetex.puppet.motion.LidFields`):
         the deformation transfer's smoothing all but removes a blink's 2-4 px lid motion."""
         if self.lid_fields is None:
             return g
@@ -371,8 +373,8 @@ class Puppeteer:
 
     def _close_interiors(self, frames: list, tex: list) -> list:
         """The textures with their mouth interior filled from the lips as the driver's mouth
-        closes (:func:`facetex.puppet.composite.fill_mouth_interior`; ``params.close_mouth``)."""
-        from .composite import fill_mouth_interior, mouth_closure
+        closes (:func:`facetex.puppet.mouth.fill_mouth_interior`; ``params.close_mouth``)."""
+        from .mouth import fill_mouth_interior, mouth_closure
 
         m = self.motion
         if not self.params.close_mouth or m.fiducials68 is None:

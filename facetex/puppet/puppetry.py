@@ -48,7 +48,7 @@ puppet's mean lip gap to the driver's mean gap (scaled by the eye distances); th
 motion then opens and closes it like the driver's.
 
 Eyes likewise (``eye_rest``, ``lid_sync``): the eyelid landmarks follow the driver's
-(:class:`facetex.puppet.driver.LidFields`; the deformation transfer's smoothing all but removed a
+(:class:`facetex.puppet.motion.LidFields`; the deformation transfer's smoothing all but removed a
 blink), and a persona whose mean eyes are narrower than the driver's (LFW collections: eye aspect
 ratio 0.21-0.29 against 0.31-0.34 of the GRID speakers; the puppet's eyes read as half shut) has
 them opened to the driver's mean lid gap; the texture's eye-region weights see the opened lids
@@ -69,7 +69,8 @@ import numpy as np
 
 from ..errors import BadInputError
 from .correspondence import DriverCollection, driver_collection, puppet_average_shape
-from .driver import DriverMotion, DriverTrack, driver_motion
+from .driver import DriverTrack
+from .motion import DriverMotion, driver_motion
 from .params import MODES, TEXTURES, PuppetParams
 from .puppeteer import Puppeteer, _landmark_fields_used, landmark_field
 

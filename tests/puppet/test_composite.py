@@ -8,29 +8,28 @@ import numpy as np
 import pytest
 
 from facetex.errors import BadInputError
+from facetex.geometry.masks import inner_feather, polygon_mask
 from facetex.puppet.composite import (
     CompositeParams,
     boundary_color_step,
     composite_face,
-    fit_sh_lighting,
-    inner_feather,
-    linear_to_srgb,
-    match_color_statistics,
-    fill_mouth_interior,
     lip_weights,
     match_sharpness,
-    mouth_closure,
-    mouth_interior,
     occlusion_mask,
     poisson_blend,
-    polygon_mask,
+    skin_pixels,
+)
+from facetex.puppet.lighting import (
+    fit_sh_lighting,
+    linear_to_srgb,
+    match_color_statistics,
     relight,
     sh_shading,
     skin_low_pass,
-    skin_pixels,
     srgb_to_linear,
     transfer_skin_colour,
 )
+from facetex.puppet.mouth import fill_mouth_interior, mouth_closure, mouth_interior
 
 
 def _lab(img):
@@ -431,7 +430,7 @@ def test_mouth_interior_moves_the_drivers_mouth_into_the_puppets_lips():
 def test_pchip_matches_scipy():
     from scipy.interpolate import PchipInterpolator
 
-    from facetex.puppet.composite import _pchip
+    from facetex.puppet.mouth import _pchip
 
     rng = np.random.default_rng(0)
     for n in (2, 3, 5, 8):

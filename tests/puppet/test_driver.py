@@ -11,7 +11,6 @@ from facetex.io import write_video
 from facetex.puppet.driver import (
     DriverParams,
     GridInterpolator,
-    driver_motion,
     fill_lost,
     generalized_procrustes,
     mouth_opening,
@@ -19,6 +18,7 @@ from facetex.puppet.driver import (
     smooth_series,
     track_driver,
 )
+from facetex.puppet.motion import driver_motion
 
 
 def _rot(ax, ay, az):
@@ -162,7 +162,7 @@ def _generic68(scale=100.0):
 
 
 def test_lip_fields_let_the_lips_part():
-    from facetex.puppet.driver import LipFields
+    from facetex.puppet.motion import LipFields
 
     p = _generic68()
     gy, gx = np.mgrid[0:400:2, 0:400:2].astype(float)
@@ -192,7 +192,7 @@ def _lip_grid():
     """A 2 px grid mesh (h, w, 3) over a face with parted lips (the generic face's, tilted by 8
     degrees: its lip line slopes across the grid's rows) and the motion of lips that close past
     each other: the lower inner lip rises 2 px above the upper one."""
-    from facetex.puppet.driver import LipFields
+    from facetex.puppet.motion import LipFields
 
     p = _generic68()
     p[[65, 66, 67, 55, 56, 57, 58, 59]] += [0, 10.0]  # parted lips: a mouth band ~10 px tall
@@ -223,7 +223,7 @@ def _flipped(rest, g):
 
 
 def test_unfold_columns_lets_crossing_lips_meet_without_folding_the_grid():
-    from facetex.puppet.driver import unfold_columns
+    from facetex.puppet.motion import unfold_columns
 
     p, rest, g = _lip_grid()
     mask = np.ones(rest.shape[:2], bool)
@@ -247,8 +247,8 @@ def test_closed_lips_render_as_a_smooth_line():
     """The closed lips' line, rendered: a texture whose mouth band (between the inner lips) is
     dark, closed past itself by the lip fields. Folded, the z-buffer cuts the line along the
     grid's triangles (steps of a grid cell); unfolded it is a smooth thin line."""
-    from facetex.puppet.driver import unfold_columns
     from facetex.puppet.mesh_io import depth_to_mesh
+    from facetex.puppet.motion import unfold_columns
     from facetex.puppet.render import render_layers
 
     p, rest, g = _lip_grid()
@@ -289,7 +289,7 @@ def test_closed_lips_render_as_a_smooth_line():
 
 
 def test_unfold_columns_ignores_invalid_vertices():
-    from facetex.puppet.driver import unfold_columns
+    from facetex.puppet.motion import unfold_columns
 
     _, rest, g = _lip_grid()
     mask = np.ones(rest.shape[:2], bool)
@@ -409,7 +409,7 @@ def _lift_all(points, mesh, triangles):
 def test_lift_points_equals_search_over_all_triangles():
     from scipy.spatial import Delaunay
 
-    from facetex.puppet.driver import _lift_points
+    from facetex.puppet.motion import _lift_points
 
     rng = np.random.default_rng(3)
     base = rng.uniform(0, 100, (120, 2))
@@ -423,7 +423,7 @@ def test_lift_points_equals_search_over_all_triangles():
 
 # ----------------------------------------------------------------------------- brows
 def test_brow_heights_hand_computed():
-    from facetex.puppet.driver import brow_heights
+    from facetex.puppet.motion import brow_heights
 
     p = np.zeros((68, 2))
     p[36:42] = [10.0, 50.0]  # eye centres 40 px apart on a level line y = 50
@@ -437,7 +437,7 @@ def test_brow_heights_hand_computed():
 
 
 def test_brow_fields_move_the_brows_and_hold_eyes_lips_and_hairline():
-    from facetex.puppet.driver import BrowFields
+    from facetex.puppet.motion import BrowFields
 
     p = _generic68()
     gy, gx = np.mgrid[0:400:2, 0:400:2].astype(float)
@@ -461,7 +461,7 @@ def test_brow_fields_move_the_brows_and_hold_eyes_lips_and_hairline():
 
 
 def test_eye_openness_hand_computed():
-    from facetex.puppet.driver import eye_openness
+    from facetex.puppet.motion import eye_openness
 
     p = np.zeros((68, 2))
     for c0, u0, u1, c1, l1, l0 in ((36, 37, 38, 39, 40, 41), (42, 43, 44, 45, 46, 47)):
@@ -475,7 +475,7 @@ def test_eye_openness_hand_computed():
 
 
 def test_lid_fields_close_the_lids_and_hold_the_rest():
-    from facetex.puppet.driver import LidFields
+    from facetex.puppet.motion import LidFields
 
     p = _generic68()
     gy, gx = np.mgrid[0:400:2, 0:400:2].astype(float)

@@ -384,7 +384,7 @@ def test_puppeteer_weight_smoothing_zero_is_per_frame(driver_video, tiny_persona
     import dataclasses
 
     import facetex.puppet as pp
-    from facetex.puppet.composite import fill_mouth_interior, mouth_closure
+    from facetex.puppet.mouth import fill_mouth_interior, mouth_closure
 
     session = pp.prepare_puppetry(driver_video, tiny_persona, params=pp.PuppetParams(weight_smoothing=0.0))
     pup = session.puppeteer
@@ -410,7 +410,7 @@ def test_brow_rest_gives_the_puppets_mean_brows_the_drivers_tilt_and_height():
     from types import SimpleNamespace
 
     from facetex.geometry._generic_face import load_generic_face
-    from facetex.puppet.driver import brow_heights
+    from facetex.puppet.motion import brow_heights
     from facetex.puppet.puppetry import Puppeteer
 
     g = load_generic_face().points68[:, :2]
@@ -437,7 +437,8 @@ def test_puppet_lids_follow_the_drivers_and_narrow_eyes_open(driver_video, tiny_
     """The puppet's eyelid gaps (its mesh, canonical px) follow the driver's scaled by the ratio of
     eye distances (slope ~1), and are at least the driver's mean gap (eye rest); without lid sync
     and eye rest they do not follow."""
-    from facetex.puppet.driver import _LOWER_LIDS, _UPPER_LIDS, DriverParams
+    from facetex.puppet.driver import DriverParams
+    from facetex.puppet.motion import _LOWER_LIDS, _UPPER_LIDS
     from facetex.puppet.puppetry import PuppetParams, prepare_puppetry
 
     def gaps(params):
@@ -553,11 +554,10 @@ def test_detail_restoration_gives_the_blend_its_photos_band_energy(tiny_persona)
     """The blend of 8 photos has less fine-band energy in the face than its photos; restoration
     scales the band back to the photos' weighted mean energy (gain <= restore_gain), face and
     eyes only; a single photo's "blend" is (nearly) left alone (gain ~1)."""
+    import copy
     import dataclasses
 
     from facetex.persona import texture as tx
-
-    import copy
 
     base = dataclasses.replace(tx.TextureParams(), detail=(), eye_quality=0, glasses=0, restore=())
     prep = copy.copy(tx.prepare_persona(tiny_persona, base))  # its tp is changed below

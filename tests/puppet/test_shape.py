@@ -10,13 +10,13 @@ from facetex.puppet.mesh_io import depth_to_mesh, read_obj, write_obj
 from facetex.puppet.shape import (
     checked_depth,
     fit_albedo,
-    linear_luma,
-    symmetrize_normals,
-    validate_shape,
     generic_depth_px,
     integrate_normals,
+    linear_luma,
     normals_from_depth,
     reconstruct_average_shape,
+    symmetrize_normals,
+    validate_shape,
 )
 
 W, H = 192, 240
