@@ -74,8 +74,8 @@ def main() -> int:
     except ImportError:
         pass
     from facetex.persona import synthesize_texture
-    from facetex.persona.collection import _list_photos
-    from facetex.persona.texture import prepare_persona
+    from facetex.persona.build import _list_photos
+    from facetex.persona.stacks import prepare_persona
 
     load0 = _load()
     data = Path(args.data)

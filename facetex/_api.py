@@ -23,6 +23,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from PIL.Image import Image as PILImage
 
     from .persona.collection import Persona
+    from .persona.params import TextureParams
 
 __all__ = [
     "ImageLike", "as_image", "parse_iters", "transfer", "transfer_with_info", "transfer_step_image",
@@ -553,11 +554,11 @@ def build_persona(photo_dir: str | os.PathLike, *, jobs: int = 2, min_photos: in
     from .io import check_input_dir
     from .persona import PersonaParams
     from .persona import build_persona as _build
-    from .persona.collection import _list_photos
+    from .persona.build import _list_photos
 
     folder = check_input_dir(photo_dir, BadInputError, what="photo folder")
     n = len(files) if files is not None else len(_list_photos(folder))
-    from .persona.collection import SHAPE_STEPS
+    from .persona.build import SHAPE_STEPS
 
     # two passes over the photos, then the average shape's steps (each stage named on the bar)
     with _progress(progress, 2 * n + SHAPE_STEPS, "persona", "step") as bar:
@@ -840,7 +841,8 @@ def persona_mesh(persona: PersonaLike, *, step: int = 1,
     >>> facetex.persona_mesh("george.persona", step=2).save("face.obj")  # doctest: +SKIP
     """
     from .persona import average_face
-    from .persona.collection import average_shape, face_region
+    from .persona.align import face_region
+    from .persona.build import average_shape
     from .puppet.mesh_io import depth_to_mesh
     from .puppet.shape import checked_depth, generic_depth_px
 

@@ -221,7 +221,7 @@ def write_teeth_sheet(out: Path, persona, params, n: int = 4) -> tuple[Path | No
 
 def _choose_holdout(files: list[Path], holdout: int, seed: int, params, progress) -> tuple[list[dict], list[Path]]:
     """The first ``holdout`` usable photos of a seeded permutation, and the remaining files."""
-    from ..persona.collection import process_photo
+    from ..persona.build import process_photo
 
     order = np.random.default_rng(seed).permutation(len(files))
     held = []
@@ -252,7 +252,7 @@ def load_or_build(data: Path, out: Path, holdout: int, seed: int, jobs: int, pro
     """(persona without the held-out photos (cached in ``out``), held-out records, built?, build s).
     ``engine`` (started): the build runs there as one item of ``jobs`` CPUs (e.g. on a Ray cluster)."""
     from ..persona import PersonaParams, build_persona, load_persona
-    from ..persona.collection import _list_photos
+    from ..persona.build import _list_photos
 
     files = _list_photos(data)
     params = params or PersonaParams()
@@ -361,7 +361,8 @@ def run_bench_persona(data, *, holdout: int = 20, seed: int = 0, out="bench_out/
     import dataclasses
 
     from ..persona import TextureParams, synthesize_texture
-    from ..persona.texture import expression_model, prepare_persona
+    from ..persona.stacks import prepare_persona
+    from ..persona.texture import expression_model
 
     if holdout < 1:
         raise BadInputError(f"--holdout must be at least 1, got {holdout}")
@@ -464,7 +465,7 @@ def register_bench(sub) -> None:
 
 def _run_cli(args) -> int:
     from ..cli._common import progress_bar
-    from ..persona.collection import _list_photos
+    from ..persona.build import _list_photos
     from ._common import data_folder, data_root, finish_bench
 
     data = data_folder(data_root(args.data), DATA_SUBFOLDER)

@@ -102,8 +102,8 @@ def run_build(args) -> int:
     from ..errors import BadInputError
     from ..io import check_input_dir, check_output_path
     from ..persona import PersonaParams, build_persona
-    from ..persona.collection import _list_photos
-    from ..persona.collection import SHAPE_STEPS
+    from ..persona.build import _list_photos
+    from ..persona.build import SHAPE_STEPS
     from ..persona.identity import MixedCollectionError
     from ._common import jobs_of
 

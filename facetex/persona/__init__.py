@@ -10,16 +10,16 @@ from .._lazy import lazy_attributes as _lazy_attributes
 _LAZY = {
     "Persona": "collection",
     "PersonaParams": "collection",
-    "build_persona": "collection",
+    "build_persona": "build",
     "load_persona": "collection",
     "read_persona_header": "collection",
-    "METHODS": "texture",
-    "STAGES": "texture",
-    "WEIGHTS": "texture",
-    "TextureParams": "texture",
+    "METHODS": "params",
+    "STAGES": "params",
+    "WEIGHTS": "params",
+    "TextureParams": "params",
     "average_face": "texture",
     "blend_textures": "texture",
-    "prepare_persona": "texture",
+    "prepare_persona": "stacks",
     "synthesize_texture": "texture",
 }
 

@@ -27,7 +27,7 @@ def puppet_average_shape(persona, params: PuppetParams = PuppetParams()) -> tupl
     persona's average 3D face (Tom Hanks §4): the one stored in the .persona (computed at
     build time), else computed now (version-1 files); cached on the persona object."""
     from ..persona.align import face_region
-    from ..persona.collection import average_depth
+    from ..persona.build import average_depth
     from .shape import checked_depth
 
     key = ("puppet_shape", params.max_depth_error, params.shape, params.shape_photos)
@@ -63,7 +63,8 @@ def driver_collection(track: DriverTrack, *, driver_photos=None, params: PuppetP
     their mean fiducials."""
     from ..landmarks import POINTS49_INDEX
     from ..persona.align import appearance_subspace, face_region, remap_stack, tps_maps
-    from ..persona.collection import PersonaParams, build_persona
+    from ..persona.collection import PersonaParams
+    from ..persona.build import build_persona
     from .shape import checked_depth
 
     W, H = params.driver.size

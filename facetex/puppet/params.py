@@ -86,7 +86,7 @@ class PuppetParams:
         texture's defaults with the regional weights, :meth:`TextureParams.paper` with the
         global ones (both the static average and the blends use them, so one precomputation
         serves all)."""
-        from ..persona.texture import WEIGHTS, TextureParams
+        from ..persona.params import WEIGHTS, TextureParams
 
         if self.weights not in WEIGHTS:
             raise BadInputError(f"unknown puppet texture weights {self.weights!r}: use one of {', '.join(WEIGHTS)}")

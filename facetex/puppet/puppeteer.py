@@ -56,7 +56,8 @@ def neutral_textures(persona, fiducials, *, method: str = "ours", params=None, s
     for the batch)."""
     import dataclasses
 
-    from ..persona.texture import TextureParams, average_face, blend_textures
+    from ..persona.params import TextureParams
+    from ..persona.texture import average_face, blend_textures
 
     if method not in TEXTURES:
         raise BadInputError(f"unknown puppet texture {method!r}: use one of {', '.join(TEXTURES)}")

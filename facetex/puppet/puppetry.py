@@ -119,7 +119,8 @@ def _load_puppet(persona, timings: dict):
 def _prepare_puppet_texture(loaded, params: PuppetParams, timings: dict) -> None:
     """The texture synthesis precomputation (and, for the flow correspondence or the static
     texture, the average face), cached on the persona."""
-    from ..persona.texture import average_face, prepare_persona
+    from ..persona.stacks import prepare_persona
+    from ..persona.texture import average_face
 
     persona = loaded.result()
     tp = params.texture_params()

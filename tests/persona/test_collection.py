@@ -22,15 +22,9 @@ from facetex.persona import (
     read_persona_header,
     synthesize_texture,
 )
-from facetex.persona.collection import (
-    PERSONA_VERSION,
-    _Pool,
-    _process_star,
-    average_depth,
-    average_shape,
-    shape_split,
-)
 from facetex.persona.align import face_region
+from facetex.persona.collection import PERSONA_VERSION
+from facetex.persona.build import _Pool, _process_star, average_depth, average_shape, shape_split
 
 SIZE = (96, 120)  # small canonical frame: fast flows
 PARAMS = PersonaParams(size=SIZE, min_photos=8)
@@ -83,7 +77,7 @@ def test_build_keeps_good_photos_and_lists_skipped(persona):
     assert sum(c.get("stage") == "frontalize" for c in persona.progress_calls) == 14
     assert sum(c.get("stage") == "flow" for c in persona.progress_calls) == 12
     # then the average shape's steps, each named before it runs (the bar does not stand still unnamed)
-    from facetex.persona.collection import SHAPE_STEPS
+    from facetex.persona.build import SHAPE_STEPS
 
     shape = [c for c in persona.progress_calls if str(c.get("stage", "")).startswith("shape")]
     assert sum(c["n"] for c in shape) == SHAPE_STEPS
@@ -364,13 +358,14 @@ def test_version1_file_loads_without_depth(persona, tmp_path):
 
 
 def _texture(p, **kw):
-    from facetex.persona.texture import TextureParams, synthesize_texture
+    from facetex.persona.params import TextureParams
+    from facetex.persona.texture import synthesize_texture
 
     return synthesize_texture(p, fiducials=p.fiducials[3], params=TextureParams(**kw))
 
 
 def test_texture_stacks_stored_and_used(persona, tmp_path):
-    from facetex.persona import texture as T
+    from facetex.persona import stacks as T
 
     with_stacks = persona.save(tmp_path / "s.persona")
     without = persona.save(tmp_path / "n.persona", texture_stacks=False)
@@ -403,7 +398,7 @@ def test_texture_stacks_stored_and_used(persona, tmp_path):
 
 
 def test_stale_texture_stacks_are_recomputed(persona, tmp_path, monkeypatch):
-    from facetex.persona import texture as T
+    from facetex.persona import stacks as T
 
     path = persona.save(tmp_path / "s.persona")
     monkeypatch.setattr(T, "STACKS_VERSION", T.STACKS_VERSION + 1)  # a later facetex computes them otherwise
@@ -415,7 +410,7 @@ def test_stale_texture_stacks_are_recomputed(persona, tmp_path, monkeypatch):
 def _v3_file(persona, path, change=None):
     """``persona`` written as format 3 did: raw images and float16 flows, and the texture stacks
     as float16 per-level arrays with float32 static sums (``change(head, meta, arrays)`` edits)."""
-    from facetex.persona import texture as T
+    from facetex.persona import stacks as T
 
     prep = T.prepare_persona(persona)
     arrays = {k: getattr(persona, k) for k in _BASE}
@@ -433,7 +428,7 @@ def _v3_file(persona, path, change=None):
 
 
 def test_version3_file_loads_and_uses_its_float16_stacks(persona, tmp_path):
-    from facetex.persona import texture as T
+    from facetex.persona import stacks as T
 
     v3 = _v3_file(persona, tmp_path / "v3.persona")
     q = load_persona(v3)
@@ -546,7 +541,7 @@ def test_packed_arrays_round_trip_exactly():
 
 
 def test_aligned_photos_code_hand_computed():
-    from facetex.persona import texture as T
+    from facetex.persona import stacks as T
 
     tp = T.TextureParams()
     lo, hi = T._conf_range(tp)
@@ -644,9 +639,11 @@ def test_segmented_sparse_blend_equals_the_dense_formula(persona, monkeypatch):
     # (the outside's finest bands left out)
     import math
 
+    import facetex.persona.pyramid as pyr
+    import facetex.persona.stacks as stacks
     import facetex.persona.texture as tx
 
-    monkeypatch.setattr(tx, "SPARSE_MASS", 1.0)
+    monkeypatch.setattr(stacks, "SPARSE_MASS", 1.0)
     plain = dict(detail=(), eye_quality=0, glasses=0, restore=())  # the Eq. 3 blend itself (no detail weights)
     tp = TextureParams(max_photos=None, **plain)
     prep = tx.prepare_persona(persona, tp)
@@ -656,19 +653,19 @@ def test_segmented_sparse_blend_equals_the_dense_formula(persona, monkeypatch):
     full, masks = prep.pyr, prep.level_masks()
     for k in range(prep.levels):
         h, w = prep.level_shapes[k]
-        u = tx._uniform_term(prep.levels - 1 - k, tp.tau, tp.beta)
+        u = pyr._uniform_term(prep.levels - 1 - k, tp.tau, tp.beta)
         static = prep.static[k].reshape(h, w, 4)
         if math.isinf(u):
             r = np.broadcast_to(static, (2, h, w, 4))
         else:
             wts = (S + u) / (S + u).sum(axis=-1, keepdims=True)  # (2, 3, n)
             num = np.einsum("brn,np->brp", wts, full[k]).reshape(2, 3, h, w, 4)
-            outside = static * ([0, 0, 0, 1] if k < tx.OUTSIDE_SMOOTH_LEVELS else 1)  # no fine detail off the face
+            outside = static * ([0, 0, 0, 1] if k < pyr.OUTSIDE_SMOOTH_LEVELS else 1)  # no fine detail off the face
             r = (masks[k][:3, ..., None] * num).sum(axis=1) + masks[k][3][..., None] * outside
         bands.append(r[..., :3] / r[..., 3:])
-    want = np.stack([tx.collapse_pyramid([b[j] for b in bands]) for j in range(2)])
+    want = np.stack([pyr.collapse_pyramid([b[j] for b in bands]) for j in range(2)])
     np.testing.assert_allclose(got, want, atol=2e-4)
     # cutting the smallest weights and capping the photos changes the blend only a little
-    monkeypatch.setattr(tx, "SPARSE_MASS", 0.995)
+    monkeypatch.setattr(stacks, "SPARSE_MASS", 0.995)
     cut = tx.prepare_persona(persona, TextureParams(max_photos=6, **plain)).blend_many(S)
     assert 0 < np.abs(cut - got).mean() < 0.02

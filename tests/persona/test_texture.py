@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from facetex.persona.texture import (
+from facetex.persona.pyramid import (
     _level_scalars,
     blend_pyramids,
     collapse_pyramid,
@@ -85,7 +85,7 @@ def test_blend_weights_select_per_level():
 
 
 def test_stack_arrays_share_one_map_without_overlapping():
-    from facetex.persona.texture import _small_page_arrays
+    from facetex.persona._stack_parts import _small_page_arrays
 
     arrays = _small_page_arrays([(3, 5), (2, 7), (4, 1)])
     assert [a.shape for a in arrays] == [(3, 5), (2, 7), (4, 1)]

@@ -8,7 +8,7 @@ import pytest
 from facetex.errors import BadInputError
 from facetex.geometry.frontalize import canonical_points68
 from facetex.landmarks import POINTS49_INDEX
-from facetex.persona.texture import _cut_small
+from facetex.persona.pyramid import _cut_small
 from facetex.persona.weights import (
     RIGID49,
     adaptive_sigma,

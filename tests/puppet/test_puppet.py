@@ -292,13 +292,14 @@ def test_render_frames_equal_frames_rendered_alone_in_order(session):
 def test_texture_precomputation_does_not_depend_on_threads(tiny_persona, monkeypatch):
     import dataclasses
 
+    import facetex.persona.stacks as stacks
     import facetex.persona.texture as tx
 
     results = []
     for threads in (1, 2):
         p = dataclasses.replace(tiny_persona, _cache={})
-        monkeypatch.setattr(tx, "available_cpus", lambda t=threads: t)
-        monkeypatch.setattr(tx._Prepared, "CHUNK", 3)  # 8 photos: chunks 3 + 3 + 2
+        monkeypatch.setattr(stacks, "available_cpus", lambda t=threads: t)
+        monkeypatch.setattr(stacks._Prepared, "CHUNK", 3)  # 8 photos: chunks 3 + 3 + 2
         prep = tx.prepare_persona(p)
         results.append((prep.aligned, prep.pyr[0], prep.pyr[-1], prep.stage_b()))
     for a, b in zip(*results):
@@ -510,6 +511,7 @@ def test_photos_with_glasses_lose_their_weight_round_the_eyes(tiny_persona):
     import copy
 
     from facetex.persona import texture as tx
+    from facetex.persona.params import GLASSES_LEVELS
 
     tp = tx.TextureParams()
     prep = copy.copy(tx.prepare_persona(tiny_persona, tp))
@@ -523,7 +525,7 @@ def test_photos_with_glasses_lose_their_weight_round_the_eyes(tiny_persona):
     cv2.line(images[0], (int(p[39, 0]) - 2, y), (int(p[42, 0]) + 2, y), (dark,) * 3, 2)  # photo 0's bridge
     persona.images = images
     prep._persona_ref = persona
-    g = prep.glasses_free(tx.GLASSES_LEVELS["eyes"])
+    g = prep.glasses_free(GLASSES_LEVELS["eyes"])
     assert g.shape == (len(tiny_persona),) and np.all((g > 0) & (g <= 1))
     assert np.argmin(g) == 0 and g[0] < 0.5 and np.median(g) == 1.0
     # in the blend: the eyes' and the face's weights are scaled (each from its own level), the mouth's are not
@@ -536,7 +538,7 @@ def test_photos_with_glasses_lose_their_weight_round_the_eyes(tiny_persona):
         seen.setdefault(len(seen), np.array(w, copy=True))
         return w
 
-    import facetex.persona.texture as txm
+    import facetex.persona.stacks as txm
 
     orig = txm._cut_small
     txm._cut_small = spy
@@ -546,7 +548,7 @@ def test_photos_with_glasses_lose_their_weight_round_the_eyes(tiny_persona):
     finally:
         txm._cut_small = orig
     for j, name in enumerate(prep.regions):
-        want = prep.glasses_free(tx.GLASSES_LEVELS[name]) if name in tx.GLASSES_LEVELS else np.ones_like(g)
+        want = prep.glasses_free(GLASSES_LEVELS[name]) if name in GLASSES_LEVELS else np.ones_like(g)
         np.testing.assert_allclose(seen[j][0], want)
 
 
@@ -611,6 +613,7 @@ def test_glasses_scores_are_stored_with_the_stacks(tiny_persona, tmp_path):
     from facetex.geometry.glasses import glasses_bridge_score
     from facetex.persona import load_persona
     from facetex.persona import texture as tx
+    from facetex.persona.params import GLASSES_LEVELS
 
     direct = np.array([glasses_bridge_score(im, p) for im, p in zip(tiny_persona.images, tiny_persona.points68)])
     path = tiny_persona.save(tmp_path / "g.persona")
@@ -621,5 +624,5 @@ def test_glasses_scores_are_stored_with_the_stacks(tiny_persona, tmp_path):
     np.testing.assert_allclose(prep._glasses, direct, rtol=1e-6)
     q.images = None  # the blend's glasses weights must not need the photos
     prep._stage = {}
-    g = prep.glasses_free(tx.GLASSES_LEVELS["eyes"])
+    g = prep.glasses_free(GLASSES_LEVELS["eyes"])
     assert g.shape == (len(q),) and np.all((g > 0) & (g <= 1))

@@ -73,7 +73,7 @@ def test_12000px_png_every_reader_under_1gb(tmp_path):
     big = big_png(tmp_path / "big.png", 12000, 2400)
     code, peak, out, err = _run_measured(["landmarks", str(big)])
     assert code == 0 and 0 < peak < 1 * GiB, (code, peak / GiB, err)
-    prog = ("import sys; from facetex.persona.collection import process_photo; r = process_photo(sys.argv[1]); "
+    prog = ("import sys; from facetex.persona.build import process_photo; r = process_photo(sys.argv[1]); "
             "assert 'reason' not in r, r; from facetex._memory import peak_rss; "
             "sys.stderr.write(f'\\nPEAK_RSS {peak_rss()}\\n')")
     code, peak, out, err = _run_measured([str(big)], prog)

@@ -1,0 +1,106 @@
+"""Settings of the persona's textures (:class:`TextureParams`: the paper's Eq. 3 constants and ours) and
+their choices."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = [
+    "TextureParams",
+    "METHODS",
+    "STAGES",
+    "WEIGHTS",
+    "GLASSES_LEVELS",
+]
+
+
+METHODS = ("ours", "static", "weighted", "prewarp")
+STAGES = ("a", "b", "c", "d")
+
+
+@dataclass(frozen=True)
+class TextureParams:
+    """Parameters of the texture blend: the paper's Eq. 3 constants (alpha, beta, tau) = (1, 20, 1),
+    sigma = 10 (Tom Hanks Sec. 6) and ours (module docstring).
+
+    weights: "regional" (ours, default, :mod:`facetex.persona.weights`) or "global" (the paper's
+    Eq. 2/3: ``sigma``, alpha 1); neighbours: K of the regional weights' adaptive sigma;
+    max_photos: at most this many photos per region and target (regional weights);
+    alpha: exponent of the Laplacian response L in Eq. 3, None = 1 with the global weights (the
+    paper) and 0 with the regional ones (measured: L^1 favours the photos with the most
+    high-frequency energy, i.e. JPEG blocks, noise and harsh light, and costs 0.015-0.025
+    leave-out SSIM); min_level_side: the pyramid's coarsest level (px, smaller side);
+    mirror_weight / face_support / visibility_floor: the per-photo confidence
+    (:func:`facetex.geometry.frontalize.fill_confidence`); regions: the weight regions;
+    detail: (region, power, levels): the finest ``levels`` pyramid levels of ``region`` blend its
+    weights raised to ``power`` (:func:`facetex.persona.weights.detail_weights`: the detail
+    bands from the few photos nearest the expression, the coarse ones from the broad average;
+    the eyes' whole expression-weighted pyramid, the rest of the face's two finest bands);
+    eye_quality: exponent of each photo's eye-detail confidence in the eyes' detail weights
+    (:meth:`_Prepared.eye_quality`; 0: none); gaze: that confidence is multiplied by
+    :func:`facetex.geometry.gaze.gaze_weights` with this sigma (0: off): a sharp photo looking
+    sideways gave a puppet whose eyes looked off camera whatever the driver did; glasses: exponent of the penalty of photos with
+    eyeglasses in the eyes' and the face's weights (:meth:`_Prepared.glasses_free`; 0: none: a
+    collection with a few glasses photos drew the frames as ghost rings round the puppet's eyes);
+    restore: (region, levels): the finest ``levels`` bands of ``region`` get their photos' own
+    band energy back (:meth:`_Prepared._restore_detail`), the gain at most ``restore_gain``; the
+    mouth's too (averaged lips were pale and blurred: dlib read the puppet's mouth opening 0.55-0.7
+    as wide as its mesh's; taking the mouth's detail from the few nearest photos instead, as the
+    eyes', read as well but cost 0.04 leave-out mouth SSIM on a 44-photo collection, restoring 0.01)."""
+
+    sigma: float = 10.0
+    alpha: float | None = None
+    beta: float = 20.0
+    tau: float = 1.0
+    iod_ref: float = 69.12
+    min_level_side: int = 2
+    laplacian_blur: float = 1.0
+    laplacian_floor: float = 1e-3
+    use_visibility: bool = True
+    visibility_floor: float = 0.02
+    mirror_weight: float = 0.1
+    face_support: float = 0.25
+    regions: tuple = ("mouth", "eyes", "face")
+    max_photos: int | None = 32
+    weights: str = "regional"
+    neighbours: int | tuple = 3
+    detail: tuple = (("eyes", 4.0, 5), ("face", 2.0, 2))
+    eye_quality: float = 1.5
+    gaze: float = 0.3
+    glasses: float = 4.0
+    restore: tuple = (("face", 3), ("mouth", 3))
+    restore_gain: float = 3.0
+
+    def detail_of(self, region: str) -> tuple[float, int]:
+        """(power, levels) of ``region``'s detail weights (:attr:`detail`; (1, 0): none)."""
+        for name, power, levels in self.detail:
+            if name == region:
+                return float(power), int(levels)
+        return 1.0, 0
+
+    @property
+    def alpha_(self) -> float:
+        """alpha in effect (see the class docstring)."""
+        if self.alpha is not None:
+            return float(self.alpha)
+        return 1.0 if self.weights == "global" else 0.0
+
+    @classmethod
+    def paper(cls, **kw) -> "TextureParams":
+        """The paper's Eq. 3 weights: global, sigma 10, alpha 1."""
+        return cls(**{"weights": "global", "alpha": 1.0, **kw})
+
+    def stack_key(self) -> tuple:
+        """The fields the precomputed stacks depend on (the weights do not)."""
+        return (self.alpha_, self.min_level_side, self.laplacian_blur, self.laplacian_floor, tuple(self.regions),
+                self.use_visibility, self.visibility_floor, self.mirror_weight, self.face_support)
+
+
+WEIGHTS = ("regional", "global")
+#: per weight region, the multiple of the collection's median glasses score above which a photo's
+#: weight falls (:meth:`_Prepared.glasses_free`): the eyes' from 1.25 (faint rims at 1.5), the rest
+#: of the face's from 2 (strong frames only: from 1.25 it also took weight from 13 of Williams'
+#: 52 photos, none with glasses; from 2, Arroyo's faint rims are still gone)
+GLASSES_LEVELS = {"eyes": 1.25, "face": 2.0}
+
+
