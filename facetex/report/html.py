@@ -37,7 +37,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .._methods import METHOD_COLOURS, NO_TRANSFER, method_title
+from .._methods import METHOD_COLOURS, NO_TRANSFER, TRANSFER_METHODS, method_title
 from .compare import (KEY_METRICS, _fmt, _order, best_counts, cell, compare_rows, interval_summary, method_pairs,
                       paired_differences)
 from .metric_info import PAIR_METRICS, TABLE1_METRICS, metric_info
@@ -99,7 +99,9 @@ def _md_cells(line: str) -> list[str]:
     s = line.strip()
     s = s[1:] if s.startswith("|") else s
     s = s[:-1] if s.endswith("|") and not s.endswith("\\|") else s
-    return [c.strip().replace("\\|", "|") for c in _CELL_SPLIT.split(s)]
+    cells = [c.strip().replace("\\|", "|") for c in _CELL_SPLIT.split(s)]
+    # a method id in a table written before the one-name rule is shown by its name, as everywhere else
+    return [method_title(c) if c in TRANSFER_METHODS else c for c in cells]
 
 
 def _is_separator(cells: Sequence[str]) -> bool:

@@ -31,7 +31,7 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .._methods import METHOD_ORDER, method_sort_key
+from .._methods import METHOD_ORDER, method_sort_key, method_title
 from .._schema import OBJECT, nullable, parse_json
 from ..errors import BadInputError
 from ..io import read_regular
@@ -246,10 +246,10 @@ def _load_bench_transfer(folder: Path, run: Run, path: Path, guard: ReadGuard) -
             r = results[m]
             if r.get("image") and guard.image(folder / r["image"]):
                 it.images[m] = folder / r["image"]
-                it.files[m] = folder / r["image"]
+                it.files[method_title(m)] = folder / r["image"]
             res_file = folder / "results" / f"{c}__{s}__{m}.json"
             if os.path.lexists(res_file):
-                it.files[f"{m} scores"] = res_file
+                it.files[f"{method_title(m)} scores"] = res_file
             it.metrics[m] = {k: v for k, v in (r.get("metrics") or {}).items()}
             if isinstance(r.get("wall_s"), (int, float)):
                 it.metrics[m]["time_s"] = float(r["wall_s"])
