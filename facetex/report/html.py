@@ -400,8 +400,9 @@ def _item_table(page: _Page, run: Run, group: str, *, metrics: Sequence[str], me
     if has_images:
         head.append("<th>images (click the row)</th>")
     head += [f"<th data-sort='num' title='{_e(k)}'>{_e(label)}</th>" for k, label in extra_cols]
+    sub = (lambda m: f"<br><small>{_e(method_title(m))}</small>") if len(methods) > 1 else (lambda m: "")
     head += [f"<th data-sort='num' title='{_e(k)}: {_e(method_title(m))}'>{_e(metric_info(k).title)}"
-             f"{metric_info(k).arrow}<br><small>{_e(method_title(m))}</small></th>" for m, k in cols]
+             f"{metric_info(k).arrow}{sub(m)}</th>" for m, k in cols]
     head += [f"<th data-sort='text'>ranking by {_e(metric_info(k).title)}</th>" for k in rank_metrics]
     head.append("<th>files</th>")
     body, viewers = [], []
@@ -430,8 +431,9 @@ def _item_table(page: _Page, run: Run, group: str, *, metrics: Sequence[str], me
             vals = [(m, v) for m, v in vals if math.isfinite(v)]
             vals.sort(key=lambda mv: mv[1], reverse=info.better == "higher")
             cells.append("<td class='rank'>" + " &gt; ".join(_e(method_title(m)) for m, _ in vals) + "</td>")
-        links = " · ".join(page.link(p, label) for label, p in it.files.items())
-        cells.append(f"<td class='files'>{links or '–'}</td>")
+        links = "<br>".join(page.link(p, label) for label, p in it.files.items())
+        cells.append(f"<td class='files'><details><summary>{len(it.files)}</summary>{links}</details></td>"
+                     if it.files else "<td class='files'>–</td>")
         body.append(f"<tr data-open='{vid}'{cls}>{''.join(cells)}</tr>")
         if has_images:
             crops = _region_crops(it) if zooms else None
@@ -656,6 +658,7 @@ table.items tbody tr{cursor:pointer}table.items tbody tr:hover{background:#eef4f
 table.items tr.highlight{background:#ffe9e6}
 table.sortable th[data-sort]{cursor:pointer;user-select:none}
 table.sortable th[aria-sort=ascending]::after{content:" ▲"}table.sortable th[aria-sort=descending]::after{content:" ▼"}
+td.files summary{cursor:pointer;color:#2a5db0}td.files details[open]{white-space:nowrap}
 td.thumbs{white-space:nowrap;text-align:left}td.thumbs img{height:64px;width:auto;margin-right:2px;border:1px solid #ccc}
 img.figure{max-width:100%}img.sheet{max-width:100%}
 #viewer{display:none;position:fixed;inset:0;background:#161616;z-index:10;overflow:auto;color:#eee}
@@ -718,7 +721,7 @@ _JS = r"""
   }
   function close(){if(current)current.hidden=true;current=null;viewer.classList.remove('open');}
   document.addEventListener('click',function(e){
-    if(e.target.closest('a'))return;
+    if(e.target.closest('a,summary,details'))return;  // a link or the files list: not the viewer
     var tr=e.target.closest('tr[data-open]');if(tr)open(tr.dataset.open);
   });
   document.getElementById('viewer-close').addEventListener('click',close);
