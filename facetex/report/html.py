@@ -368,21 +368,22 @@ def _region_crops(it: Item) -> tuple[list[str], list[tuple[str, list]]] | None:
 
 
 def _zoom_table(crops) -> str:
+    """One line per region, the images side by side (a line per region, not a table: the wide eye
+    crops do not widen every column)."""
     labels, regions = crops
-    head = "<tr><th></th>" + "".join(f"<th>{_e(method_title(label))}</th>" for label in labels) + "</tr>"
     rows = []
     for region, cells in regions:
-        tds = []
-        for c in cells:
+        figs = []
+        for label, c in zip(labels, cells):
             if c is None:
-                tds.append("<td>–</td>")
                 continue
             uri, w, h = c
             k = max(1, math.ceil(MIN_ZOOM_PX / min(w, h)))  # a whole factor: every image pixel is k×k screen pixels
-            tds.append(f"<td><img class='crop' src='{uri}' width='{w * k}' height='{h * k}' data-native='{w}x{h}' "
-                       f"data-scale='{k}' alt='{_e(region)}'><br><span class='note'>{w}×{h} px ×{k}</span></td>")
-        rows.append(f"<tr><th>{_e(region)}</th>{''.join(tds)}</tr>")
-    return f"<table class='zooms'><thead>{head}</thead><tbody>{''.join(rows)}</tbody></table>"
+            figs.append(f"<figure><img class='crop' src='{uri}' width='{w * k}' height='{h * k}' data-native='{w}x{h}' "
+                        f"data-scale='{k}' alt='{_e(region)}: {_e(method_title(label))}'><figcaption>"
+                        f"<b>{_e(method_title(label))}</b> {w}×{h} px ×{k}</figcaption></figure>")
+        rows.append(f"<div class='zrow'><div class='zlab'>{_e(region)}</div>{''.join(figs)}</div>")
+    return f"<div class='zooms'>{''.join(rows)}</div>"
 
 
 def _item_table(page: _Page, run: Run, group: str, *, metrics: Sequence[str], methods: Sequence[str] | None = None,
@@ -668,8 +669,8 @@ img.figure{max-width:100%}img.sheet{max-width:100%}
 #viewer section{padding:4px 16px 30px}#viewer h3,#viewer h4{color:#eee}
 #viewer .vthumbs img{height:auto;width:auto;max-width:none;margin:0 6px 6px 0;border:1px solid #444}
 #viewer .vthumbs figure{display:inline-block;margin:0 8px 8px 0;text-align:center;font-size:12px}
-#viewer table.zooms{border-color:#444}#viewer table.zooms td,#viewer table.zooms th{border-color:#333;text-align:center;color:#ccc}
-#viewer table.zooms thead th{background:#222}
+.zrow{display:flex;flex-wrap:wrap;gap:10px;align-items:flex-start;margin:0 0 14px;border-top:1px solid #333;padding-top:6px}
+.zlab{width:90px;font-weight:600}.zrow figure{margin:0;font-size:12px;color:#ccc}
 img.crop{image-rendering:pixelated;max-width:none}
 pre{background:#f7f7f7;padding:8px;overflow:auto;max-height:420px;font-size:12px}
 code{background:#f3f3f3;padding:0 3px}

@@ -114,8 +114,9 @@ def test_one_method_name_and_order_everywhere(runs, frl):
     assert shown[:3] == titles[1:]
     thumbs = re.findall(r"class='thumb'[^>]*data-label='([^']+)'", page)[:5]
     assert thumbs == ["style", "content", *titles[1:]]
-    zoom_head = re.search(r"<table class='zooms'><thead>(.*?)</thead>", page).group(1)
-    shown = [t for t in re.findall(r"<th>([^<]+)</th>", zoom_head) if t not in ("content", "style, pre-warped")]
+    start = page.index("<div class='zrow'>")
+    zoom_row = page[start:page.index("<div class='zrow'>", start + 1)]  # the first region's line
+    shown = [t for t in re.findall(r"<figcaption><b>([^<]+)</b>", zoom_row) if t not in ("content", "style, pre-warped")]
     assert shown == titles[1:]
     for raw in ("gatys", "mrf"):  # ids never shown as names
         assert f">{raw}<" not in page
