@@ -8,7 +8,7 @@ Below the bench and the report (neither imports the other for them), like :mod:`
 
 from __future__ import annotations
 
-__all__ = ["TRANSFER_METHODS", "NO_TRANSFER", "METHOD_ORDER", "METHOD_TITLES", "METHOD_COLOURS",
+__all__ = ["PERSONA_ORDER", "TRANSFER_METHODS", "NO_TRANSFER", "METHOD_ORDER", "METHOD_TITLES", "METHOD_COLOURS",
            "method_title", "method_sort_key"]
 
 #: the transfer methods in FaceTex Table 1's order (Neural Style, MRF-CNN, FaceTex)
@@ -19,6 +19,10 @@ METHOD_ORDER = (NO_TRANSFER, *TRANSFER_METHODS)
 METHOD_TITLES = {NO_TRANSFER: "no transfer", "gatys": "Neural Style", "mrf": "MRF-CNN", "facetex": "FaceTex"}
 #: FaceTex Figure 4's colours (Neural Style red, MRF-CNN green, FaceTex blue)
 METHOD_COLOURS = {NO_TRANSFER: "tab:gray", "gatys": "tab:red", "mrf": "tab:green", "facetex": "tab:blue"}
+
+#: the persona leave-out rows in Tom Hanks Fig. 5's order: static average, weighted average,
+#: pre-warped average, the paper's method, ours (bench persona's ROWS are built from it)
+PERSONA_ORDER = ("static", "weighted", "prewarp", "paper", "ours")
 
 
 def method_title(method: str) -> str:

@@ -31,7 +31,7 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .._methods import METHOD_ORDER, method_sort_key, method_title
+from .._methods import METHOD_ORDER, PERSONA_ORDER, method_sort_key, method_title
 from .._schema import OBJECT, nullable, parse_json
 from ..errors import BadInputError
 from ..io import read_regular
@@ -265,10 +265,8 @@ def _load_bench_transfer(folder: Path, run: Run, path: Path, guard: ReadGuard) -
 
 def _load_bench_persona(folder: Path, run: Run, path: Path, guard: ReadGuard) -> None:
     summary = _read_json(path, guard, OBJECT, "bench persona summary")
-    from ..bench.persona import ROWS
-
     run.kind = "bench persona"
-    run.method_order = tuple(r[0] for r in ROWS)  # Tom Hanks Fig. 5: static, weighted, prewarp, paper, ours
+    run.method_order = PERSONA_ORDER  # Tom Hanks Fig. 5: static, weighted, prewarp, paper, ours
     run.settings = {k: v for k, v in summary.items() if k not in ("rows", "skipped", "held_out", "teeth", "bench")}
     text = guard.read_text(folder / "per_target.csv", "CSV file")
     if text is not None:
