@@ -437,8 +437,9 @@ def settings_and_spread_markdown(args, bench: str, out) -> str:
     """Markdown: the options of this run that differ from the command's defaults, and per method
     the mean ± sample std and the 95 % CI of each key metric over the run's items (pairs,
     targets, clips), read back from the run folder as ``facetex report`` reads it."""
+    from .._methods import method_title
     from ..errors import FacetexError
-    from ..report.compare import KEY_METRICS, metric_summary
+    from ..report.compare import KEY_METRICS, interval_summary
     from ..report.html import command_defaults
     from ..report.runs import load_run
 
@@ -453,17 +454,17 @@ def settings_and_spread_markdown(args, bench: str, out) -> str:
                         for k, v in nd.items()) or "none") + ". All settings, input hashes and versions: `run.json`.",
              ""]
     try:
-        rows = [r for r in metric_summary(load_run(out)) if r["metric"] in KEY_METRICS]
+        run = load_run(out)
+        rows = interval_summary(run, [k for k in KEY_METRICS if k in run.metric_names])
     except FacetexError:
         rows = []
     if rows:
         lines += ["## Spread", "",
-                  "Mean ± sample standard deviation over the items, and the 95 % confidence interval of the mean "
-                  "(Student t); n items.", "",
-                  "| method | metric | n | mean ± std | 95 % CI |", "|---|---|---:|---:|---:|"]
+                  "Mean over the items and its bootstrap 95 % interval (scipy.stats.bootstrap, BCa), inside the "
+                  "metric's range; no interval below 5 items; n items.", "",
+                  "| method | metric | n | mean | 95 % interval |", "|---|---|---:|---:|---:|"]
         for r in rows:
-            std = "" if not math.isfinite(r["std"]) else f" ± {r['std']:.4g}"
-            ci = "–" if not math.isfinite(r["ci95_half"]) else f"[{r['ci95'][0]:.4g}, {r['ci95'][1]:.4g}]"
-            lines.append(f"| {r['method']} | {r['metric']} | {r['n']} | {r['mean']:.4g}{std} | {ci} |")
+            ci = "–" if not math.isfinite(r["lo"]) else f"[{r['lo']:.4g}, {r['hi']:.4g}]"
+            lines.append(f"| {method_title(r['method'])} | {r['metric']} | {r['n']} | {r['mean']:.4g} | {ci} |")
         lines.append("")
     return "\n".join(lines)

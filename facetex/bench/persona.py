@@ -32,6 +32,7 @@ from typing import Callable
 import cv2
 import numpy as np
 
+from .._methods import PERSONA_ORDER
 from ..errors import BadInputError
 from ._common import Column, check_out_dir, csv_table, markdown_table, versions, write_grid, write_text
 from ._zoom import crop_padded
@@ -41,8 +42,8 @@ __all__ = ["run_bench_persona", "register_bench", "masked_metrics", "evaluation_
 
 DATA_SUBFOLDER = "lfw/George_W_Bush"  # inside --data / $FACETEX_DATA (or --data is this folder itself)
 #: (row name, method, weights): the paper's baselines use the paper's (global) weights
-ROWS = (("static", "static", None), ("weighted", "weighted", "global"), ("prewarp", "prewarp", "global"),
-        ("paper", "ours", "global"), ("ours", "ours", None))
+ROWS = tuple(zip(PERSONA_ORDER, ("static", "weighted", "prewarp", "ours", "ours"),
+                 (None, "global", "global", "global", None)))  # Fig. 5's order, one place: facetex._methods
 REGIONS = ("face", "mouth", "eyes")
 ZOOM_COLUMNS = ("static", "paper", "ours")
 

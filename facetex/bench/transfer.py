@@ -7,7 +7,7 @@ pair, each output is scored against its content and style images with
 
 - ``table.md`` / ``table.csv`` — Table 1 (means per method, plus identity distances and
   wall time; the paper's own values as a reference block in the Markdown);
-- ``grid.png`` — Figure 3 (style, content, MRF-CNN, FaceTex, Neural Style per pair);
+- ``grid.png`` — Figure 3 (style, content, then the methods in Table 1's order per pair);
 - ``scatter.png`` — Figure 4 ((a) landmark errors, (b) texture similarities per pair);
 - ``results.json`` — every number per pair and method, and the settings (``"bench": "transfer"``,
   as in the other benches' ``results.json``);
@@ -37,6 +37,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from .._methods import METHOD_COLOURS, METHOD_TITLES, NO_TRANSFER, TRANSFER_METHODS
 from ..errors import BadInputError, NoFaceError, OutputError
 from ..io import read_image, to_uint8, write_image, write_json
 from ._common import (Column, ResultStore, check_out_dir, csv_table, list_portraits, markdown_table,
@@ -47,12 +48,12 @@ __all__ = ["METHODS", "METHOD_TITLES", "METHOD_COLOURS", "PAPER_TABLE1", "PRESET
            "run_bench_transfer", "register_bench", "run"]
 
 DATA_SUBFOLDER = "frl-london"  # inside --data / $FACETEX_DATA (or --data is this folder itself)
-METHODS = ("gatys", "mrf", "facetex")
-NONE = "none"  # the content scored as the output ("doing nothing")
+METHODS = TRANSFER_METHODS  # one name and one order everywhere: facetex._methods
+NONE = NO_TRANSFER  # the content scored as the output ("doing nothing")
 PRESETS = ("default", "paper", "preview")
-METHOD_TITLES = {"gatys": "Neural Style", "mrf": "MRF-CNN", "facetex": "FaceTex", NONE: "no transfer"}
-METHOD_COLOURS = {"gatys": "tab:red", "mrf": "tab:green", "facetex": "tab:blue", NONE: "tab:gray"}  # Figure 4
-GRID_ORDER = ("mrf", "facetex", "gatys")  # Figure 3: style, content, MRF-CNN, FaceTex, Neural Style
+# Figure 3 shows MRF-CNN, FaceTex, Neural Style; the grid uses Table 1's order like every other table
+# and page (issue 25: one order for the methods everywhere)
+GRID_ORDER = METHODS
 ZOOM_ROWS = ("forehead", "left cheek", "upper lip", "chin")  # where hair, shine and stubble show
 SAME_PERSON = 0.6  # dlib's same-person threshold for the identity distance
 

@@ -40,7 +40,7 @@ def write_report(run_dirs: Sequence, output, *, title: str | None = None, overwr
     out = check_output_path(output, overwrite=overwrite, extensions=(".html", ".htm"), what="report")
     sidecar = check_output_path(f"{out}.json", overwrite=overwrite)
     runs = load_runs(run_dirs, also=also)
-    page = build_report(runs, title=title)
+    page = build_report(runs, title=title, link_base=out.parent)
     inputs = {}
     for i, r in enumerate(runs):
         inputs[f"run{i + 1}"] = r.path / "run.json" if r.provenance is not None else r.path

@@ -14,7 +14,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["face_box", "skin_box", "zoom_panel", "metrics_figure", "METRIC_LABELS"]
+__all__ = ["face_box", "skin_box", "zoom_panel", "metrics_figure", "differences_figure", "METRIC_LABELS"]
 
 #: axis labels of the metrics facetex writes (others are shown by their key)
 METRIC_LABELS = {
@@ -126,11 +126,30 @@ def _plain(text) -> str:
     return str(text).replace("$", r"\$")
 
 
+def _interval_bar(ax, x, values, metric, colour):
+    """The mean of ``values`` at ``x`` with its bootstrap 95 % interval inside the metric's range
+    (the mean alone when there are too few values for an interval)."""
+    from .._stats import bootstrap_mean
+    from .metric_info import metric_info
+
+    b = bootstrap_mean(values, bounds=metric_info(metric).bounds)
+    if b["n"] == 0:
+        return
+    if math.isfinite(b["lo"]):
+        ax.errorbar([x], [b["mean"]], yerr=[[b["mean"] - b["lo"]], [b["hi"] - b["mean"]]], fmt="o", color=colour,
+                    capsize=4, ms=6, zorder=3)
+    else:
+        ax.plot([x], [b["mean"]], marker="_", ms=16, mew=2.5, color=colour, zorder=3)
+
+
 def metrics_figure(series: Mapping[str, Mapping[str, Sequence[float]]], metrics: Sequence[str], *,
                    paper: Mapping[str, Mapping[str, float]] | None = None, paper_label: str = "paper (other data)",
-                   title: str = "", colours: Mapping[str, str] | None = None):
-    """One panel per metric: every item as a dot, the mean with its 95 % confidence interval
-    (Student t) as an error bar, per group; the paper's values as labelled reference marks.
+                   title: str = "", colours: Mapping[str, str] | None = None,
+                   titles: Mapping[str, str] | None = None):
+    """One panel per metric: every item as a dot, the mean with its bootstrap 95 % interval
+    (inside the metric's range; no interval when there are too few items, see
+    :func:`facetex._stats.bootstrap_mean`) per group; the paper's values as labelled
+    reference marks.
 
     Parameters
     ----------
@@ -145,6 +164,8 @@ def metrics_figure(series: Mapping[str, Mapping[str, Sequence[float]]], metrics:
         Figure title.
     colours : mapping, optional
         group label -> matplotlib colour.
+    titles : mapping, optional
+        metric -> panel title (default :data:`METRIC_LABELS`, else the key).
 
     Returns
     -------
@@ -154,8 +175,6 @@ def metrics_figure(series: Mapping[str, Mapping[str, Sequence[float]]], metrics:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from .._stats import spread
 
     groups = list(series)
     n = len(metrics)
@@ -174,9 +193,7 @@ def metrics_figure(series: Mapping[str, Mapping[str, Sequence[float]]], metrics:
             if vals.size:
                 jitter = rng.uniform(-0.12, 0.12, vals.size)
                 ax.scatter(np.full(vals.size, g_i) + jitter, vals, s=16, color=col, alpha=0.55, zorder=2)
-                s = spread(vals)
-                err = 0.0 if not math.isfinite(s["ci95_half"]) else s["ci95_half"]
-                ax.errorbar([g_i + 0.3], [s["mean"]], yerr=[err], fmt="o", color=col, capsize=4, ms=6, zorder=3)
+                _interval_bar(ax, g_i + 0.3, vals, metric, col)
             ref = (paper or {}).get(g, {}).get(metric)
             if ref is not None and math.isfinite(ref):
                 ax.scatter([g_i + 0.3], [ref], marker="D", s=42, facecolors="none", edgecolors="black",
@@ -186,17 +203,75 @@ def metrics_figure(series: Mapping[str, Mapping[str, Sequence[float]]], metrics:
         ax.set_xticks(range(len(groups)))
         ax.set_xticklabels([_plain(g) for g in groups], rotation=20 if len(groups) > 3 else 0,
                            ha="right" if len(groups) > 3 else "center", fontsize=8)
-        ax.set_title(METRIC_LABELS.get(metric, _plain(metric)), fontsize=8)
+        ax.set_title(_plain((titles or {}).get(metric) or METRIC_LABELS.get(metric, metric)), fontsize=8)
         ax.grid(axis="y", alpha=0.3)
     for k in range(n, rows * cols):
         axes[k // cols][k % cols].axis("off")
     handles = [plt.Line2D([], [], marker="o", ls="", color="grey", alpha=0.55, label="one item (pair)"),
-               plt.Line2D([], [], marker="o", ls="-", color="grey", label="mean, 95 % CI")]
+               plt.Line2D([], [], marker="o", ls="-", color="grey", label="mean, bootstrap 95 % interval"),
+               plt.Line2D([], [], marker="_", ls="", ms=12, mew=2.5, color="grey", label="mean (too few items for an interval)")]
     if paper:
         handles.append(plt.Line2D([], [], marker="D", ls="", mfc="none", mec="black",
                                   label=f"{paper_label}: a reference, not comparable data"))
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8, frameon=False)
     if title:
         fig.suptitle(_plain(title), fontsize=10)
-    fig.tight_layout(rect=(0, 0.06, 1, 0.95 if title else 1))
+    fig.tight_layout(rect=(0, 0.07, 1, 0.95 if title else 1))
+    return fig
+
+
+def differences_figure(rows: Sequence[Mapping], metrics: Sequence[str], *, labels: Mapping[tuple, str],
+                       titles: Mapping[str, str] | None = None, title: str = ""):
+    """Paired differences: one panel per metric, one column per method pair ``a − b``: each
+    item's difference as a dot, their mean with its bootstrap 95 % interval, and 0 as a line.
+
+    Parameters
+    ----------
+    rows : sequence of mapping
+        :func:`facetex.report.compare.paired_differences` results.
+    metrics : sequence of str
+        Metrics to draw (one panel each).
+    labels : mapping
+        ``(a, b)`` -> the column's label (e.g. ``"FaceTex − MRF-CNN"``).
+    titles : mapping, optional
+        metric -> panel title.
+    title : str
+        Figure title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    pairs = list(dict.fromkeys((r["a"], r["b"]) for r in rows))
+    n = max(1, len(metrics))
+    fig, axes = plt.subplots(1, n, figsize=(max(4.2, 0.9 * len(pairs) + 1.6) * n, 3.8), squeeze=False)
+    rng = np.random.default_rng(0)
+    for k, metric in enumerate(metrics):
+        ax = axes[0][k]
+        ax.axhline(0, color="black", lw=0.8, zorder=1)
+        for j, ab in enumerate(pairs):
+            r = next((r for r in rows if (r["a"], r["b"]) == ab and r["metric"] == metric), None)
+            if r is None or not r["diffs"]:
+                continue
+            d = np.asarray(r["diffs"], float)
+            ax.scatter(np.full(d.size, j) + rng.uniform(-0.12, 0.12, d.size), d, s=14, color="tab:blue", alpha=0.5,
+                       zorder=2)
+            if math.isfinite(r["lo"]):
+                ax.errorbar([j + 0.3], [r["mean"]], yerr=[[r["mean"] - r["lo"]], [r["hi"] - r["mean"]]], fmt="o",
+                            color="black", capsize=4, ms=5, zorder=3)
+            else:  # too few items for an interval: the mean alone
+                ax.plot([j + 0.3], [r["mean"]], marker="_", ms=16, mew=2.5, color="black", zorder=3)
+        ax.set_xticks(range(len(pairs)))
+        ax.set_xticklabels([_plain(labels.get(ab, f"{ab[0]} − {ab[1]}")) for ab in pairs], rotation=30, ha="right",
+                           fontsize=7)
+        ax.set_title(_plain((titles or {}).get(metric, metric)), fontsize=8)
+        ax.grid(axis="y", alpha=0.3)
+    if title:
+        fig.suptitle(_plain(title), fontsize=10)
+    fig.tight_layout(rect=(0, 0, 1, 0.93 if title else 1))
     return fig

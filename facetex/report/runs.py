@@ -31,13 +31,13 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .._methods import METHOD_ORDER, PERSONA_ORDER, method_sort_key, method_title
 from .._schema import OBJECT, nullable, parse_json
 from ..errors import BadInputError
 from ..io import read_regular
 
 __all__ = ["Run", "Item", "load_run", "load_runs", "ReadGuard", "METHOD_ORDER"]
 
-METHOD_ORDER = ("none", "gatys", "mrf", "facetex")  # "none": the content itself (no transfer)
 _IMAGE_EXT = (".png", ".jpg", ".jpeg", ".webp", ".tif", ".tiff")
 
 # The shapes of the JSON files a report reads (the fields it uses; others are free).
@@ -80,6 +80,10 @@ class Item:
     images: dict[str, Path] = field(default_factory=dict)
     #: method -> metric -> value
     metrics: dict[str, dict[str, float]] = field(default_factory=dict)
+    #: images shown only in zoom crops, placed at the content's landmarks (e.g. the pre-warped style)
+    aligned: dict[str, Path] = field(default_factory=dict)
+    #: files of this item a reader may open (label -> path), linked from the report
+    files: dict[str, Path] = field(default_factory=dict)
 
 
 @dataclass
@@ -100,6 +104,10 @@ class Run:
     sidecars: dict[str, dict] = field(default_factory=dict)  # relative path -> sidecar record
     #: files named or found in the run folders that were not read (see ReadGuard)
     skipped: list[str] = field(default_factory=list)
+    #: the order methods are shown in (the transfer methods' one order; persona: Fig. 5's rows)
+    method_order: tuple[str, ...] = METHOD_ORDER
+    #: what else a bench wrote that a report shows (puppet: targets, worst runs)
+    extra: dict = field(default_factory=dict)
 
     @property
     def methods(self) -> list[str]:
@@ -108,7 +116,7 @@ class Run:
             for m in it.metrics:
                 if m not in seen:
                     seen.append(m)
-        return sorted(seen, key=lambda m: (METHOD_ORDER.index(m) if m in METHOD_ORDER else 99, m))
+        return sorted(seen, key=lambda m: method_sort_key(m, self.method_order))
 
     @property
     def metric_names(self) -> list[str]:
@@ -234,13 +242,20 @@ def _load_bench_transfer(folder: Path, run: Run, path: Path, guard: ReadGuard) -
             if p.get(key) and guard.image(path):
                 it.images[name] = path
         results = p.get("results", {})
-        for m in sorted(results, key=lambda m: METHOD_ORDER.index(m) if m in METHOD_ORDER else 99):
+        for m in sorted(results, key=method_sort_key):
             r = results[m]
             if r.get("image") and guard.image(folder / r["image"]):
                 it.images[m] = folder / r["image"]
+                it.files[method_title(m)] = folder / r["image"]
+            res_file = folder / "results" / f"{c}__{s}__{m}.json"
+            if os.path.lexists(res_file):
+                it.files[f"{method_title(m)} scores"] = res_file
             it.metrics[m] = {k: v for k, v in (r.get("metrics") or {}).items()}
             if isinstance(r.get("wall_s"), (int, float)):
                 it.metrics[m]["time_s"] = float(r["wall_s"])
+        prewarp = folder / "images" / f"{c}__{s}__prewarp.png"
+        if os.path.lexists(prewarp) and guard.image(prewarp):
+            it.aligned["style, pre-warped"] = prewarp
         run.items.append(it)
     for sc in sorted((folder / "images").glob("*.json")):
         rec = guard.read_json(sc, _SIDECAR, "sidecar")
@@ -251,6 +266,7 @@ def _load_bench_transfer(folder: Path, run: Run, path: Path, guard: ReadGuard) -
 def _load_bench_persona(folder: Path, run: Run, path: Path, guard: ReadGuard) -> None:
     summary = _read_json(path, guard, OBJECT, "bench persona summary")
     run.kind = "bench persona"
+    run.method_order = PERSONA_ORDER  # Tom Hanks Fig. 5: static, weighted, prewarp, paper, ours
     run.settings = {k: v for k, v in summary.items() if k not in ("rows", "skipped", "held_out", "teeth", "bench")}
     text = guard.read_text(folder / "per_target.csv", "CSV file")
     if text is not None:
@@ -272,14 +288,26 @@ def _load_bench_puppet(folder: Path, run: Run, path: Path, guard: ReadGuard) -> 
     res = _read_json(path, guard, _BENCH_PUPPET, "bench puppet results file")
     run.kind = "bench puppet"
     run.settings = dict(res.get("settings", {}))
+    run.extra = {"targets": dict(run.settings.get("targets") or {}),
+                 "worst_runs": [w for w in (res.get("worst_runs") or []) if isinstance(w, dict)],
+                 "targets_met": dict(res.get("targets_met") or {})}
+    # the worst runs' sheets the bench wrote, read like every other file (inside the run folders only)
+    run.extra["worst_sheets"] = [(w, Path(w["sheet"])) for w in run.extra["worst_runs"]
+                                 if isinstance(w.get("sheet"), str) and w["sheet"] and guard.image(Path(w["sheet"]))]
     for r in res.get("rows", []):
         run_key = r.get("run") or r.get("clip")  # "<persona>/<clip>"; older runs: the clip
         it = Item(key=str(run_key), label=f"run {run_key}" if r.get("run") else f"clip {run_key}")
-        it.metrics["puppet"] = {k: v for k, v in r.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
+        it.metrics["puppet"] = {k: v for k, v in r.items() if isinstance(v, (int, float)) and not isinstance(v, bool)
+                                and k != "score"}
+        if isinstance(r.get("score"), (int, float)):
+            it.metrics["puppet"]["fail_score"] = float(r["score"])  # 0: every target met
         media = r.get("media") or {}
         sheet = Path(media.get("contact_sheet", ""))
         if media.get("contact_sheet") and guard.image(sheet):
             it.images["contact sheet"] = sheet
+        for label, key in (("contact sheet", "contact_sheet"), ("side by side", "mp4"), ("zoom", "zoom")):
+            if isinstance(media.get(key), str) and media[key]:
+                it.files[label] = Path(media[key])
         run.items.append(it)
 
 

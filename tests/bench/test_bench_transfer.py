@@ -284,7 +284,7 @@ def test_cli_parser_and_run(data, tmp_path, monkeypatch, capsys):
     md = (tmp_path / "q" / "table.md").read_text()
     assert "`--pairs 1`" in md and "`--methods gatys`" in md and "`--iters 2,2`" in md and "preset" not in md.split(
         "## Settings of this run")[1].split("## Spread")[0]
-    assert "## Spread" in md and "| gatys | S_style | 1 |" in md
+    assert "## Spread" in md and "| Neural Style | S_style | 1 |" in md
     assert fake.calls[-1] == ("gatys", {"iters": [2, 2]})
 
 

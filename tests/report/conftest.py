@@ -29,14 +29,14 @@ def quick_metrics(output, content, style, *, points=None):
             "S_content": 1 - dc, "S_style": 1 - ds, "identity_content": 3 * dc, "identity_style": 3 * ds}
 
 
-def make_run(out, data, monkeypatch, *, weight=1.0, seed=0, methods="gatys,mrf,facetex"):
+def make_run(out, data, monkeypatch, *, weight=1.0, seed=0, methods="gatys,mrf,facetex", pairs=3):
     from facetex.bench import transfer as bench
 
     monkeypatch.setattr(bench, "_default_transfer_fn", lambda: blend(weight))
     monkeypatch.setattr("facetex.metrics.transfer_metrics", quick_metrics)
     parser = argparse.ArgumentParser()
     bench.register_bench(parser.add_subparsers())
-    args = parser.parse_args(["transfer", "--data", str(data), "--out", str(out), "--pairs", "3", "--jobs", "1",
+    args = parser.parse_args(["transfer", "--data", str(data), "--out", str(out), "--pairs", str(pairs), "--jobs", "1",
                               "--methods", methods, "--seed", str(seed), "-q"])
     assert args.func(args) == 0
     return out
@@ -60,3 +60,25 @@ def runs(frl, tmp_path_factory):
     finally:
         mp.undo()
     return a, b
+
+
+@pytest.fixture(scope="session")
+def run10(tmp_path_factory):
+    """A 10-pair transfer bench at the real data's size: the four sample portraits enlarged to
+    1000 px with pixel noise (texture that compresses as badly as skin does), 12 possible pairs."""
+    import cv2
+
+    from facetex.io import read_image, write_image
+
+    data = tmp_path_factory.mktemp("frl1000")
+    rng = np.random.default_rng(0)
+    for p in PEOPLE:
+        img = cv2.resize(read_image(sample_path(f"frl_{p}_neutral.jpg")), (1000, 1000), interpolation=cv2.INTER_CUBIC)
+        img = np.clip(img + rng.normal(0, 0.02, img.shape).astype(np.float32), 0, 1)
+        write_image(data / f"{p}_neutral.jpg", img)
+    mp = pytest.MonkeyPatch()
+    try:
+        out = make_run(tmp_path_factory.mktemp("runs10") / "run10", data, mp, pairs=10)
+    finally:
+        mp.undo()
+    return out, data

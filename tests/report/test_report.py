@@ -50,7 +50,7 @@ def test_load_bench_persona_and_puppet_runs(tmp_path):
     for name, json_name, key in (("new", "results.json", True), ("old", "summary.json", False)):
         run = load_run(_persona_folder(tmp_path / name, json_name, key))
         assert run.kind == "bench persona" and len(run.items) == 2, name
-        assert run.methods == ["ours", "paper", "static"] and "px" not in run.methods
+        assert run.methods == ["static", "paper", "ours"] and "px" not in run.methods  # Tom Hanks Fig. 5 order
         assert {"face_ssim", "mouth_ssim"} <= set(run.metric_names)
         assert run.values("ours", "mouth_ssim") == [0.47, 0.55]
         assert "bench" not in run.settings and run.settings["holdout"] == 2
@@ -68,6 +68,12 @@ def test_bench_json_holds_no_image_data(runs):
         assert len(text) < 20_000 and '"images"' not in text, p
 
 
+def _decodes(uri: str) -> bool:
+    head, b64 = uri.split(",", 1)
+    data = base64.b64decode(b64)
+    return data[:4] == b"RIFF" and data[8:12] == b"WEBP" or data[:8] == b"\x89PNG\r\n\x1a\n" or b"<svg" in data[:400]
+
+
 def test_report_is_self_contained_and_complete(runs, frl, tmp_path, capsys):
     out = tmp_path / "report.html"
     # the bench's content and style images are in its --data folder: read only when given
@@ -75,22 +81,25 @@ def test_report_is_self_contained_and_complete(runs, frl, tmp_path, capsys):
     captured = capsys.readouterr()
     assert captured.out.splitlines() == [f"wrote {out}", f"wrote {out}.json"] and "skipped" not in captured.err
     page = out.read_text()
-    # nothing outside the file: every src is a data URI
+    # nothing outside the file: every src is a data URI, and each decodes
     srcs = re.findall(r"src='([^']*)'", page)
     assert srcs and all(s.startswith("data:image/") for s in srcs)
     assert "http://" not in page and "https://" not in page
-    # each embedded image decodes
-    for s in srcs[:40]:
-        head, b64 = s.split(",", 1)
-        data = base64.b64decode(b64)
-        assert data[:8] == b"\x89PNG\r\n\x1a\n" or data[:3] == b"\xff\xd8\xff" or b"<svg" in data[:400]
-    for needed in ("Comparison of the runs", "Settings", "Non-default settings", "95 % CI", "paper (other data)",
-                   "class='thumb'", "Zoom panels at native resolution", "Per-item metrics", "run.json",
-                   "Sidecar parameters", "table.md"):
+    assert all(_decodes(s) for s in srcs)
+    for needed in ("Comparison of the runs", "Table 1: the paper beside ours", "Paired differences", "Figures",
+                   "Pairs", "Settings and provenance", "Non-default settings", "bootstrap 95 %", "Native-resolution zooms",
+                   "run.json", "Sidecar parameters", "table.md", "id='toc'"):
         assert needed in page, needed
     nd = re.search(r"<b>Non-default settings:</b> ([^<]*)</p>", page).group(1)
     assert "pairs = 3" in nd and "preset" not in nd  # from run.json against the command's own defaults
     assert page.count("class='thumb'") == 2 * 3 * 5  # 2 runs x 3 pairs x (style, content, 3 methods)
+    # the Table 1 comparison comes before the figures, the per-pair table and the settings
+    order = [page.index(f"id='r1-{k}'") for k in ("table1", "paired", "figures", "pairs", "settings")]
+    assert order == sorted(order)
+    # every anchor of the table of contents exists
+    toc = re.search(r"<nav id='toc'.*?</nav>", page, re.S).group(0)
+    anchors = re.findall(r"href='#([^']+)'", toc)
+    assert len(anchors) >= 12 and all(f"id='{a}'" in page for a in anchors)
     side = json.loads((tmp_path / "report.html.json").read_text())
     assert side["command"] == "report" and len(side["inputs"]["run1"]["sha256"]) == 64
     # exclusive create: no silent replacement
