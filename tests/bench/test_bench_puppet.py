@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from facetex.bench import puppet as bench
+from facetex.bench import puppet_measures as measures
 from facetex.errors import BadInputError
 from facetex.geometry.frontalize import canonical_points68
 from facetex.io import read_image, write_image
@@ -52,7 +53,7 @@ def test_blink_correlation_only_when_the_driver_blinks():
     stares = 0.3 + 0.001 * np.random.default_rng(0).standard_normal(20)  # eyes open throughout
     assert bench.blink_correlation(drv, follows) == pytest.approx(1.0)
     assert bench.blink_correlation(drv, stares) < 0.5
-    row = bench._series_measures({"driver_ear": list(drv), "puppet_ear": [None if i == 3 else v for i, v in
+    row = measures._series_measures({"driver_ear": list(drv), "puppet_ear": [None if i == 3 else v for i, v in
                                                                           enumerate(follows)],
                                   "driver_opening": list(np.linspace(0, 1, 20)),
                                   "puppet_opening": list(np.linspace(0, 0.5, 20))})
@@ -95,7 +96,7 @@ def test_sharpness_ratio_on_synthetic_images():
 def test_face_masks_at_canonical_landmarks():
     cheeks, skin, eyes = bench.cheek_mask(P68, (H, W)), bench.face_skin_mask(P68, (H, W)), bench.eye_mask(P68, (H, W))
     iod = np.linalg.norm(P68[36] - P68[45])
-    r = bench.CHEEK_RADIUS * iod
+    r = measures.CHEEK_RADIUS * iod
     assert cheeks.sum() == pytest.approx(2 * np.pi * r * r, rel=0.15)  # two discs
     assert (cheeks[:, : W // 2].sum() > 0) and (cheeks[:, W // 2:].sum() > 0)
     assert (cheeks & skin).sum() >= 0.95 * cheeks.sum()  # on the skin, below the eyes
@@ -123,9 +124,9 @@ def test_run_score_and_the_worst_runs():
     rows = [good, slow_mouth, bruised, wide_mouth, missing]
     assert bench.worst_runs(rows) == [4, 2, 1]  # ties (1 and 3) in row order
     assert bench.worst_runs([good, good]) == []  # runs that meet every target are not "worst"
-    assert bench._worst_value("mouth_slope", [1.0, 0.7, 1.5, None]) == 1.5  # (1.5-1.3)/1.3 > (0.8-0.7)/0.8
-    assert bench._worst_value("cheek_de", [3.0, float("nan"), 9.0]) == 9.0
-    assert bench._worst_value("sharp", [0.9, 0.6]) == 0.6
+    assert measures._worst_value("mouth_slope", [1.0, 0.7, 1.5, None]) == 1.5  # (1.5-1.3)/1.3 > (0.8-0.7)/0.8
+    assert measures._worst_value("cheek_de", [3.0, float("nan"), 9.0]) == 9.0
+    assert measures._worst_value("sharp", [0.9, 0.6]) == 0.6
 
 
 def test_sheet_frames_most_closed_widest_and_middle():
