@@ -20,7 +20,8 @@ import cv2
 import numpy as np
 
 from facetex.geometry.masks import face_mask
-from facetex.geometry.morph import align_style_to_content, piecewise_affine_map, remap
+from facetex.geometry.style_align import align_style_to_content
+from facetex.geometry.morph import piecewise_affine_map, remap
 from facetex.landmarks import detect_face
 
 CONFIGS = [

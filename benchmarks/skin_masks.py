@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 import facetex
-from facetex.geometry.skin import skin_mask
+from facetex.geometry.segment import skin_mask
 from facetex.landmarks import face_mesh468
 from facetex.metrics import skin_patch_frames, working_scale
 

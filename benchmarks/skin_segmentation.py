@@ -1,4 +1,4 @@
-"""IoU of the face segmentation (facetex.geometry.skin.segment_face) against hand-drawn outlines.
+"""IoU of the face segmentation (facetex.geometry.segment.segment_face) against hand-drawn outlines.
 
     python benchmarks/skin_segmentation.py [--data DIR] [--sheet OUT.png]
 
@@ -23,7 +23,8 @@ import cv2
 import numpy as np
 
 import facetex
-from facetex.geometry.skin import LABELS, feature_mask, head_region_mask, segment_face
+from facetex.geometry.segment import LABELS, head_region_mask, segment_face
+from facetex.geometry.skin import feature_mask
 from facetex.landmarks import face_mesh468
 
 HERE = Path(__file__).resolve().parent

@@ -32,7 +32,7 @@ import numpy as np
 import facetex
 from facetex.bench._common import list_portraits, select_pairs
 from facetex.bench._zoom import zoom_sheet
-from facetex.geometry.morph import align_style_to_content
+from facetex.geometry.style_align import align_style_to_content
 from facetex.io import write_image
 from facetex.metrics import transfer_metrics
 from facetex.transfer import face_crop_box, transfer_with_info

@@ -17,7 +17,10 @@ import shlex
 import sys
 from importlib import metadata
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import TYPE_CHECKING, Any, Iterable, Mapping
+
+if TYPE_CHECKING:
+    import threading
 
 __all__ = ["provenance", "sidecar_path", "sha256_file", "hash_in_background", "library_versions", "command_line",
            "hash_inputs", "LIBRARIES", "SCHEMA"]

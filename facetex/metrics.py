@@ -289,7 +289,8 @@ def face_area_mask(image, points68, *, mesh=None, margin: float = 0.03) -> np.nd
     hairline, the temples and the jaw edge) grown by ``margin`` × face width. Its complement
     is the background."""
     from .geometry.masks import face_outline, face_width
-    from .geometry.skin import FACE_OVAL_468, head_region_mask
+    from .geometry.segment import head_region_mask
+    from .geometry.skin import FACE_OVAL_468
 
     p = _as_points(points68, "points68")
     h, w = np.asarray(image).shape[:2]
@@ -381,7 +382,7 @@ def transfer_metrics(output: ImageLike, content: ImageLike, style: ImageLike, *,
     s_style = texture_similarity(output, style, points_a=pts[0], points_b=pts[2])
     s_none = texture_similarity(content, style, points_a=pts[1], points_b=pts[2])
     if aligned_style is None:
-        from .geometry.morph import align_style_to_content
+        from .geometry.style_align import align_style_to_content
 
         aligned_style = align_style_to_content(np.asarray(style, np.float32), np.asarray(content, np.float32),
                                                style_points=pts[2], content_points=pts[1], refine=None,
@@ -393,7 +394,7 @@ def transfer_metrics(output: ImageLike, content: ImageLike, style: ImageLike, *,
     lf = lowfreq_skin_delta_e(output, content, pts[1], skin=skin)
     stub = stubble_leakage(output, content, aligned_style, pts[1])
     marks = mark_survival(output, content, aligned_style, pts[1], skin=skin)
-    from .geometry.skin import skin_mask
+    from .geometry.segment import skin_mask
 
     style_skin = skin_mask(_rgb01(style), pts[2], source=True)  # its bare skin: no beard, hair or shine
     moved = detail_moved(output, content, style, pts[0], pts[1], pts[2], skins=(skin, style_skin))
@@ -449,7 +450,7 @@ def _content_skin(image, points68, skin):
         if m.shape != np.asarray(image).shape[:2]:
             raise BadInputError(f"skin mask has shape {m.shape}, the image {np.asarray(image).shape[:2]}")
         return m
-    from .geometry.skin import skin_mask
+    from .geometry.segment import skin_mask
 
     return skin_mask(np.asarray(image, np.float32), points68)
 
@@ -466,7 +467,7 @@ def lowfreq_skin_delta_e(output, content, points68, *, skin=None, sigma: float =
     the eye distance over the content's skin only (normalised convolution, so eyes, brows and
     hair never blur into it): ``mean`` over the skin (mask ≥ 0.5) and over each skin patch of
     :func:`skin_patch_frames` (``forehead``, ``left_cheek``, ``right_cheek``, and ``max_region``).
-    ``skin``: the content's skin mask (default :func:`facetex.geometry.skin.skin_mask`)."""
+    ``skin``: the content's skin mask (default :func:`facetex.geometry.segment.skin_mask`)."""
     from .geometry.filters import masked_lowpass
     from .transfer.colour import eye_distance
 
@@ -608,7 +609,7 @@ def mark_survival(output, content, aligned_style, points68, *, skin=None, style_
     skin, that the content does not have there) and fractions ``kept`` / ``arrived``."""
     from .geometry.marks import detect_marks, match_marks
     from .geometry.masks import face_width
-    from .geometry.skin import skin_mask
+    from .geometry.segment import skin_mask
 
     out, con, sty = _rgb01(output), _rgb01(content), _rgb01(aligned_style)
     p = _as_points(points68, "points68")

@@ -375,7 +375,7 @@ def _write_grid(path, out, pairs, paths, methods, records) -> Path:
 
 def _load_pair(content_path, style_path) -> dict:
     """Content and style images, their landmarks and the style aligned onto the content."""
-    from ..geometry.morph import align_style_to_content
+    from ..geometry.style_align import align_style_to_content
     from ..landmarks import detect_face
 
     d = {"content": read_image(content_path), "style": read_image(style_path)}

@@ -1,10 +1,13 @@
 """Geometry shared by FaceTex and Persona — pure numpy / OpenCV / SciPy, no torch.
 
 - :mod:`.tps`: thin-plate splines with smoothing (Tom Hanks Eq. 1)
-- :mod:`.morph`: Beier–Neely and piecewise-affine morphs, :func:`align_style_to_content`
+- :mod:`.morph`: Beier–Neely and piecewise-affine morphs
+- :mod:`.style_align`: FaceTex's style-to-content alignment, :func:`align_style_to_content`
 - :mod:`.flow`: dense correspondence (variational optical flow, SIFT-flow-like), flow utilities
 - :mod:`.frontalize`: head pose by PnP on a generic 3D face, frontalization
-- :mod:`.masks`: the FaceTex facial prior mask and the face-region mask
+- :mod:`.masks`: the FaceTex facial prior mask, the face-region mask, polygon and feature masks
+- :mod:`.skin`: skin masks (face region, features, the face's skin colour, beards)
+- :mod:`.segment`: face segmentation into skin, hair, brows, beard, highlights
 - :mod:`.glasses`: eyeglasses in a face photo (the frame's bridge over the nose)
 - :mod:`.gaze`: sideways gaze in a face photo (the balance of the eyes' whites)
 """
@@ -41,10 +44,10 @@ _LAZY = {
     "face_width": "masks",
     "facial_prior_mask": "masks",
     "prior_mask": "masks",
-    "AlignParams": "morph",
-    "AlignResult": "morph",
+    "AlignParams": "style_align",
+    "AlignResult": "style_align",
     "BeierNeelyParams": "morph",
-    "align_style_to_content": "morph",
+    "align_style_to_content": "style_align",
     "beier_neely_map": "morph",
     "beier_neely_warp": "morph",
     "compose_maps": "morph",

@@ -382,7 +382,7 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
 
     folds, style_map = 0, None
     if params.align:
-        from ..geometry.morph import align_style_to_content
+        from ..geometry.style_align import align_style_to_content
 
         al = align_style_to_content(style, region, style_points=sp, content_points=cpr, method=params.align,
                                     refine=params.align_refine, frame=params.align_frame, interpolation="lanczos")
@@ -400,7 +400,7 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
         or params.detail or params.keep_shading or params.marks != "off"
     skin_c = skin_s = None
     if needs_skin:
-        from ..geometry.skin import skin_mask
+        from ..geometry.segment import skin_mask
 
         skin_c = skin_mask(content, cp, mesh=_face_mesh(content, cp))[box[1]:box[3], box[0]:box[2]]
         # the style lends texture only from bare skin: no hair, beard or highlights (issue 22)
@@ -469,7 +469,7 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
         energies = None
         if style_map is not None:
             energies = _crop_map_energies(style, style_map, face_width(sp), dparams)
-        from ..geometry.skin import beard_zone_mask
+        from ..geometry.segment import beard_zone_mask
 
         # the content's upper lip and chin keep their own fine detail: the style's pores
         # copied there read as stubble specks on a clean-shaven face (issue 22)

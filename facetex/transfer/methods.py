@@ -102,7 +102,7 @@ class TransferParams:
     normalize: bool = True
     align: str | None = "beier-neely"  # style → content pre-warp (Sec. 2.3), None to skip
     align_refine: str | None = "sift-flow"
-    align_frame: str = "similarity"  # pre-warp frame pinning (see geometry.morph.align_style_to_content)
+    align_frame: str = "similarity"  # pre-warp frame pinning (see geometry.style_align.align_style_to_content)
     feature_transform: str | None = None  # "softmax": SWAG's channel softmax on texture features
     feature_temperature: float = 1.0
     detail: bool = False  # native-resolution skin detail stage (transfer/detail.py)

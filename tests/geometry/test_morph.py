@@ -5,20 +5,8 @@ import pytest
 
 from facetex._resources import sample_path
 from facetex.errors import BadInputError
-from facetex.geometry.morph import (
-    AlignResult,
-    align_style_to_content,
-    beier_neely_lines_map,
-    beier_neely_map,
-    beier_neely_warp,
-    invert_map_points,
-    morph_points,
-    morph_segments,
-    piecewise_affine_map,
-    piecewise_affine_warp,
-    remap,
-    sample_map,
-)
+from facetex.geometry.style_align import AlignResult, align_style_to_content
+from facetex.geometry.morph import beier_neely_lines_map, beier_neely_map, beier_neely_warp, invert_map_points, morph_points, morph_segments, piecewise_affine_map, piecewise_affine_warp, remap, sample_map
 from facetex.landmarks import detect_face
 
 

@@ -7,14 +7,8 @@ import pytest
 from facetex._resources import sample_path
 from facetex.errors import BadInputError
 from facetex.geometry.masks import face_width
-from facetex.geometry.skin import (
-    feature_mask,
-    face_region_mask,
-    head_region_mask,
-    protected_mask,
-    skin_colour_distance,
-    skin_mask,
-)
+from facetex.geometry.skin import feature_mask, face_region_mask, protected_mask, skin_colour_distance
+from facetex.geometry.segment import head_region_mask, skin_mask
 from facetex.landmarks import detect_face, face_mesh468
 
 
@@ -109,7 +103,7 @@ def _forehead_box(p):
 
 
 def test_segment_bundled_samples_fringe_and_stubble():
-    from facetex.geometry.skin import segment_face
+    from facetex.geometry.segment import segment_face
 
     img, p, mesh = _sample("frl_003_neutral.jpg")  # a fringe down to the brows
     seg = segment_face(img, p, mesh=mesh)
@@ -126,7 +120,7 @@ def test_segment_bundled_samples_fringe_and_stubble():
 
 def test_a_striped_skin_coloured_fringe_is_hair(clean):
     """Blond strands pass the colour test: the structure tensor finds them."""
-    from facetex.geometry.skin import segment_face
+    from facetex.geometry.segment import segment_face
 
     img, p, mesh = clean
     fw = face_width(p)
@@ -144,7 +138,7 @@ def test_a_striped_skin_coloured_fringe_is_hair(clean):
 
 
 def test_dark_specks_on_a_clean_chin_are_stubble(clean):
-    from facetex.geometry.skin import segment_face
+    from facetex.geometry.segment import segment_face
 
     img, p, mesh = clean
     chin = (slice(int(p[57, 1]) + 3, int(p[8, 1]) - 3), slice(int(p[6, 0]), int(p[10, 0])))
@@ -160,7 +154,7 @@ def test_dark_specks_on_a_clean_chin_are_stubble(clean):
 
 
 def test_a_bright_low_chroma_blob_is_a_highlight_and_no_texture_source(clean):
-    from facetex.geometry.skin import segment_face
+    from facetex.geometry.segment import segment_face
 
     img, p, mesh = clean
     fw = face_width(p)
@@ -179,7 +173,8 @@ def test_a_bright_low_chroma_blob_is_a_highlight_and_no_texture_source(clean):
 def test_the_beard_zone_is_skin_but_never_a_texture_source(clean):
     """Stubble may pass every colour and speck test (short, grey, or dark on dark skin): the
     upper lip and chin of a style lend no texture, whatever is found there."""
-    from facetex.geometry.skin import SkinParams, segment_face
+    from facetex.geometry.skin import SkinParams
+    from facetex.geometry.segment import segment_face
 
     img, p, mesh = clean
     fw = face_width(p)
@@ -196,7 +191,7 @@ def test_the_beard_zone_is_skin_but_never_a_texture_source(clean):
 
 
 def test_segmenting_the_head_box_gives_the_labels_of_the_whole_image(clean):
-    from facetex.geometry.skin import segment_face
+    from facetex.geometry.segment import segment_face
 
     img, p, mesh = clean
     pad = 150  # a portrait with room around the head, as FRL's 1000 px ones

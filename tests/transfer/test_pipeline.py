@@ -65,7 +65,7 @@ def test_default_facetex_changes_only_the_skin(faces):
 
 def test_prewarp_of_the_crop_equals_the_full_image_prewarp(faces):
     """The style the optimiser sees is the same morph the full images would give (no squeezing)."""
-    from facetex.geometry.morph import align_style_to_content
+    from facetex.geometry.style_align import align_style_to_content
 
     c, s, pc, ps = faces
     _, info = transfer_with_info(c, s, content_points=pc, style_points=ps, **FAST)
@@ -81,7 +81,7 @@ def test_detail_stage_brings_the_style_detail(faces):
     """An airbrushed content (blurred, no beard) gets the style's fine detail back."""
     import cv2
 
-    from facetex.geometry.morph import align_style_to_content
+    from facetex.geometry.style_align import align_style_to_content
     from facetex.metrics import skin_detail
 
     _, s, _, ps = faces
