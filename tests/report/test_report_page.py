@@ -175,3 +175,14 @@ def test_persona_and_puppet_sections(tmp_path, runs, frl):
     # targets: mouth slope 0.8-1.15 met by 2 of 3 runs (1.0, 1.1; not 1.2)
     assert re.search(r"mouth slope</th>.*?<td>0.8–1.150?</td><td>2 of 3</td>", page)
 
+
+
+def test_same_runs_give_the_same_bytes(tmp_path, runs, frl):
+    """The page is a function of the run folders: no random SVG ids, dates or dict orders."""
+    pages = []
+    for k in range(2):
+        out = tmp_path / f"r{k}.html"
+        assert main(["report", str(runs[0]), "-o", str(out), "--data", str(frl), "-q"]) == 0
+        pages.append(out.read_bytes())
+    assert "<svg" in pages[0].decode() or "image/svg+xml" in pages[0].decode()
+    assert pages[0] == pages[1]
