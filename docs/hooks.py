@@ -19,3 +19,23 @@ def on_page_markdown(markdown: str, page, config, files):  # noqa: ARG001 - MkDo
     if "<!-- CLI REFERENCE -->" in markdown:
         return markdown.replace("<!-- CLI REFERENCE -->", cli_reference())
     return markdown
+
+
+_ROLE = None
+
+
+def on_page_content(html: str, page, config, files):  # noqa: ARG001 - MkDocs' hook signature
+    """The docstrings' Sphinx roles (``:func:`facetex.io.read_image```) as links where the target is
+    documented (mkdocs-autorefs resolves them; ``optional``: plain code otherwise), not as raw text."""
+    global _ROLE
+    import re
+
+    if _ROLE is None:
+        _ROLE = re.compile(r":(?:func|class|mod|meth|data|attr|exc|obj):<code>(~?)([^<]+)</code>")
+
+    def link(m):
+        target = m.group(2).lstrip(".")
+        shown = target.rsplit(".", 1)[-1] if m.group(1) else m.group(2)
+        return f'<autoref identifier="{target}" optional><code>{shown}</code></autoref>'
+
+    return _ROLE.sub(link, html)

@@ -129,7 +129,7 @@ def _level_scalars(similarity: np.ndarray, level: int, tau: float, beta: float) 
 def blend_pyramids(pyramids: list[list[np.ndarray]], weights: list[list[np.ndarray]]) -> np.ndarray:
     """Collapse of the per-level weighted average (normalised per pixel) of Laplacian pyramids.
 
-    pyramids[i][k]: level k (finest first) of photo i; weights[i][k]: (h_k, w_k) weights."""
+    ``pyramids[i][k]``: level k (finest first) of photo i; ``weights[i][k]``: (h_k, w_k) weights."""
     out = []
     for k in range(len(pyramids[0])):
         num = sum(w[k][..., None] * p[k] for p, w in zip(pyramids, weights))
