@@ -63,7 +63,7 @@ def _table1(run: Run) -> str:
         for m in methods:
             if m != NO_TRANSFER:
                 ref = run.paper.get(m, {}).get(metric)
-                cells.append(f"<td class='paper'>{_e(_fmt(ref)) if ref is not None else '–'}</td>")
+                cells.append(f"<td class='paper'>{_e(format(ref, '.10g')) if ref is not None else '–'}</td>")
             r = summary.get((m, metric))
             cells.append(f"<td>{_interval_text(r) if r else '–'}</td>")
         wins = best_counts(run, metric, transfer)

@@ -186,3 +186,15 @@ def test_same_runs_give_the_same_bytes(tmp_path, runs, frl):
         pages.append(out.read_bytes())
     assert "<svg" in pages[0].decode() or "image/svg+xml" in pages[0].decode()
     assert pages[0] == pages[1]
+
+
+def test_paper_values_are_shown_as_printed(runs, frl):
+    """FaceTex Table 1's numbers appear with the paper's own digits (106.17, not a rounded 106.2)."""
+    from facetex.bench.transfer import PAPER_TABLE1
+
+    run = load_runs([runs[0]], also=[frl])[0]
+    t1 = re.search(r"<table class='t1'>.*?</table>", build_report([run]), re.S).group(0)
+    shown = re.findall(r"<td class='paper'>([^<]+)</td>", t1)
+    assert "106.17" in shown and "191.47" in shown
+    printed = {format(v, ".10g") for m in PAPER_TABLE1.values() for v in m.values()}
+    assert {s for s in shown if s != "–"} <= printed
