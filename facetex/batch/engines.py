@@ -121,7 +121,7 @@ def execute(fn: Callable, payload: Any, threads: int) -> tuple:
     if ok and "torch" in sys.modules:
         _set_threads(threads)  # the item imported torch: keep the budget for the next item too
     stats = {"host": socket.gethostname(), "pid": os.getpid(), "seconds": time.perf_counter() - t0,
-             "peak_rss_mb": _peak_rss_mb()}
+             "peak_rss_mb": _peak_rss_mb(), "threads": int(threads)}
     return ok, value, etype, stats
 
 
