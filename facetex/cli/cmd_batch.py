@@ -109,10 +109,16 @@ def _argv() -> list[str]:
     return shlex.split(command_line())
 
 
-def _check_out(args, inputs=()) -> Path:
-    """--out, checked without creating it (that happens once the engine has started)."""
+def _check_out(args, inputs=()):
+    """--out, checked without creating it (that happens once the engine has started); a URL
+    (``s3://bucket/folder``) as it is."""
+    from ..batch._store import is_url
     from ..errors import OutputError
 
+    if is_url(args.out):
+        if any(d and str(d).rstrip("/") == str(args.out).rstrip("/") for d in inputs):
+            raise OutputError("--out is an input folder: write the outputs to another folder", path=args.out)
+        return str(args.out).rstrip("/")
     out = Path(args.out)
     for d in inputs:
         if d and out.resolve() == Path(d).resolve():
@@ -154,9 +160,12 @@ def _run(args, kind: str, items, inputs=()) -> int:
         elif sys.stderr.isatty():  # the elapsed time moves on a terminal; a log gets only the changes
             bar.refresh()
 
+    from ..batch._store import is_url, join, name_of
+
     try:
         with engine:
-            out = check_out_dir(out)
+            if not is_url(out):
+                out = check_out_dir(out)
             summary = run_batch(items, out, engine, retry_failed=args.retry_failed, max_retries=args.max_retries,
                                 claim_timeout=args.claim_timeout, progress=progress, settings=folder_settings(items),
                                 record={"command": f"batch {kind}", "command_line": " ".join(_argv()),
@@ -167,7 +176,7 @@ def _run(args, kind: str, items, inputs=()) -> int:
         signum = getattr(exc, "signum", signal.SIGINT)
         how = "" if signum == signal.SIGINT else f" by {signal.Signals(signum).name}"
         print(f"facetex: interrupted{how}; finished items are kept (with their sidecars), running items were "
-              f"stopped without partial output; {out / 'manifest.jsonl'} lists them; run the same command "
+              f"stopped without partial output; {join(out, 'manifest.jsonl')} lists them; run the same command "
               "to resume", file=sys.stderr)
         return 128 + int(signum)
     finally:
@@ -184,7 +193,7 @@ def _run(args, kind: str, items, inputs=()) -> int:
     else:
         say(args, line)
         computed = set(s.computed)
-        written = [out / Path(p).name for it in items if it.key in computed for p in it.outputs]
+        written = [join(out, name_of(p)) for it in items if it.key in computed for p in it.outputs]
         if len(written) <= 40:
             say(args, *(f"wrote {p}" for p in written))
         else:
