@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..errors import BadInputError, OutputError
+from ..errors import BadInputError, FacetexError, OutputError
 
 __all__ = ["is_url", "join", "name_of", "parent_of", "Store", "LocalStore", "FsspecStore", "store_for",
            "run_staged_item", "fetch", "list_files", "read_input_bytes", "STAGED_FN"]
@@ -350,7 +350,14 @@ def run_staged_item(p: dict) -> dict:
         local["output"] = str(Path(tmp) / name_of(remote_out))
         mapping[tmp] = parent_of(remote_out)
         t0 = time.perf_counter()
-        value = fn(local)
+        try:
+            value = fn(local)
+        except FacetexError as e:  # name the URL, not the local copy
+            path = _replace_strings(e.path, mapping) if e.path else None
+            message = e.message
+            for k, v in mapping.items():
+                message = message.replace(k, v)
+            raise type(e)(message, path=path) from None
         files = [Path(f) for f in (value.get("outputs") if isinstance(value, dict) else None) or [local["output"]]]
         sidecars = [f for f in files if f.name.endswith(".json")]
         ordered = sidecars + [f for f in files if f not in sidecars]  # the output last: the completion marker

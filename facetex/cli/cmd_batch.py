@@ -100,6 +100,17 @@ def register(sub) -> None:
     _batch_options(u)
     u.set_defaults(func=run_puppet, device="cpu")
 
+    st = bs.add_parser("status", help="what a batch folder holds: counts, throughput, failures, slowest items",
+                       description="Read a batch folder (a path or a URL such as s3://bucket/aug) without changing "
+                                   "it: items per state (pending, running, done, failed), items per hour, the "
+                                   "failures grouped by error (file names and numbers masked) and the slowest items.")
+    st.add_argument("folder", metavar="DIR", help="the --out of a `facetex batch` run (path or URL)")
+    st.add_argument("--slowest", type=bounded_int(0, 1000), default=10, metavar="N",
+                    help="list the N slowest finished items (default 10)")
+    add_json(st, "the status")
+    add_quiet(st)
+    st.set_defaults(func=run_status)
+
 
 def _argv() -> list[str]:
     import shlex
@@ -257,3 +268,30 @@ def run_puppet(args) -> int:
                          side_by_side=args.side_by_side, lighting=args.lighting, texture=args.texture,
                          weights=args.weights, max_frames=args.max_frames, cpus=args.cpus_per_item, argv=_argv())
     return _run(args, "puppet", items, [args.drivers, args.puppets])
+
+
+def run_status(args) -> int:
+    from ..batch._status import batch_status
+
+    s = batch_status(args.folder, slowest=args.slowest)
+    if args.json:
+        print_json(s)
+        return 0
+    c, t = s["counts"], s["throughput"]
+    rate = f"{t['items_per_hour']:.1f} items/hour" if t["items_per_hour"] else "no throughput yet"
+    lines = [f"{s['folder']}: {s['total']} items: {c['done']} done, {c['failed']} failed, {c['running']} running, "
+             f"{c['pending']} pending; {rate}"]
+    for r in s["runs"]:
+        per = f", {r['items_per_hour']:.1f} items/hour" if r["items_per_hour"] else ""
+        lines.append(f"  run {r['run']} ({r['host']}): {r['done']} done, {r['failed']} failed in "
+                     f"{(r['seconds'] or 0):.0f} s{per}")
+    if s["failures"]:
+        lines.append("failures by error:")
+        for g in s["failures"]:
+            more = ", ..." if g["count"] > len(g["items"]) else ""
+            lines.append(f"  {g['count']} × {g['error']} ({', '.join(g['items'])}{more})")
+    if s["slowest"]:
+        lines.append("slowest items:")
+        lines.extend(f"  {r['seconds']:.1f} s  {r['item']}  ({r['host']})" for r in s["slowest"])
+    say(args, *lines)
+    return 0
