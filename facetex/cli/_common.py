@@ -186,7 +186,7 @@ def progress_bar(total: int | None = None, desc: str = "", unit: str = "it", *, 
 
 
 def add_engine_options(parser: argparse.ArgumentParser, *, jobs: bool = True, jobs_default: int | None = None,
-                       jobs_help: str | None = None) -> None:
+                       jobs_help: str | None = None, cpus_help: str | None = None) -> None:
     """``--engine local|ray``, ``--jobs N``, ``--address``, ``--cpus-per-item``: where the items of
     a batch or a benchmark run (see :mod:`facetex.batch.engines`)."""
     g = parser.add_argument_group("engine (where the items run)")
@@ -201,7 +201,7 @@ def add_engine_options(parser: argparse.ArgumentParser, *, jobs: bool = True, jo
                    help="--engine ray: the cluster, auto | HOST:PORT | ray://HOST:PORT (default: start a local Ray "
                         "on this machine, stopped at the end)")
     g.add_argument("--cpus-per-item", type=bounded_int(1, 1024), metavar="N",
-                   help="CPUs (torch threads) of one item (default: local, the CPUs / --jobs; ray, 1)")
+                   help=cpus_help or "CPUs (torch threads) of one item (default: local, the CPUs / --jobs; ray, 1)")
 
 
 def engine_from_args(args, *, inline_single: bool = False):

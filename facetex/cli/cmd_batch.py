@@ -30,7 +30,9 @@ _pairs.__name__ = "pairs"
 def _batch_options(p: argparse.ArgumentParser) -> None:
     add_output(p, dest="out", required=True, metavar="DIR",
                    help="output folder (created); gets the outputs with their sidecars and manifest.jsonl")
-    add_engine_options(p)
+    add_engine_options(p, cpus_help="CPUs (torch threads) of one item (default 1 on every engine, whatever --jobs: "
+                                    "outputs are the same bytes for the same seeds and threads; the sidecar records "
+                                    "them)")
     g = p.add_argument_group("resuming and faults")
     g.add_argument("--retry-failed", action="store_true",
                    help="run again the items a previous run recorded as failed (default: leave them failed)")
@@ -225,6 +227,9 @@ def _run(args, kind: str, items, inputs=()) -> int:
 def _engine(args):
     from ._common import engine_from_args
 
+    # one thread per item unless asked: torch's float sums depend on the thread count, so a
+    # default of CPUs / --jobs made --jobs 1 and --jobs 2 give other bytes (README)
+    args.cpus_per_item = args.cpus_per_item or 1
     return engine_from_args(args)
 
 

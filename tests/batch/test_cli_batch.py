@@ -253,3 +253,17 @@ def test_batch_persona_then_puppet(tmp_path, capsys, no_leftover_processes):
     from facetex.io import video_info
 
     assert video_info(videos / "talk__alice.mp4")["n_frames"] == 6
+
+
+def test_same_bytes_with_jobs_1_and_the_default(tmp_path, capsys, no_leftover_processes):
+    """Torch's float sums depend on the thread count (1 vs 2 threads: 28 pixels differ at this
+    size, 443 at 128 px × 3 × 10 iterations): every item gets one thread, whatever --jobs."""
+    pairs = _csv(tmp_path / "pairs.csv", f"content,style\n{A},{B}\n")
+    opts = ["--size", "128", "--iters", "4,4,4", "-q"]
+    assert main(["batch", "transfer", str(pairs), "--out", str(tmp_path / "one"), "--jobs", "1", *opts]) == 0
+    assert main(["batch", "transfer", str(pairs), "--out", str(tmp_path / "default"), *opts]) == 0
+    name = "frl_004_neutral__frl_005_neutral__facetex.png"
+    assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "default" / name).read_bytes()
+    for d in ("one", "default"):
+        assert json.loads((tmp_path / d / f"{name}.json").read_text())["threads"] == 1
+        assert _manifest(tmp_path / d)[name[:-4]]["threads"] == 1
