@@ -31,6 +31,13 @@ def _manifest(out: Path) -> dict:
     return {r["item"]: r for r in map(json.loads, (out / "manifest.jsonl").read_text().splitlines())}
 
 
+def _states(out: Path) -> list[str]:
+    """The items' states now (the manifest's last line of each; [] before it exists)."""
+    from facetex.batch._state import read_manifest
+
+    return [r["state"] for r in read_manifest(out / "manifest.jsonl").values()]
+
+
 def test_batch_transfer_equals_the_api_and_resumes(tmp_path, capsys, no_leftover_processes):
     import torch
 
@@ -125,8 +132,7 @@ def test_sigterm_stops_the_batch_without_partial_output_or_orphans(tmp_path):
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:  # wait for items to be running in the workers
             workers |= children(proc.pid)
-            states = [json.loads(p.read_text()).get("state") for p in (out / ".facetex-batch" / "items").glob("*.json")] \
-                if (out / ".facetex-batch" / "items").is_dir() else []
+            states = _states(out)
             if states.count("running") == 2 and len(workers) >= 2:
                 break
             time.sleep(0.2)
@@ -164,10 +170,9 @@ def _start_and_wait_running(cmd, env, out, n_running=1, timeout=180):
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     seen: set[int] = set()
     deadline = time.monotonic() + timeout
-    items = out / ".facetex-batch" / "items"
     while time.monotonic() < deadline:
         seen |= children(proc.pid)
-        states = [json.loads(p.read_text()).get("state") for p in items.glob("*.json")] if items.is_dir() else []
+        states = _states(out)
         if states.count("running") >= n_running and seen:
             time.sleep(1.0)
             return proc, seen | children(proc.pid)
