@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ._common import (add_engine_options, add_json, add_output, add_quiet, add_seed_device, bounded_int, check_device,
+from ._common import (add_engine_options, add_json, add_output, add_overwrite, add_quiet, add_seed_device, bounded_int, check_device,
                       finite_float, positive_int, print_json, say)
 
 EXIT_INCOMPLETE = 4  # the batch ended with failed (or unfinished) items
@@ -109,6 +109,8 @@ def register(sub) -> None:
     st.add_argument("folder", metavar="DIR", help="the --out of a `facetex batch` run (path or URL)")
     st.add_argument("--slowest", type=bounded_int(0, 1000), default=10, metavar="N",
                     help="list the N slowest finished items (default 10)")
+    add_output(st, metavar="FILE.json", help="also write the status as JSON to FILE.json")
+    add_overwrite(st)
     add_json(st, "the status")
     add_quiet(st)
     st.set_defaults(func=run_status)
@@ -278,7 +280,15 @@ def run_puppet(args) -> int:
 def run_status(args) -> int:
     from ..batch._status import batch_status
 
+    if args.output:
+        from ..io import check_output_path
+
+        check_output_path(args.output, overwrite=args.overwrite, extensions=(".json",))
     s = batch_status(args.folder, slowest=args.slowest)
+    if args.output:
+        from ..io import write_json
+
+        write_json(args.output, s, overwrite=args.overwrite)
     if args.json:
         print_json(s)
         return 0
@@ -298,5 +308,7 @@ def run_status(args) -> int:
     if s["slowest"]:
         lines.append("slowest items:")
         lines.extend(f"  {r['seconds']:.1f} s  {r['item']}  ({r['host']})" for r in s["slowest"])
+    if args.output:
+        lines.append(f"wrote {args.output}")
     say(args, *lines)
     return 0

@@ -249,9 +249,10 @@ def test_status_counts_groups_failures_and_lists_the_slowest(tmp_path, capsys, n
                               "items": ["item1", "item3"]}]
     assert s["slowest"][0]["item"] == "item4" and s["slowest"][0]["seconds"] >= 1.0 and len(s["slowest"]) == 2
     assert s["throughput"]["done"] == 3 and len(s["runs"]) == 1 and s["runs"][0]["done"] == 3
-    assert main(["batch", "status", str(out)]) == 0
+    assert main(["batch", "status", str(out), "-o", str(tmp_path / "status.json")]) == 0
     text = capsys.readouterr().out
     assert "5 items: 3 done, 2 failed, 0 running, 0 pending" in text and "2 × ValueError" in text
+    assert json.loads((tmp_path / "status.json").read_text())["counts"]["failed"] == 2
     assert main(["batch", "status", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "not a batch folder (no manifest.jsonl)" in err and len(err.strip().splitlines()) == 1
