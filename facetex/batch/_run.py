@@ -120,11 +120,15 @@ class _Outputs:
     object storage: a few list requests, not 20 000), single checks afterwards."""
 
     def __init__(self, store: Store, out: str):
-        self.store, self.out = store, str(out).rstrip("/")
+        self.store = store
+        self.out = self._key(out)
         self.listed = store.names(out)
 
+    def _key(self, folder) -> str:
+        return str(folder).rstrip("/") if self.store.remote else os.path.realpath(folder)
+
     def initial(self, it: Item) -> list[bool]:
-        return [name_of(p) in self.listed if parent_of(p).rstrip("/") == self.out else self.store.exists(p)
+        return [name_of(p) in self.listed if self._key(parent_of(p)) == self.out else self.store.exists(p)
                 for p in it.outputs]
 
     def now(self, it: Item) -> list[bool]:
@@ -296,7 +300,7 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
         _record_folder_settings(state, settings)
     for it in found:
         state.log(it.key, {"kind": it.kind, "state": "done", "config_hash": hashes[it.key], "config": it.config,
-                           "outputs": list(it.outputs), "run": claims.run, "error": None})
+                           "outputs": list(it.outputs), "run": claims.run, "note": "outputs found"})
     for it in new:
         state.log(it.key, {"kind": it.kind, "state": "pending", "run": claims.run})
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import time
 from pathlib import Path
 
@@ -175,8 +176,11 @@ class BatchState:
 
     def relative(self, path: str) -> str:
         """``path`` relative to the folder (as the manifest names outputs)."""
-        base = self.out.rstrip("/") + "/"
-        return path[len(base):] if str(path).startswith(base) else str(path)
+        if self.store.remote:
+            base = self.out.rstrip("/") + "/"
+            return path[len(base):] if str(path).startswith(base) else str(path)
+        base, real = os.path.realpath(self.out), os.path.realpath(path)
+        return os.path.relpath(real, base) if real.startswith(base + os.sep) else str(path)
 
     def log(self, key: str, record: dict) -> None:
         """Buffer a manifest line: item ``key``'s state now (see :meth:`flush`)."""
