@@ -301,6 +301,9 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
     for it in found:
         state.log(it.key, {"kind": it.kind, "state": "done", "config_hash": hashes[it.key], "config": it.config,
                            "outputs": list(it.outputs), "run": claims.run, "note": "outputs found"})
+        if it.key in recorded:  # a failure of before, done since (by a run that lost its manifest line)
+            state.remove(it.key)
+            recorded.discard(it.key)
     for it in new:
         state.log(it.key, {"kind": it.kind, "state": "pending", "run": claims.run})
 
