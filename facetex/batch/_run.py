@@ -296,6 +296,8 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
     if not store.remote:
         check_output_path(state.manifest, overwrite=True)  # a folder or FIFO of that name: refused before any work
     state.create()
+    if store.remote:
+        store.check_exclusive(state.root)
     if settings is not None and not recorded_settings:
         _record_folder_settings(state, settings)
     for it in found:

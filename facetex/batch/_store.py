@@ -231,6 +231,24 @@ class FsspecStore(Store):
     def isdir(self, path) -> bool:
         return bool(self.fs.isdir(self._p(path)))
 
+    def check_exclusive(self, folder) -> None:
+        """Refuse (one line) a store that does not honour exclusive creates (a server that
+        ignores ``If-None-Match``, a backend that treats ``xb`` as ``wb``): two runs could then
+        replace each other's outputs and claims. Costs three requests."""
+        import uuid
+
+        probe = join(folder, f".facetex-exclusive-probe-{uuid.uuid4().hex[:12]}")
+        self.create(probe, b"1")
+        try:
+            self.create(probe, b"2")
+        except FileExistsError:
+            return
+        finally:
+            self.remove(probe)
+        raise OutputError("this storage does not honour exclusive creates (If-None-Match: *), which a batch needs so "
+                          "that no run replaces another's output: use S3 or a store that does, or a shared folder",
+                          path=folder)
+
     def upload(self, local, path, *, exclusive: bool = True) -> None:
         with open(local, "rb") as src, self.fs.open(self._p(path), "xb" if exclusive else "wb") as dst:
             shutil.copyfileobj(src, dst, 8 * 2**20)

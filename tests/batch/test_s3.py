@@ -114,3 +114,19 @@ def test_exclusive_creates_hold_on_the_server(s3):
     assert b.holder("item")["run"] == a.run and not b.holder("item")["expired"]
     a.release("item")
     assert b.acquire("item") is not None
+
+
+def test_a_store_without_exclusive_creates_is_refused_before_any_work(monkeypatch, tmp_path):
+    """A server that ignores If-None-Match would let two runs replace each other's outputs."""
+    import _tasks
+    from facetex.batch import InlineEngine, Item, run_batch
+    from facetex.batch._store import FsspecStore
+    from facetex.errors import OutputError
+
+    out = "memory://bucket/aug"
+    it = Item("a", "test", _tasks.write_item, {"name": "a", "output": f"{out}/a.txt", "log": str(tmp_path / "log")},
+              (f"{out}/a.txt", f"{out}/a.txt.json"), {"a": 1})
+    monkeypatch.setattr(FsspecStore, "create", FsspecStore.put)  # "xb" silently treated as "wb"
+    with pytest.raises(OutputError, match="does not honour exclusive creates"):
+        run_batch([it], out, InlineEngine(threads=1))
+    assert not (tmp_path / "log").exists()  # refused before any work
