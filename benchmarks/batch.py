@@ -7,8 +7,11 @@ e.g. ``ray.init``, reported apart), the speed-up over local 1 worker (target >= 
 workers on a 2-core machine), the first item's time (start-up), the per-item scheduling
 overhead on Ray (time from submit to result minus the time the item ran inside the worker;
 target <= 0.5 s), the peak resident memory of a worker, and whether the outputs equal local
-2 workers' bit for bit. "local 1 worker" gets all CPUs as torch threads (``cpus // workers``);
-"local 1 worker, 1 thread" is the same worker budget as each of the 2 workers (pool scaling).
+2 workers' bit for bit. "local 1 worker" gets all CPUs as torch threads (``cpus // workers``), so
+its bytes differ from the one-thread engines' (torch's float sums depend on the thread count: "no"
+in that column is expected; ``facetex batch`` gives every item one thread unless
+``--cpus-per-item`` says otherwise); "local 1 worker, 1 thread" is the same worker budget as each
+of the 2 workers (pool scaling).
 The machine's load average before and after each engine is printed: the speed-up of a shared
 machine is only as good as its idle cores.
 

@@ -1,9 +1,9 @@
 """Item claims that hold across processes and hosts sharing an output folder.
 
-A claim is a file ``<folder>/<key>.<generation>`` created with ``O_CREAT | O_EXCL``: of several
-processes (on one host or on several hosts sharing the folder over NFS, which honours
-exclusive creates) exactly one creates it. Its holder refreshes the file's modification time
-while the item runs (:meth:`Claims.heartbeat`); a claim whose time is older than ``timeout``
+A claim is a file ``<folder>/<key>.<generation>`` created exclusively (``O_CREAT | O_EXCL``;
+on object storage a conditional put, ``If-None-Match: *``): of several processes (on one host
+or on several hosts sharing the folder over NFS or an object store) exactly one creates it. Its holder refreshes the file's modification time
+while the item runs (:meth:`Claims.heartbeat`; on object storage it writes the object again); a claim whose time is older than ``timeout``
 seconds, or whose holder is a process of this host that no longer exists, has *expired*.
 An expired claim is never deleted by the next claimer (two claimers could then both
 "take over"): the next claimer exclusively creates the *next generation* ``<key>.<n+1>``
@@ -27,6 +27,7 @@ from pathlib import Path
 
 from .._schema import nullable
 from ._state import read_record
+from ._store import Store, join, store_for
 
 __all__ = ["Claims", "Claim", "run_id"]
 
@@ -62,36 +63,45 @@ def _alive(pid: int, start: str | None) -> bool:
 @dataclass
 class Claim:
     key: str
-    path: Path
+    path: Path | str  # a URL on object storage
     generation: int
 
 
 class Claims:
     """Claims of items in ``folder`` by this process (run ``run``)."""
 
-    def __init__(self, folder, *, timeout: float = 300.0, run: str | None = None):
-        self.folder = Path(folder)  # made by the caller before the first acquire()
+    def __init__(self, folder, *, timeout: float = 300.0, run: str | None = None, store: Store | None = None):
+        self.folder = str(folder)  # made by the caller before the first acquire()
+        self.store = store or store_for(folder)
         self.timeout = float(timeout)
         self.run = run or run_id()
         self._me = {"run": self.run, "host": _HOST, "pid": os.getpid(), "pid_start": _proc_start(os.getpid())}
         self.held: dict[str, Claim] = {}
 
-    def _path(self, key: str, gen: int) -> Path:
-        return self.folder / f"{key}.{gen}"
+    def _path(self, key: str, gen: int):
+        p = join(self.folder, f"{key}.{gen}")
+        return p if self.store.remote else Path(p)
+
+    def _exists(self, key: str, gen: int) -> bool:
+        return self.store.exists(self._path(key, gen))
+
+    def claimed(self) -> set[str]:
+        """Keys with a claim file now (one listing of the folder)."""
+        return {n.rsplit(".", 1)[0] for n in self.store.names(self.folder) if "." in n and not n.startswith(".")}
 
     def _current(self, key: str) -> int:
         """Highest existing generation of ``key`` (-1: none)."""
         gen = -1
-        while self._path(key, gen + 1).exists():
+        while self._exists(key, gen + 1):
             gen += 1
         # a holder removes its generation and the older ones: look a little past a gap
         for g in range(gen + 2, gen + 4):
-            if self._path(key, g).exists():
+            if self._exists(key, g):
                 return self._current_from(key, g)
         return gen
 
     def _current_from(self, key: str, gen: int) -> int:
-        while self._path(key, gen + 1).exists():
+        while self._exists(key, gen + 1):
             gen += 1
         return gen
 
@@ -102,14 +112,14 @@ class Claims:
             return None
         p = self._path(key, gen)
         try:
-            st = os.lstat(p)
+            mtime = self.store.mtime(p)
         except FileNotFoundError:
             return None
         # empty or cut short: being written by its claimer (it expires by its age if that died)
-        info = read_record(p, CLAIM, "batch claim", tolerate_partial=True)
+        info = read_record(p, CLAIM, "batch claim", tolerate_partial=True, store=self.store)
         if info is None:
             return None
-        info = dict(info, generation=gen, age_s=max(0.0, time.time() - st.st_mtime))
+        info = dict(info, generation=gen, age_s=max(0.0, time.time() - mtime))
         info["expired"] = self._expired(info)
         return info
 
@@ -131,12 +141,11 @@ class Claims:
                 if info is not None and info["generation"] == gen and not info["expired"]:
                     return None
             path = self._path(key, gen + 1)
+            me = dict(self._me, claimed_utc=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()))
             try:
-                fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+                self.store.create(path, json.dumps(me).encode("utf-8"))
             except FileExistsError:
                 continue
-            with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                json.dump(dict(self._me, claimed_utc=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())), fh)
             claim = Claim(key, path, gen + 1)
             self.held[key] = claim
             return claim
@@ -146,11 +155,10 @@ class Claims:
         """Refresh every held claim (its modification time), so it does not expire."""
         for c in list(self.held.values()):
             try:
-                os.utime(c.path)
+                self.store.touch(c.path)
             except FileNotFoundError:  # removed by hand: claim it again
                 try:
-                    fd = os.open(c.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
-                    os.close(fd)
+                    self.store.create(c.path, b"")
                 except OSError:
                     pass
             except OSError:
@@ -163,9 +171,7 @@ class Claims:
             return
         for g in range(c.generation, -1, -1):
             try:
-                self._path(key, g).unlink()
-            except FileNotFoundError:
-                pass
+                self.store.remove(self._path(key, g))
             except OSError:
                 break
 

@@ -21,6 +21,7 @@ from typing import Sequence
 
 from ..errors import BadInputError, OutputError
 from ._run import Item
+from ._store import check_remote_input, is_url, join, list_files, name_of, parent_of, read_input_bytes
 from .engines import Resources
 
 __all__ = ["transfer_items", "persona_items", "puppet_items", "read_pairs_csv", "pairs_from_folders",
@@ -42,6 +43,19 @@ def folder_settings(items: Sequence[Item]) -> dict:
     :func:`facetex.batch.run_batch`'s ``settings``)."""
     kind = items[0].kind
     return {"kind": kind, **{k: items[0].config.get(k) for k in _FOLDER_SETTINGS.get(kind, ())}}
+
+
+def memory_mb(kind: str, config: dict) -> float:
+    """The peak resident memory (MB) of one item of ``kind``, for Ray's ``memory=`` request.
+    Transfer, measured on one thread (2026-12-02; peak RSS of a fresh process): 520 MB at
+    ``--size`` 96, 578 at 256, 774 at 512, 789 with the default preset (a 384 px crop pasted
+    back at full resolution): about 510 + size² / 1000. Persona builds and puppet renders
+    depend on the photos and the clip: a first request of 1.5 GB, after which the run asks
+    for the largest peak it measured (see :func:`facetex.batch.engines.ray_task_options`)."""
+    if kind == "transfer":
+        size = config.get("size")
+        return 800.0 if not size else 510.0 + float(size) ** 2 / 1000.0
+    return 1500.0
 
 
 def item_key(*parts) -> str:
@@ -67,9 +81,13 @@ def _commit(files: dict, inputs=()) -> str | None:
 
 
 def _provenance(command: str, payload: dict, **kw) -> dict:
+    import sys
+
     from .._provenance import provenance
 
-    return provenance(command=command, argv=payload.get("argv"), batch=payload.get("batch"), **kw)
+    torch = sys.modules.get("torch")  # outputs are the same bytes for the same seeds and threads (README)
+    threads = torch.get_num_threads() if torch is not None else None
+    return provenance(command=command, argv=payload.get("argv"), batch=payload.get("batch"), threads=threads, **kw)
 
 
 # ------------------------------------------------------------------------------ transfer
@@ -101,9 +119,11 @@ def read_pairs_csv(path) -> list[dict]:
     folder. One-line errors name the file and line."""
     from ..io import check_input_file
 
-    path = check_input_file(path, BadInputError, what="pairs CSV file")
+    remote = is_url(path)
+    if not remote:
+        path = check_input_file(path, BadInputError, what="pairs CSV file")
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        text = read_input_bytes(str(path)).decode("utf-8-sig") if remote else path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
         raise BadInputError("not a UTF-8 text file: give a CSV file with columns content,style", path=path) from None
     reader = csv.DictReader(io.StringIO(text, newline=""))  # a quoted field may hold a line break
@@ -126,8 +146,13 @@ def read_pairs_csv(path) -> list[dict]:
         for k in ("content", "style"):
             if not r.get(k):
                 raise BadInputError(f"line {line}: the {k} image is missing", path=path)
+            if is_url(r[k]):
+                continue
             p = Path(r[k]).expanduser()
-            r[k] = str(p if p.is_absolute() else (path.parent / p))
+            if p.is_absolute():
+                r[k] = str(p)
+            else:  # relative to the CSV (a URL's folder too)
+                r[k] = join(parent_of(path), r[k]) if remote else str(path.parent / p)
         r["source"] = f"{path}:{line}"
         rows.append(r)
     if not rows:
@@ -135,14 +160,36 @@ def read_pairs_csv(path) -> list[dict]:
     return rows
 
 
-def _images(folder, what: str) -> list[Path]:
+def _folder_files(folder, what: str, exts: Sequence[str]) -> list[str]:
+    """The files of ``folder`` (a local folder or a URL) with one of ``exts``, not hidden, sorted."""
     from ..io import check_input_dir
 
-    d = check_input_dir(folder, BadInputError, what=what)
-    files = sorted(p for p in d.iterdir() if p.is_file() and p.suffix.lower() in _IMAGE_EXTS
-                   and not p.name.startswith("."))
+    if is_url(folder):
+        files = [u for u in list_files(str(folder)) if os.path.splitext(name_of(u))[1].lower() in exts
+                 and not name_of(u).startswith(".")]
+    else:
+        d = check_input_dir(folder, BadInputError, what=what)
+        files = sorted(str(p) for p in d.iterdir() if p.is_file() and p.suffix.lower() in exts
+                       and not p.name.startswith("."))
+    return files
+
+
+def _stem(path) -> str:
+    return os.path.splitext(name_of(path))[0]
+
+
+def _absolute(path) -> str:
+    return str(path) if is_url(path) else str(Path(path).resolve())
+
+
+def _output(out, name: str) -> str:
+    return join(str(out).rstrip("/"), name) if is_url(out) else str(Path(out).resolve() / name)
+
+
+def _images(folder, what: str) -> list[str]:
+    files = _folder_files(folder, what, _IMAGE_EXTS)
     if not files:
-        raise BadInputError(f"no images ({', '.join(_IMAGE_EXTS)}) in the {what}", path=d)
+        raise BadInputError(f"no images ({', '.join(_IMAGE_EXTS)}) in the {what}", path=folder)
     return files
 
 
@@ -151,7 +198,7 @@ def pairs_from_folders(contents, styles, pairs: int | str = "all", *, seed: int 
     with itself), or ``pairs`` of them ranked by a hash of the two names and ``seed`` (adding
     images keeps the other pairs' order)."""
     cs, ss = _images(contents, "contents folder"), _images(styles, "styles folder")
-    combos = [(c, s) for c in cs for s in ss if os.path.abspath(c) != os.path.abspath(s)]
+    combos = [(c, s) for c in cs for s in ss if _absolute(c) != _absolute(s)]
     if not combos:
         raise BadInputError("no (content, style) pair of two different images", path=contents)
     if pairs != "all":
@@ -160,10 +207,10 @@ def pairs_from_folders(contents, styles, pairs: int | str = "all", *, seed: int 
             raise BadInputError(f"--pairs must be 'all' or at least 1, not {pairs}")
 
         def rank(cs):
-            return hashlib.sha256(f"{int(seed)}\0{cs[0].name}\0{cs[1].name}".encode()).hexdigest()
+            return hashlib.sha256(f"{int(seed)}\0{name_of(cs[0])}\0{name_of(cs[1])}".encode()).hexdigest()
 
         combos = sorted(combos, key=rank)[:n]
-    return [{"content": str(c), "style": str(s), "source": f"{c.name} x {s.name}"} for c, s in combos]
+    return [{"content": str(c), "style": str(s), "source": f"{name_of(c)} x {name_of(s)}"} for c, s in combos]
 
 
 def transfer_items(rows: Sequence[dict], out, *, method: str = "facetex", preset: str = "default", seed: int = 0,
@@ -174,7 +221,6 @@ def transfer_items(rows: Sequence[dict], out, *, method: str = "facetex", preset
     from ..io import check_input_file
     from ..transfer.methods import METHODS, PRESETS
 
-    out = Path(out).resolve()
     items = []
     checked: set[str] = set()
     for r in rows:
@@ -192,20 +238,24 @@ def transfer_items(rows: Sequence[dict], out, *, method: str = "facetex", preset
         for k in ("content", "style"):
             if r[k] not in checked:
                 try:
-                    check_input_file(r[k], BadInputError, what=f"{k} image")
+                    if is_url(r[k]):
+                        check_remote_input(r[k], f"{k} image")
+                    else:
+                        check_input_file(r[k], BadInputError, what=f"{k} image")
                 except BadInputError as e:
                     raise type(e)(f"{e.message} ({where})" if where else e.message, path=e.path) from None
                 checked.add(r[k])
-        content, style = str(Path(r["content"]).resolve()), str(Path(r["style"]).resolve())
-        parts = [Path(content).stem, Path(style).stem, m] + ([pr] if pr != "default" else []) + \
+        content, style = _absolute(r["content"]), _absolute(r["style"])
+        parts = [_stem(content), _stem(style), m] + ([pr] if pr != "default" else []) + \
             ([f"seed{sd}"] if sd != 0 else [])
         key = item_key(*parts)
-        output = str(out / f"{key}.png")
+        output = _output(out, f"{key}.png")
         config = {"content": content, "style": style, "method": m, "preset": pr, "seed": sd, "size": size,
                   "iters": list(iters) if iters is not None else None, "device": device}
         payload = dict(config, output=output, argv=argv, source=where)
         items.append(Item(key, "transfer", run_transfer_item, payload, (output, f"{output}.json"), config,
-                          Resources(cpus=cpus or 0, gpus=1.0 if device.startswith("cuda") else 0.0),
+                          Resources(cpus=cpus or 0, gpus=1.0 if device.startswith("cuda") else 0.0,
+                                    memory_mb=memory_mb("transfer", config)),
                           inputs=(content, style)))
     return items
 
@@ -238,18 +288,18 @@ def persona_items(people_dir, out, *, min_photos: int = 10, allow_mixed: bool = 
     from ..io import check_input_dir
 
     root = check_input_dir(people_dir, BadInputError, what="people folder")
-    out = Path(out).resolve()
     items, ignored = [], []
     for d in sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith(".")):
         if not any(f.is_file() and f.suffix.lower() in _IMAGE_EXTS for f in d.iterdir()):
             ignored.append(d.name)
             continue
         key = item_key(d.name)
-        output = str(out / f"{key}.persona")
+        output = _output(out, f"{key}.persona")
         config = {"photo_dir": str(d.resolve()), "min_photos": int(min_photos), "allow_mixed": bool(allow_mixed)}
         payload = dict(config, output=output, jobs=cpus, argv=argv, source=str(d))
         items.append(Item(key, "persona", run_persona_item, payload, (output, f"{output}.json"), config,
-                          Resources(cpus=cpus or 0)))
+                          Resources(cpus=cpus or 0, memory_mb=memory_mb("persona", config)),
+                          inputs=(config["photo_dir"],)))
     if not items:
         raise BadInputError("no subfolder with photos: give a folder with one subfolder of photos per person",
                             path=root)
@@ -286,28 +336,22 @@ def puppet_items(drivers, puppets, out, *, size: int | None = None, mode: str = 
                  argv=None) -> list[Item]:
     """Items of ``facetex batch puppet``: every driver video of ``drivers`` with every
     ``.persona`` of ``puppets`` -> ``OUT/<driver>__<puppet>.mp4``."""
-    from ..io import check_input_dir
-
-    ddir = check_input_dir(drivers, BadInputError, what="drivers folder")
-    pdir = check_input_dir(puppets, BadInputError, what="puppets folder")
-    clips = sorted(f for f in ddir.iterdir() if f.is_file() and f.suffix.lower() in DRIVER_EXTENSIONS
-                   and not f.name.startswith("."))
+    clips = _folder_files(drivers, "drivers folder", DRIVER_EXTENSIONS)
     if not clips:
-        raise BadInputError(f"no driver videos ({', '.join(DRIVER_EXTENSIONS)})", path=ddir)
-    personas = sorted(f for f in pdir.iterdir() if f.is_file() and f.suffix.lower() == ".persona"
-                      and not f.name.startswith("."))
+        raise BadInputError(f"no driver videos ({', '.join(DRIVER_EXTENSIONS)})", path=drivers)
+    personas = _folder_files(puppets, "puppets folder", (".persona",))
     if not personas:
-        raise BadInputError("no .persona files (build them with `facetex batch persona`)", path=pdir)
-    out = Path(out).resolve()
+        raise BadInputError("no .persona files (build them with `facetex batch persona`)", path=puppets)
     items = []
     for c in clips:
         for pp in personas:
-            key = item_key(c.stem, pp.stem)
-            output = str(out / f"{key}.mp4")
-            config = {"driver": str(c.resolve()), "puppet": str(pp.resolve()), "size": size, "mode": mode,
+            key = item_key(_stem(c), _stem(pp))
+            output = _output(out, f"{key}.mp4")
+            config = {"driver": _absolute(c), "puppet": _absolute(pp), "size": size, "mode": mode,
                       "side_by_side": bool(side_by_side), "lighting": lighting, "texture": texture,
                       "weights": weights, "max_frames": max_frames}
-            payload = dict(config, output=output, argv=argv, source=f"{c.name} x {pp.name}")
+            payload = dict(config, output=output, argv=argv, source=f"{name_of(c)} x {name_of(pp)}")
             items.append(Item(key, "puppet", run_puppet_item, payload, (output, f"{output}.json"), config,
-                              Resources(cpus=cpus or 0), inputs=(config["driver"], config["puppet"])))
+                              Resources(cpus=cpus or 0, memory_mb=memory_mb("puppet", config)),
+                              inputs=(config["driver"], config["puppet"])))
     return items

@@ -21,9 +21,10 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
 from ..errors import BadInputError, OutputError
-from ..io import check_output_path, read_regular, write_json
+from ..io import check_output_path
 from ._claims import Claims
 from ._state import BatchState, config_hash, utc_now
+from ._store import STAGED_FN, Store, is_url, name_of, parent_of, run_staged_item, store_for
 from .engines import Engine, Outcome, Resources
 
 __all__ = ["Item", "BatchSummary", "run_batch", "map_items", "remove_item_temporaries", "run_tag"]
@@ -88,12 +89,15 @@ def run_tag(run: str) -> str:
     return hashlib.sha256(run.encode("utf-8")).hexdigest()[:12]
 
 
-def remove_item_temporaries(folder: Path, key: str, tags: Iterable[str]) -> list[Path]:
+def remove_item_temporaries(folder, key: str, tags: Iterable[str]) -> list[Path]:
     """Remove the temporary files that an interrupted or killed item of the runs tagged ``tags``
     left in ``folder``: a batch worker's atomic writers name them ``.<output name>.<tag>.<random>
     <ext>`` (a writer nested in another ``..<output name>.<tag>...``), and item keys contain no
-    dots. Anything else (a user's ``.<output name>.notes``) is not ours and stays."""
-    removed = []
+    dots. Anything else (a user's ``.<output name>.notes``) is not ours and stays. Object
+    storage has none (a worker uploads whole objects)."""
+    removed: list[Path] = []
+    if is_url(folder):
+        return removed
     prefix = f"{key}."
     marks = [f".{t}." for t in tags if t]
     try:
@@ -111,44 +115,62 @@ def remove_item_temporaries(folder: Path, key: str, tags: Iterable[str]) -> list
     return removed
 
 
-def _outputs_exist(item: Item) -> list[bool]:
-    return [os.path.lexists(p) for p in item.outputs]
+class _Outputs:
+    """Which outputs exist: one listing of the output folder at the start (10 000 items on
+    object storage: a few list requests, not 20 000), single checks afterwards."""
+
+    def __init__(self, store: Store, out: str):
+        self.store = store
+        self.out = self._key(out)
+        self.listed = store.names(out)
+
+    def _key(self, folder) -> str:
+        return str(folder).rstrip("/") if self.store.remote else os.path.realpath(folder)
+
+    def initial(self, it: Item) -> list[bool]:
+        return [name_of(p) in self.listed if self._key(parent_of(p)) == self.out else self.store.exists(p)
+                for p in it.outputs]
+
+    def now(self, it: Item) -> list[bool]:
+        return [self.store.exists(p) for p in it.outputs]
 
 
-def _made_by_batch(sidecar: str, key: str) -> bool:
+def _made_by_batch(sidecar: str, key: str, store: Store | None = None) -> bool:
     """Whether ``sidecar`` is a batch item ``key``'s sidecar (a regular file whose provenance
     names the item): the only half of an item a run may remove. Batch workers commit the
     sidecar first, so a commit cut short leaves exactly that."""
     try:
-        record = json.loads(read_regular(sidecar, limit=16 * 2**20))
+        record = json.loads((store or store_for(sidecar)).read(sidecar, limit=16 * 2**20))
     except (OSError, ValueError):
         return False
     batch = record.get("batch") if isinstance(record, dict) else None
     return isinstance(batch, dict) and batch.get("item") == key
 
 
-def _check_not_users(it: Item) -> None:
+def _check_not_users(it: Item, exists: list[bool], store: Store) -> None:
     """Refuse (before any work) an unfinished item whose output names hold files the batch did
     not make: an output without its sidecar, a sidecar that is not this item's."""
-    exists = _outputs_exist(it)
     if all(exists) or not any(exists):
         return
     *outputs, sidecar = it.outputs
     for p, e in zip(outputs, exists):
         if e:
-            raise OutputError(f"exists without its sidecar {Path(sidecar).name}, so this batch did not make it and "
+            raise OutputError(f"exists without its sidecar {name_of(sidecar)}, so this batch did not make it and "
                               "will not replace it: move it away, or choose another --out", path=p)
-    if not _made_by_batch(sidecar, it.key):
-        raise OutputError(f"exists without {Path(outputs[0]).name} and is not that batch item's sidecar: "
+    if not _made_by_batch(sidecar, it.key, store):
+        raise OutputError(f"exists without {name_of(outputs[0])} and is not that batch item's sidecar: "
                           "move it away, or choose another --out", path=sidecar)
 
 
 def _check_inputs_not_outputs(items: Sequence[Item]) -> None:
     """No item may write a file another item reads (``--out .`` beside the inputs)."""
-    writers = {os.path.realpath(p): it for it in items for p in it.outputs}
+    def real(p):
+        return str(p).rstrip("/") if is_url(p) else os.path.realpath(p)
+
+    writers = {real(p): it for it in items for p in it.outputs}
     for it in items:
         for p in it.inputs:
-            other = writers.get(os.path.realpath(p))
+            other = writers.get(real(p))
             if other is not None:
                 where = f" ({it.payload['source']})" if it.payload.get("source") else ""
                 raise BadInputError(f"is an input{where} and also the output of item {other.key}: choose another "
@@ -181,26 +203,34 @@ def _record_folder_settings(state: BatchState, new: dict) -> None:
     """Record ``new`` as the folder's settings; of two runs starting at once one records (an
     exclusive create), the other is checked against it."""
     try:
-        write_json(state.settings_path, new, overwrite=False)
-    except OutputError:
-        if not os.path.lexists(state.settings_path):
-            raise
-        _check_folder_settings(state, new)
+        if state.record_settings(new):
+            return
+    except OSError as e:
+        raise OutputError(f"cannot record the batch settings ({e.strerror or e})", path=state.settings_path) \
+            from None
+    _check_folder_settings(state, new)
+
+
+def _staged(it: Item, payload: dict) -> tuple[Callable, dict]:
+    """The function and payload of an item whose output is a URL: :func:`run_staged_item`
+    fetches its remote inputs, runs ``it.fn`` on local files and uploads the outputs."""
+    remote = [k for k, v in payload.items() if isinstance(v, str) and v in it.inputs and is_url(v)]
+    return run_staged_item, dict(payload, **{STAGED_FN: it.fn, "_remote_inputs": remote})
 
 
 def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool = False, max_retries: int = 2,
               claim_timeout: float = 300.0, progress: Callable[..., None] | None = None, poll: float = 1.0,
               record: dict | None = None, wait_for_others: bool = True, settings: dict | None = None) -> BatchSummary:
-    """Run ``items`` on ``engine`` (started by the caller), with ``out`` as the shared state
-    (see the module docstring and :mod:`facetex.batch._state`). ``progress(**counts)`` is
-    called after every change with the counts done, failed, remaining, running, waiting (items
-    another run is computing) and done_elsewhere.
+    """Run ``items`` on ``engine`` (started by the caller), with ``out`` (a folder or an fsspec
+    URL) as the shared state (see the module docstring and :mod:`facetex.batch._state`).
+    ``progress(**counts)`` is called after every change with the counts done, failed,
+    remaining, running, waiting (items another run is computing) and done_elsewhere.
     ``record``: extra fields for the run's record (command line, settings). ``settings``: what
     every item shares and no output name shows (``--size`` ...); the folder keeps the first
     run's, and a run with others is refused. Returns the summary; raises OutputError before
     any work when the folder's settings differ or a finished item was made with other
     settings, and re-raises KeyboardInterrupt after cleaning up."""
-    out = Path(out)
+    out = str(out).rstrip("/") if is_url(out) else str(Path(out))
     items = list(items)
     seen: dict[str, Item] = {}
     for it in items:
@@ -211,30 +241,39 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
             raise BadInputError(f"item key {it.key!r} contains a dot")
         seen[it.key] = it
     _check_inputs_not_outputs(items)
-    state = BatchState(out)
-    claims = Claims(state.claims, timeout=claim_timeout)
+    store = store_for(out)
+    state = BatchState(out, store)
+    claims = Claims(state.claims, timeout=claim_timeout, store=store)
     tag = run_tag(claims.run)
-    summary = BatchSummary(run=claims.run, out=str(out), manifest=str(state.manifest), engine=engine.describe(),
+    summary = BatchSummary(run=claims.run, out=out, manifest=str(state.manifest), engine=engine.describe(),
                            total=len(items))
     hashes = {it.key: config_hash(it.config) for it in items}
     t_start = time.perf_counter()
 
-    # -- what is left to do (checked before any work)
+    # -- what is left to do (checked before any work): one listing each of the outputs, the
+    # records, the claims, and one read of the manifest
+    outputs = _Outputs(store, out)
+    last = state.read_manifest()
+    recorded = state.recorded()
+    claimed = claims.claimed()
     todo: deque[Item] = deque()
-    known: dict[str, dict] = {}
-    found: list[Item] = []  # finished items without a record (lost): recorded once the checks pass
+    new: list[Item] = []  # items the manifest has never listed: "pending" lines
+    found: list[Item] = []  # finished items the manifest does not list as done: recorded once the checks pass
     clashes = []
     for it in items:
-        rec = state.get(it.key)
-        exists = _outputs_exist(it)
-        if rec is not None and rec.get("config_hash") not in (None, hashes[it.key]) and (
-                rec.get("state") == "done" or all(exists)):
-            clashes.append((it, rec))
+        rec = state.get(it.key) if it.key in recorded else None
+        line = last.get(it.key)
+        exists = outputs.initial(it)
+        done_by = rec if rec is not None and rec.get("state") == "done" else \
+            line if line is not None and line.get("state") == "done" else None
+        if done_by is not None and done_by.get("config_hash") not in (None, hashes[it.key]) and all(exists):
+            clashes.append((it, done_by))
             continue
-        holder = claims.holder(it.key)  # also: a claim file of the wrong shape is refused before any work
-        if all(exists) and ((rec is not None and rec.get("state") == "done") or holder is None or holder["expired"]):
+        # also: a claim file of the wrong shape is refused before any work
+        holder = claims.holder(it.key) if it.key in claimed else None
+        if all(exists) and (done_by is not None or holder is None or holder["expired"]):
             summary.skipped_done += 1
-            if rec is None or rec.get("state") != "done":
+            if line is None or line.get("state") != "done":
                 found.append(it)
             continue
         if rec is not None and rec.get("state") == "failed" and not retry_failed and \
@@ -242,30 +281,39 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
             summary.skipped_failed += 1
             summary.failures.append((it.key, rec.get("error")))
             continue
-        _check_not_users(it)
+        _check_not_users(it, exists, store)
         todo.append(it)
-        if rec is None:
-            known[it.key] = {"kind": it.kind, "state": "pending"}
+        if line is None:
+            new.append(it)
     if settings is not None:
         settings = json.loads(json.dumps(settings, sort_keys=True, default=str))  # as it is stored
-        recorded = _check_folder_settings(state, settings)
+        recorded_settings = _check_folder_settings(state, settings)
     if clashes:
         it, rec = clashes[0]
         raise OutputError(f"holds {len(clashes)} item(s) made with other settings (e.g. {it.key}: "
                           f"{_describe_settings_change(rec.get('config'), it.config)}): choose another --out, or "
                           "remove those outputs", path=out)
-    check_output_path(state.manifest, overwrite=True)  # a folder or FIFO of that name: refused before any work
+    if not store.remote:
+        check_output_path(state.manifest, overwrite=True)  # a folder or FIFO of that name: refused before any work
     state.create()
-    if settings is not None and not recorded:
+    if store.remote:
+        store.check_exclusive(state.root)
+    if settings is not None and not recorded_settings:
         _record_folder_settings(state, settings)
     for it in found:
-        state.put(it.key, {"kind": it.kind, "state": "done", "config_hash": hashes[it.key],
-                           "outputs": list(it.outputs), "host": None, "note": "outputs found"})
+        state.log(it.key, {"kind": it.kind, "state": "done", "config_hash": hashes[it.key], "config": it.config,
+                           "outputs": list(it.outputs), "run": claims.run, "note": "outputs found"})
+        if it.key in recorded:  # a failure of before, done since (by a run that lost its manifest line)
+            state.remove(it.key)
+            recorded.discard(it.key)
+    for it in new:
+        state.log(it.key, {"kind": it.kind, "state": "pending", "run": claims.run})
 
     running: dict[int, dict] = {}  # handle -> {item, attempt, submitted}
     elsewhere: dict[str, Item] = {}  # claimed by another run
     attempts: dict[str, int] = {}
     heartbeat_every = max(1.0, min(30.0, claim_timeout / 5.0))
+    flush_every = 10.0 if store.remote else 0.0  # object storage rewrites the object on append
     last_beat = last_look = time.monotonic()
 
     def report():
@@ -275,26 +323,29 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
                      running=len(running), waiting=len(elsewhere), done_elsewhere=summary.done_elsewhere)
 
     def base(it: Item) -> dict:
-        return {"kind": it.kind, "config_hash": hashes[it.key], "config": it.config, "run": claims.run,
-                "outputs": list(it.outputs), "attempts": attempts.get(it.key, 0)}
+        return {"kind": it.kind, "config_hash": hashes[it.key], "run": claims.run, "outputs": list(it.outputs),
+                "attempts": attempts.get(it.key, 0)}
 
     def start(it: Item) -> None:
         attempts[it.key] = attempts.get(it.key, 0) + 1
-        folder = Path(it.outputs[0]).parent
-        rec = state.get(it.key)  # the run that held the item last (killed?) left its temporaries
-        remove_item_temporaries(folder, it.key, {tag, run_tag(str(rec.get("run")))} if rec else {tag})
+        folder = parent_of(it.outputs[0])
+        rec = state.get(it.key) if it.key in recorded else None
+        before = {str((rec or {}).get("run")), str((last.get(it.key) or {}).get("run"))}
+        remove_item_temporaries(folder, it.key, {tag, *(run_tag(r) for r in before if r != "None")})
         sidecar = it.outputs[-1]
-        if not any(_outputs_exist(it)[:-1]) and _made_by_batch(sidecar, it.key):
+        if not any(store.exists(p) for p in it.outputs[:-1]) and _made_by_batch(sidecar, it.key, store):
             try:  # a commit cut short (killed between its renames): never half an item
-                os.unlink(sidecar)
+                store.remove(sidecar)
             except OSError:
                 pass
         payload = dict(it.payload, batch={"run": claims.run, "item": it.key, "attempt": attempts[it.key],
                                           "engine": engine.name, "tag": tag})
-        h = engine.submit(it.fn, payload, it.resources)
+        fn = it.fn
+        if store.remote:
+            fn, payload = _staged(it, payload)
+        h = engine.submit(fn, payload, it.resources)
         running[h] = {"item": it, "submitted": time.time()}
-        state.put(it.key, dict(base(it), state="running", host=_HOST, pid=os.getpid(), started=utc_now(),
-                               worker_pid=engine.worker_pid(h)))
+        state.log(it.key, dict(base(it), state="running", host=_HOST, worker_pid=engine.worker_pid(h)))
 
     def fill() -> None:
         while todo and len(running) < engine.slots:
@@ -302,18 +353,20 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
             if claims.acquire(it.key) is None:
                 elsewhere[it.key] = it
                 continue
-            rec = state.get(it.key)  # re-read under the claim: another run may have finished it
-            if rec is not None and rec.get("config_hash") == hashes[it.key]:
-                if rec.get("state") == "done" and all(_outputs_exist(it)):
-                    claims.release(it.key)
-                    summary.done_elsewhere += 1
-                    continue
-                if rec.get("state") == "failed" and rec.get("run") != claims.run and not retry_failed \
-                        and it.key not in attempts:
-                    claims.release(it.key)
-                    summary.failed_elsewhere += 1
-                    summary.failures_elsewhere.append((it.key, rec.get("run"), rec.get("error")))
-                    continue
+            # re-checked under the claim: another run may have finished it
+            if all(outputs.now(it)):
+                claims.release(it.key)
+                summary.done_elsewhere += 1
+                continue
+            rec = state.get(it.key)
+            if rec is not None and rec.get("config_hash") == hashes[it.key] and rec.get("state") == "failed" \
+                    and rec.get("run") != claims.run and not retry_failed and it.key not in attempts:
+                claims.release(it.key)
+                summary.failed_elsewhere += 1
+                summary.failures_elsewhere.append((it.key, rec.get("run"), rec.get("error")))
+                continue
+            if rec is not None:
+                recorded.add(it.key)
             start(it)
 
     def finish(o: Outcome) -> None:
@@ -323,9 +376,12 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
         host = stats.get("host", _HOST)
         if o.ok:
             value = o.value if isinstance(o.value, dict) else {}
-            state.put(it.key, dict(base(it), state="done", host=host, worker_pid=stats.get("pid"),
+            if it.key in recorded:  # a failure of before: the outputs say "done" now
+                state.remove(it.key)
+                recorded.discard(it.key)
+            state.log(it.key, dict(base(it), state="done", host=host, worker_pid=stats.get("pid"),
                                    seconds=stats.get("seconds"), peak_rss_mb=stats.get("peak_rss_mb"),
-                                   note=value.get("note")))
+                                   threads=stats.get("threads"), config=it.config, note=value.get("note")))
             claims.release(it.key)
             if value.get("note") == "written by another run":
                 summary.done_elsewhere += 1
@@ -337,17 +393,20 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
                                            "overhead_s": wall - (stats.get("seconds") or 0.0), "host": host,
                                            "pid": stats.get("pid"), "peak_rss_mb": stats.get("peak_rss_mb")})
             return
-        remove_item_temporaries(Path(it.outputs[0]).parent, it.key, [tag])
+        remove_item_temporaries(parent_of(it.outputs[0]), it.key, [tag])
         if o.died and attempts.get(it.key, 0) <= max_retries:
             summary.retried += 1
-            state.put(it.key, dict(base(it), state="pending", host=host, error=f"retrying: {o.error}"))
+            state.log(it.key, dict(base(it), state="pending", host=host, error=f"retrying: {o.error}"))
             start(it)  # the claim is still ours
             return
         error = o.error or "failed"
         if o.died:
             error = f"{error} (attempt {attempts.get(it.key, 1)} of {max_retries + 1})"
-        state.put(it.key, dict(base(it), state="failed", host=host, error=error, error_type=o.error_type,
-                               worker_pid=stats.get("pid")))
+        failure = dict(base(it), state="failed", host=host, error=error, error_type=o.error_type,
+                       worker_pid=stats.get("pid"), config=it.config)
+        state.put(it.key, failure)
+        recorded.add(it.key)
+        state.log(it.key, failure)
         claims.release(it.key)
         summary.failed += 1
         summary.failures.append((it.key, error))
@@ -355,25 +414,26 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
     def look_elsewhere() -> None:
         for key in list(elsewhere):
             it = elsewhere[key]
-            rec = state.get(key)
-            if rec is not None and rec.get("state") in ("done", "failed") and claims.holder(key) is None:
-                del elsewhere[key]
-                if rec["state"] == "done" and all(_outputs_exist(it)):
-                    summary.done_elsewhere += 1
-                elif rec["state"] == "failed" and not (retry_failed and rec.get("run") == claims.run):
+            info = claims.holder(key)
+            if info is not None and not info["expired"]:
+                continue
+            del elsewhere[key]
+            if info is not None:  # its run died: ours now
+                todo.appendleft(it)
+            elif all(outputs.now(it)):
+                summary.done_elsewhere += 1
+            else:
+                rec = state.get(key)
+                if rec is not None and rec.get("state") == "failed" and \
+                        not (retry_failed and rec.get("run") == claims.run):
                     summary.failed_elsewhere += 1
                     summary.failures_elsewhere.append((key, rec.get("run"), rec.get("error")))
                 else:
                     todo.append(it)
-                continue
-            info = claims.holder(key)
-            if info is None or info["expired"]:
-                del elsewhere[key]
-                todo.appendleft(it)
 
     try:
         report()
-        state.write_manifest(known)
+        state.flush()
         while todo or running or elsewhere:
             fill()
             report()
@@ -392,27 +452,24 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
             if elsewhere and now - last_look >= max(poll, 2.0):
                 look_elsewhere()
                 last_look = now
-            state.write_manifest(known, every=2.0)
+            state.flush(every=flush_every)
     except BaseException:
         engine.cancel()
         for entry in running.values():
             it = entry["item"]
-            remove_item_temporaries(Path(it.outputs[0]).parent, it.key, [tag])
-            try:
-                state.put(it.key, dict(base(it), state="pending", host=_HOST, error="interrupted"))
-            except OSError:
-                pass
+            remove_item_temporaries(parent_of(it.outputs[0]), it.key, [tag])
+            state.log(it.key, dict(base(it), state="pending", host=_HOST, error="interrupted"))
         summary.remaining = len(todo) + len(running) + len(elsewhere)
         claims.release_all()
         try:
-            state.write_manifest(known)
-        except OSError:
+            state.flush()
+        except (OSError, OutputError):
             pass
         raise
     finally:
         summary.seconds = time.perf_counter() - t_start
     summary.remaining = len(todo) + len(elsewhere)
-    state.write_manifest(known)
+    state.flush()
     state.write_run(claims.run, {**(record or {}), "run": claims.run, "host": _HOST, "pid": os.getpid(),
                                  "finished_utc": utc_now(), "summary": summary.as_dict(),
                                  "items": summary.item_stats})

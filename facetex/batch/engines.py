@@ -37,7 +37,7 @@ from .._parallel import available_cpus
 from ..errors import BadInputError, FacetexError
 
 __all__ = ["Resources", "Outcome", "Engine", "InlineEngine", "LocalEngine", "RayEngine", "EngineError",
-           "make_engine", "ENGINES", "execute"]
+           "make_engine", "ENGINES", "execute", "ray_task_options", "MEMORY_MARGIN"]
 
 ENGINES = ("local", "ray")
 _THREAD_ENV = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
@@ -50,11 +50,54 @@ class EngineError(FacetexError):
 
 @dataclass(frozen=True)
 class Resources:
-    """What one item needs: CPUs (also its torch thread budget) and GPUs (Ray schedules it on
-    a node that has them)."""
+    """What one item needs: CPUs (also its torch thread budget), GPUs (Ray schedules it on a
+    node that has them) and memory in MB (its measured peak; Ray puts no more items on a node
+    than its memory holds; 0: no request)."""
 
     cpus: int = 1
     gpus: float = 0.0
+    memory_mb: float = 0.0
+
+
+MEMORY_MARGIN = 1.25  # Ray requests: the measured peak of an item times this
+
+
+def ray_task_options(resources: Resources, *, cpus_per_item: int = 1, gpus_per_item: float = 0.0,
+                     observed_mb: float | None = None, node_memory_mb: float | None = None,
+                     name: str = "item") -> dict:
+    """The options of one item's Ray task (``remote_fn.options(**...)``).
+
+    Parameters
+    ----------
+    resources : Resources
+        What the item says it needs (its kind's measured peak memory, its CPUs and GPUs).
+    cpus_per_item, gpus_per_item : int, float
+        The engine's defaults where ``resources`` gives none.
+    observed_mb : float, optional
+        The largest peak resident memory (MB) measured so far for items of this function on
+        this cluster: the request grows to :data:`MEMORY_MARGIN` times it when that is more.
+    node_memory_mb : float, optional
+        Ray's memory resource of the largest node: a request is capped there (Ray would wait
+        forever for a node that large).
+    name : str
+        The task's name (shown in Ray's dashboard).
+
+    Returns
+    -------
+    dict
+        ``num_cpus``, ``num_gpus``, ``memory`` (bytes; absent when nothing is known),
+        ``max_retries=0`` and ``retry_exceptions=False`` (the batch retries dead workers
+        itself) and ``name``.
+    """
+    cpus = max(1, int(resources.cpus or cpus_per_item))
+    opts: dict[str, Any] = {"num_cpus": cpus, "num_gpus": float(resources.gpus or gpus_per_item),
+                            "max_retries": 0, "retry_exceptions": False, "name": f"facetex:{name}"}
+    mb = max(float(resources.memory_mb or 0.0), MEMORY_MARGIN * float(observed_mb or 0.0))
+    if node_memory_mb:
+        mb = min(mb, float(node_memory_mb))
+    if mb > 0:
+        opts["memory"] = int(mb * 2**20)
+    return opts
 
 
 @dataclass
@@ -121,7 +164,7 @@ def execute(fn: Callable, payload: Any, threads: int) -> tuple:
     if ok and "torch" in sys.modules:
         _set_threads(threads)  # the item imported torch: keep the budget for the next item too
     stats = {"host": socket.gethostname(), "pid": os.getpid(), "seconds": time.perf_counter() - t0,
-             "peak_rss_mb": _peak_rss_mb()}
+             "peak_rss_mb": _peak_rss_mb(), "threads": int(threads)}
     return ok, value, etype, stats
 
 
@@ -421,6 +464,12 @@ class LocalEngine(Engine):
 
 
 # ------------------------------------------------------------------------------------ Ray
+def _fn_name(fn, payload) -> str:
+    """The item function's name (a staged item's inner function: its memory is what counts)."""
+    inner = payload.get("_staged_fn") if isinstance(payload, dict) else None
+    return getattr(inner or fn, "__name__", "item")
+
+
 def _ray_task(fn, payload, threads):
     """A Ray task: the same :func:`execute` the local workers run."""
     return execute(fn, payload, threads)
@@ -448,18 +497,25 @@ class RayEngine(Engine):
     "HOST:PORT" (its GCS), "ray://HOST:PORT" (Ray client), or None: a local Ray started here
     with ``num_cpus`` CPUs (default the available CPUs) and stopped at ``close()``. A Ray
     already initialised in this process (``ray.init`` by the caller) is used as it is.
-    ``jobs``: items in flight at once (default: the cluster's CPUs // ``cpus_per_item``)."""
+    ``jobs``: items in flight at once (default: the cluster's CPUs // ``cpus_per_item``).
+    Each task asks for its item's CPUs, GPUs and memory (:func:`ray_task_options`: the kind's
+    measured peak, raised to the largest peak measured in this run). ``runtime_env``: Ray's
+    runtime environment of the job (``working_dir``, ``pip``, ``env_vars``), so that nodes need
+    no manual install."""
 
     name = "ray"
 
     def __init__(self, address: str | None = None, *, jobs: int | None = None, cpus_per_item: int = 1,
-                 gpus_per_item: float = 0.0, num_cpus: int | None = None):
+                 gpus_per_item: float = 0.0, num_cpus: int | None = None, runtime_env: dict | None = None):
         self.address = address
         self.jobs = jobs
         self.cpus_per_item = max(1, int(cpus_per_item))
         self.gpus_per_item = float(gpus_per_item)
         self.num_cpus = num_cpus
+        self.runtime_env = runtime_env
         self.slots = jobs or 1
+        self._observed_mb: dict[str, float] = {}  # per item function: the largest peak RSS measured
+        self._node_memory_mb: float | None = None
         self._owned = False
         self._refs: dict = {}  # ObjectRef -> (handle, submitted)
         self._ids = itertools.count()
@@ -469,7 +525,9 @@ class RayEngine(Engine):
 
     def describe(self) -> dict:
         d = {"engine": self.name, "address": self.address or "local (started by facetex)", "slots": self.slots,
-             "cpus_per_item": self.cpus_per_item, "gpus_per_item": self.gpus_per_item}
+             "cpus_per_item": self.cpus_per_item, "gpus_per_item": self.gpus_per_item,
+             "memory_request": f"the item kind's measured peak, or {MEMORY_MARGIN} x the largest measured in the run",
+             "runtime_env": sorted(self.runtime_env) if self.runtime_env else None}
         if self._ray is not None and self._ray.is_initialized():
             try:
                 res = self._ray.cluster_resources()
@@ -494,6 +552,8 @@ class RayEngine(Engine):
             try:
                 # Ray's start-up notices (token set-up, signal handlers) are not the user's concern
                 kw: dict[str, Any] = {"logging_level": logging.ERROR, "log_to_driver": False}
+                if self.runtime_env:
+                    kw["runtime_env"] = self.runtime_env
                 if self.address:
                     ray.init(address=self.address, **kw)
                 else:
@@ -520,29 +580,34 @@ class RayEngine(Engine):
             raise EngineError(f"the Ray cluster has {cpus:g} CPUs, fewer than --cpus-per-item {self.cpus_per_item}")
         self.slots = int(self.jobs or max(1, int(cpus // self.cpus_per_item)))
         try:
-            self._node_cpus = max(float(n.get("Resources", {}).get("CPU", 0.0)) for n in ray.nodes() if n.get("Alive"))
+            alive = [n.get("Resources", {}) for n in ray.nodes() if n.get("Alive")]
+            self._node_cpus = max(float(r.get("CPU", 0.0)) for r in alive)
+            self._node_memory_mb = max(float(r.get("memory", 0.0)) for r in alive) / 2**20 or None
         except (ValueError, Exception):  # noqa: BLE001 - unknown: let Ray decide
-            self._node_cpus = None
+            self._node_cpus = self._node_memory_mb = None
         self._remote = ray.remote(_ray_task)
         return self
 
     def submit(self, fn, payload, resources=Resources()) -> int:
         if self._remote is None:
             self.start()
-        cpus = max(1, int(resources.cpus or self.cpus_per_item))
-        gpus = float(resources.gpus or self.gpus_per_item)
+        fname = _fn_name(fn, payload)
+        opts = ray_task_options(resources, cpus_per_item=self.cpus_per_item, gpus_per_item=self.gpus_per_item,
+                                observed_mb=self._observed_mb.get(fname), node_memory_mb=self._node_memory_mb,
+                                name=fname)
+        cpus = opts["num_cpus"]
         if self._node_cpus is not None and cpus > self._node_cpus:  # Ray would wait for such a node forever
             raise EngineError(f"an item needs {cpus} CPUs but the largest node of the Ray cluster has "
                               f"{self._node_cpus:g}: ask for fewer (--cpus-per-item / --jobs)")
         h = next(self._ids)
         try:
-            ref = self._remote.options(num_cpus=cpus, num_gpus=gpus, max_retries=0, retry_exceptions=False,
-                                       name=f"facetex:{getattr(fn, '__name__', 'item')}").remote(fn, payload, cpus)
+            ref = self._remote.options(**opts).remote(fn, payload, cpus)
         except Exception as e:  # noqa: BLE001 - Ray client errors come in many kinds
             hint = " (is the same facetex installed on the cluster?)" if "ModuleNotFound" in str(e) else ""
             raise EngineError(f"the Ray cluster at {self.address or 'local'} did not take the task: "
                               f"{_one_line(str(e), 300)}{hint}") from None
-        self._refs[ref] = (h, time.time())
+        self._refs[ref] = (h, time.time(), fname)
+        self.last_options = opts
         return h
 
     def pending(self) -> int:
@@ -562,9 +627,13 @@ class RayEngine(Engine):
             time.sleep(0.02)
         out = []
         for ref in ready:
-            h, submitted = self._refs.pop(ref)
+            h, submitted, fname = self._refs.pop(ref)
             try:
-                out.append(_outcome(h, ray.get(ref), submitted))
+                o = _outcome(h, ray.get(ref), submitted)
+                peak = o.stats.get("peak_rss_mb")
+                if isinstance(peak, (int, float)) and peak == peak:  # the next items of this kind ask for as much
+                    self._observed_mb[fname] = max(self._observed_mb.get(fname, 0.0), float(peak))
+                out.append(o)
             except ray.exceptions.TaskCancelledError:
                 out.append(Outcome(h, False, error="cancelled", error_type="Cancelled",
                                    stats={"submitted": submitted, "returned": time.time()}))
@@ -612,7 +681,8 @@ class RayEngine(Engine):
 
 
 def make_engine(name: str = "local", *, jobs: int | None = None, address: str | None = None,
-                cpus_per_item: int | None = None, device: str = "cpu", inline_single: bool = False) -> Engine:
+                cpus_per_item: int | None = None, device: str = "cpu", inline_single: bool = False,
+                runtime_env: dict | None = None) -> Engine:
     """The engine of ``--engine NAME``. ``local``: ``jobs`` workers (default the available
     CPUs), ``cpus_per_item`` threads each (default ``cpus // jobs``); with ``inline_single`` and
     one job, items run in this process (the benches' old sequential behaviour). ``ray``: see
@@ -620,10 +690,12 @@ def make_engine(name: str = "local", *, jobs: int | None = None, address: str | 
     if name == "local":
         if address:
             raise BadInputError("--address is for --engine ray")
+        if runtime_env:
+            raise BadInputError("--runtime-env is for --engine ray")
         if inline_single and (jobs or available_cpus()) == 1 and jobs is not None:
             return InlineEngine()
         return LocalEngine(jobs, threads=cpus_per_item)
     if name == "ray":
         return RayEngine(address, jobs=jobs, cpus_per_item=cpus_per_item or 1,
-                         gpus_per_item=1.0 if str(device).startswith("cuda") else 0.0)
+                         gpus_per_item=1.0 if str(device).startswith("cuda") else 0.0, runtime_env=runtime_env)
     raise BadInputError(f"unknown engine {name!r}: use one of {', '.join(ENGINES)}")

@@ -186,7 +186,7 @@ def progress_bar(total: int | None = None, desc: str = "", unit: str = "it", *, 
 
 
 def add_engine_options(parser: argparse.ArgumentParser, *, jobs: bool = True, jobs_default: int | None = None,
-                       jobs_help: str | None = None) -> None:
+                       jobs_help: str | None = None, cpus_help: str | None = None) -> None:
     """``--engine local|ray``, ``--jobs N``, ``--address``, ``--cpus-per-item``: where the items of
     a batch or a benchmark run (see :mod:`facetex.batch.engines`)."""
     g = parser.add_argument_group("engine (where the items run)")
@@ -200,8 +200,36 @@ def add_engine_options(parser: argparse.ArgumentParser, *, jobs: bool = True, jo
     g.add_argument("--address", metavar="ADDR",
                    help="--engine ray: the cluster, auto | HOST:PORT | ray://HOST:PORT (default: start a local Ray "
                         "on this machine, stopped at the end)")
+    g.add_argument("--runtime-env", type=runtime_env, metavar="JSON|FILE",
+                   help="--engine ray: Ray's runtime environment of the job, a JSON object or a .json file "
+                        "(e.g. '{\"pip\": [\"facetex[s3]\"], \"env_vars\": {...}}'), so nodes need no manual install")
     g.add_argument("--cpus-per-item", type=bounded_int(1, 1024), metavar="N",
-                   help="CPUs (torch threads) of one item (default: local, the CPUs / --jobs; ray, 1)")
+                   help=cpus_help or "CPUs (torch threads) of one item (default: local, the CPUs / --jobs; ray, 1)")
+
+
+def runtime_env(text: str) -> dict:
+    """argparse type of ``--runtime-env``: a JSON object, or the path of a file holding one."""
+    import os
+
+    src = text
+    if not text.lstrip().startswith("{"):
+        if not os.path.isfile(text):
+            raise argparse.ArgumentTypeError(f"give a JSON object or a .json file, not {text!r}")
+        try:
+            with open(text, encoding="utf-8") as fh:
+                src = fh.read()
+        except (OSError, UnicodeDecodeError) as e:
+            raise argparse.ArgumentTypeError(f"cannot read {text}: {e}") from None
+    try:
+        value = json.loads(src)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"not JSON ({e})") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError("must be a JSON object (working_dir, pip, env_vars, ...)")
+    return value
+
+
+runtime_env.__name__ = "runtime environment"
 
 
 def engine_from_args(args, *, inline_single: bool = False):
@@ -213,4 +241,4 @@ def engine_from_args(args, *, inline_single: bool = False):
         raise BadInputError("--address needs --engine ray")
     return make_engine(args.engine, jobs=getattr(args, "jobs", None), address=args.address,
                        cpus_per_item=args.cpus_per_item, device=getattr(args, "device", "cpu"),
-                       inline_single=inline_single)
+                       inline_single=inline_single, runtime_env=getattr(args, "runtime_env", None))

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ._common import (add_engine_options, add_json, add_output, add_quiet, add_seed_device, bounded_int, check_device,
+from ._common import (add_engine_options, add_json, add_output, add_overwrite, add_quiet, add_seed_device, bounded_int, check_device,
                       finite_float, positive_int, print_json, say)
 
 EXIT_INCOMPLETE = 4  # the batch ended with failed (or unfinished) items
@@ -30,7 +30,9 @@ _pairs.__name__ = "pairs"
 def _batch_options(p: argparse.ArgumentParser) -> None:
     add_output(p, dest="out", required=True, metavar="DIR",
                    help="output folder (created); gets the outputs with their sidecars and manifest.jsonl")
-    add_engine_options(p)
+    add_engine_options(p, cpus_help="CPUs (torch threads) of one item (default 1 on every engine, whatever --jobs: "
+                                    "outputs are the same bytes for the same seeds and threads; the sidecar records "
+                                    "them)")
     g = p.add_argument_group("resuming and faults")
     g.add_argument("--retry-failed", action="store_true",
                    help="run again the items a previous run recorded as failed (default: leave them failed)")
@@ -100,6 +102,19 @@ def register(sub) -> None:
     _batch_options(u)
     u.set_defaults(func=run_puppet, device="cpu")
 
+    st = bs.add_parser("status", help="what a batch folder holds: counts, throughput, failures, slowest items",
+                       description="Read a batch folder (a path or a URL such as s3://bucket/aug) without changing "
+                                   "it: items per state (pending, running, done, failed), items per hour, the "
+                                   "failures grouped by error (file names and numbers masked) and the slowest items.")
+    st.add_argument("folder", metavar="DIR", help="the --out of a `facetex batch` run (path or URL)")
+    st.add_argument("--slowest", type=bounded_int(0, 1000), default=10, metavar="N",
+                    help="list the N slowest finished items (default 10)")
+    add_output(st, metavar="FILE.json", help="also write the status as JSON to FILE.json")
+    add_overwrite(st)
+    add_json(st, "the status")
+    add_quiet(st)
+    st.set_defaults(func=run_status)
+
 
 def _argv() -> list[str]:
     import shlex
@@ -109,10 +124,16 @@ def _argv() -> list[str]:
     return shlex.split(command_line())
 
 
-def _check_out(args, inputs=()) -> Path:
-    """--out, checked without creating it (that happens once the engine has started)."""
+def _check_out(args, inputs=()):
+    """--out, checked without creating it (that happens once the engine has started); a URL
+    (``s3://bucket/folder``) as it is."""
+    from ..batch._store import is_url
     from ..errors import OutputError
 
+    if is_url(args.out):
+        if any(d and str(d).rstrip("/") == str(args.out).rstrip("/") for d in inputs):
+            raise OutputError("--out is an input folder: write the outputs to another folder", path=args.out)
+        return str(args.out).rstrip("/")
     out = Path(args.out)
     for d in inputs:
         if d and out.resolve() == Path(d).resolve():
@@ -154,9 +175,12 @@ def _run(args, kind: str, items, inputs=()) -> int:
         elif sys.stderr.isatty():  # the elapsed time moves on a terminal; a log gets only the changes
             bar.refresh()
 
+    from ..batch._store import is_url, join, name_of
+
     try:
         with engine:
-            out = check_out_dir(out)
+            if not is_url(out):
+                out = check_out_dir(out)
             summary = run_batch(items, out, engine, retry_failed=args.retry_failed, max_retries=args.max_retries,
                                 claim_timeout=args.claim_timeout, progress=progress, settings=folder_settings(items),
                                 record={"command": f"batch {kind}", "command_line": " ".join(_argv()),
@@ -167,7 +191,7 @@ def _run(args, kind: str, items, inputs=()) -> int:
         signum = getattr(exc, "signum", signal.SIGINT)
         how = "" if signum == signal.SIGINT else f" by {signal.Signals(signum).name}"
         print(f"facetex: interrupted{how}; finished items are kept (with their sidecars), running items were "
-              f"stopped without partial output; {out / 'manifest.jsonl'} lists them; run the same command "
+              f"stopped without partial output; {join(out, 'manifest.jsonl')} lists them; run the same command "
               "to resume", file=sys.stderr)
         return 128 + int(signum)
     finally:
@@ -184,7 +208,7 @@ def _run(args, kind: str, items, inputs=()) -> int:
     else:
         say(args, line)
         computed = set(s.computed)
-        written = [out / Path(p).name for it in items if it.key in computed for p in it.outputs]
+        written = [join(out, name_of(p)) for it in items if it.key in computed for p in it.outputs]
         if len(written) <= 40:
             say(args, *(f"wrote {p}" for p in written))
         else:
@@ -205,6 +229,9 @@ def _run(args, kind: str, items, inputs=()) -> int:
 def _engine(args):
     from ._common import engine_from_args
 
+    # one thread per item unless asked: torch's float sums depend on the thread count, so a
+    # default of CPUs / --jobs made --jobs 1 and --jobs 2 give other bytes (README)
+    args.cpus_per_item = args.cpus_per_item or 1
     return engine_from_args(args)
 
 
@@ -248,3 +275,40 @@ def run_puppet(args) -> int:
                          side_by_side=args.side_by_side, lighting=args.lighting, texture=args.texture,
                          weights=args.weights, max_frames=args.max_frames, cpus=args.cpus_per_item, argv=_argv())
     return _run(args, "puppet", items, [args.drivers, args.puppets])
+
+
+def run_status(args) -> int:
+    from ..batch._status import batch_status
+
+    if args.output:
+        from ..io import check_output_path
+
+        check_output_path(args.output, overwrite=args.overwrite, extensions=(".json",))
+    s = batch_status(args.folder, slowest=args.slowest)
+    if args.output:
+        from ..io import write_json
+
+        write_json(args.output, s, overwrite=args.overwrite)
+    if args.json:
+        print_json(s)
+        return 0
+    c, t = s["counts"], s["throughput"]
+    rate = f"{t['items_per_hour']:.1f} items/hour" if t["items_per_hour"] else "no throughput yet"
+    lines = [f"{s['folder']}: {s['total']} items: {c['done']} done, {c['failed']} failed, {c['running']} running, "
+             f"{c['pending']} pending; {rate}"]
+    for r in s["runs"]:
+        per = f", {r['items_per_hour']:.1f} items/hour" if r["items_per_hour"] else ""
+        lines.append(f"  run {r['run']} ({r['host']}): {r['done']} done, {r['failed']} failed in "
+                     f"{(r['seconds'] or 0):.0f} s{per}")
+    if s["failures"]:
+        lines.append("failures by error:")
+        for g in s["failures"]:
+            more = ", ..." if g["count"] > len(g["items"]) else ""
+            lines.append(f"  {g['count']} × {g['error']} ({', '.join(g['items'])}{more})")
+    if s["slowest"]:
+        lines.append("slowest items:")
+        lines.extend(f"  {r['seconds']:.1f} s  {r['item']}  ({r['host']})" for r in s["slowest"])
+    if args.output:
+        lines.append(f"wrote {args.output}")
+    say(args, *lines)
+    return 0

@@ -31,6 +31,13 @@ def _manifest(out: Path) -> dict:
     return {r["item"]: r for r in map(json.loads, (out / "manifest.jsonl").read_text().splitlines())}
 
 
+def _states(out: Path) -> list[str]:
+    """The items' states now (the manifest's last line of each; [] before it exists)."""
+    from facetex.batch._state import read_manifest
+
+    return [r["state"] for r in read_manifest(out / "manifest.jsonl").values()]
+
+
 def test_batch_transfer_equals_the_api_and_resumes(tmp_path, capsys, no_leftover_processes):
     import torch
 
@@ -125,8 +132,7 @@ def test_sigterm_stops_the_batch_without_partial_output_or_orphans(tmp_path):
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:  # wait for items to be running in the workers
             workers |= children(proc.pid)
-            states = [json.loads(p.read_text()).get("state") for p in (out / ".facetex-batch" / "items").glob("*.json")] \
-                if (out / ".facetex-batch" / "items").is_dir() else []
+            states = _states(out)
             if states.count("running") == 2 and len(workers) >= 2:
                 break
             time.sleep(0.2)
@@ -164,10 +170,9 @@ def _start_and_wait_running(cmd, env, out, n_running=1, timeout=180):
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     seen: set[int] = set()
     deadline = time.monotonic() + timeout
-    items = out / ".facetex-batch" / "items"
     while time.monotonic() < deadline:
         seen |= children(proc.pid)
-        states = [json.loads(p.read_text()).get("state") for p in items.glob("*.json")] if items.is_dir() else []
+        states = _states(out)
         if states.count("running") >= n_running and seen:
             time.sleep(1.0)
             return proc, seen | children(proc.pid)
@@ -253,3 +258,17 @@ def test_batch_persona_then_puppet(tmp_path, capsys, no_leftover_processes):
     from facetex.io import video_info
 
     assert video_info(videos / "talk__alice.mp4")["n_frames"] == 6
+
+
+def test_same_bytes_with_jobs_1_and_the_default(tmp_path, capsys, no_leftover_processes):
+    """Torch's float sums depend on the thread count (1 vs 2 threads: 28 pixels differ at this
+    size, 443 at 128 px × 3 × 10 iterations): every item gets one thread, whatever --jobs."""
+    pairs = _csv(tmp_path / "pairs.csv", f"content,style\n{A},{B}\n")
+    opts = ["--size", "128", "--iters", "4,4,4", "-q"]
+    assert main(["batch", "transfer", str(pairs), "--out", str(tmp_path / "one"), "--jobs", "1", *opts]) == 0
+    assert main(["batch", "transfer", str(pairs), "--out", str(tmp_path / "default"), *opts]) == 0
+    name = "frl_004_neutral__frl_005_neutral__facetex.png"
+    assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "default" / name).read_bytes()
+    for d in ("one", "default"):
+        assert json.loads((tmp_path / d / f"{name}.json").read_text())["threads"] == 1
+        assert _manifest(tmp_path / d)[name[:-4]]["threads"] == 1

@@ -86,3 +86,41 @@ def test_inline_engine_runs_in_this_process():
     h = eng.submit(_tasks.square, {"x": 4}, Resources())
     (o,) = eng.wait()
     assert o.handle == h and o.value["pid"] == os.getpid() and o.value["value"] == 16
+
+
+def test_ray_task_options_request_the_measured_memory_and_gpus():
+    from facetex.batch import transfer_items
+    from facetex.batch.engines import ray_task_options
+    from facetex._resources import sample_path
+
+    a, b = str(sample_path("frl_004_neutral.jpg")), str(sample_path("frl_005_neutral.jpg"))
+    it, = transfer_items([{"content": a, "style": b}], "/tmp/never-written", size=512, device="cuda")
+    assert it.resources.gpus == 1.0 and it.resources.memory_mb == 510 + 512 ** 2 / 1000  # measured: 774 MB
+    opts = ray_task_options(it.resources, name="run_transfer_item")
+    assert opts["num_gpus"] == 1.0 and opts["num_cpus"] == 1 and opts["memory"] == int(it.resources.memory_mb * 2**20)
+    assert opts["max_retries"] == 0 and opts["name"] == "facetex:run_transfer_item"
+    # a larger peak measured in the run raises the request; the largest node caps it
+    assert ray_task_options(it.resources, observed_mb=1000)["memory"] == int(1250 * 2**20)
+    assert ray_task_options(it.resources, observed_mb=1000, node_memory_mb=900)["memory"] == int(900 * 2**20)
+    from facetex.batch.engines import Resources
+
+    assert "memory" not in ray_task_options(Resources(cpus=2), cpus_per_item=1)  # nothing known: no request
+    assert ray_task_options(Resources(cpus=0), cpus_per_item=3, gpus_per_item=0.5)["num_cpus"] == 3
+
+
+def test_runtime_env_option(tmp_path, capsys):
+    from facetex._resources import sample_path
+    from facetex.cli import main
+    from facetex.cli._common import runtime_env
+
+    f = tmp_path / "env.json"
+    f.write_text('{"pip": ["facetex[s3]"], "env_vars": {"AWS_ENDPOINT_URL": "http://minio:9000"}}')
+    assert runtime_env(str(f))["pip"] == ["facetex[s3]"] and runtime_env('{"working_dir": "."}')
+    samples = str(sample_path())
+    assert main(["batch", "transfer", "--contents", samples, "--styles", samples, "--out", str(tmp_path / "o"),
+                 "--runtime-env", '{"pip": []}']) == 2
+    assert "--runtime-env is for --engine ray" in capsys.readouterr().err
+    assert main(["batch", "transfer", "--contents", samples, "--styles", samples, "--out", str(tmp_path / "o"),
+                 "--engine", "ray", "--runtime-env", "[1]"]) == 2
+    assert "argument --runtime-env: give a JSON object" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()

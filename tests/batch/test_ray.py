@@ -89,6 +89,13 @@ def test_ray_outputs_equal_the_local_engine_bit_for_bit(tmp_path, local_ray):
     with RayEngine() as eng:  # the Ray this process initialised
         assert eng.slots == 2 and not eng._owned
         s2 = run_batch(_transfer_items(remote), remote, eng)
+        # each task asked for memory: the transfer's measured peak at size 96, and the third (submitted when
+        # the first had finished) 1.25 x the peak measured so far
+        first_peak = s2.item_stats[0]["peak_rss_mb"]
+        assert eng.last_options["memory"] >= int(1.25 * first_peak * 2**20) - 1
+        assert eng.last_options["memory"] >= int((510 + 96 ** 2 / 1000) * 2**20)
+        assert eng._observed_mb["run_transfer_item"] == max(r["peak_rss_mb"] for r in s2.item_stats)
+        assert eng.last_options["num_cpus"] == 1 and eng.last_options["num_gpus"] == 0.0
     assert s1.done == s2.done == 3 and s1.ok and s2.ok
     pngs = sorted(p.name for p in local.glob("*.png"))
     assert len(pngs) == 3 and pngs == sorted(p.name for p in remote.glob("*.png"))

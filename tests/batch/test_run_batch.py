@@ -193,3 +193,66 @@ def test_two_concurrent_runs_compute_each_item_once(tmp_path, no_leftover_proces
     assert r[0]["done"] + r[1]["done"] == 10 and r[0]["done"] and r[1]["done"]  # both did work
     assert all(x["remaining"] == 0 and x["failed"] == 0 and x["done"] + x["elsewhere"] == 10 for x in r)
     assert all(rec["state"] == "done" for rec in _manifest(out).values())
+
+
+def test_manifest_is_appended_with_relative_paths_and_records_only_failures(tmp_path, no_leftover_processes):
+    out, log = tmp_path / "out", tmp_path / "log"
+    out.mkdir()
+    with LocalEngine(2, threads=1) as eng:
+        run_batch(_items(out, log=log, fail={"item1"}), out, eng)
+        first = (out / "manifest.jsonl").read_bytes()
+        lines = [json.loads(x) for x in first.splitlines()]
+        assert [x["state"] for x in lines if x["item"] == "item0"] == ["pending", "running", "done"]
+        assert _manifest(out)["item0"]["outputs"] == ["item0.txt", "item0.txt.json"]  # relative to the folder
+        # a record only where one is needed: the failed item
+        assert sorted(p.name for p in (out / ".facetex-batch" / "items").iterdir()) == ["item1.json"]
+        run_batch(_items(out, log=log), out, eng, retry_failed=True)
+    second = (out / "manifest.jsonl").read_bytes()
+    assert second.startswith(first) and len(second) > len(first)  # appended to, never rewritten
+    assert not list((out / ".facetex-batch" / "items").iterdir())  # done now: its record is gone
+    assert _manifest(out)["item1"]["state"] == "done"
+
+
+def test_a_moved_folder_resumes(tmp_path, no_leftover_processes):
+    out, log = tmp_path / "out", tmp_path / "log"
+    out.mkdir()
+    with LocalEngine(2, threads=1) as eng:
+        s = run_batch(_items(out, log=log, fail={"item2"}), out, eng)
+    assert s.done == 3
+    moved = tmp_path / "elsewhere" / "moved"
+    moved.parent.mkdir()
+    out.rename(moved)
+    with LocalEngine(2, threads=1) as eng:
+        s = run_batch(_items(moved, log=log), moved, eng, retry_failed=True)
+    assert (s.done, s.skipped_done, s.failed) == (1, 3, 0) and s.computed == ["item2"]
+    assert _computed(log) == [f"item{i}" for i in range(4)]  # nothing computed twice
+    m = _manifest(moved)
+    assert all(r["state"] == "done" for r in m.values()) and m["item2"]["outputs"] == ["item2.txt", "item2.txt.json"]
+    assert not any(str(tmp_path / "out") in line for line in (moved / "manifest.jsonl").read_text().splitlines()
+                   if '"item2"' in line)
+
+
+def test_status_counts_groups_failures_and_lists_the_slowest(tmp_path, capsys, no_leftover_processes):
+    from facetex.batch._status import batch_status
+    from facetex.cli import main
+
+    out = tmp_path / "out"
+    out.mkdir()
+    items = _items(out, n=5, fail={"item1", "item3"})
+    items[4].payload["sleep"] = 1.0
+    with LocalEngine(2, threads=1) as eng:
+        run_batch(items, out, eng)
+    s = batch_status(out, slowest=2)
+    assert s["total"] == 5 and s["counts"] == {"pending": 0, "running": 0, "done": 3, "failed": 2}
+    # one cause on two items: one group
+    assert s["failures"] == [{"error": "ValueError: item item1 cannot be done", "count": 2,
+                              "items": ["item1", "item3"]}]
+    assert s["slowest"][0]["item"] == "item4" and s["slowest"][0]["seconds"] >= 1.0 and len(s["slowest"]) == 2
+    assert s["throughput"]["done"] == 3 and len(s["runs"]) == 1 and s["runs"][0]["done"] == 3
+    assert main(["batch", "status", str(out), "-o", str(tmp_path / "status.json")]) == 0
+    text = capsys.readouterr().out
+    assert "5 items: 3 done, 2 failed, 0 running, 0 pending" in text and "2 × ValueError" in text
+    assert json.loads((tmp_path / "status.json").read_text())["counts"]["failed"] == 2
+    assert main(["batch", "status", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "not a batch folder (no manifest.jsonl)" in err and len(err.strip().splitlines()) == 1

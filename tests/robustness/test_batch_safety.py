@@ -96,7 +96,7 @@ def test_two_runs_at_once_with_other_settings_second_is_refused(tmp_path, capsys
     first = subprocess.Popen([sys.executable, "-m", "facetex", "batch", "transfer", str(pairs), "--out", str(out),
                               "-q", *T], stderr=subprocess.PIPE, text=True)
     try:
-        record = out / ".facetex-batch" / "items" / f"{KEY}.json"
+        record = out / ".facetex-batch" / "claims" / f"{KEY}.0"  # the first run holds its item
         deadline = time.monotonic() + 120
         while not record.exists() and first.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)  # the first run is computing its item
