@@ -1025,9 +1025,9 @@ def iter_video_frames(path, *, max_frames: int | None = None, uint8: bool = Fals
                         return
                     n += 1
                     if max_side is not None and max(frame.width, frame.height) > max_side:
-                        k = max_side / max(frame.width, frame.height)
-                        frame = frame.reformat(width=max(2, round(frame.width * k)),
-                                               height=max(2, round(frame.height * k)), format="rgb24",
+                        f = max_side / max(frame.width, frame.height)
+                        frame = frame.reformat(width=max(2, round(frame.width * f)),
+                                               height=max(2, round(frame.height * f)), format="rgb24",
                                                interpolation="AREA")
                     rgb = frame.to_ndarray(format="rgb24")
                     yield rgb if uint8 else rgb.astype(np.float32) / 255.0
