@@ -13,6 +13,11 @@ __all__ = ["spread", "spread_text", "bootstrap_mean", "MIN_N_INTERVAL"]
 #: fewer items than this: no interval (a bootstrap of 2-4 values has a handful of distinct means and
 #: says nothing about the spread)
 MIN_N_INTERVAL = 5
+#: Above this many values an interval is the percentile one, from resamples drawn in batches, at
+#: most :data:`BIG_RESAMPLED` values in all: scipy otherwise holds n_resamples x n values at once
+#: and BCa's jackknife n x n (7 GB at n = 30 000, issue 23); at such n BCa and percentile agree.
+BIG_N = 2000
+BIG_RESAMPLED = 20_000_000
 
 
 def spread(values: Iterable) -> dict:
@@ -81,7 +86,8 @@ def bootstrap_mean(values: Iterable, *, bounds: tuple[float, float] = (-math.inf
     :func:`scipy.stats.bootstrap` with the BCa interval (percentile when BCa is undefined,
     e.g. every resample has the same mean). Both are quantiles of resampled means, so they
     lie inside the values' own range, unlike a Student-t interval, which with n = 2 reaches
-    far outside any metric's range; the clip to ``bounds`` only guards the last bit.
+    far outside any metric's range; the clip to ``bounds`` only guards the last bit. Above
+    :data:`BIG_N` values: the percentile interval, resampled in batches (bounded memory).
 
     Examples
     --------
@@ -108,11 +114,15 @@ def bootstrap_mean(values: Iterable, *, bounds: tuple[float, float] = (-math.inf
 
     lo = hi = nan
     used = None
-    for method in ("BCa", "percentile"):
+    methods, batch = ("BCa", "percentile"), None
+    if n > BIG_N:
+        methods, batch = ("percentile",), max(1, 4_000_000 // n)
+        n_resamples = min(n_resamples, max(999, BIG_RESAMPLED // n))
+    for method in methods:
         with warnings.catch_warnings():  # BCa warns (and gives NaN) for degenerate resamples: then percentile
             warnings.simplefilter("ignore")
             res = stats.bootstrap((a,), np.mean, confidence_level=confidence, n_resamples=n_resamples,
-                                  method=method, rng=np.random.default_rng(seed))
+                                  method=method, rng=np.random.default_rng(seed), batch=batch)
         lo, hi = float(res.confidence_interval.low), float(res.confidence_interval.high)
         if math.isfinite(lo) and math.isfinite(hi):
             used = method

@@ -105,7 +105,8 @@ def as_image(image: ImageLike, name: str = "image") -> np.ndarray:
         raise BadImageError(f"{name} has no pixels (shape {a.shape})")
     if np.issubdtype(a.dtype, np.floating):
         check_float_pixels(a, name)
-    f = np.clip(to_float32(a), 0.0, 1.0)
+    f = to_float32(a)
+    f = np.clip(f, 0.0, 1.0, out=f if f is not a else None)  # in place on a new copy: one float image, not two
     if f.shape[2] == 4:
         alpha = f[..., 3:]
         f = f[..., :3] * alpha + (1.0 - alpha)
@@ -153,10 +154,10 @@ def image_args(*names: str, sources: dict[str, str] | None = None,
 def to_float32(img: np.ndarray) -> np.ndarray:
     """uint8 / uint16 / float image -> float32 in [0, 1] (integers scaled by their max)."""
     img = np.asarray(img)
-    if img.dtype == np.uint8:
-        return img.astype(np.float32) / 255.0
-    if img.dtype == np.uint16:
-        return img.astype(np.float32) / 65535.0
+    if img.dtype in (np.uint8, np.uint16):
+        a = img.astype(np.float32)
+        a /= 255.0 if img.dtype == np.uint8 else 65535.0  # in place: one float copy, not two
+        return a
     return img.astype(np.float32, copy=False)
 
 
@@ -181,7 +182,14 @@ def to_uint8(img: np.ndarray) -> np.ndarray:
         return img
     if img.dtype == np.uint16:
         return ((img.astype(np.uint32) + 128) // 257).astype(np.uint8)
-    return np.clip(np.rint(np.asarray(img, np.float32) * 255.0), 0, 255).astype(np.uint8)
+    a = np.asarray(img, np.float32)
+    if a.ndim == 0 or a.size <= 1 << 22:
+        return np.clip(np.rint(a * 255.0), 0, 255).astype(np.uint8)
+    out = np.empty(a.shape, np.uint8)  # a 36 MP image in strips: no float temporaries of its size
+    rows = max(1, (1 << 22) // (a.size // a.shape[0]))
+    for i in range(0, a.shape[0], rows):
+        out[i:i + rows] = np.clip(np.rint(a[i:i + rows] * 255.0), 0, 255)
+    return out
 
 
 def _cause(e: BaseException) -> str:
@@ -980,8 +988,11 @@ def video_info(path) -> dict:
                     duration=duration)
 
 
-def iter_video_frames(path, *, max_frames: int | None = None, uint8: bool = False) -> Iterator[np.ndarray]:
+def iter_video_frames(path, *, max_frames: int | None = None, uint8: bool = False,
+                      max_side: int | None = None) -> Iterator[np.ndarray]:
     """Yield frames as float32 RGB (H, W, 3) in [0, 1] (``uint8``: as decoded, uint8 RGB).
+    ``max_side``: frames with a longer side above it are scaled down to it as they are
+    converted (area averaging; an 8K frame is never held at full size in RGB).
 
     A damaged file that still decodes some frames yields those, then warns
     (UserWarning) and stops; one that decodes none raises BadVideoError."""
@@ -1013,6 +1024,11 @@ def iter_video_frames(path, *, max_frames: int | None = None, uint8: bool = Fals
                     if max_frames is not None and n >= max_frames:
                         return
                     n += 1
+                    if max_side is not None and max(frame.width, frame.height) > max_side:
+                        f = max_side / max(frame.width, frame.height)
+                        frame = frame.reformat(width=max(2, round(frame.width * f)),
+                                               height=max(2, round(frame.height * f)), format="rgb24",
+                                               interpolation="AREA")
                     rgb = frame.to_ndarray(format="rgb24")
                     yield rgb if uint8 else rgb.astype(np.float32) / 255.0
             if not error or threads == "SLICE":

@@ -80,6 +80,17 @@ def _init_arg(init, content: np.ndarray):
     return img
 
 
+def _keep_large_uint8(image):
+    """A uint8 RGB array over the pipeline's NATIVE_MAX_PIXELS, as it is (the pipeline makes only
+    its reduced face region float: a 36 MP photo as float is 0.4 GB), else None."""
+    from ..transfer._pipeline import NATIVE_MAX_PIXELS
+
+    if isinstance(image, np.ndarray) and image.dtype == np.uint8 and image.ndim == 3 and image.shape[2] == 3 \
+            and image.shape[0] * image.shape[1] > NATIVE_MAX_PIXELS:
+        return image
+    return None
+
+
 def transfer_with_info(
     content: ImageLike,
     style: ImageLike,
@@ -218,8 +229,11 @@ def transfer_with_info(
     if save_every is not None and (not isinstance(save_every, (int, np.integer)) or save_every < 1):
         raise BadInputError(f"save_every must be a positive integer, not {save_every!r}")
     seed, device = check_seed(seed), check_device(device)
-    c = as_image(content, "content image" + (f" {content_source}" if content_source else ""))
-    s = as_image(style, "style image" + (f" {style_source}" if style_source else ""))
+    c, s = _keep_large_uint8(content), _keep_large_uint8(style)
+    if c is None:
+        c = as_image(content, "content image" + (f" {content_source}" if content_source else ""))
+    if s is None:
+        s = as_image(style, "style image" + (f" {style_source}" if style_source else ""))
     start = _init_arg(init, c)
     total = int(sum(params.iters) * params.eval_budget) + params.levels  # the evaluation budget per level
     with _progress(progress, total, method, "eval") as bar:

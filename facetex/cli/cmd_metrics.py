@@ -17,12 +17,21 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..io import read_image
+    import warnings
+
+    from ..io import read_image_reduced
     from ..landmarks import detect_face
-    from ..metrics import transfer_metrics
+    from ..metrics import METRICS_MAX_PIXELS, transfer_metrics
 
     paths = (args.output, args.content, args.style)
-    images = [read_image(p) for p in paths]
+    images = []
+    for p in paths:  # reduced on load: the output and the content (one size) to the same size
+        image, scale = read_image_reduced(p, METRICS_MAX_PIXELS)
+        if scale != (1.0, 1.0):
+            h, w = image.shape[:2]
+            warnings.warn(f"{p}: {round(w / scale[0])}x{round(h / scale[1])} image reduced to {w}x{h} for the "
+                          f"metrics (at most {METRICS_MAX_PIXELS // 10**6} megapixels)")
+        images.append(image)
     points = [detect_face(im, source=p).points68 for im, p in zip(images, paths)]
     result = transfer_metrics(*images, points=points)
     if args.json:

@@ -133,9 +133,10 @@ def run(args) -> int:
     from .._provenance import provenance
     from ..errors import BadInputError
     from ..io import IMAGE_EXTENSIONS, check_input_file, check_output_path, encode_image, encode_json, read_image
-    from ..io import write_files, write_image
-    from ..landmarks import detect_face
+    from ..io import DETECT_MAX_PIXELS, write_files, write_image
     from ..transfer import face_crop_box
+    from ..io import to_uint8
+    from ..transfer._pipeline import NATIVE_MAX_PIXELS, detect_points68
 
     init_path = None if args.init in ("content", "random") else args.init
     inputs = [args.content, args.style] + [p for p in (args.vgg19_weights, init_path) if p]
@@ -157,7 +158,9 @@ def run(args) -> int:
     params = transfer_params(args.method, args.preset, **options)
     check_device(args.device)
     content = read_image(args.content)
-    style = read_image(args.style)
+    if content.shape[0] * content.shape[1] > NATIVE_MAX_PIXELS:
+        content = to_uint8(content)  # worked on reduced (transfer_with_info): kept as 8-bit, 1/4 of float
+    style = read_image(args.style, reduce_to=DETECT_MAX_PIXELS)  # only its face's texture is used
     init = args.init
     if init_path:
         init = as_image(init_path, f"--init image {init_path}")
@@ -165,8 +168,8 @@ def run(args) -> int:
             raise BadInputError(f"--init image is {init.shape[1]}x{init.shape[0]} px, the content "
                                 f"{content.shape[1]}x{content.shape[0]}: it must have the content's size",
                                 path=init_path)
-    points_c = detect_face(content, source=args.content).points68
-    points_s = detect_face(style, source=args.style).points68
+    points_c = detect_points68(content, args.content)  # on a copy reduced to 8 MP when larger
+    points_s = detect_points68(style, args.style)
     box = face_crop_box(points_c, content.shape) if params.crop == "face" else (0, 0, content.shape[1],
                                                                                 content.shape[0])
     steps: list[str] = []
@@ -205,6 +208,8 @@ def run(args) -> int:
             content_points=points_c, style_points=points_s, content_source=args.content,
             style_source=args.style, max_memory=args.max_memory, init=init, **options)
     info.pop("images", None)
+    content = style = init = None  # a 36 MP image is 0.4 GB as float: neither input nor the float
+    image = to_uint8(image)  # output is kept beside the encoding (the file is 8-bit: the same bytes)
     info["timings"]["wall_s"] = time.perf_counter() - t0
     record = provenance(
         command="transfer", seed=args.seed,

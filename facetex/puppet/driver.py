@@ -371,6 +371,11 @@ def _track_frame(frame, prev, params: DriverParams, detect: bool):
     return None
 
 
+#: Driver frames with a longer side above this are scaled down to it as they are decoded (an 8K
+#: frame is 100 MB as RGB): the driver is tracked and shown at that size (issue 23).
+DRIVER_MAX_SIDE = 1920
+
+
 def track_driver(path, *, max_frames: int | None = None, params: DriverParams = DriverParams(),
                  progress: Callable | None = None, frontal_images: bool = True) -> DriverTrack:
     """Track the face through a driver video (first pass). NoFaceError naming the file
@@ -396,7 +401,8 @@ def track_driver(path, *, max_frames: int | None = None, params: DriverParams = 
     size = None
     last_detect = -(10**9)
     # uint8 frames: dlib and the mesh network take them as they are (no conversion per call)
-    for i, frame in enumerate(iter_video_frames(path, max_frames=max_frames, uint8=True)):
+    frames = iter_video_frames(path, max_frames=max_frames, uint8=True, max_side=DRIVER_MAX_SIDE)
+    for i, frame in enumerate(frames):
         size = (frame.shape[1], frame.shape[0])
         detect = prev is None or i - last_detect >= params.redetect_every
         last_detect = i if detect else last_detect
@@ -445,7 +451,8 @@ def track_driver(path, *, max_frames: int | None = None, params: DriverParams = 
                           "face frontally, at least ~80 px wide", path=path)
     if not frontal_p:  # every sampled frame failed to frontalize: take any tracked one
         j = int(np.flatnonzero(found_a)[0])
-        frame = next(f for k, f in enumerate(iter_video_frames(path, max_frames=j + 1, uint8=True)) if k == j)
+        frames = iter_video_frames(path, max_frames=j + 1, uint8=True, max_side=DRIVER_MAX_SIDE)
+        frame = next(f for k, f in enumerate(frames) if k == j)
         img, pts = frontal_sample(frame, p68a[j])
         frontal, frontal_p = ([] if img is None else [img]), [pts]
     W, H = params.size

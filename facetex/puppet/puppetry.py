@@ -324,6 +324,7 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
     from concurrent.futures import ThreadPoolExecutor
 
     from ..io import iter_video_frames
+    from .driver import DRIVER_MAX_SIDE
 
     _check_mode(mode)
     pup = session.puppeteer
@@ -378,7 +379,7 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
                 progress(n=1, stage="render", lost=session.track.n_lost)
             return rec
 
-        for i, frame in enumerate(iter_video_frames(session.track.path, max_frames=n)):
+        for i, frame in enumerate(iter_video_frames(session.track.path, max_frames=n, max_side=DRIVER_MAX_SIDE)):
             if i >= n:
                 break
             drv = cv2.resize(frame, (W, H), interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)

@@ -23,12 +23,16 @@ __all__ = [
     "ZOOM_REGIONS",
     "THUMB_SIDE",
     "MIN_ZOOM_PX",
+    "MAX_IMAGE_ROWS",
 ]
 
 
 #: face regions zoomed at native resolution (crops placed at the content's landmarks)
 ZOOM_REGIONS = ("forehead", "left cheek", "right cheek", "upper lip", "chin", "eyes")
 THUMB_SIDE = 240  # px, the longer side of a thumbnail
+#: rows of an item table with thumbnails and zooms; later rows show metrics and file links only
+#: (10 000 items' images would make a page of GBs, issue 23)
+MAX_IMAGE_ROWS = 200
 MIN_ZOOM_PX = 200  # a zoom crop is shown at least this tall, enlarged by a whole factor (pixels stay square)
 THUMB_QUALITY, CROP_QUALITY, SHEET_QUALITY = 75, 80, 78  # WebP qualities (0-100)
 

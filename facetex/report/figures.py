@@ -142,6 +142,18 @@ def _interval_bar(ax, x, values, metric, colour):
         ax.plot([x], [b["mean"]], marker="_", ms=16, mew=2.5, color=colour, zorder=3)
 
 
+#: at most this many dots per group and panel (evenly spaced items; means and intervals use them all):
+#: an SVG of 30 000 dots per panel is hundreds of MB (issue 23)
+MAX_DOTS = 2000
+
+
+def _dots(values: np.ndarray) -> np.ndarray:
+    """``values``, or :data:`MAX_DOTS` of them evenly spaced when there are more."""
+    if values.size <= MAX_DOTS:
+        return values
+    return values[np.linspace(0, values.size - 1, MAX_DOTS).round().astype(int)]
+
+
 def metrics_figure(series: Mapping[str, Mapping[str, Sequence[float]]], metrics: Sequence[str], *,
                    paper: Mapping[str, Mapping[str, float]] | None = None, paper_label: str = "paper (other data)",
                    title: str = "", colours: Mapping[str, str] | None = None,
@@ -191,8 +203,9 @@ def metrics_figure(series: Mapping[str, Mapping[str, Sequence[float]]], metrics:
             vals = np.array([v for v in series[g].get(metric, []) if v is not None], float)
             vals = vals[np.isfinite(vals)]
             if vals.size:
-                jitter = rng.uniform(-0.12, 0.12, vals.size)
-                ax.scatter(np.full(vals.size, g_i) + jitter, vals, s=16, color=col, alpha=0.55, zorder=2)
+                dots = _dots(vals)
+                jitter = rng.uniform(-0.12, 0.12, dots.size)
+                ax.scatter(np.full(dots.size, g_i) + jitter, dots, s=16, color=col, alpha=0.55, zorder=2)
                 _interval_bar(ax, g_i + 0.3, vals, metric, col)
             ref = (paper or {}).get(g, {}).get(metric)
             if ref is not None and math.isfinite(ref):
@@ -258,7 +271,7 @@ def differences_figure(rows: Sequence[Mapping], metrics: Sequence[str], *, label
             r = next((r for r in rows if (r["a"], r["b"]) == ab and r["metric"] == metric), None)
             if r is None or not r["diffs"]:
                 continue
-            d = np.asarray(r["diffs"], float)
+            d = _dots(np.asarray(r["diffs"], float))
             ax.scatter(np.full(d.size, j) + rng.uniform(-0.12, 0.12, d.size), d, s=14, color="tab:blue", alpha=0.5,
                        zorder=2)
             if math.isfinite(r["lo"]):

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Sequence
 
 from .._methods import NO_TRANSFER, method_title
-from ._markup import MIN_ZOOM_PX, THUMB_SIDE, ZOOM_REGIONS, _e, _fig_uri, _markdown_table, _Page
+from ._markup import MAX_IMAGE_ROWS, MIN_ZOOM_PX, THUMB_SIDE, ZOOM_REGIONS, _e, _fig_uri, _markdown_table, _Page
 from ._page_assets import _CSS, _JS
 from .bench_sections import PUPPET_METRICS, _leave_out_table, _puppet_summary, _sheet, _worst_item
 from .compare import (
@@ -44,7 +44,7 @@ from .metric_info import PAIR_METRICS
 from .runs import Run
 from .transfer_sections import _all_metrics, _item_table, _paired, _table1, _transfer_figures
 
-__all__ = ["build_report", "ZOOM_REGIONS", "THUMB_SIDE", "MIN_ZOOM_PX"]
+__all__ = ["build_report", "ZOOM_REGIONS", "THUMB_SIDE", "MAX_IMAGE_ROWS", "MIN_ZOOM_PX"]
 
 _DEFAULTS = {"preset": "default", "seed": 0, "size": None, "device": "cpu", "iters": None}
 

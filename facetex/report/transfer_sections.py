@@ -12,6 +12,7 @@ import numpy as np
 from .._methods import METHOD_COLOURS, NO_TRANSFER, method_title
 from ._markup import (
     CROP_QUALITY,
+    MAX_IMAGE_ROWS,
     MIN_ZOOM_PX,
     THUMB_QUALITY,
     THUMB_SIDE,
@@ -248,9 +249,10 @@ def _item_table(page: _Page, run: Run, group: str, *, metrics: Sequence[str], me
         vid = f"{group}-{i}"
         cls = " class='highlight'" if highlight and highlight(it) else ""
         cells = [f"<td data-v='{i + 1}'>{i + 1}</td><td class='lab'>{_e(it.label)}</td>"]
+        shown = has_images and i < MAX_IMAGE_ROWS
         if has_images:
             thumbs = []
-            for label, p in it.images.items():
+            for label, p in (it.images.items() if shown else ()):
                 img = _read(p)
                 if img is not None:
                     thumbs.append(f"<img class='thumb' src='{_webp(img, quality=THUMB_QUALITY, max_side=THUMB_SIDE)}' "
@@ -272,8 +274,9 @@ def _item_table(page: _Page, run: Run, group: str, *, metrics: Sequence[str], me
         links = "<br>".join(page.link(p, label) for label, p in it.files.items())
         cells.append(f"<td class='files'><details><summary>{len(it.files)}</summary>{links}</details></td>"
                      if it.files else "<td class='files'>–</td>")
-        body.append(f"<tr data-open='{vid}'{cls}>{''.join(cells)}</tr>")
-        if has_images:
+        opens = f" data-open='{vid}'" if shown or not has_images else ""  # a row past the images opens nothing
+        body.append(f"<tr{opens}{cls}>{''.join(cells)}</tr>")
+        if shown:
             crops = _region_crops(it) if zooms else None
             viewers.append(f"<section class='vitem' id='{vid}' data-group='{group}' data-label='{_e(it.label)}' hidden>"
                            f"<h3>{_e(it.label)}</h3><div class='vthumbs'></div>"
@@ -282,7 +285,10 @@ def _item_table(page: _Page, run: Run, group: str, *, metrics: Sequence[str], me
     table = (f"<div class='scroll'><table class='items sortable' data-group='{group}'><thead><tr>{''.join(head)}</tr>"
              f"</thead><tbody>{''.join(body)}</tbody></table></div>"
              "<p class='note'>Click a column header to sort (again: reverse); click a row to open its images and "
-             "zooms (← → previous / next, Esc closes).</p>")
+             "zooms (← → previous / next, Esc closes)."
+             + (f" Images of the first {MAX_IMAGE_ROWS} of {len(run.items)} rows only (a page of every row's images "
+                "would be too large): the others link their files." if has_images and len(run.items) > MAX_IMAGE_ROWS
+                else "") + "</p>")
     return table, "".join(viewers)
 
 

@@ -11,6 +11,7 @@ Data flow (FaceTex §2.3 and §3.1)::
 from __future__ import annotations
 
 import functools
+import math
 import time
 import warnings
 from dataclasses import asdict
@@ -97,14 +98,134 @@ def _map_points(points, box, scale_xy):
     return np.column_stack([(p[:, 0] - x0 + 0.5) * scale_xy[0] - 0.5, (p[:, 1] - y0 + 0.5) * scale_xy[1] - 0.5])
 
 
-def _check_rgb(image, name: str) -> np.ndarray:
+def _check_rgb(image, name: str, lazy: bool = False) -> np.ndarray:
+    """``image`` as float32 RGB; with ``lazy`` an integer image over NATIVE_MAX_PIXELS stays as it
+    is (its reduced part is made float, see :func:`_native_part`)."""
     a = np.asarray(image)
     if a.ndim != 3 or a.shape[2] != 3:
         raise BadImageError(f"{name} must be an (H, W, 3) RGB image, got shape {a.shape}")
-    a = to_float32(a)
+    if not (lazy and a.dtype in (np.uint8, np.uint16) and a.shape[0] * a.shape[1] > NATIVE_MAX_PIXELS):
+        a = to_float32(a)
     if min(a.shape[:2]) < 32:
         raise BadImageError(f"{name} of {a.shape[1]}x{a.shape[0]} px is too small: use at least 32 px")
     return a
+
+
+# ---------------------------------------------------------------- large images (issue 23)
+#: Largest content or style image the pipeline works on as it is (1.5 MP; the paper's headshots
+#: are 1000 px). Above it, the work is done on the face's neighbourhood (the crop box grown by
+#: :data:`NATIVE_CONTEXT`, or the whole image with ``crop="image"``) reduced to at most this many
+#: pixels, and only the change is brought back to the content's own pixels: a 36 MP photo took
+#: minutes and GBs in the pre-warp and detail stages at full resolution (issue 23).
+NATIVE_MAX_PIXELS = 1_500_000
+NATIVE_CONTEXT = 0.1  # × the crop box's longer side: room for the skin mask and the face mesh
+
+
+def detect_points68(image: np.ndarray, source=None) -> np.ndarray:
+    """68 landmarks of the largest face; on an image over :data:`facetex.io.DETECT_MAX_PIXELS`
+    found on a copy reduced to it, in the image's own pixels."""
+    from ..io import DETECT_MAX_PIXELS
+    from ..landmarks import detect_face
+
+    h, w = image.shape[:2]
+    if h * w <= DETECT_MAX_PIXELS:
+        return detect_face(image, source=source).points68
+    k = math.sqrt(DETECT_MAX_PIXELS / (h * w))
+    small = cv2.resize(image, (max(1, int(w * k)), max(1, int(h * k))), interpolation=cv2.INTER_AREA)
+    sx, sy = small.shape[1] / w, small.shape[0] / h
+    p = np.asarray(detect_face(small, source=source).points68, np.float64)
+    return np.column_stack([(p[:, 0] + 0.5) / sx - 0.5, (p[:, 1] + 0.5) / sy - 0.5])
+
+
+def _native_part(image: np.ndarray, points68, crop: str):
+    """(part box (x0, y0, x1, y1) of ``image``, the part reduced to at most NATIVE_MAX_PIXELS,
+    its points, (sx, sy) = reduced size / part size) of an image over NATIVE_MAX_PIXELS."""
+    H, W = image.shape[:2]
+    if crop == "face":
+        x0, y0, x1, y1 = face_crop_box(points68, image.shape)
+        pad = math.ceil(NATIVE_CONTEXT * max(x1 - x0, y1 - y0))
+        part = (max(0, x0 - pad), max(0, y0 - pad), min(W, x1 + pad), min(H, y1 + pad))
+    else:
+        part = (0, 0, W, H)
+    pw, ph = part[2] - part[0], part[3] - part[1]
+    k = min(1.0, math.sqrt(NATIVE_MAX_PIXELS / (pw * ph)))
+    sub = image[part[1]:part[3], part[0]:part[2]]
+    if k < 1.0:  # reduced in the image's own type (a uint8 photo is not made float at full size)
+        sub = cv2.resize(np.ascontiguousarray(sub), (max(32, int(pw * k)), max(32, int(ph * k))),
+                         interpolation=cv2.INTER_AREA)
+    sub = np.clip(to_float32(sub), 0.0, 1.0)  # a new array: the caller's image is never written
+    sx, sy = sub.shape[1] / pw, sub.shape[0] / ph
+    return part, sub, _map_points(points68, part, (sx, sy)), (sx, sy)
+
+
+def _paste_change(content: np.ndarray, part, scale_xy, before: np.ndarray, after: np.ndarray, box_small,
+                  rows: int = 256) -> np.ndarray:
+    """``content`` with the change ``after − before`` of its reduced ``part`` (non-zero inside
+    ``box_small`` only) brought to the part's full resolution (bilinear, strip by strip), as
+    float32 (``content`` may be uint8 / uint16)."""
+    out = to_float32(content)
+    if np.shares_memory(out, content):
+        out = out.copy()
+    sx, sy = scale_xy
+    delta = (after - before).astype(np.float32)
+    pw, ph = part[2] - part[0], part[3] - part[1]
+    fx0, fy0 = max(0, int((box_small[0] - 1) / sx)), max(0, int((box_small[1] - 1) / sy))
+    fx1, fy1 = min(pw, math.ceil((box_small[2] + 1) / sx)), min(ph, math.ceil((box_small[3] + 1) / sy))
+    xs = ((np.arange(fx0, fx1, dtype=np.float64) + 0.5) * sx - 0.5).astype(np.float32)
+    for r0 in range(fy0, fy1, rows):
+        r1 = min(fy1, r0 + rows)
+        ys = ((np.arange(r0, r1, dtype=np.float64) + 0.5) * sy - 0.5).astype(np.float32)
+        mx, my = np.meshgrid(xs, ys)
+        d = cv2.remap(delta, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        view = out[part[1] + r0:part[1] + r1, part[0] + fx0:part[0] + fx1]
+        view += d
+        np.clip(view, 0.0, 1.0, out=view)
+    return out
+
+
+def _full_box(part, scale_xy, box_small, shape) -> tuple[int, int, int, int]:
+    sx, sy = scale_xy
+    return (max(0, part[0] + int(box_small[0] / sx)), max(0, part[1] + int(box_small[1] / sy)),
+            min(shape[1], part[0] + math.ceil(box_small[2] / sx)),
+            min(shape[0], part[1] + math.ceil(box_small[3] / sy)))
+
+
+def _transfer_reduced(content, style, cp, sp, params, init, callback, kwargs) -> tuple[np.ndarray, dict]:
+    """:func:`transfer_with_info` of a content or style over NATIVE_MAX_PIXELS (see there)."""
+    c_part, c_sub, c_pts, c_scale = (((0, 0, content.shape[1], content.shape[0]), content, cp, (1.0, 1.0))
+                                     if content.shape[0] * content.shape[1] <= NATIVE_MAX_PIXELS
+                                     else _native_part(content, cp, params.crop))
+    s_sub, s_pts = style, sp
+    if style.shape[0] * style.shape[1] > NATIVE_MAX_PIXELS:
+        _, s_sub, s_pts, _ = _native_part(style, sp, params.crop)
+    if not (isinstance(init, str) and init in ("content", "random")):
+        ini = _check_rgb(init, "init image")
+        if ini.shape != content.shape:
+            raise BadImageError(f"init image is {ini.shape[1]}x{ini.shape[0]} px, the content "
+                                f"{content.shape[1]}x{content.shape[0]}: it must have the content's size")
+        ini = ini[c_part[1]:c_part[3], c_part[0]:c_part[2]]
+        init = ini if ini.shape == c_sub.shape else _resize(ini, (c_sub.shape[1], c_sub.shape[0]))
+    wrapped = None
+    if callback is not None:
+        def wrapped(image, level, evaluation, full_image, box):
+            callback(image=image, level=level, evaluation=evaluation,
+                     full_image=_paste_change(content, c_part, c_scale, c_sub, full_image, box),
+                     box=_full_box(c_part, c_scale, box, content.shape))
+    for name, (big, sub) in {"content": (content, c_sub), "style": (style, s_sub)}.items():
+        if sub is not big:
+            warnings.warn(f"{name} image is {big.shape[1]}x{big.shape[0]} px: worked on "
+                          f"{'its face region' if params.crop == 'face' else 'it'} at {sub.shape[1]}x{sub.shape[0]} "
+                          f"(at most {NATIVE_MAX_PIXELS / 1e6:g} megapixels)"
+                          + ("; the change is pasted at full resolution" if name == "content" else ""), stacklevel=3)
+    out_sub, info = transfer_with_info(c_sub, s_sub, content_points=c_pts, style_points=s_pts, init=init,
+                                       callback=wrapped, **kwargs)
+    box_small = info["region_box"]
+    out = out_sub if c_sub is content else _paste_change(content, c_part, c_scale, c_sub, out_sub, box_small)
+    info["region_box"] = list(map(int, _full_box(c_part, c_scale, box_small, content.shape)))
+    info["reduced"] = {"content_part": list(map(int, c_part)), "content_scale": [float(v) for v in c_scale],
+                       "content_work_shape": list(c_sub.shape[:2]), "style_work_shape": list(s_sub.shape[:2]),
+                       "max_pixels": NATIVE_MAX_PIXELS}
+    return out, info
 
 
 # ---------------------------------------------------------------- memory
@@ -324,21 +445,33 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
     ``init``: where the optimisation starts — "content" (FaceTex §2.3), "random" (uniform
     noise in [0, 1], seeded, in the pixels that may change), or an (H, W, 3) image of the
     content's size.
+    A content or style over :data:`NATIVE_MAX_PIXELS` is worked on around its face, reduced to
+    that many pixels, and the change is pasted into the content at full resolution (a warning
+    says so; ``info["reduced"]`` records it).
     Raises NoFaceError (naming ``*_source``), MemoryBudgetError above ``max_memory`` bytes.
     """
-    from ..landmarks import detect_face
     from .. import __version__
 
     t_start = time.perf_counter()
-    base = make_preset(method, preset, options.pop("texture_net", None))
+    texture_net = options.pop("texture_net", None)
+    base = make_preset(method, preset, texture_net)
     params = base.with_options(**options)
-    content = _check_rgb(content, f"content image{'' if content_source is None else ' ' + str(content_source)}")
-    style = _check_rgb(style, f"style image{'' if style_source is None else ' ' + str(style_source)}")
+    content = _check_rgb(content, f"content image{'' if content_source is None else ' ' + str(content_source)}",
+                         lazy=True)
+    style = _check_rgb(style, f"style image{'' if style_source is None else ' ' + str(style_source)}", lazy=True)
     timings = {}
     t0 = time.perf_counter()
-    cp = detect_face(content, source=content_source).points68 if content_points is None else np.asarray(content_points, float)
-    sp = detect_face(style, source=style_source).points68 if style_points is None else np.asarray(style_points, float)
+    cp = detect_points68(content, content_source) if content_points is None else np.asarray(content_points, float)
+    sp = detect_points68(style, style_source) if style_points is None else np.asarray(style_points, float)
     timings["landmarks_s"] = time.perf_counter() - t0
+    if max(content.shape[0] * content.shape[1], style.shape[0] * style.shape[1]) > NATIVE_MAX_PIXELS:
+        kwargs = dict(method=method, preset=preset, seed=seed, device=device, progress=progress, save_every=save_every,
+                      content_source=content_source, style_source=style_source, max_memory=max_memory,
+                      **({} if texture_net is None else {"texture_net": texture_net}), **options)
+        out, info = _transfer_reduced(content, style, cp, sp, params, init, callback, kwargs)
+        info["timings"]["landmarks_s"] += timings["landmarks_s"]
+        info["timings"]["total_s"] = time.perf_counter() - t_start
+        return out, info
 
     # working region
     H, W = content.shape[:2]

@@ -213,3 +213,181 @@ def _check_refused(capsys, path, cause, outdir):
     assert took < 5, took
     assert peak_rss() - base < 200 * 2**20  # nothing near the 0.5 / 2 GiB member was allocated
     assert snapshot(outdir) == {}
+
+
+# ------------------------------------------------------------ issue 23: memory on large inputs
+LIMIT = 1.5 * GiB
+
+
+def _face_jpeg(path: Path, w: int, h: int, src=None, seed: int = 0) -> Path:
+    """A w x h JPEG filled by an upscaled sample portrait with sensor-like noise (a camera photo)."""
+    import cv2
+
+    from _robust import FACE
+
+    img = cv2.imread(str(src or FACE))
+    side = max(w, h)
+    up = cv2.resize(img, (side, side), interpolation=cv2.INTER_LINEAR)[(side - h) // 2:(side - h) // 2 + h,
+                                                                         (side - w) // 2:(side - w) // 2 + w]
+    noise = np.random.default_rng(seed).integers(-6, 7, up.shape, dtype=np.int16)
+    up = np.clip(up + noise, 0, 255).astype(np.uint8)
+    cv2.imwrite(str(path), up, [cv2.IMWRITE_JPEG_QUALITY, 90])
+    return path
+
+
+def _measured_ok(args: list[str], inputs: list[Path], limit: float = LIMIT, timeout_s: float = 240):
+    """Run the CLI measured; exit 0, no traceback, inputs unchanged, peak <= limit, in time."""
+    before = sha1s(*inputs)
+    t0 = time.perf_counter()
+    code, peak, out, err = _run_measured(args)
+    took = time.perf_counter() - t0
+    assert code == 0, err
+    assert "Traceback" not in err, err
+    assert sha1s(*inputs) == before, "an input file was modified"
+    assert 0 < peak <= limit, f"peak RSS {peak / GiB:.2f} GiB"
+    assert took < timeout_s, took
+    return out, err
+
+
+@pytest.mark.slow
+def test_transfer_6000px_jpeg_small_size_bounded(tmp_path):
+    """A 6000 x 6000 JPEG content at --size 96: worked on its face region reduced to 4 MP, the
+    change pasted at full resolution (was 2.9 GB and almost 5 minutes)."""
+    from facetex.io import read_image_uint8
+
+    from _robust import OTHER
+
+    content = _face_jpeg(tmp_path / "big.jpg", 6000, 6000)
+    out = tmp_path / "out" / "t.png"
+    out.parent.mkdir()
+    _, err = _measured_ok(["transfer", str(content), str(OTHER), "-o", str(out), "--size", "96", "--iters", "3",
+                           "-q"], [content, OTHER])
+    assert "worked on its face region" in err
+    assert sorted(p.name for p in out.parent.iterdir()) == ["t.png", "t.png.json"]
+    res = read_image_uint8(out)
+    assert res.shape == (6000, 6000, 3)
+    src = read_image_uint8(content)
+    changed = np.abs(res.astype(np.int16) - src).max(axis=2) > 2
+    assert 0.01 < changed.mean() < 0.3  # the face's skin changed, not the whole image
+    ys, xs = np.nonzero(changed)
+    assert 1000 < ys.min() and ys.max() < 5000 and 1000 < xs.min() and xs.max() < 5000  # around the face only
+
+
+@pytest.mark.slow
+def test_metrics_36mp_photo_bounded(tmp_path):
+    """metrics on 36 MP photos (7360 x 4912): read reduced to 4 MP (was over 600 s and 5.3 GB)."""
+    from _robust import OTHER
+
+    content = _face_jpeg(tmp_path / "content.jpg", 7360, 4912)
+    style = _face_jpeg(tmp_path / "style.jpg", 7360, 4912, src=OTHER, seed=1)
+    out, err = _measured_ok(["metrics", str(content), str(content), str(style), "--json"], [content, style])
+    assert "reduced to 2448x1633 for the metrics" in err
+    r = json.loads(out)
+    assert r["E_content"] < 1 and r["S_content"] > 0.99  # the content against itself
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["content.jpg", "style.jpg"]
+
+
+def _video_8k(path: Path, n: int = 4) -> Path:
+    import av
+    import cv2
+
+    from _robust import FACE, FACE_SMILING
+
+    faces = [cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB) for p in (FACE, FACE_SMILING)]
+    with av.open(str(path), "w") as c:
+        s = c.add_stream("libx264" if "libx264" in av.codecs_available else "h264", rate=10)
+        s.width, s.height, s.pix_fmt = 7680, 4320, "yuv420p"
+        s.options = {"preset": "ultrafast", "crf": "30"}
+        for i in range(n):
+            frame = np.full((4320, 7680, 3), 90, np.uint8)
+            frame[240:4080, 1920:5760] = cv2.resize(faces[i % 2], (3840, 3840), interpolation=cv2.INTER_LINEAR)
+            vf = av.VideoFrame.from_ndarray(frame, format="rgb24")
+            vf.pts = i
+            for p in s.encode(vf):
+                c.mux(p)
+        for p in s.encode(None):
+            c.mux(p)
+    return path
+
+
+@pytest.mark.slow
+def test_puppet_8k_driver_bounded(tmp_path, persona_file):
+    """An 8K (7680 x 4320) driver: decoded straight to 1920 px (was 4.1 GB)."""
+    from facetex.io import video_info
+
+    driver = _video_8k(tmp_path / "d8k.mp4")
+    out = tmp_path / "out" / "p.mp4"
+    out.parent.mkdir()
+    _measured_ok(["puppet", str(driver), str(persona_file), "-o", str(out), "-q"], [driver, persona_file])
+    info = video_info(out)
+    assert (info["width"], info["height"], info["n_frames"]) == (1920, 1080, 4)
+    assert sorted(p.name for p in out.parent.iterdir()) == ["p.mp4", "p.mp4.json"]
+
+
+def _bench_results(folder: Path, n: int, *, methods=("facetex",), images: bool = True) -> Path:
+    """A bench transfer folder of n pairs (33 metrics per method); with ``images`` each output is
+    a hard link of one small face PNG."""
+    from PIL import Image
+
+    from _robust import FACE, FACE_SMILING, OTHER
+
+    (folder / "images").mkdir(parents=True)
+    one = folder / "one.png"
+    if images:
+        Image.open(FACE).convert("RGB").resize((200, 200)).save(one)
+    rng = np.random.default_rng(0)
+    names = ["E_content", "E_style", "E_content_rms_px", "E_style_rms_px", "S_content", "S_style", "S_style_none",
+             "S_style_gain", "identity_content", "identity_style", "detail_output", "detail_content", "detail_style",
+             "detail_style_own", "detail_ratio", "protected_change", "background_change", "lowfreq_dE",
+             "lowfreq_dE_max_region", "hair_leakage", "hair_leakage_style", "stubble_output", "stubble_content",
+             "stubble_style", "stubble_moved", "coverage", "detail_moved", "detail_moved_cheeks",
+             "detail_moved_cheeks_skin", "marks_content", "marks_kept", "marks_style", "marks_arrived"]
+    samples = [FACE, FACE_SMILING, OTHER]
+    with open(folder / "results.json", "w") as fh:
+        fh.write('{"bench": "transfer", "settings": {"size": 128}, "pairs": [')
+        for i in range(n):
+            results = {}
+            for m in methods:
+                image = None
+                if images:
+                    image = f"images/out_{i}_{m}.png"
+                    os.link(one, folder / image)
+                results[m] = {"image": image, "metrics": dict(zip(names, rng.random(len(names)).tolist())),
+                              "wall_s": 12.5}
+            pair = {"content": f"c{i}", "style": f"s{i}", "results": results}
+            if images:
+                pair.update(content_path=str(samples[i % 3]), style_path=str(samples[(i + 1) % 3]))
+            fh.write((", " if i else "") + json.dumps(pair))
+        fh.write("]}")
+    if images:
+        one.unlink()
+    return folder
+
+
+@pytest.mark.slow
+def test_report_10000_outputs_bounded(tmp_path):
+    """A bench folder of 10 000 outputs: thumbnails and zooms of the first rows only (was 7 GB)."""
+    from facetex.report.html import MAX_IMAGE_ROWS
+
+    run = _bench_results(tmp_path / "run", 10_000)
+    out = tmp_path / "out" / "r.html"
+    out.parent.mkdir()
+    _measured_ok(["report", str(run), "-o", str(out), "-q"], [run / "results.json"])
+    page = out.read_text()
+    assert page.count("class='thumb'") == 3 * MAX_IMAGE_ROWS  # style, content, output
+    assert page.count("class='vitem'") == MAX_IMAGE_ROWS
+    assert f"Images of the first {MAX_IMAGE_ROWS} of 10000 rows" in page
+    assert out.stat().st_size < 100 * 2**20
+    assert sorted(p.name for p in out.parent.iterdir()) == ["r.html", "r.html.json"]
+
+
+@pytest.mark.slow
+def test_report_112mb_results_json_bounded(tmp_path):
+    """A 112 MB results.json (28 500 pairs x 3 methods x 33 metrics): intervals resampled in batches,
+    figures with at most MAX_DOTS dots a panel (was over 17 GB after 3 minutes, killed)."""
+    run = _bench_results(tmp_path / "run", 28_500, methods=("facetex", "mrf", "gatys"), images=False)
+    assert 100 * 2**20 < (run / "results.json").stat().st_size < 125 * 2**20
+    out = tmp_path / "out" / "r.html"
+    out.parent.mkdir()
+    _measured_ok(["report", str(run), "-o", str(out), "-q"], [run / "results.json"], timeout_s=400)
+    assert sorted(p.name for p in out.parent.iterdir()) == ["r.html", "r.html.json"]
