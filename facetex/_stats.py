@@ -8,7 +8,7 @@ from typing import Iterable
 
 import numpy as np
 
-__all__ = ["spread", "spread_text", "bootstrap_mean", "MIN_N_INTERVAL"]
+__all__ = ["finite_values", "spread", "spread_text", "bootstrap_mean", "MIN_N_INTERVAL"]
 
 #: fewer items than this: no interval (a bootstrap of 2-4 values has a handful of distinct means and
 #: says nothing about the spread)
@@ -20,11 +20,16 @@ BIG_N = 2000
 BIG_RESAMPLED = 20_000_000
 
 
+def finite_values(values) -> np.ndarray:
+    """float64 array of the finite values (None, NaN and infinities left out)."""
+    a = np.array([v for v in values if v is not None], dtype=np.float64)
+    return a[np.isfinite(a)]
+
+
 def spread(values: Iterable) -> dict:
     """``n``, ``mean``, ``std`` (sample, ddof=1) and the 95 % confidence interval of the mean
     (Student t) of the finite values; NaN where undefined."""
-    a = np.array([v for v in values if v is not None], dtype=np.float64)
-    a = a[np.isfinite(a)]
+    a = finite_values(values)
     n = int(a.size)
     nan = float("nan")
     if n == 0:
@@ -47,11 +52,6 @@ def spread_text(values: Iterable, fmt: str = ".3f") -> str:
     if s["n"] == 1:
         return f"{s['mean']:{fmt}}"
     return f"{s['mean']:{fmt}} ± {s['std']:{fmt}} [{s['ci95'][0]:{fmt}}, {s['ci95'][1]:{fmt}}]"
-
-
-def _finite(values) -> np.ndarray:
-    a = np.array([v for v in values if v is not None], dtype=np.float64)
-    return a[np.isfinite(a)]
 
 
 def bootstrap_mean(values: Iterable, *, bounds: tuple[float, float] = (-math.inf, math.inf),
@@ -97,7 +97,7 @@ def bootstrap_mean(values: Iterable, *, bounds: tuple[float, float] = (-math.inf
     >>> math.isnan(bootstrap_mean([1.0, 2.0])["lo"])
     True
     """
-    a = _finite(values)
+    a = finite_values(values)
     n = int(a.size)
     lo_b, hi_b = float(bounds[0]), float(bounds[1])
     nan = float("nan")

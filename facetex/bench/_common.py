@@ -206,8 +206,9 @@ def json_safe(obj):
 
 def mean_finite(values: Iterable) -> float:
     """Mean of the finite values (NaN when there are none)."""
-    a = np.array([v for v in values if v is not None], dtype=np.float64)
-    a = a[np.isfinite(a)]
+    from .._stats import finite_values
+
+    a = finite_values(values)
     return float(a.mean()) if a.size else float("nan")
 
 

@@ -132,10 +132,9 @@ def run(args) -> int:
     from .._api import transfer_with_info
     from .._provenance import provenance
     from ..errors import BadInputError
-    from ..io import IMAGE_EXTENSIONS, check_input_file, check_output_path, encode_image, encode_json, read_image
-    from ..io import DETECT_MAX_PIXELS, write_files, write_image
+    from ..io import (DETECT_MAX_PIXELS, IMAGE_EXTENSIONS, check_input_file, check_output_path, encode_image,
+                      encode_json, read_image, to_uint8, write_files, write_image)
     from ..transfer import face_crop_box
-    from ..io import to_uint8
     from ..transfer._pipeline import NATIVE_MAX_PIXELS, detect_points68
 
     init_path = None if args.init in ("content", "random") else args.init

@@ -111,6 +111,17 @@ def _check_rgb(image, name: str, lazy: bool = False) -> np.ndarray:
     return a
 
 
+def _init_image(init, content: np.ndarray) -> np.ndarray:
+    """An ``init`` image (not "content" / "random") as float32 RGB of the content's size, checked."""
+    if isinstance(init, str):
+        raise BadInputError(f"init must be 'content', 'random' or an image array, not {init!r}")
+    ini = _check_rgb(init, "init image")
+    if ini.shape != content.shape:
+        raise BadImageError(f"init image is {ini.shape[1]}x{ini.shape[0]} px, the content "
+                            f"{content.shape[1]}x{content.shape[0]}: it must have the content's size")
+    return ini
+
+
 # ---------------------------------------------------------------- large images (issue 23)
 #: Largest content or style image the pipeline works on as it is (1.5 MP; the paper's headshots
 #: are 1000 px). Above it, the work is done on the face's neighbourhood (the crop box grown by
@@ -132,9 +143,8 @@ def detect_points68(image: np.ndarray, source=None) -> np.ndarray:
         return detect_face(image, source=source).points68
     k = math.sqrt(DETECT_MAX_PIXELS / (h * w))
     small = cv2.resize(image, (max(1, int(w * k)), max(1, int(h * k))), interpolation=cv2.INTER_AREA)
-    sx, sy = small.shape[1] / w, small.shape[0] / h
-    p = np.asarray(detect_face(small, source=source).points68, np.float64)
-    return np.column_stack([(p[:, 0] + 0.5) / sx - 0.5, (p[:, 1] + 0.5) / sy - 0.5])
+    to_full = (w / small.shape[1], h / small.shape[0])
+    return _map_points(detect_face(small, source=source).points68, (0, 0), to_full)
 
 
 def _native_part(image: np.ndarray, points68, crop: str):
@@ -199,11 +209,7 @@ def _transfer_reduced(content, style, cp, sp, params, init, callback, kwargs) ->
     if style.shape[0] * style.shape[1] > NATIVE_MAX_PIXELS:
         _, s_sub, s_pts, _ = _native_part(style, sp, params.crop)
     if not (isinstance(init, str) and init in ("content", "random")):
-        ini = _check_rgb(init, "init image")
-        if ini.shape != content.shape:
-            raise BadImageError(f"init image is {ini.shape[1]}x{ini.shape[0]} px, the content "
-                                f"{content.shape[1]}x{content.shape[0]}: it must have the content's size")
-        ini = ini[c_part[1]:c_part[3], c_part[0]:c_part[2]]
+        ini = _init_image(init, content)[c_part[1]:c_part[3], c_part[0]:c_part[2]]
         init = ini if ini.shape == c_sub.shape else _resize(ini, (c_sub.shape[1], c_sub.shape[0]))
     wrapped = None
     if callback is not None:
@@ -569,13 +575,7 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
     if isinstance(init, str) and init == "random":
         start = np.random.default_rng(seed).uniform(0.0, 1.0, content_w.shape).astype(np.float32)
     elif not (isinstance(init, str) and init == "content"):
-        if isinstance(init, str):
-            raise BadInputError(f"init must be 'content', 'random' or an image array, not {init!r}")
-        ini = _check_rgb(init, "init image")
-        if ini.shape != content.shape:
-            raise BadImageError(f"init image is {ini.shape[1]}x{ini.shape[0]} px, the content "
-                                f"{content.shape[1]}x{content.shape[0]}: it must have the content's size")
-        start = _resize(ini[box[1]:box[3], box[0]:box[2]], (wh[1], wh[0]))
+        start = _resize(_init_image(init, content)[box[1]:box[3], box[0]:box[2]], (wh[1], wh[0]))
     builder = _LossBuilder(params, content_w, style_w, prior, style_mask, target_mask, cpw, device)
     user_callback = callback
     if user_callback is not None:
