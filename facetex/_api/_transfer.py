@@ -83,12 +83,9 @@ def _init_arg(init, content: np.ndarray):
 def _keep_large_uint8(image):
     """A uint8 RGB array over the pipeline's NATIVE_MAX_PIXELS, as it is (the pipeline makes only
     its reduced face region float: a 36 MP photo as float is 0.4 GB), else None."""
-    from ..transfer._pipeline import NATIVE_MAX_PIXELS
+    from ..transfer._pipeline import stays_integer
 
-    if isinstance(image, np.ndarray) and image.dtype == np.uint8 and image.ndim == 3 and image.shape[2] == 3 \
-            and image.shape[0] * image.shape[1] > NATIVE_MAX_PIXELS:
-        return image
-    return None
+    return image if stays_integer(image) and image.dtype == np.uint8 else None
 
 
 def transfer_with_info(
