@@ -22,13 +22,13 @@ from ._atomic import (
     temp_tag,
     write_files,
 )
-from ._convert import to_float32, to_uint8
+from ._convert import check_float_pixels, to_float32, to_uint8
 from ._files import (
     as_path,
     check_input_dir,
     check_input_file,
     npz_members,
-    read_npy_header,  # noqa: F401 - public, not in __all__ (as before the split)
+    read_npy_header,
     read_regular,
 )
 from ._read import (
@@ -51,11 +51,11 @@ from ._video import (
 )
 from ._write import encode_image, encode_json, write_image, write_json
 
-__all__ = [
-    "ImageLike", "as_image", "image_args", "read_image", "read_image_reduced", "read_image_uint8", "to_uint8",
-    "to_float32", "check_input_file", "check_input_dir", "as_path", "read_regular", "atomic_path",
-    "check_output_path", "check_outputs", "write_files", "temp_tag", "encode_image", "encode_json", "write_image",
-    "write_json", "committed_outputs",
-    "video_info", "iter_video_frames", "read_video", "write_video", "transcode_audio", "npz_members",
-    "MAX_IMAGE_PIXELS", "DETECT_MAX_PIXELS", "IMAGE_MEMORY_BUDGET", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS",
+__all__ = [  # in the order of the reference page
+    "ImageLike", "as_image", "image_args", "to_float32", "check_float_pixels", "to_uint8", "as_path",
+    "check_input_file", "read_regular", "check_input_dir", "MAX_IMAGE_PIXELS", "DETECT_MAX_PIXELS",
+    "IMAGE_MEMORY_BUDGET", "read_image", "read_image_reduced", "read_image_uint8", "IMAGE_EXTENSIONS",
+    "VIDEO_EXTENSIONS", "committed_outputs", "check_output_path", "check_outputs", "temp_tag", "write_files",
+    "atomic_path", "encode_image", "write_image", "encode_json", "write_json", "read_npy_header",
+    "npz_members", "video_info", "iter_video_frames", "read_video", "transcode_audio", "write_video",
 ]
