@@ -4,7 +4,7 @@ Each configuration runs in a fresh ``python`` process (so peaks do not mix): the
 runs :func:`facetex.transfer.transfer_with_info` with a few iterations per level and
 reports its peak resident set (``VmHWM`` from /proc/self/status; ``ru_maxrss`` where
 there is no /proc), its resident set after imports, and the estimate
-(:func:`facetex.transfer._pipeline.estimate_transfer_memory`, as recorded in the info).
+(:func:`facetex.transfer.estimate_transfer_memory`, as recorded in the info).
 The estimate should be at or above the peak and not far above it. The L-BFGS history is
 capped at the iteration count (a short run stores no more pairs), in the estimate too.
 
@@ -100,7 +100,7 @@ def main(argv=None) -> int:
               f"{r['seconds']:>6.0f}s", flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=2))
-    print(f"\nestimate: facetex.transfer._pipeline.estimate_transfer_memory (350 MiB fixed + per-pixel terms);"
+    print(f"\nestimate: facetex.transfer.estimate_transfer_memory (350 MiB fixed + per-pixel terms);"
           f" peak: VmHWM of a fresh process; {args.iters} iterations per level; {os.cpu_count()} CPUs")
     return 0
 

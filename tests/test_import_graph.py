@@ -24,8 +24,24 @@ def _module_name(path: Path) -> str:
     return ".".join(parts)
 
 
+def _reexports(mods: dict[str, Path]) -> dict[str, dict[str, str]]:
+    """{package: {name: its private module}} of the names a package's ``__init__`` imports from
+    its own modules at the top (``from ._read import read_image`` in ``facetex.io``): importing
+    such a name from the package ties the importer to that module."""
+    out: dict[str, dict[str, str]] = {}
+    for name, path in mods.items():
+        if path.name != "__init__.py":
+            continue
+        for node in ast.parse(path.read_text(encoding="utf-8")).body:
+            if isinstance(node, ast.ImportFrom) and node.level == 1 and node.module:
+                for a in node.names:
+                    out.setdefault(name, {})[a.asname or a.name] = f"{name}.{node.module}"
+    return out
+
+
 def _graph() -> dict[str, set[str]]:
     mods = {_module_name(p): p for p in ROOT.rglob("*.py")}
+    reexports = _reexports(mods)
     graph: dict[str, set[str]] = {m: set() for m in mods}
     for name, path in mods.items():
         pkg = name if path.name == "__init__.py" else name.rpartition(".")[0]
@@ -46,6 +62,7 @@ def _graph() -> dict[str, set[str]]:
                 else:
                     mod = node.module or ""
                 targets = [mod] + [f"{mod}.{a.name}" for a in node.names]
+                targets += [reexports[mod][a.name] for a in node.names if a.name in reexports.get(mod, {})]
             elif isinstance(node, ast.Import):
                 targets = [a.name for a in node.names]
             for t in targets:
@@ -105,3 +122,10 @@ def test_the_benches_and_the_report_share_statistics_from_below():
     g = _graph()
     assert "facetex._stats" in g["facetex.report.compare"]
     assert not any(t.startswith("facetex.bench") for t in g["facetex.report.compare"] | g["facetex.report.figures"])
+
+
+def test_names_imported_from_a_package_tie_the_importer_to_their_module():
+    """``from .io import read_image`` ties landmarks to facetex.io._read, where read_image is."""
+    g = _graph()
+    assert "facetex.io._read" in g["facetex.landmarks"]
+    assert "facetex.metrics._transfer" in g["facetex.cli.cmd_metrics"]

@@ -83,7 +83,7 @@ def _init_arg(init, content: np.ndarray):
 def _keep_large_uint8(image):
     """A uint8 RGB array over the pipeline's NATIVE_MAX_PIXELS, as it is (the pipeline makes only
     its reduced face region float: a 36 MP photo as float is 0.4 GB), else None."""
-    from ..transfer._pipeline import stays_integer
+    from ..transfer._regions import stays_integer
 
     return image if stays_integer(image) and image.dtype == np.uint8 else None
 

@@ -41,7 +41,7 @@ def _collection_descriptor(persona_file, limit: int = ID_PHOTOS) -> np.ndarray:
     from ..io import read_image
     from ..landmarks import detect_faces
     from ..nets.dlib_resnet import face_descriptor
-    from ..persona.collection import _read_header
+    from ..persona._persona_file import _read_header
 
     header, _, photos = _read_header(Path(persona_file))
     source = Path(header.get("source", ""))

@@ -106,7 +106,7 @@ __all__ = ["register_bench", "run_bench_puppet", "mouth_slope", "shifted_clip", 
 def _persona_file(puppet, out: Path, progress) -> str:
     """A .persona file for ``puppet``: itself, or the photo folder's persona built once and cached in ``out``."""
     from ..persona import build_persona
-    from ..persona.collection import _read_header
+    from ..persona._persona_file import _read_header
 
     p = Path(puppet)
     if p.is_file():

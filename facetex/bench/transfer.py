@@ -37,160 +37,53 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .._methods import METHOD_COLOURS, METHOD_TITLES, NO_TRANSFER, TRANSFER_METHODS
+from .._methods import METHOD_COLOURS, METHOD_TITLES
 from ..errors import BadInputError, NoFaceError, OutputError
 from ..io import read_image, to_uint8, write_image, write_json
-from ._common import (Column, ResultStore, check_out_dir, csv_table, list_portraits, markdown_table,
-                      json_safe, mean_finite, no_image_data, select_pairs, versions, write_figure_formats, write_grid,
-                      write_text)
-
-__all__ = ["METHODS", "METHOD_TITLES", "METHOD_COLOURS", "PAPER_TABLE1", "PRESETS",
-           "run_bench_transfer", "register_bench", "run"]
-
-DATA_SUBFOLDER = "frl-london"  # inside --data / $FACETEX_DATA (or --data is this folder itself)
-METHODS = TRANSFER_METHODS  # one name and one order everywhere: facetex._methods
-NONE = NO_TRANSFER  # the content scored as the output ("doing nothing")
-PRESETS = ("default", "paper", "preview")
-# Figure 3 shows MRF-CNN, FaceTex, Neural Style; the grid uses Table 1's order like every other table
-# and page (issue 25: one order for the methods everywhere)
-GRID_ORDER = METHODS
-ZOOM_ROWS = ("forehead", "left cheek", "upper lip", "chin")  # where hair, shine and stubble show
-SAME_PERSON = 0.6  # dlib's same-person threshold for the identity distance
-
-# FaceTex Table 1 (Kaur, Zhang & Dana 2017): means over the five pairs of Figure 3
-PAPER_TABLE1 = {
-    "gatys": {"E_content": 22.61, "E_style": 369.39, "S_content": 0.89, "S_style": 0.47},
-    "mrf": {"E_content": 106.17, "E_style": 191.47, "S_content": 0.70, "S_style": 0.68},
-    "facetex": {"E_content": 37.93, "E_style": 295.93, "S_content": 0.76, "S_style": 0.55},
-}
-METRIC_KEYS = ("E_content", "E_style", "E_content_rms_px", "E_style_rms_px", "S_content", "S_style",
-               "identity_content", "identity_style", "S_style_none", "S_style_gain", "detail_output",
-               "detail_content", "detail_style", "detail_ratio", "protected_change", "background_change",
-               "lowfreq_dE", "lowfreq_dE_max_region", "hair_leakage", "hair_leakage_style", "stubble_output",
-               "stubble_content", "stubble_style", "stubble_moved", "coverage", "detail_moved",
-               "detail_moved_cheeks", "detail_moved_cheeks_skin", "marks_content", "marks_kept", "marks_style", "marks_arrived")
-
-# Issue 22's pairs (content, style) of FRL London neutral portraits, chosen by looking at them:
-# the style has a fringe (F), stubble or a beard (B), shiny skin (S); the two differ in skin
-# tone (T) and/or sex (X). The first 10 are the quick set used while iterating.
-ISSUE22_PAIRS = (
-    ("083", "037"),  # B X: pale young woman <- full-bearded man
-    ("010", "003"),  # F: woman <- woman with a heavy fringe
-    ("081", "043"),  # S T X: pale blonde woman <- dark-skinned man, shiny forehead
-    ("025", "022"),  # B T X: dark-skinned woman <- pale man with a goatee and stubble
-    ("087", "067"),  # F X: East Asian woman <- man with a long fringe
-    ("063", "061"),  # S T: pale man <- dark-skinned man with shiny skin
-    ("090", "092"),  # B X: woman <- bearded man
-    ("042", "003"),  # F T X: dark-skinned man <- pale woman with a fringe
-    ("030", "021"),  # S X: South-East Asian woman <- bald man, shiny head and forehead
-    ("019", "004"),  # B X: young woman <- man with stubble
-    ("009", "033"),  # B X: woman <- man with heavy stubble
-    ("018", "045"),  # F: man <- man with a fringe
-    ("097", "081"),  # F: woman <- woman with a side fringe
-    ("006", "042"),  # S X: dark-skinned woman <- dark-skinned man, shiny skin
-    ("061", "083"),  # T X: dark-skinned man <- pale woman
-    ("062", "009"),  # T: dark-skinned woman <- pale woman
-    ("002", "070"),  # B X: woman <- man with stubble
-    ("034", "008"),  # T X: East Asian woman <- South Asian man
-    ("068", "096"),  # T: pale man <- dark-skinned man
-    ("044", "039"),  # X: freckled man <- woman
-    ("038", "014"),  # spotted skin woman <- smooth-skinned woman (marks)
-    ("004", "005"),  # B: the project's usual pair (stubbled man <- East Asian man)
+from ._common import (
+    Column,
+    ResultStore,
+    check_out_dir,
+    csv_table,
+    json_safe,
+    list_portraits,
+    no_image_data,
+    select_pairs,
+    versions,
+    write_text,
 )
-PAIR_LISTS = {"issue22": ISSUE22_PAIRS}
-
-TABLE_COLUMNS = (
-    Column("method", "method"),
-    Column("n_pairs", "pairs", "d"),
-    Column("E_content", "E(xt,xc)", ".2f"),
-    Column("E_style", "E(xt,xs)", ".2f"),
-    Column("E_content_rms_px", "RMS(xt,xc) px", ".2f"),
-    Column("E_style_rms_px", "RMS(xt,xs) px", ".2f"),
-    Column("S_content", "S(xt,xc)", ".3f"),
-    Column("S_style", "S(xt,xs)", ".3f"),
-    Column("S_style_gain", "S gain", "+.3f"),
-    Column("identity_content", "id(xt,xc)", ".3f"),
-    Column("identity_style", "id(xt,xs)", ".3f"),
-    Column("same_identity", f"id(xt,xc)<{SAME_PERSON}", "d"),
-    Column("detail_output", "detail", ".2f"),
-    Column("detail_ratio", "detail ratio", ".2f"),
-    Column("protected_change", "protected Δ", ".2f"),
-    Column("background_change", "background Δ", ".2f"),
-    Column("prewarp_folds", "folds", "d"),
-    Column("lowfreq_dE", "LF ΔE", ".2f"),
-    Column("lowfreq_dE_max_region", "LF ΔE max", ".2f"),
-    Column("hair_leakage", "hair coh", ".3f"),
-    Column("stubble_moved", "stubble moved", "+.2f"),
-    Column("coverage", "coverage", ".2f"),
-    Column("detail_moved", "detail moved", "+.2f"),
-    Column("detail_moved_cheeks", "detail moved cheeks", "+.2f"),
-    Column("detail_moved_cheeks_skin", "detail moved cheeks (skin)", "+.2f"),
-    Column("marks_kept", "marks kept", ".2f"),
-    Column("marks_arrived", "marks arrived", ".2f"),
-    Column("time_s", "s / image", ".1f"),
-    Column("cpu_s", "CPU s / image", ".1f"),
+from ._transfer_spec import (  # the bench's names, here as before (tests and the report read them)
+    DATA_SUBFOLDER,
+    GRID_ORDER,  # noqa: F401
+    ISSUE22_PAIRS,  # noqa: F401
+    METHODS,
+    METRIC_KEYS,
+    NONE,
+    PAIR_COLUMNS,  # noqa: F401
+    PAIR_LISTS,
+    PAPER_COLUMNS,  # noqa: F401
+    PAPER_TABLE1,
+    PRESETS,
+    SAME_PERSON,  # noqa: F401
+    TABLE_COLUMNS,
+    ZOOM_ROWS,  # noqa: F401
+    parse_methods,
+    resolve_pair_list,
 )
-# per pair (the method's row), worst low-frequency ΔE first
-PAIR_COLUMNS = (
-    Column("pair", "content ← style"), Column("method", "method"),
-    Column("lowfreq_dE", "LF ΔE", ".2f"), Column("lowfreq_dE_max_region", "LF ΔE max", ".2f"),
-    Column("S_style_gain", "S gain", "+.3f"), Column("identity_content", "id(xt,xc)", ".3f"),
-    Column("hair_leakage", "hair coh", ".3f"), Column("hair_leakage_style", "hair coh (style)", ".3f"),
-    Column("stubble_output", "specks out", ".2f"), Column("stubble_content", "specks content", ".2f"),
-    Column("stubble_style", "specks style", ".2f"), Column("stubble_moved", "stubble moved", "+.2f"),
-    Column("coverage", "coverage", ".2f"), Column("detail_moved", "detail moved", "+.2f"),
-    Column("detail_moved_cheeks", "moved cheeks", "+.2f"),
-    Column("detail_moved_cheeks_skin", "moved cheeks (skin)", "+.2f"), Column("marks_content", "marks c", "d"),
-    Column("marks_kept", "kept", ".2f"), Column("marks_style", "marks s", "d"),
-    Column("marks_arrived", "arrived", ".2f"), Column("protected_change", "protected Δ", ".2f"),
-    Column("background_change", "background Δ", ".2f"), Column("time_s", "s", ".1f"),
+from ._transfer_summary import (
+    _pair_rows,
+    _summary_rows,
+    _table_markdown,
+    _write_grid,
+    _write_pair_zoom,
+    _write_scatter,
+    _write_zoom,
 )
-PAPER_COLUMNS = (Column("method", "method"), Column("E_content", "E(xt,xc)", ".2f"),
-                 Column("E_style", "E(xt,xs)", ".2f"), Column("S_content", "S(xt,xc)", ".2f"),
-                 Column("S_style", "S(xt,xs)", ".2f"))
 
-
-def resolve_pair_list(pair_list, portraits) -> list[tuple[str, str]]:
-    """(content, style) id pairs from a :data:`PAIR_LISTS` name, a "c:s,c:s" string or a
-    sequence of pairs; every id must have a portrait in ``portraits``."""
-    if isinstance(pair_list, str):
-        if pair_list in PAIR_LISTS:
-            pairs = list(PAIR_LISTS[pair_list])
-        else:
-            try:
-                pairs = [tuple(x.split(":")) for x in pair_list.split(",") if x.strip()]
-            except ValueError:
-                pairs = []
-            if not pairs or any(len(p) != 2 for p in pairs):
-                raise BadInputError(f"pair list {pair_list!r} is neither one of {', '.join(PAIR_LISTS)} nor "
-                                    "'content:style,content:style,...'")
-    else:
-        pairs = [tuple(p) for p in pair_list]
-    pairs = [(str(c).strip(), str(s).strip()) for c, s in pairs]
-    missing = sorted({i for p in pairs for i in p if i not in portraits})
-    if missing:
-        raise BadInputError(f"pair list names people without an NNN_neutral.jpg portrait: {', '.join(missing)}")
-    if any(c == s for c, s in pairs):
-        raise BadInputError("a pair of the pair list has the same person as content and style")
-    return pairs
-
-
-def parse_methods(methods) -> tuple[str, ...]:
-    """Methods from a comma-separated string or a sequence, validated, in Table 1 order."""
-    if isinstance(methods, str):
-        methods = methods.split(",")
-    out = []
-    for m in methods:
-        m = str(m).strip().lower()
-        if not m:
-            continue
-        if m not in METHODS:
-            raise BadInputError(f"unknown method {m!r}: use one or more of {', '.join(METHODS)}")
-        if m not in out:
-            out.append(m)
-    if not out:
-        raise BadInputError(f"no method given: use one or more of {', '.join(METHODS)}")
-    return tuple(m for m in METHODS if m in out)  # Table 1 order
+__all__ = [  # in the order of the reference page
+    "METHOD_TITLES", "METHOD_COLOURS", "METHODS", "PRESETS", "PAPER_TABLE1", "resolve_pair_list",
+    "parse_methods", "run_bench_transfer", "register_bench", "run",
+]
 
 
 def _default_transfer_fn():
@@ -229,98 +122,6 @@ def _score(output, content, style, points_c, points_s, metrics_fn, extra=None) -
         return {k: float("nan") for k in METRIC_KEYS}, f"no face in output: {e.message}"
 
 
-def _summary_rows(records: dict, pairs, methods) -> list[dict]:
-    rows = []
-    for method in methods:
-        recs = [records[(c, s, method)] for c, s in pairs if (c, s, method) in records]
-        row = {"method": METHOD_TITLES[method], "method_id": method, "n_pairs": len(recs)}
-        for k in METRIC_KEYS:
-            row[k] = mean_finite(r["metrics"][k] for r in recs)
-        row["same_identity"] = sum(1 for r in recs if r["metrics"]["identity_content"] < SAME_PERSON)
-        row["time_s"] = mean_finite(r["wall_s"] for r in recs)
-        row["cpu_s"] = mean_finite(r.get("cpu_s", float("nan")) for r in recs)
-        row["prewarp_folds"] = int(sum(int(r.get("prewarp_folds") or 0) for r in recs))
-        rows.append(row)
-    return rows
-
-
-def _pair_rows(records: dict, pairs, methods) -> list[dict]:
-    """One row per (pair, method) with its metrics, worst low-frequency ΔE first."""
-    rows = []
-    for m in methods:
-        for c, s in pairs:
-            r = records.get((c, s, m))
-            if r is None:
-                continue
-            met = dict(r["metrics"])
-            for k in ("marks_content", "marks_style"):
-                met[k] = int(met[k]) if np.isfinite(met.get(k, float("nan"))) else -1
-            rows.append({"pair": f"{c} ← {s}", "method": METHOD_TITLES[m], **met, "time_s": r["wall_s"]})
-    key = lambda r: -r["lowfreq_dE"] if np.isfinite(r.get("lowfreq_dE", float("nan"))) else 0.0  # noqa: E731
-    return sorted(rows, key=key)
-
-
-def _table_markdown(rows, settings, pair_rows=()) -> str:
-    paper = [{"method": f"{METHOD_TITLES[m]} (paper)", **PAPER_TABLE1[m]} for m in METHODS]
-    return "\n".join([
-        "# FaceTex Table 1 — facial style transfer benchmark",
-        "",
-        f"{settings['n_pairs']} content/style pairs of different people from `{settings['data']}` "
-        f"(seed {settings['seed']}, preset `{settings['preset']}`). Means over the pairs. "
-        "E = mean squared landmark distance on the 66 FaceTex landmarks at 1000 px (px²; RMS in px "
-        "beside it), S = Eq. 8 correlation of forehead and cheek patches, id = dlib face-descriptor "
-        f"distance (< {SAME_PERSON}: same person), time = wall-clock seconds per output image. "
-        "S gain = S(xt,xs) − S(xc,xs); detail = std (0–255) of luminance minus its σ = 2 px blur in the "
-        "three skin patches at native resolution, detail ratio = detail(output) / detail(style aligned onto "
-        "the content); protected Δ = mean |Δ| (0–255) over eyes, brows and lips; background Δ = mean |Δ| "
-        "outside the face; folds = pre-warp pixels of the face where the map folds (all pairs). "
-        "\"no transfer\" scores the content itself as the output. "
-        "Issue 22: LF ΔE = ΔE76 (CIELAB) of the content's skin between output and content, both blurred at "
-        "0.1 × the eye distance over the skin only (mean; max = worst of forehead and cheek patches); hair coh "
-        "= structure-tensor coherence of the change image on the forehead skin (oriented strands: higher; "
-        "style = what pasting the aligned style would give); specks = dark specks per 1000 px on the upper "
-        "lip and chin, stubble moved = (output − content) / (style − content); coverage = fraction of the "
-        "content's skin that changed (|Δ| blurred at 2 px > 1/255); detail moved = fraction of the way the "
-        "σ = 2 px high-pass moved from the content's level to the style's own (cheeks: where the style is "
-        "rougher; (skin): the same over the patches' skin pixels only, the style's without its moustache, "
-        "stubble, hair or shine, which the whole cheek patch also measures); marks kept / arrived = the content's blobs (LoG) found again in the output / the style's "
-        "that appear there. CPU s = process CPU time per image (the machine may be shared).",
-        "",
-        markdown_table(TABLE_COLUMNS, rows),
-        *(["## Per pair, worst low-frequency ΔE first", "", markdown_table(PAIR_COLUMNS, list(pair_rows))]
-          if pair_rows else []),
-        "## Paper (Kaur, Zhang & Dana 2017, Table 1; head portraits of Shih et al., 5 pairs)",
-        "",
-        markdown_table(PAPER_COLUMNS, paper),
-    ])
-
-
-def _write_scatter(path, records, pairs, methods) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.8))
-    panels = (("E_content", "E_style", "(a) landmark error (px² at 1000 px)", "E(xt, xc)", "E(xt, xs)"),
-              ("S_content", "S_style", "(b) texture similarity", "S(xt, xc)", "S(xt, xs)"))
-    for ax, (kx, ky, title, xl, yl) in zip(axes, panels):
-        for m in methods:
-            pts = np.array([[records[(c, s, m)]["metrics"][kx], records[(c, s, m)]["metrics"][ky]]
-                            for c, s in pairs if (c, s, m) in records], dtype=float).reshape(-1, 2)
-            ax.scatter(pts[:, 0], pts[:, 1], color=METHOD_COLOURS[m], label=METHOD_TITLES[m], s=36)
-            ref = PAPER_TABLE1[m]
-            ax.scatter([ref[kx]], [ref[ky]], color=METHOD_COLOURS[m], marker="x", s=70,
-                       label=f"{METHOD_TITLES[m]} (paper mean)")
-        ax.set_title(title)
-        ax.set_xlabel(xl)
-        ax.set_ylabel(yl)
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8)
-    fig.suptitle("FaceTex Figure 4: per-pair metrics (dots), paper means (crosses)")
-    return write_figure_formats(Path(path).with_suffix(""), fig)[0]  # .png, and .svg + .pdf for papers
-
-
 def _default_metrics(output, content, style, **kw):
     import inspect
 
@@ -329,48 +130,6 @@ def _default_metrics(output, content, style, **kw):
     fn = metrics.transfer_metrics
     accepted = inspect.signature(fn).parameters
     return fn(output, content, style, **{k: v for k, v in kw.items() if k in accepted})
-
-
-def _write_pair_zoom(out: Path, c: str, s: str, paths, methods, records, load) -> Path | None:
-    """``zoom/<c>__<s>.png``: forehead, cheek and chin crops at native resolution."""
-    from ._zoom import zoom_sheet
-
-    target = out / "zoom" / f"{ResultStore.key(c, s)}.png"
-    d = load()
-    cols = [("content", d["content"])]
-    pre = out / "images" / f"{ResultStore.key(c, s, 'prewarp')}.png"
-    cols.append(("pre-warped style", read_image(pre) if pre.is_file() else d["aligned"]))
-    for m in methods:
-        img = out / "images" / f"{ResultStore.key(c, s, m)}.png"
-        if (c, s, m) in records and img.is_file():
-            cols.append((METHOD_TITLES[m], read_image(img)))
-    sheet = zoom_sheet(cols, d["points_c"], regions=ZOOM_ROWS, title=f"content {c}, style {s} (2x, nearest)")
-    target.parent.mkdir(exist_ok=True)
-    return write_image(target, sheet, overwrite=True)
-
-
-def _write_zoom(path: Path, out: Path, pairs) -> Path | None:
-    """All pairs' zoom sheets stacked into one image."""
-    sheets = [read_image(p) for c, s in pairs if (p := out / "zoom" / f"{ResultStore.key(c, s)}.png").is_file()]
-    if not sheets:
-        return None
-    w = max(x.shape[1] for x in sheets)
-    sheets = [np.pad(x, ((0, 8), (0, w - x.shape[1]), (0, 0)), constant_values=1.0) for x in sheets]
-    return write_image(path, np.concatenate(sheets, 0), overwrite=True)
-
-
-def _write_grid(path, out, pairs, paths, methods, records) -> Path:
-    cols = [m for m in GRID_ORDER if m in methods]
-    rows, labels = [], []
-    for c, s in pairs:
-        row = [read_image(paths[s]), read_image(paths[c])]
-        for m in cols:
-            img = out / "images" / f"{ResultStore.key(c, s, m)}.png"
-            row.append(read_image(img) if (c, s, m) in records and img.is_file() else None)
-        rows.append(row)
-        labels.append([f"style {s}", f"content {c}"] + [None] * len(cols))
-    titles = ["style", "content"] + [METHOD_TITLES[m] for m in cols]
-    return write_grid(path, rows, col_titles=titles, cell_labels=labels, cell=256)
 
 
 def _load_pair(content_path, style_path) -> dict:

@@ -135,7 +135,7 @@ def run(args) -> int:
     from ..io import (DETECT_MAX_PIXELS, IMAGE_EXTENSIONS, check_input_file, check_output_path, encode_image,
                       encode_json, read_image, to_uint8, write_files, write_image)
     from ..transfer import face_crop_box
-    from ..transfer._pipeline import NATIVE_MAX_PIXELS, detect_points68
+    from ..transfer._regions import NATIVE_MAX_PIXELS, detect_points68
 
     init_path = None if args.init in ("content", "random") else args.init
     inputs = [args.content, args.style] + [p for p in (args.vgg19_weights, init_path) if p]

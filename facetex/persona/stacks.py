@@ -4,7 +4,6 @@ products; their 8-bit storage in the .persona file."""
 
 from __future__ import annotations
 
-import json
 import math
 import zlib
 from concurrent.futures import ThreadPoolExecutor
@@ -15,9 +14,10 @@ import numpy as np
 
 from .._parallel import available_cpus
 from ..errors import BadInputError, BadPersonaError
-from ..geometry.gaze import gaze_asymmetry, gaze_weights
+from ..geometry.gaze import gaze_asymmetry
 from ..geometry.glasses import glasses_bridge_score
 from ._packed import Packed
+from ._photo_quality import _PhotoQuality
 from ._stack_parts import (
     _confidence,
     _csr,
@@ -28,13 +28,23 @@ from ._stack_parts import (
     _small_page_arrays,
     _unpremultiply,
 )
+from ._stack_store import (
+    STACKS_VERSION,
+    _aligned_lut,
+    _conf_range,
+    _dequantize_aligned,
+    _lsb_bytes,
+    _lsb_lut,
+    _quantize_aligned,
+    _stored_key,
+)
 from .align import (
     compose_map_flow,
     face_region,
     remap_stack,
     tps_maps,
 )
-from .params import GLASSES_LEVELS, TextureParams
+from .params import TextureParams
 from .pyramid import (
     OUTSIDE_SMOOTH_LEVELS,
     SPARSE_MASS,
@@ -55,7 +65,7 @@ __all__ = [
 ]
 
 
-class _Prepared:
+class _Prepared(_PhotoQuality):
     """Target-independent data of a persona for :func:`synthesize_texture` (see module doc).
 
     Per pyramid level, the pixels inside the face support are grouped into segments by the
@@ -501,82 +511,6 @@ class _Prepared:
             for c in range(3):  # per channel: numpy broadcasts over a length-3 axis slowly
                 b[..., c] *= gain.reshape(B, h, w)
 
-    #: pyramid levels (finest = 0) whose band energy measures a photo's eye detail: 2-8 px
-    #: structures (lids, iris against the whites) at the 192 x 240 canonical frame
-    QUALITY_LEVELS = (1, 2)
-
-    def eye_quality(self) -> np.ndarray:
-        """(n,) detail confidence of each photo's eyes: its band energy (levels
-        :data:`QUALITY_LEVELS`, RGB, confidence-weighted) inside both eyes' outlines (grown by
-        0.1 IOD) over the collection's median, to the power ``tp.eye_quality`` / 2 (the band's
-        amplitude to the power ``eye_quality``), clipped to [1/4, 4]. Open, sharp eyes with visible
-        whites and iris have the most energy there; shut, blurred or shadowed ones the least
-        (the per-pixel L^alpha of Eq. 2 favoured JPEG blocks and noise: one number per photo over
-        the eyes does not); times each photo's gaze weight (``tp.gaze``: photos looking sideways
-        count less). Computed from the stacks once."""
-        key = ("eye_quality", self.tp.eye_quality, self.tp.gaze)
-        if key not in self._stage:
-            from ..geometry.masks import polygon_mask
-
-            p = self.points68
-            iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
-            H, W = self.shape
-            m = np.maximum(polygon_mask(p[36:42], (H, W)), polygon_mask(p[42:48], (H, W))) > 0.5
-            r = max(1, int(round(0.1 * iod)))
-            m = cv2.dilate(m.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2))
-            m = m.astype(np.float32)
-            num = np.zeros(self.n)
-            den = np.zeros(self.n)
-            for k in range(self.levels):
-                if k > 0:
-                    m = cv2.resize(m, self.level_shapes[k][::-1], interpolation=cv2.INTER_AREA)
-                if k not in self.QUALITY_LEVELS:
-                    continue
-                inside = m.reshape(-1) > 0.25
-                for seg in self.segments[k]:
-                    sel = inside[seg.pixels]
-                    if not sel.any():
-                        continue
-                    rows = seg.stack.reshape(self.n, -1, 4)[:, sel].astype(np.float64)
-                    c = rows[..., 3]
-                    band2 = (rows[..., :3] ** 2).sum(-1) / np.maximum(c, 1e-6)  # |band|^2 c from (band c)^2 / c
-                    num += band2.sum(-1)
-                    den += c.sum(-1)
-            e = num / np.maximum(den, 1e-12)
-            med = float(np.median(e)) if np.median(e) > 0 else 1.0
-            q = np.clip((e / med) ** (self.tp.eye_quality / 2.0), 0.25, 4.0)
-            # not clipped: a sharp photo looking sideways must lose to the next nearest photos even
-            # when its expression weight is the largest (the 4th power of the eyes' detail weights)
-            self._stage[key] = q * gaze_weights(self._gaze, self.tp.gaze)
-        return self._stage[key]
-
-    def glasses_factors(self) -> dict[int, np.ndarray]:
-        """{region index: (n,) :meth:`glasses_free` factors} of the regions in
-        :data:`GLASSES_LEVELS`, each at its own level: what the blend multiplies their weights by."""
-        return {j: self.glasses_free(GLASSES_LEVELS[name]) for j, name in enumerate(self.regions)
-                if name in GLASSES_LEVELS}
-
-    def glasses_free(self, level: float) -> np.ndarray:
-        """(n,) weight in (0, 1] of each photo by how unlikely it shows eyeglasses
-        (:func:`facetex.geometry.glasses.glasses_weights` of the photos' bridge scores from
-        ``level`` x their median, exponent ``tp.glasses``), once per level. The frames' rims are
-        strong fine detail round the eyes: the eye-detail weights favoured exactly those photos."""
-        key = ("glasses", self.tp.glasses, level)
-        if key not in self._stage:
-            from ..geometry.glasses import glasses_weights
-
-            self._stage[key] = glasses_weights(self._glasses_scores(), level=level, power=self.tp.glasses)
-        return self._stage[key]
-
-    def _glasses_scores(self) -> np.ndarray:
-        """(n,) every photo's :func:`facetex.geometry.glasses.glasses_bridge_score` (NaN: none):
-        made with the stacks or stored with them; computed from the photos otherwise (a file
-        from before they were stored)."""
-        if self._glasses is None:
-            P = self._persona_ref
-            self._glasses = np.array([glasses_bridge_score(im, p) for im, p in zip(P.images, P.points68)], np.float64)
-        return self._glasses
-
     @property
     def pyr(self) -> list[np.ndarray]:
         """Per level (finest first) the (n, h * w * 4) full-frame stack rows assembled from the
@@ -595,78 +529,6 @@ class _Prepared:
                 *([] if self._packed is None else [self._packed.blob]),
                 *(seg.stack for segs in self.segments for seg in segs), *self._single.values()]
         return int(sum(a.nbytes for a in arrs))
-
-
-#: version of the stacks' computation: stored stacks of another version are recomputed
-STACKS_VERSION = 1
-
-
-def _conf_range(tp: TextureParams) -> tuple[float, float]:
-    """(lo, hi) of the confidences' logarithmic 8-bit code: the floor and the largest confidence
-    :func:`facetex.geometry.frontalize.fill_confidence` gives (values outside are clipped)."""
-    lo = max(float(tp.visibility_floor), 1e-3) if tp.use_visibility else 0.5
-    hi = (max(1.0, tp.mirror_weight) * max(1.0, tp.face_support) + max(tp.visibility_floor, 0.0)
-          if tp.use_visibility else 2.0)
-    return lo, max(hi, 2 * lo)
-
-
-def _quantize_aligned(ic: np.ndarray, tp: TextureParams, out: np.ndarray | None = None,
-                      lsb: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """An aligned (H, W, 4) float32 [image, confidence] quantized: ((H, W, 4) uint8 codes, (m,) uint8
-    the image's 9th bits, packed). The image in 1/511 steps: the codes hold its top 8 bits, ``lsb``
-    the last one (its max error 0.25/255 at all pyramid levels together, the pyramid being linear;
-    8 bits gave 0.5/255 in the textures, which a composite's colour transfer amplified to 1.7/255
-    for a dark-skinned persona). The confidence, a relative weight from the floor (0.02) to ~1, on
-    a logarithmic 8-bit scale (0.8 % relative error; < 0.01/255 in the textures)."""
-    lo, hi = _conf_range(tp)
-    out = np.empty(ic.shape, np.uint8) if out is None else out
-    q9 = np.rint(np.clip(ic[..., :3], 0, 1) * 511).astype(np.uint16)
-    np.right_shift(q9, 1, out=out[..., :3], casting="unsafe")
-    bits = np.zeros(ic.shape, np.uint8)
-    np.bitwise_and(q9, 1, out=bits[..., :3], casting="unsafe")
-    packed = np.packbits(bits.reshape(-1))
-    if lsb is None:
-        lsb = packed
-    else:
-        lsb[...] = packed
-    c = np.log(np.clip(ic[..., 3], lo, hi) / lo) * (255 / math.log(hi / lo))
-    np.rint(c, out=out[..., 3], casting="unsafe")
-    return out, lsb
-
-
-def _lsb_bytes(shape) -> int:
-    """Bytes of one aligned photo's packed 9th bits (4 channels of ``shape`` (H, W))."""
-    return -(-int(shape[0]) * int(shape[1]) * 4 // 8)
-
-
-def _aligned_lut(tp: TextureParams) -> np.ndarray:
-    """(1, 256, 4) float32 values of :func:`_quantize_aligned`'s codes without the 9th bit (``cv2.LUT``)."""
-    lo, hi = _conf_range(tp)
-    q = np.arange(256, dtype=np.float64)
-    return np.stack([2 * q / 511, 2 * q / 511, 2 * q / 511, lo * (hi / lo) ** (q / 255)], axis=-1)[None].astype(np.float32)
-
-
-def _lsb_lut() -> np.ndarray:
-    """(1, 256, 4) float32: the value of a set 9th bit (1/511, none for the confidence)."""
-    lut = np.zeros((1, 256, 4), np.float32)
-    lut[0, 1, :3] = 1 / 511
-    return lut
-
-
-def _dequantize_aligned(q: np.ndarray, lsb: np.ndarray, luts: tuple, work: dict | None = None) -> np.ndarray:
-    """(H, W, 4) float32 [image, confidence] of :func:`_quantize_aligned`'s (codes, 9th bits);
-    ``luts`` = (:func:`_aligned_lut`, :func:`_lsb_lut`); ``work``: buffers reused between calls."""
-    work = {} if work is None else work
-    if work.get("ic") is None or work["ic"].shape != q.shape:
-        work.update(ic=np.empty(q.shape, np.float32), bits=np.empty(q.shape, np.float32))
-    ic = cv2.LUT(q, luts[0], dst=work["ic"])
-    bits = np.unpackbits(lsb, count=q.size).reshape(q.shape)
-    return cv2.add(ic, cv2.LUT(bits, luts[1], dst=work["bits"]), dst=ic)
-
-
-def _stored_key(tp: TextureParams) -> list:
-    """JSON form of what stored stacks depend on (compared with a .persona's header)."""
-    return json.loads(json.dumps([STACKS_VERSION, *tp.stack_key()]))
 
 
 def stored_stacks(persona: Persona) -> dict:

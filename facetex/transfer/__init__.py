@@ -4,7 +4,8 @@ The entry points are the functions :func:`facetex.transfer` and
 :func:`facetex.transfer_with_info` (also importable from here). This subpackage holds
 the implementation: losses are pure functions in :mod:`.losses`, the gradient-scaling
 prior in :mod:`.prior`, the multi-resolution L-BFGS loop in :mod:`.optimize`, the
-presets in :mod:`.methods` and the pipeline in :mod:`._pipeline`.
+presets in :mod:`.methods` and the pipeline in :mod:`._pipeline` (its working region in
+:mod:`._regions`, what each resolution level evaluates in :mod:`._levels`).
 
 ``facetex.transfer`` (the attribute) is the function; reach this subpackage with import
 statements: ``from facetex.transfer import mrf_loss``, ``import facetex.transfer.losses as
@@ -19,7 +20,9 @@ import types as _types
 # Names resolve on first use (PEP 562) so that ``facetex.transfer.methods`` (read by the CLI
 # parser) does not import torch: a 3 s start-up cost for every other command.
 _LAZY = {
-    "._pipeline": ("available_memory", "default_max_memory", "estimate_transfer_memory", "face_crop_box"),
+    "facetex._memory": ("available_memory",),
+    "._levels": ("default_max_memory", "estimate_transfer_memory"),
+    "._regions": ("face_crop_box",),
     "facetex._api": ("transfer", "transfer_with_info", "transfer_step_image"),
     ".losses": ("content_loss", "gram_loss", "gram_matrix", "mrf_loss", "mrf_match", "structure_loss", "tv_loss"),
     ".methods": ("METHODS", "PRESETS", "TEXTURE_NETS", "TransferParams", "preset"),

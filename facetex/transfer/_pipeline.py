@@ -10,8 +10,6 @@ Data flow (FaceTex §2.3 and §3.1)::
 
 from __future__ import annotations
 
-import functools
-import math
 import time
 import warnings
 from dataclasses import asdict
@@ -20,192 +18,27 @@ import cv2
 import numpy as np
 import torch
 
-from .._memory import available_memory
-from ..errors import BadImageError, BadInputError, MemoryBudgetError
-from ..io import to_float32
-from .losses import (StylePatches, _grid, channel_softmax, gram_loss, gram_matrix, mrf_loss, mrf_memory_estimate,
-                     style_patches, tv_loss)
-from .methods import TransferParams, working_shape
+from ..errors import BadInputError, MemoryBudgetError
+from ._levels import _LossBuilder, default_max_memory, estimate_transfer_memory
+from ._regions import (
+    NATIVE_MAX_PIXELS,
+    _check_rgb,
+    _compose,
+    _full_box,
+    _init_image,
+    _map_points,
+    _native_part,
+    _paste,
+    _paste_change,
+    _paste_region,
+    _resize,
+    detect_points68,
+    face_crop_box,
+)
 from .methods import preset as make_preset
+from .methods import working_shape
 from .optimize import _resize as _resize_level
-from .optimize import optimize_image, to_tensor
-from .prior import apply_facial_prior
-
-CROP_MARGIN = 0.12  # face crop margin around the face outline, × face width
-
-
-# ---------------------------------------------------------------- networks
-@functools.lru_cache(maxsize=4)
-def _texture_net(name: str, device: str, vgg19_weights: str | None):
-    if name == "effnet-lite0":
-        from ..nets.effnet import EfficientNetLite0Features
-
-        net = EfficientNetLite0Features().fuse_batchnorm()  # frozen: batch norms folded into the convolutions
-    elif name == "vgg19":
-        from ..nets.vgg import VGG19Features
-
-        net = VGG19Features(weights=vgg19_weights) if vgg19_weights else VGG19Features()
-    elif name == "vgg19-random":
-        from ..nets.vgg import VGG19Features
-
-        net = VGG19Features(weights="random")
-    else:
-        from ..nets.dlib_resnet import FaceRecognitionNet
-
-        net = FaceRecognitionNet().fold_affines()
-    return net.to(device).to(memory_format=torch.channels_last)  # see _features
-
-
-@functools.lru_cache(maxsize=2)
-def _structure_net(device: str):
-    from ..nets.dlib_resnet import FaceRecognitionNet
-
-    # affines folded into the convolutions, channels-last weights (speed, see _features)
-    return FaceRecognitionNet().fold_affines().to(device).to(memory_format=torch.channels_last)
-
-
-def _features(net, x: torch.Tensor, layers) -> dict[str, torch.Tensor]:
-    """``net.features(x, layers)`` run channels-last (its depthwise and 1×1 convolutions take
-    30 % less time forward + backward on CPU: EfficientNet-Lite0 at 384 × 296 px 63 → 44 ms),
-    the maps returned in the usual contiguous layout."""
-    out = net.features(x.contiguous(memory_format=torch.channels_last), list(layers))
-    return {k: v.contiguous() for k, v in out.items()}
-
-
-# ---------------------------------------------------------------- regions
-def face_crop_box(points68, shape, margin: float = CROP_MARGIN) -> tuple[int, int, int, int]:
-    """(x0, y0, x1, y1) of the face (jaw + forehead arc) grown by ``margin`` × face width."""
-    from ..geometry.masks import face_outline, face_width
-
-    outline = face_outline(points68)
-    pad = margin * face_width(points68)
-    x0, y0 = np.floor(outline.min(0) - pad).astype(int)
-    x1, y1 = np.ceil(outline.max(0) + pad).astype(int)
-    h, w = shape[:2]
-    return max(0, x0), max(0, y0), min(w, x1), min(h, y1)
-
-
-def _resize(image: np.ndarray, size_wh: tuple[int, int]) -> np.ndarray:
-    shrink = size_wh[0] < image.shape[1]
-    interp = cv2.INTER_AREA if shrink else cv2.INTER_CUBIC
-    return np.clip(cv2.resize(image, size_wh, interpolation=interp), 0.0, 1.0).astype(np.float32)
-
-
-def _map_points(points, box, scale_xy):
-    """Points of the full image → points of the (cropped, resized) region (pixel centres)."""
-    p = np.asarray(points, np.float64)
-    x0, y0 = box[0], box[1]
-    return np.column_stack([(p[:, 0] - x0 + 0.5) * scale_xy[0] - 0.5, (p[:, 1] - y0 + 0.5) * scale_xy[1] - 0.5])
-
-
-def _check_rgb(image, name: str, lazy: bool = False) -> np.ndarray:
-    """``image`` as float32 RGB; with ``lazy`` an integer image over NATIVE_MAX_PIXELS stays as it
-    is (its reduced part is made float, see :func:`_native_part`)."""
-    a = np.asarray(image)
-    if a.ndim != 3 or a.shape[2] != 3:
-        raise BadImageError(f"{name} must be an (H, W, 3) RGB image, got shape {a.shape}")
-    if not (lazy and stays_integer(a)):
-        a = to_float32(a)
-    if min(a.shape[:2]) < 32:
-        raise BadImageError(f"{name} of {a.shape[1]}x{a.shape[0]} px is too small: use at least 32 px")
-    return a
-
-
-def _init_image(init, content: np.ndarray) -> np.ndarray:
-    """An ``init`` image (not "content" / "random") as float32 RGB of the content's size, checked."""
-    if isinstance(init, str):
-        raise BadInputError(f"init must be 'content', 'random' or an image array, not {init!r}")
-    ini = _check_rgb(init, "init image")
-    if ini.shape != content.shape:
-        raise BadImageError(f"init image is {ini.shape[1]}x{ini.shape[0]} px, the content "
-                            f"{content.shape[1]}x{content.shape[0]}: it must have the content's size")
-    return ini
-
-
-# ---------------------------------------------------------------- large images (issue 23)
-#: Largest content or style image the pipeline works on as it is (1.5 MP; the paper's headshots
-#: are 1000 px). Above it, the work is done on the face's neighbourhood (the crop box grown by
-#: :data:`NATIVE_CONTEXT`, or the whole image with ``crop="image"``) reduced to at most this many
-#: pixels, and only the change is brought back to the content's own pixels: a 36 MP photo took
-#: minutes and GBs in the pre-warp and detail stages at full resolution (issue 23).
-NATIVE_MAX_PIXELS = 1_500_000
-NATIVE_CONTEXT = 0.1  # × the crop box's longer side: room for the skin mask and the face mesh
-
-
-def stays_integer(image) -> bool:
-    """Whether ``image`` is a uint8 / uint16 RGB array over :data:`NATIVE_MAX_PIXELS`, which the
-    pipeline keeps as it is: only its reduced face region is made float (a 36 MP photo as float
-    is 0.4 GB)."""
-    return (isinstance(image, np.ndarray) and image.dtype in (np.uint8, np.uint16) and image.ndim == 3
-            and image.shape[2] == 3 and image.shape[0] * image.shape[1] > NATIVE_MAX_PIXELS)
-
-
-def detect_points68(image: np.ndarray, source=None) -> np.ndarray:
-    """68 landmarks of the largest face; on an image over :data:`facetex.io.DETECT_MAX_PIXELS`
-    found on a copy reduced to it, in the image's own pixels."""
-    from ..io import DETECT_MAX_PIXELS
-    from ..landmarks import detect_face
-
-    h, w = image.shape[:2]
-    if h * w <= DETECT_MAX_PIXELS:
-        return detect_face(image, source=source).points68
-    k = math.sqrt(DETECT_MAX_PIXELS / (h * w))
-    small = cv2.resize(image, (max(1, int(w * k)), max(1, int(h * k))), interpolation=cv2.INTER_AREA)
-    to_full = (w / small.shape[1], h / small.shape[0])
-    return _map_points(detect_face(small, source=source).points68, (0, 0), to_full)
-
-
-def _native_part(image: np.ndarray, points68, crop: str):
-    """(part box (x0, y0, x1, y1) of ``image``, the part reduced to at most NATIVE_MAX_PIXELS,
-    its points, (sx, sy) = reduced size / part size) of an image over NATIVE_MAX_PIXELS."""
-    H, W = image.shape[:2]
-    if crop == "face":
-        x0, y0, x1, y1 = face_crop_box(points68, image.shape)
-        pad = math.ceil(NATIVE_CONTEXT * max(x1 - x0, y1 - y0))
-        part = (max(0, x0 - pad), max(0, y0 - pad), min(W, x1 + pad), min(H, y1 + pad))
-    else:
-        part = (0, 0, W, H)
-    pw, ph = part[2] - part[0], part[3] - part[1]
-    k = min(1.0, math.sqrt(NATIVE_MAX_PIXELS / (pw * ph)))
-    sub = image[part[1]:part[3], part[0]:part[2]]
-    if k < 1.0:  # reduced in the image's own type (a uint8 photo is not made float at full size)
-        sub = cv2.resize(np.ascontiguousarray(sub), (max(32, int(pw * k)), max(32, int(ph * k))),
-                         interpolation=cv2.INTER_AREA)
-    sub = np.clip(to_float32(sub), 0.0, 1.0)  # a new array: the caller's image is never written
-    sx, sy = sub.shape[1] / pw, sub.shape[0] / ph
-    return part, sub, _map_points(points68, part, (sx, sy)), (sx, sy)
-
-
-def _paste_change(content: np.ndarray, part, scale_xy, before: np.ndarray, after: np.ndarray, box_small,
-                  rows: int = 256) -> np.ndarray:
-    """``content`` with the change ``after − before`` of its reduced ``part`` (non-zero inside
-    ``box_small`` only) brought to the part's full resolution (bilinear, strip by strip), as
-    float32 (``content`` may be uint8 / uint16)."""
-    out = to_float32(content)
-    if np.shares_memory(out, content):
-        out = out.copy()
-    sx, sy = scale_xy
-    delta = (after - before).astype(np.float32)
-    pw, ph = part[2] - part[0], part[3] - part[1]
-    fx0, fy0 = max(0, int((box_small[0] - 1) / sx)), max(0, int((box_small[1] - 1) / sy))
-    fx1, fy1 = min(pw, math.ceil((box_small[2] + 1) / sx)), min(ph, math.ceil((box_small[3] + 1) / sy))
-    xs = ((np.arange(fx0, fx1, dtype=np.float64) + 0.5) * sx - 0.5).astype(np.float32)
-    for r0 in range(fy0, fy1, rows):
-        r1 = min(fy1, r0 + rows)
-        ys = ((np.arange(r0, r1, dtype=np.float64) + 0.5) * sy - 0.5).astype(np.float32)
-        mx, my = np.meshgrid(xs, ys)
-        d = cv2.remap(delta, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        view = out[part[1] + r0:part[1] + r1, part[0] + fx0:part[0] + fx1]
-        view += d
-        np.clip(view, 0.0, 1.0, out=view)
-    return out
-
-
-def _full_box(part, scale_xy, box_small, shape) -> tuple[int, int, int, int]:
-    sx, sy = scale_xy
-    return (max(0, part[0] + int(box_small[0] / sx)), max(0, part[1] + int(box_small[1] / sy)),
-            min(shape[1], part[0] + math.ceil(box_small[2] / sx)),
-            min(shape[0], part[1] + math.ceil(box_small[3] / sy)))
+from .optimize import optimize_image
 
 
 def _transfer_reduced(content, style, cp, sp, params, init, callback, kwargs) -> tuple[np.ndarray, dict]:
@@ -240,170 +73,6 @@ def _transfer_reduced(content, style, cp, sp, params, init, callback, kwargs) ->
                        "content_work_shape": list(c_sub.shape[:2]), "style_work_shape": list(s_sub.shape[:2]),
                        "max_pixels": NATIVE_MAX_PIXELS}
     return out, info
-
-
-# ---------------------------------------------------------------- memory
-_BYTES_PER_PIXEL = {  # measured peak bytes per working-region pixel of one forward+backward
-    "effnet-lite0": 1800, "vgg19": 9000, "vgg19-random": 9000, "face-resnet": 2400,
-}
-
-
-def default_max_memory() -> int:
-    """75 % of the available RAM."""
-    return int(0.75 * available_memory())
-
-
-def estimate_transfer_memory(params: TransferParams, shape: tuple[int, int]) -> int:
-    """Estimated peak bytes of a transfer whose finest level is ``shape`` (h, w)."""
-    h, w = shape
-    px = h * w
-    net = params.texture_net
-    total = 550 * 2**20  # interpreter, torch, dlib models, the networks' weights (measured, benchmarks/memory.py)
-    total += _BYTES_PER_PIXEL.get(net, 9000) * px  # activations for forward + backward
-    if params.structure_weight:
-        total += 60 * 2**20  # face chip through FaceRecognitionNet
-    stride = {"effnet-lite0": (4, 8), "vgg19": (4, 8), "face-resnet": (4, 8)}.get(net, (4, 8))
-    chans = {"effnet-lite0": (24, 40), "vgg19": (256, 512), "face-resnet": (32, 64)}.get(net, (256, 512))
-    for s, c in zip(stride, chans):
-        if params.mrf_weight:
-            hw = (max(3, h // s), max(3, w // s))
-            total += mrf_memory_estimate(c, hw, hw, patch_size=params.patch_size, style_stride=params.style_stride)
-    total += 2 * params.lbfgs_history * 3 * px * 4  # L-BFGS curvature pairs
-    total += 40 * px * 4  # images, masks, pyramids
-    return int(total)
-
-
-# ---------------------------------------------------------------- losses per level
-#: a level's MRF loss matches against at least this many style patches (the most skin-like ones)
-MIN_STYLE_PATCHES = 16
-
-
-def _masked_style_patches(feat: torch.Tensor, mask: torch.Tensor, params: TransferParams) -> StylePatches:
-    """Style patches whose centre lies in ``mask`` (> 0.5): the style's skin (or face),
-    so its hair, background and any warp artefact never become texture sources."""
-    sp = style_patches(feat, params.patch_size, params.style_stride)
-    h, w = feat.shape[-2:]
-    k = params.patch_size
-    m = _resize_level(mask, (h, w))[0, 0]
-    ys = _grid(h, k, params.style_stride) + k // 2
-    xs = _grid(w, k, params.style_stride) + k // 2
-    vals = m[ys][:, xs].reshape(-1)
-    keep = vals > 0.5
-    if int(keep.sum()) < MIN_STYLE_PATCHES:
-        # a coarse level can hold fewer skin centres than that: the patches most inside the skin
-        # (all of them had let the style's hair and background be sources there, FRL 004 <- 005)
-        if not bool((vals > 0).any()):
-            return sp
-        n = min(MIN_STYLE_PATCHES, int((vals > 0).sum()))
-        keep = torch.zeros_like(keep)
-        keep[torch.argsort(vals, descending=True, stable=True)[:n]] = True
-    return StylePatches(sp.unit[keep], sp.norm[keep], sp.channels, sp.size)
-
-
-class _LevelLoss:
-    """Weighted loss terms of one resolution level (Eqs. 2, 3, 4, 6)."""
-
-    def __init__(self, builder: "_LossBuilder", shape):
-        p, dev = builder.params, builder.device
-        self.p = p
-        self.net = builder.texture_net
-        self.struct_net = builder.structure_net
-        c = _resize_level(builder.content, shape)
-        s = _resize_level(builder.style, shape)
-        self.prior = _resize_level(builder.prior, shape) if builder.prior is not None else None
-        self.norms: dict[str, float] | None = None
-        with torch.no_grad():
-            tex_layers = list(dict.fromkeys(p.mrf_layers + p.style_layers))
-            fs = self._transform(_features(self.net, s, tex_layers) if tex_layers else {})
-            fc = _features(self.net, c, p.content_layers) if p.content_layers else {}
-            if builder.style_mask is not None:
-                sm = _resize_level(builder.style_mask, shape)
-                self.patches = {l: _masked_style_patches(fs[l], sm, p) for l in p.mrf_layers}
-            else:
-                self.patches = {l: style_patches(fs[l], p.patch_size, p.style_stride) for l in p.mrf_layers}
-            self.target_w = {}
-            if builder.target_mask is not None:  # texture loss only where the content may change
-                tm = _resize_level(builder.target_mask, shape)
-                self.target_w = {l: _resize_level(tm, tuple(fs[l].shape[-2:]))[0, 0] for l in p.mrf_layers}
-            self.grams = {l: gram_matrix(fs[l]) for l in p.style_layers}
-            self.content_t = {l: fc[l] for l in p.content_layers}
-            self.content_ms = {l: float(fc[l].square().mean()) + 1e-12 for l in p.content_layers}
-            self.chip_m = None
-            if p.structure_weight:
-                from ..nets.chip import face_chip_matrix, face_chip_tensor
-
-                sx, sy = shape[1] / builder.shape[1], shape[0] / builder.shape[0]
-                pts = (builder.points + 0.5) * [sx, sy] - 0.5
-                self.chip_m = face_chip_matrix(pts)
-                self._chip = lambda x: face_chip_tensor(x, self.chip_m, 150)
-                fsc = _features(self.struct_net, self._chip(c), p.structure_layers)
-                self.struct_t = fsc
-                self.struct_ms = {l: float(v.square().mean()) + 1e-12 for l, v in fsc.items()}
-            self.tv_ref = float(tv_loss(c)) + 1e-12
-
-    def _transform(self, feats: dict) -> dict:
-        """SWAG's channel softmax on the texture layers (MRF and Gram), if asked for."""
-        p = self.p
-        if p.feature_transform != "softmax":
-            return feats
-        tex = set(p.mrf_layers + p.style_layers)
-        return {k: (channel_softmax(v, p.feature_temperature) if k in tex else v) for k, v in feats.items()}
-
-    def raw_terms(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
-        p = self.p
-        xin = apply_facial_prior(x, self.prior) if (p.prior and self.prior is not None) else x
-        layers = list(dict.fromkeys(p.mrf_layers + p.style_layers + p.content_layers))
-        f = self._transform(_features(self.net, xin, layers) if layers else {})
-        terms = {}
-        for l in p.mrf_layers:  # Eq. 2
-            terms[f"mrf:{l}"] = mrf_loss(f[l], self.patches[l], patch_size=p.patch_size,
-                                         style_stride=p.style_stride, variant=p.mrf_variant,
-                                         target_weight=self.target_w.get(l))
-        for l in p.style_layers:  # Eq. 6, style term
-            terms[f"gram:{l}"] = gram_loss(f[l], self.grams[l])
-        for l in p.content_layers:  # Eq. 6/7, content term
-            terms[f"content:{l}"] = (f[l] - self.content_t[l]).square().mean() / self.content_ms[l]
-        if p.structure_weight:  # Eq. 3: Σ_i 1/(C_i H_i W_i) ‖δ_i(x_t) − δ_i(x_c)‖², relative to ‖δ_i(x_c)‖²
-            fst = _features(self.struct_net, self._chip(xin), p.structure_layers)
-            terms["structure"] = sum((fst[l] - self.struct_t[l]).square().mean() / self.struct_ms[l]
-                                     for l in p.structure_layers)
-        if p.tv_weight:  # Eq. 4
-            terms["tv"] = tv_loss(x) / self.tv_ref
-        return terms
-
-    def __call__(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
-        p = self.p
-        raw = self.raw_terms(x)
-        if self.norms is None:  # value at the start of the level (MRF and Gram terms)
-            self.norms = {k: (max(float(v.detach()), 1e-12) if p.normalize and k.split(":")[0] in ("mrf", "gram")
-                              else 1.0) for k, v in raw.items()}
-        weights = {"mrf": p.mrf_weight, "gram": p.style_weight, "content": p.content_weight,
-                   "structure": p.structure_weight, "tv": p.tv_weight}
-        return {k: v * (weights[k.split(":")[0]] / self.norms[k]) for k, v in raw.items()}
-
-
-class _LossBuilder:
-    def __init__(self, params, content, style, prior, style_mask, target_mask, points, device):
-        self.params = params
-        self.device = device
-        self.shape = content.shape[:2]
-        self.content = to_tensor(content, device)
-        self.style = to_tensor(style, device)
-        as_t = lambda m: None if m is None else torch.from_numpy(np.ascontiguousarray(m, np.float32))[None, None].to(device)  # noqa: E731
-        self.prior = as_t(prior)
-        self.style_mask = as_t(style_mask)
-        self.target_mask = as_t(target_mask)
-        self.points = np.asarray(points, np.float64)
-        net = params.texture_net
-        if net == "vgg19" and params.vgg19_weights == "random":
-            net = "vgg19-random"
-        needs_tex = bool(params.mrf_layers or params.style_layers or params.content_layers)
-        self.texture_net = _texture_net(net, str(device), None if net == "vgg19-random" else params.vgg19_weights) \
-            if needs_tex else None
-        self.structure_net = _structure_net(str(device)) if params.structure_weight else None
-
-    def __call__(self, level: int, scale: float, shape) -> _LevelLoss:
-        return _LevelLoss(self, shape)
 
 
 # ---------------------------------------------------------------- masks and pre-warp
@@ -649,53 +318,6 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
                    "optimised_region": optimised_region, "output_region": out_region},
     }
     return out.astype(np.float32), info
-
-
-def _paste_region(region, content_w, out_w, skin_c, params) -> np.ndarray:
-    """The region at its full resolution with the optimiser's *change* pasted in: the
-    content's own detail above the working resolution survives instead of being blurred
-    by the resampling; with the skin constraint nothing changes outside the skin."""
-    rh, rw = region.shape[:2]
-    delta = cv2.resize(out_w - content_w, (rw, rh), interpolation=cv2.INTER_CUBIC)
-    if params.constraint == "skin":
-        delta *= (skin_c > 0)[..., None]  # exactly nothing outside the skin (cubic rings 1–2 px)
-    return np.clip(region + delta, 0.0, 1.0)
-
-
-def _compose(content, region, box, out_region, params) -> np.ndarray:
-    """The full image with the region replaced (feathered at inner crop edges when the whole
-    crop may change)."""
-    out = content.copy()
-    rh, rw = region.shape[:2]
-    if params.crop == "face" and params.constraint != "skin":
-        alpha = _edge_feather((rh, rw), box, content.shape[:2])
-        out[box[1]:box[3], box[0]:box[2]] = alpha[..., None] * out_region + (1 - alpha[..., None]) * region
-    else:
-        out[box[1]:box[3], box[0]:box[2]] = out_region
-    return out
-
-
-def _paste(content, region, box, content_w, out_w, skin_c, params) -> np.ndarray:
-    return _compose(content, region, box, _paste_region(region, content_w, out_w, skin_c, params), params)
-
-
-def _edge_feather(shape, box, full_shape, frac: float = 0.08) -> np.ndarray:
-    """Blend weight of a pasted region: 1 inside, ramping to 0 at crop edges that lie inside
-    the image (edges on the image border need no blending)."""
-    h, w = shape
-    r = max(2, int(frac * min(h, w)))
-    y = np.ones(h, np.float32)
-    x = np.ones(w, np.float32)
-    ramp = (np.arange(r, dtype=np.float32) + 0.5) / r
-    if box[1] > 0:
-        y[:r] = np.minimum(y[:r], ramp)
-    if box[3] < full_shape[0]:
-        y[-r:] = np.minimum(y[-r:], ramp[::-1])
-    if box[0] > 0:
-        x[:r] = np.minimum(x[:r], ramp)
-    if box[2] < full_shape[1]:
-        x[-r:] = np.minimum(x[-r:], ramp[::-1])
-    return np.outer(y, x)
 
 
 def _jsonable(d):

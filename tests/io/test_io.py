@@ -164,7 +164,7 @@ def test_numpy_orientation_matches_pillow(orientation):
     exif[0x0112] = orientation
     im.info["exif"] = exif.tobytes()
     ref = np.asarray(ImageOps.exif_transpose(im))
-    assert np.array_equal(fio._apply_orientation(a, orientation), ref)
+    assert np.array_equal(fio._read._apply_orientation(a, orientation), ref)
 
 
 @pytest.mark.parametrize("ext", [".tif", ".webp", ".png", ".jpg"])
@@ -537,14 +537,14 @@ def test_write_files_exclusive_and_rollback(tmp_path):
     fio.write_files({a: b"three", b: "four"}, overwrite=True)
     assert a.read_bytes() == b"three" and b.read_text() == "four"
     # a failure while committing the second file restores the first (overwrite: from its backup)
-    real = fio._link_new
+    real = fio._atomic._link_new
     b.unlink()
-    fio._link_new = lambda tmp, final: (_ for _ in ()).throw(OSError(28, "No space left on device"))
+    fio._atomic._link_new = lambda tmp, final: (_ for _ in ()).throw(OSError(28, "No space left on device"))
     try:
         with pytest.raises(OutputError, match="disk full"):
             fio.write_files({tmp_path / "new.png": b"n"}, overwrite=False)
     finally:
-        fio._link_new = real
+        fio._atomic._link_new = real
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png"]
 
 

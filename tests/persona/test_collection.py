@@ -398,7 +398,7 @@ def test_texture_stacks_stored_and_used(persona, tmp_path):
 
 
 def test_stale_texture_stacks_are_recomputed(persona, tmp_path, monkeypatch):
-    from facetex.persona import stacks as T
+    from facetex.persona import _stack_store as T  # where the stored stacks' key is made
 
     path = persona.save(tmp_path / "s.persona")
     monkeypatch.setattr(T, "STACKS_VERSION", T.STACKS_VERSION + 1)  # a later facetex computes them otherwise

@@ -29,7 +29,9 @@ def no_work(monkeypatch):
     def trap(*a, **k):
         raise AssertionError("the work started before the arguments were checked")
 
-    for mod, name in ((fio, "read_image"), (fio, "read_image_reduced"), (persona, "load_persona"),
+    # facetex.io's names for its callers, facetex.io._read's for as_image and read_image_uint8
+    for mod, name in ((fio, "read_image"), (fio, "read_image_reduced"), (fio._read, "read_image"),
+                      (fio._read, "read_image_reduced"), (persona, "load_persona"),
                       (persona, "build_persona"), (pipeline, "optimize_image"), (puppet, "puppeteer")):
         monkeypatch.setattr(mod, name, trap)
 

@@ -16,6 +16,7 @@ import sys
 import pytest
 
 import facetex.io as fio
+from facetex.errors import OutputError
 import facetex.transfer._pipeline as pipeline
 from _robust import assert_one_error, run_cli, sha1s, snapshot
 from conftest import has_command
@@ -55,7 +56,8 @@ def test_existing_sidecar_is_not_replaced(capsys, bad, outdir, persona_file, mon
     before = snapshot(outdir)
     args = [str(bad[a[1:]]) if a.startswith("%") and a != "%persona" else str(persona_file) if a == "%persona"
             else str(outdir / a[1:]) if a.startswith("@") else a for a in argv]
-    monkeypatch.setattr(fio, "read_image", work)
+    for mod in (fio, fio._read):  # facetex.io's callers and as_image, beside read_image
+        monkeypatch.setattr(mod, "read_image", work)
     import facetex.persona as persona
 
     monkeypatch.setattr(persona, "load_persona", work)
@@ -67,7 +69,8 @@ def test_existing_sidecar_is_not_replaced(capsys, bad, outdir, persona_file, mon
 def test_existing_step_files_refused_before_work(capsys, bad, outdir, monkeypatch):
     (outdir / "t_level0_eval0002.png").write_bytes(b"an earlier run's step")
     before = snapshot(outdir)
-    monkeypatch.setattr(fio, "read_image", lambda *a, **k: pytest.fail("work started"))
+    for mod in (fio, fio._read):  # facetex.io's callers and as_image, beside read_image
+        monkeypatch.setattr(mod, "read_image", lambda *a, **k: pytest.fail("work started"))
     run = run_cli(capsys, "transfer", bad["face.jpg"], bad["other.jpg"], "-o", outdir / "t.png", *T,
                   "--save-every", "1")
     assert_one_error(run, names=["t_level0_eval0002.png"], cause=r"step file.*earlier run.*--overwrite")
@@ -147,7 +150,8 @@ def test_transfer_output_is_an_input(capsys, bad, tmp_path, monkeypatch, which):
     target = {"content": content, "style": style, "hardlink": tmp_path / "link.jpg"}[which]
     if which == "hardlink":
         os.link(content, target)
-    monkeypatch.setattr(fio, "read_image", lambda *a, **k: pytest.fail("work started"))
+    for mod in (fio, fio._read):  # facetex.io's callers and as_image, beside read_image
+        monkeypatch.setattr(mod, "read_image", lambda *a, **k: pytest.fail("work started"))
     before = snapshot(tmp_path)
     run = run_cli(capsys, "transfer", content, style, "-o", target, *T, "--overwrite")
     assert_one_error(run, names=[target], cause=r"same file as the input")
@@ -205,7 +209,7 @@ def test_device_or_fifo_output_is_never_replaced(capsys, bad, special, name, kin
 
 # ------------------------------------------------------------ never one file of a set
 def _fail_nth_write(monkeypatch, n: int, code=errno.ENOSPC):
-    real = fio._write_bytes
+    real = fio._atomic._write_bytes
     calls = []
 
     def write(path, data):
@@ -216,7 +220,7 @@ def _fail_nth_write(monkeypatch, n: int, code=errno.ENOSPC):
             raise OSError(code, os.strerror(code))
         return real(path, data)
 
-    monkeypatch.setattr(fio, "_write_bytes", write)
+    monkeypatch.setattr(fio._atomic, "_write_bytes", write)  # where write_files calls it
     return calls
 
 
@@ -250,20 +254,20 @@ def test_commit_rolls_back_the_first_file(tmp_path):
     """The image is committed, then the sidecar's name turns out taken: the image is removed
     again (API level, no CLI)."""
     (tmp_path / "o.png.json").write_text("taken")
-    with pytest.raises(fio.OutputError, match="exists"):
+    with pytest.raises(OutputError, match="exists"):
         fio.write_files({tmp_path / "o.png": b"png", tmp_path / "o.png.json": b"{}"})
-    real = fio.check_outputs
+    real = fio._atomic.check_outputs
     # a sidecar that appears between the checks and the commit
     def late(paths, **kw):
         out = real(paths, **kw)
         (tmp_path / "x.png.json").write_text("late")
         return out
-    fio.check_outputs = late
+    fio._atomic.check_outputs = late
     try:
-        with pytest.raises(fio.OutputError, match="appeared during the run"):
+        with pytest.raises(OutputError, match="appeared during the run"):
             fio.write_files({tmp_path / "x.png": b"png", tmp_path / "x.png.json": b"{}"})
     finally:
-        fio.check_outputs = real
+        fio._atomic.check_outputs = real
     assert sorted(p.name for p in tmp_path.iterdir()) == ["o.png.json", "x.png.json"]
     assert (tmp_path / "x.png.json").read_text() == "late"
 

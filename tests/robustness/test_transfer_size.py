@@ -22,7 +22,8 @@ def no_optimise(monkeypatch):
 
 
 def test_size_64_refused_before_reading(capsys, outdir, monkeypatch, no_optimise):
-    monkeypatch.setattr(fio, "read_image", lambda *a, **k: pytest.fail("an image was read before the check"))
+    for mod in (fio, fio._read):  # facetex.io's callers and as_image, beside read_image
+        monkeypatch.setattr(mod, "read_image", lambda *a, **k: pytest.fail("an image was read before the check"))
     run = run_cli(capsys, "transfer", FACE, OTHER, "-o", outdir / "t.png", "--size", "64")
     line = assert_one_error(run, cause=r"size 64 px is too small .* use --size 65 or more")
     assert "--size" in line and snapshot(outdir) == {}
@@ -75,7 +76,7 @@ def test_min_size_holds_a_patch(net, method):
 
     import torch
 
-    from facetex.transfer._pipeline import _texture_net
+    from facetex.transfer._levels import _texture_net
     from facetex.transfer.methods import NET_LAYERS, preset, working_shape
 
     p = preset(method, "default", net.replace("-random", ""))  # vgg19's shapes, without its weights file

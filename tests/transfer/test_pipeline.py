@@ -224,7 +224,7 @@ def test_style_patches_are_the_skin_ones_and_at_least_the_most_skin_like_few():
     no skin at all keeps every patch."""
     import torch
 
-    from facetex.transfer._pipeline import MIN_STYLE_PATCHES, _masked_style_patches
+    from facetex.transfer._levels import MIN_STYLE_PATCHES, _masked_style_patches
     from facetex.transfer.methods import preset
 
     p = preset("facetex", "default")

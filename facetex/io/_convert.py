@@ -1,0 +1,48 @@
+"""Pixel conversions: integer and float images, and the check of float pixels."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import BadImageError
+
+
+def to_float32(img: np.ndarray) -> np.ndarray:
+    """uint8 / uint16 / float image -> float32 in [0, 1] (integers scaled by their max)."""
+    img = np.asarray(img)
+    if img.dtype in (np.uint8, np.uint16):
+        a = img.astype(np.float32)
+        a /= 255.0 if img.dtype == np.uint8 else 65535.0  # in place: one float copy, not two
+        return a
+    return img.astype(np.float32, copy=False)
+
+
+def check_float_pixels(a: np.ndarray, name: str, *, slack: float = 1e-3, path=None) -> None:
+    """BadImageError (naming ``path``) unless the float image ``a`` is finite and within
+    [-slack, 1 + slack]; a 0..255 image is told to divide by 255."""
+    if not np.all(np.isfinite(a)):
+        what = "only NaN or infinite values" if not np.isfinite(a).any() else "NaN or infinite values"
+        raise BadImageError(f"{name} contains {what}", path=path)
+    lo, hi = float(a.min()), float(a.max())
+    if hi > 1.0 + slack:
+        hint = ": divide by 255 (facetex takes floats in [0, 1], or uint8)" if hi <= 255.5 else ""
+        raise BadImageError(f"{name} is a float image with values up to {hi:.4g}, not in [0, 1]{hint}", path=path)
+    if lo < -slack:
+        raise BadImageError(f"{name} has negative values (min {lo:.4g}): give floats in [0, 1]", path=path)
+
+
+def to_uint8(img: np.ndarray) -> np.ndarray:
+    """float [0, 1] (clipped) / uint16 / uint8 image -> uint8, rounded to nearest."""
+    img = np.asarray(img)
+    if img.dtype == np.uint8:
+        return img
+    if img.dtype == np.uint16:
+        return ((img.astype(np.uint32) + 128) // 257).astype(np.uint8)
+    a = np.asarray(img, np.float32)
+    if a.ndim == 0 or a.size <= 1 << 22:
+        return np.clip(np.rint(a * 255.0), 0, 255).astype(np.uint8)
+    out = np.empty(a.shape, np.uint8)  # a 36 MP image in strips: no float temporaries of its size
+    rows = max(1, (1 << 22) // (a.size // a.shape[0]))
+    for i in range(0, a.shape[0], rows):
+        out[i:i + rows] = np.clip(np.rint(a[i:i + rows] * 255.0), 0, 255)
+    return out

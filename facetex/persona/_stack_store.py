@@ -1,0 +1,84 @@
+"""The 8-bit storage of the persona's aligned photos in the .persona file: each aligned [image,
+confidence] as 8-bit codes plus the image's packed 9th bits, the confidence on a logarithmic
+scale; and the key (version and parameters) that stored stacks are valid for."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import cv2
+import numpy as np
+
+from .params import TextureParams
+
+#: version of the stacks' computation: stored stacks of another version are recomputed
+STACKS_VERSION = 1
+
+
+def _conf_range(tp: TextureParams) -> tuple[float, float]:
+    """(lo, hi) of the confidences' logarithmic 8-bit code: the floor and the largest confidence
+    :func:`facetex.geometry.frontalize.fill_confidence` gives (values outside are clipped)."""
+    lo = max(float(tp.visibility_floor), 1e-3) if tp.use_visibility else 0.5
+    hi = (max(1.0, tp.mirror_weight) * max(1.0, tp.face_support) + max(tp.visibility_floor, 0.0)
+          if tp.use_visibility else 2.0)
+    return lo, max(hi, 2 * lo)
+
+
+def _quantize_aligned(ic: np.ndarray, tp: TextureParams, out: np.ndarray | None = None,
+                      lsb: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """An aligned (H, W, 4) float32 [image, confidence] quantized: ((H, W, 4) uint8 codes, (m,) uint8
+    the image's 9th bits, packed). The image in 1/511 steps: the codes hold its top 8 bits, ``lsb``
+    the last one (its max error 0.25/255 at all pyramid levels together, the pyramid being linear;
+    8 bits gave 0.5/255 in the textures, which a composite's colour transfer amplified to 1.7/255
+    for a dark-skinned persona). The confidence, a relative weight from the floor (0.02) to ~1, on
+    a logarithmic 8-bit scale (0.8 % relative error; < 0.01/255 in the textures)."""
+    lo, hi = _conf_range(tp)
+    out = np.empty(ic.shape, np.uint8) if out is None else out
+    q9 = np.rint(np.clip(ic[..., :3], 0, 1) * 511).astype(np.uint16)
+    np.right_shift(q9, 1, out=out[..., :3], casting="unsafe")
+    bits = np.zeros(ic.shape, np.uint8)
+    np.bitwise_and(q9, 1, out=bits[..., :3], casting="unsafe")
+    packed = np.packbits(bits.reshape(-1))
+    if lsb is None:
+        lsb = packed
+    else:
+        lsb[...] = packed
+    c = np.log(np.clip(ic[..., 3], lo, hi) / lo) * (255 / math.log(hi / lo))
+    np.rint(c, out=out[..., 3], casting="unsafe")
+    return out, lsb
+
+
+def _lsb_bytes(shape) -> int:
+    """Bytes of one aligned photo's packed 9th bits (4 channels of ``shape`` (H, W))."""
+    return -(-int(shape[0]) * int(shape[1]) * 4 // 8)
+
+
+def _aligned_lut(tp: TextureParams) -> np.ndarray:
+    """(1, 256, 4) float32 values of :func:`_quantize_aligned`'s codes without the 9th bit (``cv2.LUT``)."""
+    lo, hi = _conf_range(tp)
+    q = np.arange(256, dtype=np.float64)
+    return np.stack([2 * q / 511, 2 * q / 511, 2 * q / 511, lo * (hi / lo) ** (q / 255)], axis=-1)[None].astype(np.float32)
+
+
+def _lsb_lut() -> np.ndarray:
+    """(1, 256, 4) float32: the value of a set 9th bit (1/511, none for the confidence)."""
+    lut = np.zeros((1, 256, 4), np.float32)
+    lut[0, 1, :3] = 1 / 511
+    return lut
+
+
+def _dequantize_aligned(q: np.ndarray, lsb: np.ndarray, luts: tuple, work: dict | None = None) -> np.ndarray:
+    """(H, W, 4) float32 [image, confidence] of :func:`_quantize_aligned`'s (codes, 9th bits);
+    ``luts`` = (:func:`_aligned_lut`, :func:`_lsb_lut`); ``work``: buffers reused between calls."""
+    work = {} if work is None else work
+    if work.get("ic") is None or work["ic"].shape != q.shape:
+        work.update(ic=np.empty(q.shape, np.float32), bits=np.empty(q.shape, np.float32))
+    ic = cv2.LUT(q, luts[0], dst=work["ic"])
+    bits = np.unpackbits(lsb, count=q.size).reshape(q.shape)
+    return cv2.add(ic, cv2.LUT(bits, luts[1], dst=work["bits"]), dst=ic)
+
+
+def _stored_key(tp: TextureParams) -> list:
+    """JSON form of what stored stacks depend on (compared with a .persona's header)."""
+    return json.loads(json.dumps([STACKS_VERSION, *tp.stack_key()]))
