@@ -324,6 +324,50 @@ def test_puppet_8k_driver_bounded(tmp_path, persona_file):
     assert sorted(p.name for p in out.parent.iterdir()) == ["p.mp4", "p.mp4.json"]
 
 
+def test_puppet_frame_too_large_is_one_line_before_any_work(capsys, videos, persona_file, outdir):
+    """--size 4096 of a square driver (a 16.8 MP frame; 33.5 MP side by side) took 3.3 / 4.4 GB:
+    refused from the driver's header in a moment, saying the largest --size that fits."""
+    for extra, cause in (([], r"--size 4096 makes 4096x4096 output frames of 16\.8 MP.*use --size 2560 or less"),
+                         (["--side-by-side"], r"8192x4096 \(two panels\).*use --size 1810 or less"),
+                         (["--mode", "face"], r"face-mode panel.*use --size 1920 or less")):
+        t0 = time.perf_counter()
+        run = run_cli(capsys, "puppet", videos["face.mp4"], persona_file, "-o", outdir / "p.mp4", "--size", "4096",
+                      *extra)
+        assert time.perf_counter() - t0 < 5
+        assert_one_error(run, names=[videos["face.mp4"]], cause=cause)
+        assert snapshot(outdir) == {}
+
+
+def test_puppet_api_refuses_a_frame_too_large(tmp_path, videos, persona_file):
+    from facetex.errors import BadInputError
+    from facetex.puppet.puppetry import puppeteer
+
+    with pytest.raises(BadInputError, match="use --size 2560 or less"):
+        puppeteer(videos["face.mp4"], persona_file, tmp_path / "o.mp4", size=4096)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_puppet_largest_frame_bounded(tmp_path, persona_file):
+    """The largest output frame accepted (2560 x 2560 from a square driver, 24 frames: the
+    encoder's look-ahead fills): frames streamed to the writer as uint8, one rendered at a time,
+    the encoder with few reference frames. Measured 1.18 GB; --size 4096 took 3.3 GB."""
+    from _robust import FACE, FACE_SMILING
+
+    from facetex.io import read_image, video_info, write_video
+
+    a, b = read_image(FACE), read_image(FACE_SMILING)
+    driver = tmp_path / "d.mp4"
+    write_video(driver, [a if i % 4 < 2 else b for i in range(24)], 10)
+    out = tmp_path / "out" / "p.mp4"
+    out.parent.mkdir()
+    _measured_ok(["puppet", str(driver), str(persona_file), "-o", str(out), "--size", "2560", "-q"],
+                 [driver, persona_file])
+    info = video_info(out)
+    assert (info["width"], info["height"], info["n_frames"]) == (2560, 2560, 24)
+    assert sorted(p.name for p in out.parent.iterdir()) == ["p.mp4", "p.mp4.json"]
+
+
 def _bench_results(folder: Path, n: int, *, methods=("facetex",), images: bool = True) -> Path:
     """A bench transfer folder of n pairs (33 metrics per method); with ``images`` each output is
     a hard link of one small face PNG."""
