@@ -246,7 +246,14 @@ def _as_uint8_rgb(image) -> np.ndarray:
     if a.dtype != np.uint8:
         if not np.issubdtype(a.dtype, np.floating):
             raise BadInputError(f"expected a float image in [0, 1] or a uint8 image, got dtype {a.dtype}")
-        a = np.clip(np.nan_to_num(a) * 255.0 + 0.5, 0, 255).astype(np.uint8)
+        if a.size <= 1 << 22:
+            a = np.clip(np.nan_to_num(a) * 255.0 + 0.5, 0, 255).astype(np.uint8)
+        else:  # in row strips, the same values: no float temporaries of a large image's size
+            out = np.empty(a.shape, np.uint8)
+            rows = max(1, (1 << 22) // (a.size // a.shape[0]))
+            for i in range(0, a.shape[0], rows):
+                out[i:i + rows] = np.clip(np.nan_to_num(a[i:i + rows]) * 255.0 + 0.5, 0, 255)
+            a = out
     return np.ascontiguousarray(a)
 
 

@@ -80,12 +80,20 @@ def _init_arg(init, content: np.ndarray):
     return img
 
 
-def _keep_large_uint8(image):
-    """A uint8 RGB array over the pipeline's NATIVE_MAX_PIXELS, as it is (the pipeline makes only
-    its reduced face region float: a 36 MP photo as float is 0.4 GB), else None."""
-    from ..transfer._regions import stays_integer
+def _keep_large(image, name: str):
+    """A uint8 or float RGB array over the pipeline's NATIVE_MAX_PIXELS, as it is (the pipeline makes
+    only its reduced face region float32, and the output: a 36 MP photo as float32 is 0.4 GB, a
+    6000 x 6000 float64 array's float32 copy 0.4 GB), else None. A float array's values are checked
+    here, as :func:`facetex.io.as_image` would (in row strips, without copies)."""
+    from ..io import check_float_pixels
+    from ..transfer._regions import stays_float, stays_integer
 
-    return image if stays_integer(image) and image.dtype == np.uint8 else None
+    if stays_integer(image) and image.dtype == np.uint8:
+        return image
+    if stays_float(image):
+        check_float_pixels(image, name)
+        return image
+    return None
 
 
 def transfer_with_info(
@@ -226,15 +234,21 @@ def transfer_with_info(
     if save_every is not None and (not isinstance(save_every, (int, np.integer)) or save_every < 1):
         raise BadInputError(f"save_every must be a positive integer, not {save_every!r}")
     seed, device = check_seed(seed), check_device(device)
-    c, s = _keep_large_uint8(content), _keep_large_uint8(style)
+    c_name = "content image" + (f" {content_source}" if content_source else "")
+    s_name = "style image" + (f" {style_source}" if style_source else "")
+    c, s = _keep_large(content, c_name), _keep_large(style, s_name)
     if c is None:
-        c = as_image(content, "content image" + (f" {content_source}" if content_source else ""))
+        c = as_image(content, c_name)
     if s is None:
-        s = as_image(style, "style image" + (f" {style_source}" if style_source else ""))
+        s = as_image(style, s_name)
     start = _init_arg(init, c)
+    # as_image's copy of a caller's array (or a file's pixels) is ours: a large content's output is
+    # pasted into it instead of into another copy (issue 23: a 6000 x 6000 float64 array was held
+    # as two float32 copies besides the caller's; a float array is now kept as it is, see _keep_large)
+    owned = c is not content and not (isinstance(content, np.ndarray) and np.may_share_memory(c, content))
     total = int(sum(params.iters) * params.eval_budget) + params.levels  # the evaluation budget per level
     with _progress(progress, total, method, "eval") as bar:
-        return _run(c, s, method=method, preset=preset, seed=seed, device=device, progress=bar,
+        return _run(c, s, method=method, preset=preset, seed=seed, device=device, progress=bar, _content_owned=owned,
                     callback=callback, save_every=save_every, content_points=content_points,
                     style_points=style_points, content_source=content_source, style_source=style_source,
                     max_memory=max_memory, init=start, **opts)

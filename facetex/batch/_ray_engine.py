@@ -72,9 +72,137 @@ def _fn_name(fn, payload) -> str:
     return getattr(inner or fn, "__name__", "item")
 
 
-def _ray_task(fn, payload, threads):
-    """A Ray task: the same :func:`execute` the local workers run."""
+_WATCHED: set = set()
+
+
+def _ray_task(fn, payload, threads, driver_pid=None):
+    """A Ray task: the same :func:`execute` the local workers run. ``driver_pid`` (a local Ray
+    started by facetex): the task's worker gets SIGTERM when that process ends, also by SIGKILL
+    (:func:`facetex._parallel.die_with`), instead of finishing the item and writing its output
+    while the manifest says running (issue 23)."""
+    if driver_pid is not None and driver_pid not in _WATCHED:
+        from .._parallel import die_with
+
+        _WATCHED.add(driver_pid)
+        die_with(int(driver_pid))
     return execute(fn, payload, threads)
+
+
+def _process_start(pid: int) -> str | None:
+    """Start time of a live (not zombie) process of this host, or None."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            stat = fh.read()
+    except OSError:
+        return None
+    fields = stat[stat.rindex(b")") + 2:].split()
+    return None if fields[0] == b"Z" else fields[19].decode()
+
+
+def _descendants(pid: int) -> dict[int, str]:
+    """{pid: start time} of the live descendants of ``pid`` (Linux /proc; empty elsewhere)."""
+    parents: dict[int, list[int]] = {}
+    try:
+        entries = os.listdir("/proc")
+    except OSError:
+        return {}
+    for name in entries:
+        if not name.isdigit():
+            continue
+        try:
+            with open(f"/proc/{name}/stat", "rb") as fh:
+                stat = fh.read()
+        except OSError:
+            continue
+        parents.setdefault(int(stat[stat.rindex(b")") + 2:].split()[1]), []).append(int(name))
+    out: dict[int, str] = {}
+    todo = list(parents.get(pid, ()))
+    while todo:
+        q = todo.pop()
+        st = _process_start(q)
+        if st is not None:
+            out[q] = st
+        todo.extend(parents.get(q, ()))
+    return out
+
+
+#: The watchdog of a local Ray started by facetex: a process of its own reading "PID:START" lines
+#: (the Ray processes: GCS, raylet, agents, workers) from a pipe whose other end only this
+#: process holds. "exit" ends it quietly (Ray was shut down); end of file means this process
+#: ended without shutting Ray down (SIGKILL): it sends the recorded processes still alive SIGTERM
+#: (the task's atomic writers remove their temporary files), then SIGKILL after 3 s.
+_REAPER = r"""
+import os, signal, sys, time
+for s in (signal.SIGINT, signal.SIGHUP, signal.SIGTERM):
+    signal.signal(s, signal.SIG_IGN)
+def start(pid):
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            stat = fh.read()
+    except OSError:
+        return None
+    f = stat[stat.rindex(b")") + 2:].split()
+    return None if f[0] == b"Z" else f[19].decode()
+known = {}
+for line in sys.stdin:
+    if line.strip() == "exit":
+        sys.exit(0)
+    for tok in line.split():
+        pid, _, st = tok.partition(":")
+        known[int(pid)] = st
+left = lambda: [p for p, st in known.items() if start(p) == st]
+for sig in (signal.SIGTERM, signal.SIGKILL):
+    for p in left():
+        try:
+            os.kill(p, sig)
+        except OSError:
+            pass
+    t = time.monotonic()
+    while sig == signal.SIGTERM and left() and time.monotonic() - t < 3:
+        time.sleep(0.1)
+"""
+
+
+class _RayReaper:
+    """The watchdog process of a local Ray (see :data:`_REAPER`); :meth:`record` tells it the
+    Ray processes (descendants of this one), at most every ``every`` seconds."""
+
+    def __init__(self, every: float = 2.0):
+        import subprocess
+        import sys
+
+        self.every, self._last, self._sent = every, 0.0, {}
+        self.proc = subprocess.Popen([sys.executable, "-c", _REAPER], stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.DEVNULL, text=True, start_new_session=True)
+        self.record(force=True)
+
+    def record(self, force: bool = False) -> None:
+        now = time.monotonic()
+        if self.proc.stdin is None or (not force and now - self._last < self.every):
+            return
+        self._last = now
+        new = {p: st for p, st in _descendants(os.getpid()).items() if p != self.proc.pid and self._sent.get(p) != st}
+        if new:
+            try:
+                self.proc.stdin.write(" ".join(f"{p}:{st}" for p, st in new.items()) + "\n")
+                self.proc.stdin.flush()
+                self._sent.update(new)
+            except (OSError, ValueError):
+                pass
+
+    def close(self) -> None:
+        """Ray was shut down: the watchdog ends without killing anything."""
+        try:
+            if self.proc.stdin is not None:
+                self.proc.stdin.write("exit\n")
+                self.proc.stdin.close()
+        except (OSError, ValueError):
+            pass
+        try:
+            self.proc.wait(timeout=5)
+        except Exception:  # noqa: BLE001
+            self.proc.kill()
+            self.proc.wait()
 
 
 def _check_reachable(address: str) -> None:
@@ -124,6 +252,7 @@ class RayEngine(Engine):
         self._ray = None
         self._remote = None
         self._node_cpus: float | None = None
+        self._reaper: _RayReaper | None = None
 
     def describe(self) -> dict:
         d = {"engine": self.name, "address": self.address or "local (started by facetex)", "slots": self.slots,
@@ -173,6 +302,11 @@ class RayEngine(Engine):
                 for s, h in saved.items():  # ray.init installs its own SIGTERM handler (sys.exit)
                     signal.signal(s, h)
             self._owned = True
+            if os.path.isdir("/proc"):  # Ray's processes end with this one, also when it is SIGKILLed
+                try:
+                    self._reaper = _RayReaper()
+                except OSError:
+                    self._reaper = None
         cpus = float(ray.cluster_resources().get("CPU", 1.0))
         if self.gpus_per_item > 0 and float(ray.cluster_resources().get("GPU", 0.0)) < self.gpus_per_item:
             self.close()
@@ -203,13 +337,16 @@ class RayEngine(Engine):
                               f"{self._node_cpus:g}: ask for fewer (--cpus-per-item / --jobs)")
         h = next(self._ids)
         try:
-            ref = self._remote.options(**opts).remote(fn, payload, cpus)
+            ref = self._remote.options(**opts).remote(fn, payload, cpus,
+                                                      os.getpid() if self._reaper is not None else None)
         except Exception as e:  # noqa: BLE001 - Ray client errors come in many kinds
             hint = " (is the same facetex installed on the cluster?)" if "ModuleNotFound" in str(e) else ""
             raise EngineError(f"the Ray cluster at {self.address or 'local'} did not take the task: "
                               f"{_one_line(str(e), 300)}{hint}") from None
         self._refs[ref] = (h, time.time(), fname)
         self.last_options = opts
+        if self._reaper is not None:
+            self._reaper.record(force=True)
         return h
 
     def pending(self) -> int:
@@ -223,6 +360,8 @@ class RayEngine(Engine):
         # (Ray's C++ replaces the exception), so SIGTERM would look like Ctrl-C
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
+            if self._reaper is not None:  # workers Ray starts for the tasks
+                self._reaper.record()
             ready, _ = ray.wait(list(self._refs), num_returns=len(self._refs), timeout=0)
             if ready or (deadline is not None and time.monotonic() >= deadline):
                 break
@@ -278,5 +417,8 @@ class RayEngine(Engine):
         ray = self._ray
         if ray is not None and self._owned and ray.is_initialized():
             ray.shutdown()
+        if self._reaper is not None:
+            self._reaper.close()
+            self._reaper = None
         self._owned = False
         self._refs.clear()

@@ -144,7 +144,13 @@ def _run(args, tracker, loading=None) -> int:
     if args.driver_photos:
         check_input_dir(args.driver_photos, BadInputError, what="driver photo folder")
     read_persona_header(args.puppet)  # fail fast on a wrong file; the arrays load while the driver is tracked
-    n = video_info(args.driver)["n_frames"]
+    info = video_info(args.driver)
+    n = info["n_frames"]
+    if args.size is not None:  # an output frame too large to render and encode within the memory budget
+        from ..puppet.puppetry import check_output_frame
+
+        check_output_frame((info["width"], info["height"]), args.size, side_by_side=args.side_by_side,
+                           mode=args.mode, path=args.driver)
     if args.max_frames is not None:
         n = min(n, max(0, args.max_frames))
     from .._provenance import hash_in_background, provenance

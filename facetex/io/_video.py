@@ -201,6 +201,18 @@ def transcode_audio(src, dst) -> Path | None:
     return dst
 
 
+#: frames up to this many pixels (a 1080p driver side by side) are encoded with libx264's defaults;
+#: larger ones with few look-ahead and reference frames on one thread: the encoder keeps ~40 frames
+#: at ~4 bytes a pixel (1.3 GB at 4096 x 2304 after 30 frames; 0.5 GB so), issue 23
+ENCODER_FULL_PIXELS = 3840 * 1080
+
+
+def _encoder_options(codec: str, pixels: int) -> dict:
+    if pixels <= ENCODER_FULL_PIXELS or codec != "libx264":
+        return {}
+    return {"x264-params": "rc-lookahead=5:ref=1:bframes=1"}
+
+
 def _prep_frame(f, shape) -> np.ndarray:
     u = to_uint8(f)
     if u.ndim == 2:
@@ -297,7 +309,8 @@ def write_video(path, frames: Iterable[np.ndarray], fps: float, *, audio_from=No
         if src is not None:
             src.close()
         raise BadInputError("no frames to write", path=path) from None
-    shape = to_uint8(first).shape
+    first = to_uint8(first)  # from here: a float frame is not kept through the run (the same values)
+    shape = first.shape
     rate = Fraction(fps).limit_denominator(100_000)
     try:
         with atomic_path(path, overwrite=overwrite, inputs=srcs) as tmp, \
@@ -306,7 +319,9 @@ def write_video(path, frames: Iterable[np.ndarray], fps: float, *, audio_from=No
             vs = out.add_stream(codec, rate=rate)
             vs.height, vs.width = shape[0] + shape[0] % 2, shape[1] + shape[1] % 2
             vs.pix_fmt = "yuv420p"
-            vs.options = {"crf": str(int(crf))}
+            vs.options = {"crf": str(int(crf)), **_encoder_options(codec, vs.width * vs.height)}
+            if vs.width * vs.height > ENCODER_FULL_PIXELS:
+                vs.codec_context.thread_count = 1
             audio = pending = None
 
             def next_audio():

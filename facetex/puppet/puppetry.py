@@ -57,6 +57,7 @@ them opened to the driver's mean lid gap; the texture's eye-region weights see t
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections import deque
@@ -300,6 +301,43 @@ def output_size(frame_size, size: int | None) -> tuple[int, int, float]:
     return _even(w * s), _even(h * s), s
 
 
+#: most pixels of an output frame (both panels with ``side_by_side``): 6.6 MP (2560 x 2560,
+#: 3408 x 1920). Larger frames are refused before any work: every command stays under 1.5 GB
+#: (issue 23). Measured peaks (composite, 8-24 frames): 4096 x 4096 took 3.3 GB, side by side
+#: (33.5 MP) 4.4 GB, its encoder alone over 1 GB with the fewest reference and look-ahead frames;
+#: with frames streamed as below, 4096 x 2304 (9.4 MP) 1.44 GB, 3072 x 3072 (9.4 MP) 1.59 GB.
+MAX_FRAME_PIXELS = 2560 * 2560
+#: most pixels of a ``mode="face"`` panel: it is rasterized 2 x 2 supersampled (0.7 GB at 16.8 MP)
+MAX_FACE_PANEL_PIXELS = 2560 * 1440
+#: bytes the frames rendered ahead may hold (driver and puppet panels, alpha, as float32)
+IN_FLIGHT_BYTES = 192 * 2**20
+#: panels over this many pixels are rendered one at a time (each render's temporaries are
+#: several times the panel's float image)
+ONE_RENDER_PIXELS = 2_100_000
+
+
+def check_output_frame(frame_size, size: int | None, *, side_by_side: bool = False, mode: str = "composite",
+                       path=None) -> tuple[int, int, float]:
+    """:func:`output_size` of a driver frame (W, H), and BadInputError (naming ``path``, the
+    driver) when the output frame is larger than :data:`MAX_FRAME_PIXELS` (or a face-mode panel
+    than :data:`MAX_FACE_PANEL_PIXELS`): one line saying the largest ``--size`` that fits."""
+    W, H, scale = output_size(frame_size, size)
+    panels = 2 if side_by_side else 1
+    limit = min(MAX_FRAME_PIXELS // panels, MAX_FACE_PANEL_PIXELS if mode == "face" else MAX_FRAME_PIXELS)
+    if W * H > limit:
+        w, h = frame_size
+        best = max(w, h) * math.sqrt(limit / (w * h))
+        fit = max((v for v in range(32, int(best) + 3, 2) if (lambda o: o[0] * o[1])(output_size(frame_size, v)) <= limit),
+                  default=None)
+        what = f"{panels * W}x{H}" + (" (two panels)" if panels == 2 else "")
+        bound = (f"{MAX_FRAME_PIXELS / 1e6:.1f} MP a frame (2560x2560, 3408x1920)"
+                 + (f", {MAX_FACE_PANEL_PIXELS / 1e6:.1f} MP a face-mode panel" if mode == "face" else ""))
+        raise BadInputError(f"--size {size} makes {what} output frames of {W * H * panels / 1e6:.1f} MP, over the "
+                            f"{bound} that are rendered and encoded within the memory budget"
+                            + (f": use --size {fit} or less" if fit else ""), path=path)
+    return W, H, scale
+
+
 #: frames whose textures are blended together (a batch reads the precomputed stack once)
 TEXTURE_BATCH = 32
 #: frames of the first batch (rendering waits for it)
@@ -315,12 +353,15 @@ def _check_mode(mode: str) -> None:
 
 def render_frames(session: PuppetSession, *, size: int | None = None, mode: str = "composite",
                   side_by_side: bool = False, texture: str | None = None, max_frames: int | None = None,
-                  keep: bool = False, progress: Callable | None = None) -> Iterator[dict]:
+                  keep: bool = False, progress: Callable | None = None, uint8_frame: bool = False) -> Iterator[dict]:
     """Yield per frame {"index", "driver" (panel), "puppet" (panel), "frame" (output), "alpha",
     "lost"} (with ``keep`` also "grid" and "texture", the frame's mesh and texture): the second
     pass over the driver video. Lost frames show the driver's panel (a plain panel in face
     mode) and alpha 0. Per-stage times accumulate in ``session.timings`` (mesh_s, texture_s,
-    render_s; mesh and texture overlap rendering)."""
+    render_s; mesh and texture overlap rendering). ``uint8_frame``: "frame" is the output frame
+    as uint8 (what :func:`facetex.io.write_video` encodes; made panel by panel, without a float
+    copy of the frame). Output frames over :data:`MAX_FRAME_PIXELS` are refused (BadInputError);
+    large panels are rendered one at a time with fewer frames ahead (the same frames)."""
     from concurrent.futures import ThreadPoolExecutor
 
     from ..io import iter_video_frames
@@ -328,7 +369,12 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
 
     _check_mode(mode)
     pup = session.puppeteer
-    W, H, scale = output_size(session.track.frame_size, size)
+    W, H, scale = check_output_frame(session.track.frame_size, size, side_by_side=side_by_side, mode=mode,
+                                     path=session.track.path)
+    # frames ahead of the one yielded: at most IN_FLIGHT, and at most IN_FLIGHT_BYTES of panels
+    # (a 4096 x 2304 panel's record is 0.26 GB as float32); large panels render on one thread
+    in_flight = min(IN_FLIGHT, IN_FLIGHT_BYTES // (W * H * (12 + 12 + 4)))  # 0: one frame at a time
+    workers = 1 if W * H > ONE_RENDER_PIXELS else 2
     n = session.track.n_frames if max_frames is None else min(session.track.n_frames, max(0, int(max_frames)))
     tm = session.timings
     for key in ("mesh_s", "texture_s", "render_s"):
@@ -362,7 +408,7 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
     # order, each the same as rendered alone
     starts = [0] + list(range(min(FIRST_BATCH, n), n, TEXTURE_BATCH)) if n else []
     bounds = list(zip(starts, starts[1:] + [n]))
-    pool = ThreadPoolExecutor(2, thread_name_prefix="facetex-puppet-frame")
+    pool = ThreadPoolExecutor(workers, thread_name_prefix="facetex-puppet-frame")
     try:
         ahead = {b: pool.submit(meshes_and_textures, *bounds[b]) for b in range(min(2, len(bounds)))}
         pending: deque = deque()
@@ -374,7 +420,16 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
                 img, alpha = fut.result()
                 rec.update(puppet=img, alpha=alpha)
             drv, img = rec["driver"], rec["puppet"]
-            rec["frame"] = np.concatenate([drv, img], axis=1) if side_by_side else img
+            if uint8_frame:  # the same values as to_uint8 of the float frame
+                from ..io import to_uint8
+
+                if side_by_side:
+                    rec["frame"] = np.empty((H, 2 * W, 3), np.uint8)
+                    rec["frame"][:, :W], rec["frame"][:, W:] = to_uint8(drv), to_uint8(img)
+                else:
+                    rec["frame"] = to_uint8(img)
+            else:
+                rec["frame"] = np.concatenate([drv, img], axis=1) if side_by_side else img
             if progress:
                 progress(n=1, stage="render", lost=session.track.n_lost)
             return rec
@@ -401,7 +456,7 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
             else:
                 fut = pool.submit(render_one, i, grid, tex, drv)
             pending.append((rec, fut))
-            while pending and (len(pending) > IN_FLIGHT or pending[0][1] is None or pending[0][1].done()):
+            while pending and (len(pending) > in_flight or pending[0][1] is None or pending[0][1].done()):
                 yield finished(pending.popleft())
         while pending:
             yield finished(pending.popleft())
@@ -419,8 +474,10 @@ def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool
     Frames where the driver's face is lost (not found, partly outside the frame, implausible)
     show the driver's frame and are counted and reported with their causes; a video without
     any face raises NoFaceError naming it (nothing is written).
-    ``on_frame(record)`` receives each frame record of :func:`render_frames`; ``tracking`` and
-    ``loading``: see :func:`prepare_puppetry`.
+    ``on_frame(record)`` receives each frame record of :func:`render_frames` (its "frame" is the
+    uint8 frame written); ``tracking`` and ``loading``: see :func:`prepare_puppetry`. An output
+    frame over :data:`MAX_FRAME_PIXELS` is refused before any work (BadInputError naming the
+    driver and the largest ``size`` that fits).
     Returns a report dict (frames, lost frames, timings, shape/collection sources)."""
     import tempfile
     from concurrent.futures import ThreadPoolExecutor
@@ -431,6 +488,17 @@ def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool
     inputs = [driver] + ([] if hasattr(persona, "images") else [persona])
     out = check_output_path(output, overwrite=overwrite, inputs=inputs)
     output_size((1, 1), size)  # a bad size fails before the work
+    if size is not None:  # an output frame too large to render and encode within the memory budget
+        from ..io import video_info
+
+        try:
+            info = video_info(driver)
+            check_output_frame((info["width"], info["height"]), size, side_by_side=side_by_side, mode=mode,
+                               path=driver)
+        except BaseException:
+            if hasattr(tracking, "cancel"):  # started by the caller (the CLI)
+                tracking.cancel()
+            raise
     t_start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="facetex-puppet-") as tmp, ThreadPoolExecutor(1) as audio_pool:
         # the driver's audio is encoded during the setup, not beside the rendering
@@ -450,7 +518,7 @@ def _render_video(session: PuppetSession, out, audio, *, driver, inputs, size, m
 
     def frames():
         for rec in render_frames(session, size=size, mode=mode, side_by_side=side_by_side,
-                                 progress=progress):
+                                 progress=progress, uint8_frame=True):
             if on_frame:
                 on_frame(rec)
             yield rec["frame"]

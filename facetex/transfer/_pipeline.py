@@ -41,8 +41,10 @@ from .optimize import _resize as _resize_level
 from .optimize import optimize_image
 
 
-def _transfer_reduced(content, style, cp, sp, params, init, callback, kwargs) -> tuple[np.ndarray, dict]:
-    """:func:`transfer_with_info` of a content or style over NATIVE_MAX_PIXELS (see there)."""
+def _transfer_reduced(content, style, cp, sp, params, init, callback, kwargs,
+                      content_owned: bool = False) -> tuple[np.ndarray, dict]:
+    """:func:`transfer_with_info` of a content or style over NATIVE_MAX_PIXELS (see there);
+    ``content_owned``: the output is pasted into ``content`` itself (see :func:`_paste_change`)."""
     c_part, c_sub, c_pts, c_scale = (((0, 0, content.shape[1], content.shape[0]), content, cp, (1.0, 1.0))
                                      if content.shape[0] * content.shape[1] <= NATIVE_MAX_PIXELS
                                      else _native_part(content, cp, params.crop))
@@ -67,7 +69,8 @@ def _transfer_reduced(content, style, cp, sp, params, init, callback, kwargs) ->
     out_sub, info = transfer_with_info(c_sub, s_sub, content_points=c_pts, style_points=s_pts, init=init,
                                        callback=wrapped, **kwargs)
     box_small = info["region_box"]
-    out = out_sub if c_sub is content else _paste_change(content, c_part, c_scale, c_sub, out_sub, box_small)
+    out = out_sub if c_sub is content else _paste_change(content, c_part, c_scale, c_sub, out_sub, box_small,
+                                                         in_place=content_owned)
     info["region_box"] = list(map(int, _full_box(c_part, c_scale, box_small, content.shape)))
     info["reduced"] = {"content_part": list(map(int, c_part)), "content_scale": [float(v) for v in c_scale],
                        "content_work_shape": list(c_sub.shape[:2]), "style_work_shape": list(s_sub.shape[:2]),
@@ -111,7 +114,7 @@ def _crop_map_energies(style, style_map, face_width_style, dparams):
 def transfer_with_info(content, style, *, method: str = "facetex", preset: str = "default", seed: int = 0, device: str = "cpu", progress=None,
                        callback=None, save_every: int | None = None, content_points=None, style_points=None,
                        content_source=None, style_source=None, max_memory: int | None = None,
-                       init="content", **options) -> tuple[np.ndarray, dict]:
+                       init="content", _content_owned: bool = False, **options) -> tuple[np.ndarray, dict]:
     """Transfer the skin texture of ``style`` onto ``content`` (FaceTex, or a baseline).
 
     ``content``/``style``: (H, W, 3) RGB, float in [0, 1] or uint8. ``method``: "facetex"
@@ -131,6 +134,8 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
     A content or style over :data:`NATIVE_MAX_PIXELS` is worked on around its face, reduced to
     that many pixels, and the change is pasted into the content at full resolution (a warning
     says so; ``info["reduced"]`` records it).
+    ``_content_owned`` (the public API's): ``content`` is a float32 copy made for this call, and
+    a large one becomes the output (the change pasted into it) instead of being copied again.
     Raises NoFaceError (naming ``*_source``), MemoryBudgetError above ``max_memory`` bytes.
     """
     from .. import __version__
@@ -151,7 +156,8 @@ def transfer_with_info(content, style, *, method: str = "facetex", preset: str =
         kwargs = dict(method=method, preset=preset, seed=seed, device=device, progress=progress, save_every=save_every,
                       content_source=content_source, style_source=style_source, max_memory=max_memory,
                       **({} if texture_net is None else {"texture_net": texture_net}), **options)
-        out, info = _transfer_reduced(content, style, cp, sp, params, init, callback, kwargs)
+        out, info = _transfer_reduced(content, style, cp, sp, params, init, callback, kwargs,
+                                      content_owned=_content_owned)
         info["timings"]["landmarks_s"] += timings["landmarks_s"]
         info["timings"]["total_s"] = time.perf_counter() - t_start
         return out, info

@@ -47,7 +47,7 @@ def _check_rgb(image, name: str, lazy: bool = False) -> np.ndarray:
     a = np.asarray(image)
     if a.ndim != 3 or a.shape[2] != 3:
         raise BadImageError(f"{name} must be an (H, W, 3) RGB image, got shape {a.shape}")
-    if not (lazy and stays_integer(a)):
+    if not (lazy and (stays_integer(a) or stays_float(a))):
         a = to_float32(a)
     if min(a.shape[:2]) < 32:
         raise BadImageError(f"{name} of {a.shape[1]}x{a.shape[0]} px is too small: use at least 32 px")
@@ -83,6 +83,28 @@ def stays_integer(image) -> bool:
             and image.shape[2] == 3 and image.shape[0] * image.shape[1] > NATIVE_MAX_PIXELS)
 
 
+def stays_float(image) -> bool:
+    """Whether ``image`` is a float RGB array over :data:`NATIVE_MAX_PIXELS`, which the pipeline
+    keeps as it is, like :func:`stays_integer`: its reduced face region is made float32 and
+    clipped to [0, 1] (a 6000 x 6000 float64 array is 0.8 GB, its float32 copy another 0.4 GB;
+    issue 23). Its values must have passed :func:`facetex.io.check_float_pixels`."""
+    return (isinstance(image, np.ndarray) and image.dtype.kind == "f" and image.ndim == 3
+            and image.shape[2] == 3 and image.shape[0] * image.shape[1] > NATIVE_MAX_PIXELS)
+
+
+def _clipped_float32(image: np.ndarray, copy: bool = False) -> np.ndarray:
+    """A float image as float32 clipped to [0, 1], converted in row strips (no float64 or
+    boolean temporaries of its size); the same values as ``np.clip(to_float32(image), 0, 1)``.
+    Without ``copy`` a float32 image already in [0, 1] is returned as it is."""
+    if not copy and image.dtype == np.float32 and (image.size == 0 or (image.min() >= 0 and image.max() <= 1)):
+        return image
+    out = np.empty(image.shape, np.float32)
+    rows = max(1, (1 << 22) // max(1, image.size // max(1, image.shape[0])))
+    for i in range(0, image.shape[0], rows):
+        np.clip(image[i:i + rows], 0.0, 1.0, out=out[i:i + rows], casting="same_kind")
+    return out
+
+
 def detect_points68(image: np.ndarray, source=None) -> np.ndarray:
     """68 landmarks of the largest face; on an image over :data:`facetex.io.DETECT_MAX_PIXELS`
     found on a copy reduced to it, in the image's own pixels."""
@@ -93,8 +115,16 @@ def detect_points68(image: np.ndarray, source=None) -> np.ndarray:
     if h * w <= DETECT_MAX_PIXELS:
         return detect_face(image, source=source).points68
     k = math.sqrt(DETECT_MAX_PIXELS / (h * w))
+    if image.dtype.kind == "f":  # reduced from float32 in [0, 1], as when the caller's array was converted
+        image = _clipped_float32(image)
     small = cv2.resize(image, (max(1, int(w * k)), max(1, int(h * k))), interpolation=cv2.INTER_AREA)
     to_full = (w / small.shape[1], h / small.shape[0])
+    if small.dtype != np.uint8 and np.issubdtype(small.dtype, np.floating):
+        # the detector's own uint8 conversion, made here: detect_face would first copy the float
+        # image (as_image) and convert it with float temporaries of its size (issue 23)
+        from ..landmarks import _as_uint8_rgb
+
+        small = _as_uint8_rgb(np.clip(small, 0.0, 1.0, out=small))
     return _map_points(detect_face(small, source=source).points68, (0, 0), to_full)
 
 
@@ -111,6 +141,8 @@ def _native_part(image: np.ndarray, points68, crop: str):
     pw, ph = part[2] - part[0], part[3] - part[1]
     k = min(1.0, math.sqrt(NATIVE_MAX_PIXELS / (pw * ph)))
     sub = image[part[1]:part[3], part[0]:part[2]]
+    if sub.dtype.kind == "f":  # a float array kept as it is (stays_float): the part as float32 in [0, 1]
+        sub = _clipped_float32(sub)
     if k < 1.0:  # reduced in the image's own type (a uint8 photo is not made float at full size)
         sub = cv2.resize(np.ascontiguousarray(sub), (max(32, int(pw * k)), max(32, int(ph * k))),
                          interpolation=cv2.INTER_AREA)
@@ -120,13 +152,18 @@ def _native_part(image: np.ndarray, points68, crop: str):
 
 
 def _paste_change(content: np.ndarray, part, scale_xy, before: np.ndarray, after: np.ndarray, box_small,
-                  rows: int = 256) -> np.ndarray:
+                  rows: int = 256, in_place: bool = False) -> np.ndarray:
     """``content`` with the change ``after − before`` of its reduced ``part`` (non-zero inside
     ``box_small`` only) brought to the part's full resolution (bilinear, strip by strip), as
-    float32 (``content`` may be uint8 / uint16)."""
-    out = to_float32(content)
-    if np.shares_memory(out, content):
-        out = out.copy()
+    float32 (``content`` may be uint8 / uint16). ``in_place``: a float32 ``content`` that is the
+    pipeline's own (the API's converted copy of a caller's array) is written and returned
+    instead of copied (issue 23: a 6000 x 6000 image is 0.4 GB as float32)."""
+    if content.dtype.kind == "f" and not (in_place and content.dtype == np.float32):
+        out = _clipped_float32(content, copy=True)  # a float array kept as it is: clipped like as_image
+    else:
+        out = to_float32(content)
+        if np.shares_memory(out, content) and not (in_place and out is content):
+            out = out.copy()
     sx, sy = scale_xy
     delta = (after - before).astype(np.float32)
     pw, ph = part[2] - part[0], part[3] - part[1]

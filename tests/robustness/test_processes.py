@@ -121,3 +121,62 @@ def test_die_with_the_parent():
     finally:
         if alive(child):
             os.kill(child, signal.SIGKILL)
+
+
+@pytest.mark.slow
+def test_sigkill_of_ray_batch_leaves_no_process_and_rerun_finishes(tmp_path, photo_dir):
+    """SIGKILL of ``batch transfer --engine ray`` (a local Ray started by facetex) while an item
+    runs: Ray's daemons (GCS, raylet, dashboard and runtime-env agents) and the running task end
+    within seconds (the agents ran on; the task could finish and write its output while the
+    manifest said running), and a rerun reconciles the dead run's claims and finishes cleanly."""
+    pytest.importorskip("ray")
+    out = tmp_path / "o"
+    args = [sys.executable, "-m", "facetex", "batch", "transfer", "--contents", str(photo_dir), "--styles",
+            str(photo_dir), "--pairs", "2", "--size", "128", "--iters", "150,150,150", "--out", str(out),
+            "--engine", "ray", "--jobs", "1", "-q"]
+    p = subprocess.Popen(args, env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                         start_new_session=True)
+    seen: set[int] = set()
+
+    def task_running() -> bool:
+        for pid in seen:
+            try:
+                if open(f"/proc/{pid}/cmdline", "rb").read().startswith(b"ray::facetex"):
+                    return True
+            except OSError:
+                pass
+        return False
+
+    try:
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 120 and p.poll() is None:
+            seen |= descendants(p.pid)
+            if task_running():
+                break
+            time.sleep(0.1)
+        assert p.poll() is None and task_running(), "no Ray task started"
+        time.sleep(0.5)
+        seen |= descendants(p.pid)
+        p.kill()
+        p.wait()
+        t1 = time.monotonic()
+        while any(alive(pid) for pid in seen) and time.monotonic() - t1 < 10:
+            time.sleep(0.2)
+        left = {pid: open(f"/proc/{pid}/cmdline", "rb").read()[:40] for pid in seen if alive(pid)}
+        assert not left, f"processes left running after SIGKILL: {left}"
+    finally:
+        for pid in seen:
+            if alive(pid):
+                os.kill(pid, signal.SIGKILL)
+    written = sorted(q.name for q in out.iterdir() if q.suffix == ".png")
+    time.sleep(3)
+    assert sorted(q.name for q in out.iterdir() if q.suffix == ".png") == written  # nothing written afterwards
+    r = subprocess.run(args[:-1] + ["--json"], env=_env(), capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr
+    import json
+
+    summary = json.loads(r.stdout)
+    assert summary["failed"] == 0 and summary["done"] + summary["skipped_done"] == 2, summary
+    assert len([q for q in out.iterdir() if q.suffix == ".png"]) == 2
+    assert [q.name for q in out.iterdir() if q.name.startswith(".")] in ([], [".facetex-batch"]), list(out.iterdir())

@@ -324,6 +324,50 @@ def test_puppet_8k_driver_bounded(tmp_path, persona_file):
     assert sorted(p.name for p in out.parent.iterdir()) == ["p.mp4", "p.mp4.json"]
 
 
+def test_puppet_frame_too_large_is_one_line_before_any_work(capsys, videos, persona_file, outdir):
+    """--size 4096 of a square driver (a 16.8 MP frame; 33.5 MP side by side) took 3.3 / 4.4 GB:
+    refused from the driver's header in a moment, saying the largest --size that fits."""
+    for extra, cause in (([], r"--size 4096 makes 4096x4096 output frames of 16\.8 MP.*use --size 2560 or less"),
+                         (["--side-by-side"], r"8192x4096 \(two panels\).*use --size 1810 or less"),
+                         (["--mode", "face"], r"face-mode panel.*use --size 1920 or less")):
+        t0 = time.perf_counter()
+        run = run_cli(capsys, "puppet", videos["face.mp4"], persona_file, "-o", outdir / "p.mp4", "--size", "4096",
+                      *extra)
+        assert time.perf_counter() - t0 < 5
+        assert_one_error(run, names=[videos["face.mp4"]], cause=cause)
+        assert snapshot(outdir) == {}
+
+
+def test_puppet_api_refuses_a_frame_too_large(tmp_path, videos, persona_file):
+    from facetex.errors import BadInputError
+    from facetex.puppet.puppetry import puppeteer
+
+    with pytest.raises(BadInputError, match="use --size 2560 or less"):
+        puppeteer(videos["face.mp4"], persona_file, tmp_path / "o.mp4", size=4096)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_puppet_largest_frame_bounded(tmp_path, persona_file):
+    """The largest output frame accepted (2560 x 2560 from a square driver, 24 frames: the
+    encoder's look-ahead fills): frames streamed to the writer as uint8, one rendered at a time,
+    the encoder with few reference frames. Measured 1.18 GB; --size 4096 took 3.3 GB."""
+    from _robust import FACE, FACE_SMILING
+
+    from facetex.io import read_image, video_info, write_video
+
+    a, b = read_image(FACE), read_image(FACE_SMILING)
+    driver = tmp_path / "d.mp4"
+    write_video(driver, [a if i % 4 < 2 else b for i in range(24)], 10)
+    out = tmp_path / "out" / "p.mp4"
+    out.parent.mkdir()
+    _measured_ok(["puppet", str(driver), str(persona_file), "-o", str(out), "--size", "2560", "-q"],
+                 [driver, persona_file])
+    info = video_info(out)
+    assert (info["width"], info["height"], info["n_frames"]) == (2560, 2560, 24)
+    assert sorted(p.name for p in out.parent.iterdir()) == ["p.mp4", "p.mp4.json"]
+
+
 def _bench_results(folder: Path, n: int, *, methods=("facetex",), images: bool = True) -> Path:
     """A bench transfer folder of n pairs (33 metrics per method); with ``images`` each output is
     a hard link of one small face PNG."""
@@ -391,3 +435,91 @@ def test_report_112mb_results_json_bounded(tmp_path):
     out.parent.mkdir()
     _measured_ok(["report", str(run), "-o", str(out), "-q"], [run / "results.json"], timeout_s=400)
     assert sorted(p.name for p in out.parent.iterdir()) == ["r.html", "r.html.json"]
+
+
+# ------------------------------------------------------------ issue 23: a huge float array to the API
+def test_large_float_array_kept_and_converted_like_as_image():
+    """A float array over NATIVE_MAX_PIXELS is kept as it is (no float32 copy of its size): its
+    face part, its detection copy and the pasted output get the values as_image would have given
+    (float32, clipped to [0, 1]), and the caller's array is never written."""
+    from facetex.io import as_image
+    from facetex.transfer import _regions as P  # the working region (split from _pipeline)
+
+    rng = np.random.default_rng(0)
+    h, w = 1300, 1250  # 1.6 MP: over NATIVE_MAX_PIXELS
+    a = rng.random((h, w, 3)) * 1.0008 - 0.0004  # float64, slightly outside [0, 1] (within as_image's slack)
+    assert P.stays_float(a) and not P.stays_float(a[:100])
+    kept = a.copy()
+    ref = as_image(a)
+    assert ref.dtype == np.float32 and not np.array_equal(ref, a.astype(np.float32))  # clipping mattered
+    np.testing.assert_array_equal(P._clipped_float32(a), ref)
+    pts = np.array([[400.0 + 10 * (i % 10), 500.0 + 12 * (i // 10)] for i in range(68)])
+    for crop in ("face", "image"):
+        part, sub, _, scale = P._native_part(a, pts, crop)
+        part_ref, sub_ref, _, scale_ref = P._native_part(ref, pts, crop)
+        assert (part, scale) == (part_ref, scale_ref)
+        np.testing.assert_array_equal(sub, sub_ref)
+    before = sub_ref.copy()
+    after = np.clip(before + 0.05, 0, 1)
+    box = (10, 10, sub_ref.shape[1] - 10, sub_ref.shape[0] - 10)
+    out = P._paste_change(a, part_ref, scale_ref, before, after, box)
+    np.testing.assert_array_equal(out, P._paste_change(ref, part_ref, scale_ref, before, after, box))
+    assert out.dtype == np.float32 and 0 <= out.min() and out.max() <= 1
+    f32 = ref.copy()  # the API's own float32 copy: pasted into in place, the same values
+    same = P._paste_change(f32, part_ref, scale_ref, before, after, box, in_place=True)
+    assert same is f32
+    np.testing.assert_array_equal(same, out)
+    np.testing.assert_array_equal(a, kept)  # the caller's array is untouched
+
+
+def test_large_float_array_checked_without_copy(tmp_path):
+    """The API checks a large float array's values (one line naming it) without converting it."""
+    import facetex
+    from facetex.errors import BadImageError
+
+    a = np.zeros((1300, 1250, 3), np.float64)
+    a[700, 600, 1] = np.nan
+    with pytest.raises(BadImageError, match="content image contains NaN or infinite values"):
+        facetex.transfer(a, a, size=96, iters=1)
+    a[700, 600, 1] = 200.0
+    with pytest.raises(BadImageError, match="content image is a float image with values up to 200.*divide by 255"):
+        facetex.transfer(a, a, size=96, iters=1)
+
+
+_API_FLOAT = """
+import sys, numpy as np, cv2
+img = cv2.cvtColor(cv2.imread(sys.argv[1]), cv2.COLOR_BGR2RGB)
+up = cv2.resize(img, (6000, 6000), interpolation=cv2.INTER_LINEAR)
+arr = np.empty(up.shape, np.float64)
+for i in range(0, 6000, 500):
+    arr[i:i + 500] = up[i:i + 500] / 255.0
+del up
+import torch  # noqa: F401  (the imports are in the baseline)
+import facetex
+from facetex._memory import peak_rss, reset_peak_rss
+base = reset_peak_rss()
+before = arr[::97, ::89].copy()
+out = facetex.transfer(arr, sys.argv[2], size=96, iters=3)
+assert out.shape == arr.shape and out.dtype == np.float32, (out.shape, out.dtype)
+assert np.array_equal(arr[::97, ::89], before)  # the caller's array is not written
+print(base, peak_rss(), arr.nbytes)
+"""
+
+
+@pytest.mark.slow
+def test_api_transfer_6000px_float64_array_bounded():
+    """facetex.transfer with a 6000 x 6000 float64 array (0.8 GB, the caller's): the API keeps it
+    as it is; the only full-size copy is the float32 output (0.4 GB). It held two float32 copies and
+    the detector's float temporaries besides the caller's array: 1.35 GB above the array and the
+    imports, 2.49 GB in all; now about 0.9 GB and 2.07 GB."""
+    from _robust import FACE, OTHER
+
+    t0 = time.perf_counter()
+    r = subprocess.run([sys.executable, "-c", _API_FLOAT, str(FACE), str(OTHER)], capture_output=True, text=True,
+                       timeout=300)
+    took = time.perf_counter() - t0
+    assert r.returncode == 0, r.stderr
+    base, peak, nbytes = map(int, r.stdout.split())
+    assert peak - base <= 1.0 * GiB, f"{(peak - base) / GiB:.2f} GiB above the array and the imports"
+    assert peak - nbytes <= LIMIT, f"{(peak - nbytes) / GiB:.2f} GiB besides the caller's array"
+    assert took < 240, took
