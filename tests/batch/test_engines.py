@@ -143,3 +143,23 @@ def test_runtime_env_option(tmp_path, capsys):
                  "--engine", "ray", "--runtime-env", "[1]"]) == 2
     assert "argument --runtime-env: give a JSON object" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_opencv_thread_count_does_not_change_a_transfer():
+    """The workers give OpenCV the item's thread budget (1 by default, was one per core): the
+    README says that changes no byte, whatever OpenCV's pool size."""
+    import cv2
+
+    import facetex
+    from facetex._resources import sample_path
+
+    a, b = (str(sample_path(n)) for n in ("frl_004_neutral.jpg", "frl_005_neutral.jpg"))
+    saved = cv2.getNumThreads()
+    outs = []
+    try:
+        for n in (1, 2):
+            cv2.setNumThreads(n)
+            outs.append(facetex.transfer(a, b, size=96, iters=(2, 2, 2), seed=0))
+    finally:
+        cv2.setNumThreads(saved)
+    assert outs[0].tobytes() == outs[1].tobytes()
