@@ -15,7 +15,9 @@ from typing import Any, Callable
 
 from ..errors import FacetexError
 
-_THREAD_ENV = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+# the item's thread budget, for every pool a transfer uses: torch's OpenMP, BLAS, and OpenCV's own
+# pthreads pool (which ignores OMP_NUM_THREADS and otherwise starts one thread per core in every worker)
+_THREAD_ENV = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "OPENCV_FOR_THREADS_NUM")
 _CANCEL_GRACE_S = 10.0  # an interrupted item gets this long to remove its temporary files
 
 
@@ -54,13 +56,23 @@ def _one_line(text: str, limit: int = 500) -> str:
 
 
 def _set_threads(threads: int) -> None:
-    """The item's thread budget: BLAS/OpenMP read the environment when they start (before
-    torch is imported), torch also takes it later."""
+    """The item's thread budget: BLAS/OpenMP/OpenCV read the environment when they start
+    (before torch or cv2 is imported), torch and OpenCV also take it later. OpenCV's thread
+    count does not change its results (each thread computes whole rows), torch's does."""
     for k in _THREAD_ENV:
         os.environ[k] = str(threads)
     torch = sys.modules.get("torch")
     if torch is not None and torch.get_num_threads() != threads:
         torch.set_num_threads(threads)
+    cv2 = sys.modules.get("cv2")
+    if cv2 is not None and hasattr(cv2, "setNumThreads") and cv2.getNumThreads() != threads:
+        cv2.setNumThreads(threads)
+
+
+def _cpu_s() -> float:
+    """CPU seconds (user + system) this process used so far, all its threads."""
+    t = os.times()
+    return t.user + t.system
 
 
 def _peak_rss_mb() -> float:
@@ -85,7 +97,7 @@ def _call(fn: Callable, payload: Any) -> Any:
 def execute(fn: Callable, payload: Any, threads: int) -> tuple:
     """Run one item in a worker: ``(ok, value or error line, error type, stats)``. Errors of the
     item become one line; KeyboardInterrupt (a cancel) propagates after the item's clean-up."""
-    t0 = time.perf_counter()
+    t0, c0, started = time.perf_counter(), _cpu_s(), time.time()
     _set_threads(threads)
     try:
         value, ok, etype = _call(fn, payload), True, None
@@ -95,10 +107,10 @@ def execute(fn: Callable, payload: Any, threads: int) -> tuple:
         value, ok, etype = "out of memory", False, "MemoryError"
     except Exception as e:  # noqa: BLE001 - any failure of an item is recorded, the batch goes on
         value, ok, etype = _one_line(f"{type(e).__name__}: {e}"), False, type(e).__name__
-    if ok and "torch" in sys.modules:
-        _set_threads(threads)  # the item imported torch: keep the budget for the next item too
+    if ok and ("torch" in sys.modules or "cv2" in sys.modules):
+        _set_threads(threads)  # the item imported torch or cv2: keep the budget for the next item too
     stats = {"host": socket.gethostname(), "pid": os.getpid(), "seconds": time.perf_counter() - t0,
-             "peak_rss_mb": _peak_rss_mb(), "threads": int(threads)}
+             "cpu_s": _cpu_s() - c0, "started": started, "peak_rss_mb": _peak_rss_mb(), "threads": int(threads)}
     return ok, value, etype, stats
 
 

@@ -68,7 +68,8 @@ class BatchSummary:
     computed: list = field(default_factory=list)  # keys computed by this run
     failures: list = field(default_factory=list)  # (key, error)
     failures_elsewhere: list = field(default_factory=list)  # (key, run, error): another run's failures
-    item_stats: list = field(default_factory=list)  # per computed item: key, seconds, overhead_s, host, pid, rss
+    # per computed item: key, seconds, cpu_s, started (epoch), overhead_s, host, pid, rss, worker_spawned (local)
+    item_stats: list = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -391,7 +392,9 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
                 wall = (stats.get("returned") or time.time()) - entry["submitted"]
                 summary.item_stats.append({"item": it.key, "seconds": stats.get("seconds"), "wall_s": wall,
                                            "overhead_s": wall - (stats.get("seconds") or 0.0), "host": host,
-                                           "pid": stats.get("pid"), "peak_rss_mb": stats.get("peak_rss_mb")})
+                                           "pid": stats.get("pid"), "peak_rss_mb": stats.get("peak_rss_mb"),
+                                           "cpu_s": stats.get("cpu_s"), "started": stats.get("started"),
+                                           "worker_spawned": stats.get("worker_spawned")})
             return
         remove_item_temporaries(parent_of(it.outputs[0]), it.key, [tag])
         if o.died and attempts.get(it.key, 0) <= max_retries:

@@ -68,3 +68,13 @@ def slow_write(p):
 
     write_files({p["output"]: content, f"{p['output']}.json": "{}"})
     return {"outputs": [p["output"]]}
+
+
+def thread_pools(p):
+    """The thread pools an item of this worker gets: OpenCV's (imported by the item, as a transfer
+    does, and already imported, as for the next item), torch's, and OpenMP's wait policy."""
+    import cv2
+    import torch
+
+    return {"cv2": cv2.getNumThreads(), "torch": torch.get_num_threads(),
+            "wait_policy": os.environ.get("OMP_WAIT_POLICY"), "pid": os.getpid()}
