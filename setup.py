@@ -47,7 +47,9 @@ def _fetch(dest: Path) -> bool:
             subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, timeout=600)
         except (OSError, subprocess.SubprocessError) as e:
             print(f"facetex build: could not download {SOURCE} for the face-mesh model ({e}); building "
-                  "without it", file=sys.stderr)
+                  "without it (FaceTex's skin mask then falls back to the landmark outline, with a warning "
+                  "at run time; set FACETEX_MESH_MODEL to a copy of face_landmark.tflite to include it)",
+                  file=sys.stderr)
             return False
         wheels = list(Path(tmp).glob("*.whl"))
         if not wheels:

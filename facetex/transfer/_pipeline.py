@@ -81,12 +81,20 @@ def _transfer_reduced(content, style, cp, sp, params, init, callback, kwargs,
 # ---------------------------------------------------------------- masks and pre-warp
 def _face_mesh(image, points68):
     """MediaPipe mesh of the face at ``points68``, or None when the mesh finds no face there
-    (the skin mask then falls back to the landmark outline)."""
-    from ..errors import FacetexError
+    (the skin mask then falls back to the landmark outline). A missing model file (a wheel
+    built offline, without the model) also falls back, with a warning: the skin mask, and so
+    the output, then differ from a full install's."""
+    import warnings
+
+    from ..errors import FacetexError, ModelNotFoundError
     from ..landmarks import face_mesh468
 
     try:
         return face_mesh468(image, points68)
+    except ModelNotFoundError as e:
+        warnings.warn(f"face-mesh model unavailable ({e}); the skin mask falls back to the 68-landmark "
+                      "outline and results differ from a full install", RuntimeWarning, stacklevel=2)
+        return None
     except FacetexError:
         return None
 

@@ -239,3 +239,30 @@ def test_style_patches_are_the_skin_ones_and_at_least_the_most_skin_like_few():
     few[..., 7:14, 7:14] = torch.maximum(few[..., 7:14, 7:14], torch.tensor(0.3))
     assert len(_masked_style_patches(feat, few, p)) == MIN_STYLE_PATCHES
     assert len(_masked_style_patches(feat, torch.zeros(1, 1, 20, 20), p)) == all_n
+
+
+def test_missing_face_mesh_model_falls_back_with_a_warning(monkeypatch):
+    """A wheel built offline has no face-mesh model: the skin mask falls back to the landmark
+    outline, and the user is told (results differ); no face for the mesh falls back quietly."""
+    import warnings
+
+    import facetex.landmarks as lm
+    from facetex.errors import ModelNotFoundError
+    from facetex.transfer._pipeline import _face_mesh
+
+    img, pts = np.zeros((8, 8, 3), np.float32), np.zeros((68, 2))
+
+    def missing(*a, **k):
+        raise ModelNotFoundError("model file face_landmark.tflite not found")
+
+    monkeypatch.setattr(lm, "face_mesh468", missing)
+    with pytest.warns(RuntimeWarning, match="face-mesh model unavailable"):
+        assert _face_mesh(img, pts) is None
+
+    def no_face(*a, **k):
+        raise NoFaceError("no face")
+
+    monkeypatch.setattr(lm, "face_mesh468", no_face)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert _face_mesh(img, pts) is None
