@@ -92,6 +92,7 @@ from .puppet_measures import (
     eye_openness_ratio,
     face_skin_mask,
     failed_targets,
+    headroom,
     mouth_slope,
     run_score,
     sharpness_ratio,
@@ -328,12 +329,16 @@ def _write_tables(out: Path, rows: list, part, *, drivers, files, persona_files,
             f"<= {hi:g}"
         worst_md.append(f"| {titles[k].title} | {tgt} | {titles[k].format(worst[k])} | {worst_run.get(k) or '–'} | "
                         f"{n_fail[k]}/{len(rows)} |")
-    worst_md += ["", f"## The {len(bad)} worst runs (by fail score)", ""]
+    worst_md += ["", f"## The {len(bad)} worst runs (by fail score, then by the smallest margin to a target)", ""]
     sheets = {}
     for rank, i in enumerate(bad, 1):
         r = rows[i]
         src = (r.get("media") or {}).get("sheet3_100")
         line = f"{rank}. `{r['run']}`: score {r['score']:.2f}, failed: {', '.join(r.get('failed') or []) or '–'}"
+        margin, near = headroom(r)
+        if near is not None:
+            line += f" (meets every target; closest: {titles[near].title} {titles[near].format(r.get(near))}, " \
+                    f"margin {margin:.0%})"
         if r.get("error"):
             line += f"; error: {r['error']}"
         if src and Path(src).is_file():

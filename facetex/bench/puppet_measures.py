@@ -271,12 +271,31 @@ def failed_targets(row) -> list[str]:
     return [k for k in TARGETS if _shortfall(k, row.get(k)) > 0]
 
 
+def headroom(row) -> tuple[float, str | None]:
+    """(smallest relative margin, its target key) of a run meeting every target: how close it
+    came to failing, the margin of a measure as :func:`_shortfall` measures the shortfall
+    ((v − lo) / lo above a lower bound, (hi − v) / hi below an upper one); (-inf, None) when a
+    target is missed."""
+    best, key = float("inf"), None
+    for k, (lo, hi) in TARGETS.items():
+        v = row.get(k)
+        if _shortfall(k, v) > 0:
+            return float("-inf"), None
+        for m in ((v - lo) / abs(lo) if lo is not None else float("inf"),
+                  (hi - v) / abs(hi) if hi is not None else float("inf")):
+            if m < best:
+                best, key = m, k
+    return best, key
+
+
 def worst_runs(rows, n: int = N_WORST) -> list[int]:
-    """Indices of the ``n`` rows of highest :func:`run_score` (worst first; ties in row order);
-    rows meeting every target are never listed."""
+    """Indices of the ``n`` worst rows: those missing a target by highest :func:`run_score`
+    (ties in row order), then, when fewer than ``n`` miss one, the runs closest to a target
+    (smallest :func:`headroom`): the sheets to look at are the three worst runs whatever passed."""
     scores = [run_score(r) for r in rows]
-    order = sorted(range(len(rows)), key=lambda i: (-scores[i], i))
-    return [i for i in order if scores[i] > 0][:n]
+    failing = sorted((i for i in range(len(rows)) if scores[i] > 0), key=lambda i: (-scores[i], i))
+    passing = sorted((i for i in range(len(rows)) if scores[i] == 0), key=lambda i: (headroom(rows[i])[0], i))
+    return (failing + passing)[:n]
 
 
 def _worst_value(key: str, values: list):

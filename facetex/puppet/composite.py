@@ -95,6 +95,42 @@ def lip_weights(points68, shape, *, feather: float = 0.02) -> tuple[np.ndarray, 
     return np.clip(cv2.GaussianBlur(outer.astype(np.float32), (0, 0), sig), 0, 1), ring
 
 
+def open_lip_weights(points68, shape, *, feather: float = 0.02, band: float = 0.1) -> list:
+    """The upper and the lower lip as two regions of
+    :func:`~facetex.puppet.lighting.transfer_skin_colour`: [(weight (H, W), pixels (H, W) bool)] x 2,
+    each weight scaled by how open the mouth is (1 - :func:`~facetex.puppet.mouth.mouth_closure`;
+    [] for closed lips). One median colour for both lips let an open mouth's dark inner-lip
+    seam and the driver's teeth pull the lips' colour apart from the driver's, and dlib then
+    read part of the upper lip as the opening (Arroyo's persona on GRID lbax4n: mouth-opening
+    slope 0.71; 0.83 with each lip its own colour). Fading with openness keeps closed lips one
+    colour: an earlier per-lip split without the fade broke Chavez's closed lips. The colour is
+    measured on each lip's outer part: the inner-lip points pulled ``band`` of the way towards
+    the outer lip contour (0.1: Arroyo/bbaf2n's mouth r 0.83 -> 0.86 over the whole lip, 0.88 at 0.2
+    and 0.4, but Bush/sbwe5n's slope 1.10 -> 1.19, 1.32 at 0.2, 1.37 at 0.4, Arroyo/lbax4n
+    0.83, 0.80, 0.75: the inner band carries some of the driver's look of the opening)."""
+    from .mouth import mouth_closure
+
+    p = np.asarray(points68, np.float64)
+    h, w = _shape2(shape)
+    o = 1.0 - mouth_closure(p[60:68])
+    if o <= 0:
+        return []
+    sig = max(0.75, feather * float(np.linalg.norm(p[36] - p[45])))
+    # the colour is measured on each lip's outer part only: the inner-lip points of the driver
+    # (dlib) and the puppet's (mesh) opening differ, and the inner band of either image can hold
+    # the dark interior, which darkened the upper lip of Arroyo's persona on GRID bbaf2n
+    q = p.copy()
+    for inner, outer in ((61, 50), (62, 51), (63, 52), (65, 56), (66, 57), (67, 58)):
+        q[inner] = p[inner] + band * (p[outer] - p[inner])
+    parts = []
+    for upper in (True, False):
+        idx = [*range(48, 55), 64, 63, 62, 61, 60] if upper else [*range(54, 60), 48, 60, 67, 66, 65, 64]
+        m = polygon_mask(p[idx], (h, w))
+        ring = cv2.erode((polygon_mask(q[idx], (h, w)) > 0.5).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        parts.append((o * np.clip(cv2.GaussianBlur(m.astype(np.float32), (0, 0), sig), 0, 1), ring))
+    return parts
+
+
 def _scaled(weights: tuple, strength: float) -> tuple:
     """(weight x ``strength``, pixels): a region weight of :func:`~facetex.puppet.lighting.transfer_skin_colour` in part."""
     return np.asarray(weights[0], np.float32) * float(np.clip(strength, 0.0, 1.0)), weights[1]
@@ -377,6 +413,7 @@ class CompositeParams:
     colour_sigma: float = 0.06
     colour_gain: tuple[float, float] = (2 / 3, 1.2)
     lip_colour: bool = True
+    open_lips: bool = True
     lid_colour: float = 0.0
     eye_colour: bool = True
     occlusion: bool = True
@@ -487,7 +524,9 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
                                    lips=lip_weights(p68 - [x0, y0], rg.shape) if params.lip_colour else None,
                                    lids=_scaled(lid_weights(p68 - [x0, y0], rg.shape), params.lid_colour)
                                    if params.lid_colour > 0 else None,
-                                   keep=eye_weights(p68 - [x0, y0], rg.shape) if params.eye_colour else None)
+                                   keep=eye_weights(p68 - [x0, y0], rg.shape) if params.eye_colour else None,
+                                   lip_parts=open_lip_weights(p68 - [x0, y0], rg.shape)
+                                   if params.lip_colour and params.open_lips else ())
     if params.sharpen > 1:
         # after the colour transfer: a dark persona's detail is small in sRGB until it takes a pale
         # driver's tone (measured before, Williams' puppets were sharpened to 2x the driver's detail).

@@ -170,7 +170,8 @@ def _lightness_to_luminance(L):
 
 
 def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 / 3, 1.2), colour: str = "driver",
-                         light_limits=(0.5, 2.0), shrink: int = 1, lips=None, lids=None, keep=None) -> np.ndarray:
+                         light_limits=(0.5, 2.0), shrink: int = 1, lips=None, lids=None, keep=None,
+                         lip_parts=()) -> np.ndarray:
     """``src`` (H, W, 3) sRGB with the low-frequency colour of ``ref`` (the same size, aligned),
     measured on skin pixels only (bool ``src_skin``, ``ref_skin``), the detail of ``src`` kept.
 
@@ -196,6 +197,8 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     lightness gain a dark persona's brown irises turned grey on a pale driver). ``lids`` (colour
     "driver"): the same as ``lips`` for the skin round the eyes (:func:`lid_weights`): a dark
     persona's lids, darker than her skin, kept that difference on a pale driver as dark rings.
+    ``lip_parts``: more regions like ``lips``, applied after it in order (the upper and lower
+    lip of an open mouth, :func:`~facetex.puppet.composite.open_lip_weights`).
     Returns sRGB float32 in [0, 1]."""
     if colour not in COLOURS:
         raise BadInputError(f"unknown colour {colour!r}: use one of {', '.join(COLOURS)}")
@@ -234,7 +237,7 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     field = full(field)
     a = _lab(src)
     ref_lab = None
-    for region in (lips, lids):
+    for region in (lips, *lip_parts, lids):
         if region is None:
             continue
         wl, lm = np.asarray(region[0], np.float32), np.asarray(region[1], bool)

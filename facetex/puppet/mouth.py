@@ -90,7 +90,7 @@ def _lip_arcs(lips: np.ndarray, R: np.ndarray, c: np.ndarray):
     return arcs[0], arcs[1], u0, u1
 
 
-def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float = 0.9,
+def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float = 1.0,
                    closed: float = 0.04, soft: float = 0.15,
                    lip_key: tuple[float, float] | None = (4.0, 12.0)) -> tuple[np.ndarray, np.ndarray]:
     """The driver's mouth interior moved into the puppet's mouth: (image (H, W, 3), alpha (H, W)).
@@ -101,7 +101,9 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     the corner line) and between the upper and lower lip (across it): teeth, tongue and the dark
     cavity land where they are in the driver's mouth, whatever the two mouths' shapes. Both
     coordinates are pulled towards the mouth's centre by ``inset`` (< 1: the edge samples the
-    driver's interior, not its lips). Alpha: 0 outside the puppet's inner lips, rising to 1 over
+    driver's interior, not its lips; 1, the default: the lip key below removes the lips, and a
+    smaller inset shrank the teeth the output shows: mouth-opening slope on Arroyo's persona
+    driven by GRID lrwp9a 0.77 at 0.9, 0.84 at 1.0, 0.72 at 0.8). Alpha: 0 outside the puppet's inner lips, rising to 1 over
     ``soft`` x the local lip gap inside them (the puppet's lips overlap the interior: no polygon
     edge), faded out as the driver's lip gap falls from 2 x ``closed`` to ``closed`` times its
     mouth width (closed lips have no interior to show). ``lip_key`` (lo, hi): the driver's own

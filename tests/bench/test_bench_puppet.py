@@ -123,7 +123,12 @@ def test_run_score_and_the_worst_runs():
     assert bench.run_score(missing) == pytest.approx(4.0)
     rows = [good, slow_mouth, bruised, wide_mouth, missing]
     assert bench.worst_runs(rows) == [4, 2, 1]  # ties (1 and 3) in row order
-    assert bench.worst_runs([good, good]) == []  # runs that meet every target are not "worst"
+    # fewer than 3 failing: the passing runs closest to a target follow (smallest margin first)
+    near = {**good, "mouth_slope": 1.28}  # (1.3 − 1.28) / 1.3 = 1.5 % from the upper bound
+    assert measures.headroom(near) == (pytest.approx(0.02 / 1.3), "mouth_slope")
+    assert measures.headroom(good) == (pytest.approx(0.05 / 0.85), "mouth_r")  # 0.9 vs 0.85: 5.9 %, sharp 6.7 %
+    assert measures.headroom(slow_mouth) == (float("-inf"), None)
+    assert bench.worst_runs([good, slow_mouth, near, good]) == [1, 2, 0]
     assert measures._worst_value("mouth_slope", [1.0, 0.7, 1.5, None]) == 1.5  # (1.5-1.3)/1.3 > (0.8-0.7)/0.8
     assert measures._worst_value("cheek_de", [3.0, float("nan"), 9.0]) == 9.0
     assert measures._worst_value("sharp", [0.9, 0.6]) == 0.6
@@ -180,7 +185,9 @@ def test_cli_runs_every_puppet_on_every_clip(fake_runs, tmp_path, capsys):
     assert calls == [("reference", "Anna"), ("reference", "Bert"), ("Anna", "c1", 64), ("Anna", "c2", 64),
                      ("Bert", "c1", 64), ("Bert", "c2", 64)]
     printed = json.loads(capsys.readouterr().out)
-    assert [w["run"] for w in printed["summary"]["worst_runs"]] == ["Bert/c2", "Anna/c2"]  # slope 0.2, 0.5
+    worst = printed["summary"]["worst_runs"]
+    assert [w["run"] for w in worst[:2]] == ["Bert/c2", "Anna/c2"]  # slope 0.2, 0.5
+    assert len(worst) == 3 and worst[2]["score"] == 0  # then the passing run closest to a target
     res = json.loads((out / "results.json").read_text())
     assert [r["run"] for r in res["rows"]] == ["Anna/c1", "Anna/c2", "Bert/c1", "Bert/c2"]
     assert res["worst"]["mouth_slope"] == 0.2 and res["worst"]["runs"]["mouth_slope"] == "Bert/c2"
@@ -190,7 +197,7 @@ def test_cli_runs_every_puppet_on_every_clip(fake_runs, tmp_path, capsys):
     assert "| worst |" in md and "| mean |" in md
     worst1 = read_image(out / "worst1_Bert__c2.png")
     assert worst1.shape[1] == 45 and worst1.shape[0] > 30 and (out / "worst2_Anna__c2.png").is_file()
-    assert not list(out.glob("worst3_*"))  # only runs that miss a target
+    assert (out / "worst3_Anna__c1.png").is_file()  # then the passing run closest to a target
     assert len(list((out / "runs").glob("*.json"))) == 4
     # --puppet is the same option; --resume reuses the stored runs (and the identity references)
     calls.clear()

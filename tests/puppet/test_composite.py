@@ -15,6 +15,7 @@ from facetex.puppet.composite import (
     composite_face,
     lip_weights,
     match_sharpness,
+    open_lip_weights,
     occlusion_mask,
     poisson_blend,
     skin_pixels,
@@ -624,6 +625,47 @@ def test_lips_take_the_drivers_lip_colour_not_the_skins():
     np.testing.assert_allclose(out[skin], np.broadcast_to([75.0, 10.0, 16.0], out[skin].shape), atol=0.4)
     white = _lab(transfer_skin_colour(src, ref, skin, skin, sigma=np.inf))
     assert np.median(white[ring][:, 0]) > 85.0  # 75 + 1.2 x 15 = 93, clipped to the sRGB gamut
+
+
+def test_open_lips_take_each_of_the_drivers_lips_colours():
+    """An open mouth whose driver has a dark upper lip (L 50) and a light lower lip (L 65), on a
+    persona whose lips are one colour (L 60): with the open-lip weights each lip's core comes out
+    at the driver's own lip's colour (hand-computed: r' + (src - s') with src flat = r'); with one
+    lip region both lips get the same colour. Closed lips have no parts; a half-open
+    mouth's parts weigh 1 - closure."""
+    h, w = 240, 288
+    p = 3 * _face68(gap=10.0)  # 10 / 16 of the mouth width: wide open; x 3: lips thicker than the feather
+    parts = open_lip_weights(p, (h, w))
+    assert len(parts) == 2
+    up_poly = np.r_[p[48:55], p[[64, 63, 62, 61, 60]]]
+    lo_poly = np.r_[p[54:60], p[[48, 60, 67, 66, 65, 64]]]
+    upper, lower = (polygon_mask(q, (h, w)) > 0.5 for q in (up_poly, lo_poly))
+    assert parts[0][1].sum() > 20 and not (parts[0][1] & lower).any()
+    assert parts[1][1].sum() > 20 and not (parts[1][1] & upper).any()
+    assert open_lip_weights(_face68(gap=0.0), (h, w)) == []
+    half = open_lip_weights(3 * _face68(gap=0.06 * 16), (h, w))
+    c = mouth_closure(_face68(gap=0.06 * 16)[60:68])
+    assert 0 < c < 1 and half[0][0].max() == pytest.approx(1 - c, abs=0.02)
+
+    outer = polygon_mask(p[48:60], (h, w)) > 0.5
+    inner = polygon_mask(p[60:68], (h, w)) > 0.5
+    ref_lab = np.where(upper[..., None], np.float32([50.0, 35.0, 12.0]),
+                       np.where(lower[..., None], np.float32([65.0, 30.0, 14.0]), np.float32([75.0, 10.0, 16.0])))
+    ref_lab = np.where(inner[..., None], np.float32([20.0, 5.0, 5.0]), ref_lab)
+    src_lab = np.where(outer[..., None] & ~inner[..., None], np.float32([60.0, 30.0, 15.0]),
+                       np.float32([45.0, 14.0, 20.0]))
+    src, ref = _rgb(src_lab.astype(np.float32)), _rgb(ref_lab.astype(np.float32))
+    skin = ~cv2.dilate(outer.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    lips = lip_weights(p, (h, w))
+    out = _lab(transfer_skin_colour(src, ref, skin, skin, sigma=np.inf, lips=lips, lip_parts=parts))
+    for (wt, ring), want in zip(parts, ([50.0, 35.0, 12.0], [65.0, 30.0, 14.0])):
+        core = ring & (wt > 0.999)
+        assert core.sum() > 10
+        np.testing.assert_allclose(out[core], np.broadcast_to(want, out[core].shape), atol=0.5)
+    one = _lab(transfer_skin_colour(src, ref, skin, skin, sigma=np.inf, lips=lips))
+    cores = [ring & (wt > 0.999) for wt, ring in parts]
+    gap_one = abs(np.median(one[cores[0]][:, 0]) - np.median(one[cores[1]][:, 0]))
+    assert gap_one < 3.0  # one median: both lips alike, not the driver's 15 apart
 
 
 def test_mouth_closure_follows_the_lip_gap():
