@@ -31,6 +31,11 @@ CALLS = {
     "landmark_error": lambda a, b: facetex.landmark_error(a, b).mse_px2,
     "texture_similarity": lambda a, b: facetex.texture_similarity(a, b),
     "identity_distance": lambda a, b: facetex.identity_distance(a, b),
+    "as_image": lambda a, b: facetex.as_image(a),
+    # the transfer and its metrics: a small, short run (the numbers of every form must agree)
+    "transfer": lambda a, b: facetex.transfer(a, b, size=96, iters="2,2", seed=0),
+    "transfer_metrics": lambda a, b: [facetex.transfer_metrics(a, a, b)[k] for k in
+                                      ("protected_change", "background_change", "identity_content")],
 }
 
 
