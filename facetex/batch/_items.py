@@ -63,14 +63,21 @@ def item_key(*parts) -> str:
     return "__".join(re.sub(r"[^A-Za-z0-9_-]+", "-", str(p)).strip("-") or "x" for p in parts)
 
 
-def _commit(files: dict, inputs=()) -> str | None:
+def _commit(files: dict, inputs=(), batch=None) -> str | None:
     """Write ``files`` ({output: ..., sidecar: ...}, bytes or callable(tmp)) as one (exclusive
     creates), the sidecar moved into place first: a commit cut short leaves a sidecar naming
     its item, which the next run removes, never an output without a sidecar, which it would
     have to take for a user's file. When all of them already exist (another run computed the
-    item after its claim expired) that is not an error: returns a note instead."""
+    item after its claim expired) that is not an error: returns a note instead.
+
+    With ``batch["replace"]`` (the item's inputs changed since its files were made) the files
+    replace the old ones, each by a rename, the output first and the sidecar, which names the
+    new input digests, last: a commit cut short leaves the old digests, so the next run redoes it."""
     from ..io import write_files
 
+    if isinstance(batch, dict) and batch.get("replace"):
+        write_files(files, overwrite=True, inputs=inputs)
+        return None
     try:
         write_files(files, overwrite=False, inputs=inputs, reverse_commit=True)
     except OutputError:
@@ -109,7 +116,8 @@ def run_transfer_item(p: dict) -> dict:
                          params={**(info.get("params") or {}), "method": p["method"], "preset": p["preset"],
                                  "device": p["device"], "command_line_options": options},
                          outputs=[out], result=info)
-    note = _commit({out: encode_image(out, image), sidecar: encode_json(record)}, inputs=[p["content"], p["style"]])
+    note = _commit({out: encode_image(out, image), sidecar: encode_json(record)}, inputs=[p["content"], p["style"]],
+                   batch=p.get("batch"))
     return {"outputs": [out, sidecar], "note": note, "timings": info.get("timings")}
 
 
@@ -276,7 +284,8 @@ def run_persona_item(p: dict) -> dict:
                                  "persona_params": persona.params},
                          outputs=[out], photos_used=len(persona), skipped=persona.skipped,
                          seconds=time.perf_counter() - t0)
-    note = _commit({out: lambda tmp: persona.save(tmp, overwrite=True), f"{out}.json": encode_json(record)})
+    note = _commit({out: lambda tmp: persona.save(tmp, overwrite=True), f"{out}.json": encode_json(record)},
+                   batch=p.get("batch"))
     return {"outputs": [out, f"{out}.json"], "note": note, "photos_used": len(persona),
             "skipped": len(persona.skipped)}
 
@@ -325,7 +334,7 @@ def run_puppet_item(p: dict) -> dict:
             "batch puppet", p, inputs={"driver": p["driver"], "puppet": p["puppet"]}, params=opts,
             outputs=[out], result=report)))
 
-    note = _commit({out: video, f"{out}.json": sidecar}, inputs=[p["driver"], p["puppet"]])
+    note = _commit({out: video, f"{out}.json": sidecar}, inputs=[p["driver"], p["puppet"]], batch=p.get("batch"))
     return {"outputs": [out, f"{out}.json"], "note": note, "frames": report.get("frames"),
             "lost_frames": report.get("lost_frames")}
 

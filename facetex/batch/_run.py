@@ -1,11 +1,12 @@
 """Running a batch: claim, schedule, retry, record; and ``map_items`` for the benches.
 
 :func:`run_batch` runs every item of a list on an engine, with the output folder as the only
-shared state: finished items (outputs present, record "done") are skipped, failed items are
-skipped unless ``retry_failed``, items claimed by another live run are left to it (and waited
-for), and a worker that dies fails only its item, which is run again up to ``max_retries``
-times. An interrupt (Ctrl-C, SIGTERM) cancels the running items (their temporary files are
-removed), puts them back to "pending", releases the claims and re-raises.
+shared state: finished items (outputs present, record "done", inputs with the sha256 the record
+names) are skipped, failed items are skipped unless ``retry_failed`` or an input changed since,
+items claimed by another live run are left to it (and waited for), and a worker that dies
+fails only its item, which is run again up to ``max_retries`` times. An interrupt (Ctrl-C,
+SIGTERM) cancels the running items (their temporary files are removed), puts them back to
+"pending", releases the claims and re-raises.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from typing import Any, Callable, Iterable, Sequence
 from ..errors import BadInputError, OutputError
 from ..io import check_output_path
 from ._claims import Claims
+from ._digests import InputDigests, digests_differ
 from ._state import BatchState, config_hash, utc_now
 from ._store import STAGED_FN, Store, is_url, name_of, parent_of, run_staged_item, store_for
 from .engines import Engine, Outcome, Resources
@@ -37,7 +39,8 @@ class Item:
     """One unit of work: ``fn(payload)`` writes ``outputs`` (absolute paths, the first one's
     stem is ``key``, the last one the sidecar) atomically. ``config`` is what makes the outputs
     what they are: a finished item made with another config is an error, not a skip.
-    ``inputs``: the files it reads (no item of the run may write one of them)."""
+    ``inputs``: the files (or folders) it reads (no item of the run may write one of them); a
+    rerun computes the item again when their bytes changed (see :func:`run_batch`)."""
 
     key: str
     kind: str
@@ -62,6 +65,7 @@ class BatchSummary:
     done_elsewhere: int = 0  # computed by another run meanwhile
     failed: int = 0
     failed_elsewhere: int = 0  # failed in another run meanwhile (not retried here)
+    inputs_changed: int = 0  # done or failed before, run again because an input has other bytes now
     retried: int = 0  # worker deaths that were retried
     remaining: int = 0
     seconds: float = 0.0
@@ -78,7 +82,7 @@ class BatchSummary:
     def as_dict(self) -> dict:
         d = {k: getattr(self, k) for k in ("run", "out", "manifest", "engine", "total", "skipped_done",
                                            "skipped_failed", "done", "done_elsewhere", "failed", "failed_elsewhere",
-                                           "retried", "remaining", "seconds", "computed")}
+                                           "inputs_changed", "retried", "remaining", "seconds", "computed")}
         d["failures"] = [{"item": k, "error": e} for k, e in self.failures]
         d["failures_elsewhere"] = [{"item": k, "run": r, "error": e} for k, r, e in self.failures_elsewhere]
         d["rate_per_min"] = 60.0 * self.done / self.seconds if self.seconds > 0 else None
@@ -146,6 +150,16 @@ def _made_by_batch(sidecar: str, key: str, store: Store | None = None) -> bool:
         return False
     batch = record.get("batch") if isinstance(record, dict) else None
     return isinstance(batch, dict) and batch.get("item") == key
+
+
+def _sidecar_batch(sidecar: str, key: str, store: Store) -> dict | None:
+    """The ``batch`` field of ``sidecar`` when it is batch item ``key``'s sidecar (else None)."""
+    try:
+        record = json.loads(store.read(sidecar, limit=16 * 2**20))
+    except (OSError, ValueError):
+        return None
+    batch = record.get("batch") if isinstance(record, dict) else None
+    return batch if isinstance(batch, dict) and batch.get("item") == key else None
 
 
 def _check_not_users(it: Item, exists: list[bool], store: Store) -> None:
@@ -230,7 +244,14 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
     every item shares and no output name shows (``--size`` ...); the folder keeps the first
     run's, and a run with others is refused. Returns the summary; raises OutputError before
     any work when the folder's settings differ or a finished item was made with other
-    settings, and re-raises KeyboardInterrupt after cleaning up."""
+    settings, and re-raises KeyboardInterrupt after cleaning up.
+
+    An item is done when its outputs exist and the sha256 of its input files (a folder input:
+    of its files) are those its done record names; one whose inputs were replaced under the
+    same names is computed again and its outputs (made by a batch: its sidecar says so) are
+    replaced, the output then the sidecar, each by a rename. Each input is hashed once per
+    run. Items recorded before batches kept digests name none: they stay done, as before (no
+    recompute after an upgrade), and their current digests are recorded for the next run."""
     out = str(out).rstrip("/") if is_url(out) else str(Path(out))
     items = list(items)
     seen: dict[str, Item] = {}
@@ -249,6 +270,20 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
     summary = BatchSummary(run=claims.run, out=out, manifest=str(state.manifest), engine=engine.describe(),
                            total=len(items))
     hashes = {it.key: config_hash(it.config) for it in items}
+    hasher = InputDigests()
+    digests: dict[str, dict] = {}  # key -> {input: sha256}, hashed when first needed
+
+    def digests_of(it: Item) -> dict:
+        d = digests.get(it.key)
+        if d is None:
+            d = digests[it.key] = hasher.of(it.inputs)
+        return d
+
+    def changed(record: dict | None, it: Item) -> bool:
+        """Whether ``record`` names input digests and ``it``'s inputs have others now."""
+        return isinstance(record, dict) and isinstance(record.get("input_digests"), dict) and \
+            digests_differ(record, digests_of(it))
+
     t_start = time.perf_counter()
 
     # -- what is left to do (checked before any work): one listing each of the outputs, the
@@ -259,7 +294,9 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
     claimed = claims.claimed()
     todo: deque[Item] = deque()
     new: list[Item] = []  # items the manifest has never listed: "pending" lines
-    found: list[Item] = []  # finished items the manifest does not list as done: recorded once the checks pass
+    found: list[Item] = []  # finished, the manifest lists no done line with digests: recorded after the checks
+    stale: set[str] = set()  # finished items whose inputs changed since: computed again, outputs replaced
+    not_ours = []
     clashes = []
     for it in items:
         rec = state.get(it.key) if it.key in recorded else None
@@ -273,11 +310,28 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
         # also: a claim file of the wrong shape is refused before any work
         holder = claims.holder(it.key) if it.key in claimed else None
         if all(exists) and (done_by is not None or holder is None or holder["expired"]):
+            # found without a done line: its sidecar says what it was made from
+            made_by = done_by if done_by is not None else _sidecar_batch(it.outputs[-1], it.key, store)
+            if changed(made_by, it):
+                sidecar = made_by if done_by is None else _sidecar_batch(it.outputs[-1], it.key, store)
+                if sidecar is None:
+                    not_ours.append(it)
+                    continue
+                if sidecar.get("input_digests") != digests_of(it):
+                    stale.add(it.key)
+                    summary.inputs_changed += 1
+                    todo.append(it)
+                    continue
+                # else made again from these inputs by a run that lost its done line (its sidecar is
+                # committed last): done, and the line is written now
             summary.skipped_done += 1
-            if line is None or line.get("state") != "done":
+            # no done line with these digests (none: made before batches kept them): one is written
+            if line is None or line.get("state") != "done" or line.get("input_digests") != digests_of(it):
                 found.append(it)
             continue
-        if rec is not None and rec.get("state") == "failed" and not retry_failed and \
+        if rec is not None and rec.get("state") == "failed" and changed(rec, it):
+            summary.inputs_changed += 1  # failed on other bytes: tried again
+        elif rec is not None and rec.get("state") == "failed" and not retry_failed and \
                 rec.get("config_hash") in (None, hashes[it.key]):  # failed with other settings: try the new ones
             summary.skipped_failed += 1
             summary.failures.append((it.key, rec.get("error")))
@@ -289,6 +343,10 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
     if settings is not None:
         settings = json.loads(json.dumps(settings, sort_keys=True, default=str))  # as it is stored
         recorded_settings = _check_folder_settings(state, settings)
+    if not_ours:
+        raise OutputError(f"its item's input changed since it was made, but it is not that batch item's sidecar, so "
+                          f"this batch will not replace {name_of(not_ours[0].outputs[0])} ({len(not_ours)} such "
+                          "item(s)): move them away, or choose another --out", path=not_ours[0].outputs[-1])
     if clashes:
         it, rec = clashes[0]
         raise OutputError(f"holds {len(clashes)} item(s) made with other settings (e.g. {it.key}: "
@@ -302,8 +360,11 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
     if settings is not None and not recorded_settings:
         _record_folder_settings(state, settings)
     for it in found:
+        line = last.get(it.key)
+        note = "input digests recorded" if line is not None and line.get("state") == "done" else "outputs found"
         state.log(it.key, {"kind": it.kind, "state": "done", "config_hash": hashes[it.key], "config": it.config,
-                           "outputs": list(it.outputs), "run": claims.run, "note": "outputs found"})
+                           "outputs": list(it.outputs), "run": claims.run, "note": note,
+                           "input_digests": digests[it.key]})
         if it.key in recorded:  # a failure of before, done since (by a run that lost its manifest line)
             state.remove(it.key)
             recorded.discard(it.key)
@@ -327,6 +388,26 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
         return {"kind": it.kind, "config_hash": hashes[it.key], "run": claims.run, "outputs": list(it.outputs),
                 "attempts": attempts.get(it.key, 0)}
 
+    def finished(it: Item) -> bool:
+        """Whether ``it`` is done now (by another run): its outputs exist and, when they were
+        made from other inputs, the sidecar now names the current ones (it is committed last)."""
+        if not all(outputs.now(it)):
+            return False
+        if it.key not in stale:
+            return True
+        made_by = _sidecar_batch(it.outputs[-1], it.key, store)
+        return made_by is not None and made_by.get("input_digests") == digests.get(it.key)
+
+    def fail(it: Item, error: str, error_type: str | None = None, host: str = _HOST, pid=None) -> None:
+        failure = dict(base(it), state="failed", host=host, error=error, error_type=error_type, worker_pid=pid,
+                       config=it.config, input_digests=digests.get(it.key))
+        state.put(it.key, failure)
+        recorded.add(it.key)
+        state.log(it.key, failure)
+        claims.release(it.key)
+        summary.failed += 1
+        summary.failures.append((it.key, error))
+
     def start(it: Item) -> None:
         attempts[it.key] = attempts.get(it.key, 0) + 1
         folder = parent_of(it.outputs[0])
@@ -339,8 +420,11 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
                 store.remove(sidecar)
             except OSError:
                 pass
+        # the sidecar records the input digests (the worker's provenance keeps "batch"); "replace":
+        # the outputs of other inputs are there, and the worker replaces them (output first, sidecar last)
         payload = dict(it.payload, batch={"run": claims.run, "item": it.key, "attempt": attempts[it.key],
-                                          "engine": engine.name, "tag": tag})
+                                          "engine": engine.name, "tag": tag, "input_digests": digests[it.key],
+                                          **({"replace": True} if it.key in stale else {})})
         fn = it.fn
         if store.remote:
             fn, payload = _staged(it, payload)
@@ -355,13 +439,19 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
                 elsewhere[it.key] = it
                 continue
             # re-checked under the claim: another run may have finished it
-            if all(outputs.now(it)):
+            if finished(it):
                 claims.release(it.key)
                 summary.done_elsewhere += 1
                 continue
+            try:  # hashed before the worker reads them: an input replaced meanwhile makes the next run redo it
+                digests_of(it)
+            except BadInputError as e:
+                fail(it, str(e), type(e).__name__)
+                continue
             rec = state.get(it.key)
             if rec is not None and rec.get("config_hash") == hashes[it.key] and rec.get("state") == "failed" \
-                    and rec.get("run") != claims.run and not retry_failed and it.key not in attempts:
+                    and rec.get("run") != claims.run and not retry_failed and it.key not in attempts \
+                    and not changed(rec, it):
                 claims.release(it.key)
                 summary.failed_elsewhere += 1
                 summary.failures_elsewhere.append((it.key, rec.get("run"), rec.get("error")))
@@ -382,7 +472,8 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
                 recorded.discard(it.key)
             state.log(it.key, dict(base(it), state="done", host=host, worker_pid=stats.get("pid"),
                                    seconds=stats.get("seconds"), peak_rss_mb=stats.get("peak_rss_mb"),
-                                   threads=stats.get("threads"), config=it.config, note=value.get("note")))
+                                   threads=stats.get("threads"), config=it.config, note=value.get("note"),
+                                   input_digests=digests[it.key]))
             claims.release(it.key)
             if value.get("note") == "written by another run":
                 summary.done_elsewhere += 1
@@ -405,14 +496,7 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
         error = o.error or "failed"
         if o.died:
             error = f"{error} (attempt {attempts.get(it.key, 1)} of {max_retries + 1})"
-        failure = dict(base(it), state="failed", host=host, error=error, error_type=o.error_type,
-                       worker_pid=stats.get("pid"), config=it.config)
-        state.put(it.key, failure)
-        recorded.add(it.key)
-        state.log(it.key, failure)
-        claims.release(it.key)
-        summary.failed += 1
-        summary.failures.append((it.key, error))
+        fail(it, error, o.error_type, host, stats.get("pid"))
 
     def look_elsewhere() -> None:
         for key in list(elsewhere):
@@ -423,7 +507,7 @@ def run_batch(items: Sequence[Item], out, engine: Engine, *, retry_failed: bool 
             del elsewhere[key]
             if info is not None:  # its run died: ours now
                 todo.appendleft(it)
-            elif all(outputs.now(it)):
+            elif finished(it):
                 summary.done_elsewhere += 1
             else:
                 rec = state.get(key)

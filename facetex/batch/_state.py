@@ -10,8 +10,12 @@ Layout of an output folder ``DIR`` (a local or NFS folder, or an fsspec URL, see
     DIR/.facetex-batch/runs/      <run>.json: each run's command line, engine and summary
     DIR/.facetex-batch/settings.json   the settings of the folder's first run
 
-An item is *done* when its outputs exist (the output is committed last); *running* while a
-claim on it is held; *failed* while its record says so; else *pending*. ``manifest.jsonl`` is
+An item is *done* when its outputs exist (the output is committed last) and its inputs are the
+ones it was made from; *running* while a claim on it is held; *failed* while its record says so;
+else *pending*. A done line and a failure record name the sha256 of the item's inputs
+(``input_digests``, see ``_digests.py``), and so does the sidecar (its ``batch`` field): a rerun
+recomputes an item whose inputs have other digests now. Lines and records written before
+batches kept digests have none, and their items stay done (or failed) as before. ``manifest.jsonl`` is
 the log of those changes for people and ``facetex batch status``: each line is one item's
 state at one time (the last line of an item wins), written by appending, never by rewriting
 (10 000 items append 10 000s of short lines, not a file per completion). Paths in it are
@@ -39,16 +43,18 @@ __all__ = ["BatchState", "config_hash", "utc_now", "read_record", "read_manifest
 STATES = ("pending", "running", "done", "failed")
 _INTERNAL = ".facetex-batch"
 _STR = nullable({"type": "string"})
+_DIGESTS = nullable({"type": "object", "additionalProperties": {"type": "string"}})  # input -> sha256
 RECORD = {"type": "object", "properties": {
     "state": {"enum": list(STATES)}, "kind": _STR, "config_hash": _STR, "run": _STR, "error": _STR, "host": _STR,
     "note": _STR, "attempts": {"type": "integer"}, "config": nullable(OBJECT),
-    "outputs": nullable({"type": "array", "items": {"type": "string"}})}}
+    "outputs": nullable({"type": "array", "items": {"type": "string"}}), "input_digests": _DIGESTS}}
 _NUM = nullable({"type": "number"})
 MANIFEST_LINE = {"type": "object", "required": ["item", "state"], "properties": {
     "item": {"type": "string"}, "state": {"enum": list(STATES)}, "kind": _STR, "time": _STR, "host": _STR,
     "run": _STR, "error": _STR, "attempts": nullable({"type": "integer"}), "seconds": _NUM, "peak_rss_mb": _NUM,
     "config_hash": _STR, "config": nullable(OBJECT), "outputs": nullable({"type": "array", "items": {"type": "string"}}),
-    "worker_pid": nullable({"type": "integer"}), "threads": nullable({"type": "integer"}), "note": _STR}}
+    "worker_pid": nullable({"type": "integer"}), "threads": nullable({"type": "integer"}), "note": _STR,
+    "input_digests": _DIGESTS}}
 
 
 def read_record(path, schema: dict, what: str, *, tolerate_partial: bool = False, store: Store | None = None
@@ -187,7 +193,7 @@ class BatchState:
         line = {"item": key, "state": record.get("state", "pending"), "time": utc_now(), "kind": record.get("kind"),
                 "host": record.get("host"), "run": record.get("run"), "attempts": record.get("attempts", 0),
                 "error": record.get("error")}
-        for k in ("seconds", "peak_rss_mb", "threads", "worker_pid", "note", "config_hash", "config"):
+        for k in ("seconds", "peak_rss_mb", "threads", "worker_pid", "note", "config_hash", "config", "input_digests"):
             if record.get(k) is not None:
                 line[k] = record[k]
         if record.get("outputs"):

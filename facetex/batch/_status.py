@@ -1,5 +1,6 @@
 """``facetex batch status DIR``: what a batch folder (local or a URL) holds, from its manifest,
-claims and run records: counts per state, throughput, failures grouped by error, slowest items."""
+claims and run records: counts per state, throughput, failures grouped by error, slowest items;
+on request, the done items whose inputs changed since (a rerun computes them again)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from datetime import datetime, timezone
 
 from ..errors import BadInputError
 from ._claims import Claims
+from ._digests import InputDigests, digests_differ
 from ._state import BatchState, read_record
 from ._store import is_url, join, store_for
 
@@ -33,7 +35,26 @@ def _time(s) -> float | None:
         return None
 
 
-def batch_status(folder, *, slowest: int = 10, examples: int = 5) -> dict:
+def _stale(last: dict[str, dict], examples: int) -> dict:
+    """The done items whose recorded input digests differ from their inputs' now (an input
+    that cannot be read counts as changed); items recorded without digests are not checked."""
+    hasher = InputDigests()
+    checked, items = 0, []
+    for key, line in sorted(last.items()):
+        recorded = line.get("input_digests")
+        if line["state"] != "done" or not isinstance(recorded, dict):
+            continue
+        checked += 1
+        try:
+            now = hasher.of(recorded)
+        except BadInputError:
+            now = None
+        if now is None or digests_differ(line, now):
+            items.append(key)
+    return {"checked": checked, "count": len(items), "items": items[:examples]}
+
+
+def batch_status(folder, *, slowest: int = 10, examples: int = 5, check_inputs: bool = False) -> dict:
     """The status of the batch folder ``folder`` (a path or an fsspec URL).
 
     Parameters
@@ -43,7 +64,10 @@ def batch_status(folder, *, slowest: int = 10, examples: int = 5) -> dict:
     slowest : int, optional
         How many of the slowest finished items to list.
     examples : int, optional
-        How many items to name per group of failures.
+        How many items to name per group of failures (and of changed inputs).
+    check_inputs : bool, optional
+        Also hash the inputs of the done items (each file once) and count those whose inputs
+        changed since they were made, which a rerun computes again.
 
     Returns
     -------
@@ -51,7 +75,9 @@ def batch_status(folder, *, slowest: int = 10, examples: int = 5) -> dict:
         ``folder, total, counts`` (per state: pending, running, done, failed), ``throughput``
         (``items_per_hour`` over the span from the first line to the last finished item, and
         per run from its record), ``failures`` (groups of one cause: ``error``, ``count``,
-        ``items``), ``slowest`` (``item, seconds, host``) and ``runs``.
+        ``items``), ``slowest`` (``item, seconds, host``), ``runs`` and ``inputs_changed``
+        (with ``check_inputs``: ``checked``, the done items recorded with input digests;
+        ``count``; ``items``, the first ones; else None).
 
     Raises
     ------
@@ -111,4 +137,5 @@ def batch_status(folder, *, slowest: int = 10, examples: int = 5) -> dict:
         "failures": failures,
         "slowest": [{"item": line["item"], "seconds": line["seconds"], "host": line.get("host")} for line in slow],
         "runs": runs,
+        "inputs_changed": _stale(last, examples) if check_inputs else None,
     }

@@ -305,14 +305,16 @@ def cache_dir() -> Path:
     return Path(root) / "batch-inputs"
 
 
-def fetch(url: str) -> str:
+def fetch(url: str, digest: str | None = None) -> str:
     """A local copy of the remote file or folder ``url``, kept in :func:`cache_dir` under a
-    name made of the URL and the object's ETag / size / time (a changed object is fetched again)."""
+    name made of the URL, the object's ETag / size / time and ``digest`` (its sha256 as the run
+    hashed it: an object replaced by one of the same size is fetched again on a store without
+    ETags, such as ``memory://``)."""
     fs = _filesystem(url)
     p = _strip(fs, url)
     info = fs.info(p)
-    stamp = json.dumps([url, info.get("ETag") or info.get("etag"), info.get("size"), str(info.get("LastModified"))],
-                       default=str)
+    stamp = json.dumps([url, info.get("ETag") or info.get("etag"), info.get("size"), str(info.get("LastModified"))]
+                       + ([digest] if digest else []), default=str)
     key = hashlib.sha256(stamp.encode()).hexdigest()[:20]
     name = name_of(url) or "input"
     target = cache_dir() / key / name
@@ -355,14 +357,17 @@ def run_staged_item(p: dict) -> dict:
     into a temporary folder, then uploaded to ``p["output"]`` (a URL) with exclusive creates,
     sidecar first, output last (the completion marker). The sidecar names the URLs, not the
     local copies. When both objects exist already (another run made the item after its claim
-    expired) the item is not an error: its note says so."""
+    expired) the item is not an error: its note says so. With ``p["batch"]["replace"]`` (its
+    inputs changed since) the objects are replaced, output first, sidecar (naming the new input
+    digests) last: each PUT is atomic, and an upload cut short leaves the old digests."""
     fn = p[STAGED_FN]
     remote_out = p["output"]
     store = FsspecStore(parent_of(remote_out))
     local = {k: v for k, v in p.items() if k not in (STAGED_FN, "_remote_inputs")}
     mapping: dict[str, str] = {}
+    digests = (p.get("batch") or {}).get("input_digests") or {}
     for k in p.get("_remote_inputs", ()):
-        local[k] = fetch(p[k])
+        local[k] = fetch(p[k], digests.get(p[k]))
         mapping[local[k]] = p[k]
     with tempfile.TemporaryDirectory(prefix="facetex-item-") as tmp:
         local["output"] = str(Path(tmp) / name_of(remote_out))
@@ -378,7 +383,10 @@ def run_staged_item(p: dict) -> dict:
             raise type(e)(message, path=path) from None
         files = [Path(f) for f in (value.get("outputs") if isinstance(value, dict) else None) or [local["output"]]]
         sidecars = [f for f in files if f.name.endswith(".json")]
+        replace = bool((p.get("batch") or {}).get("replace"))
         ordered = sidecars + [f for f in files if f not in sidecars]  # the output last: the completion marker
+        if replace:  # the old objects are there: the sidecar with the new digests is the marker
+            ordered = ordered[len(sidecars):] + sidecars
         written = []
         for f in ordered:
             url = join(parent_of(remote_out), f.name)
@@ -386,7 +394,7 @@ def run_staged_item(p: dict) -> dict:
                 record = _replace_strings(json.loads(f.read_bytes()), mapping)
                 f.write_bytes((json.dumps(record, indent=2, default=str) + "\n").encode())
             try:
-                store.upload(f, url, exclusive=True)
+                store.upload(f, url, exclusive=not replace)
             except FileExistsError:
                 if all(store.exists(join(parent_of(remote_out), g.name)) for g in files):
                     return dict(value, outputs=[join(parent_of(remote_out), g.name) for g in files],

@@ -109,6 +109,8 @@ def register(sub) -> None:
     st.add_argument("folder", metavar="DIR", help="the --out of a `facetex batch` run (path or URL)")
     st.add_argument("--slowest", type=bounded_int(0, 1000), default=10, metavar="N",
                     help="list the N slowest finished items (default 10)")
+    st.add_argument("--check-inputs", action="store_true",
+                    help="also hash the done items' inputs and count those changed since (a rerun redoes them)")
     add_output(st, metavar="FILE.json", help="also write the status as JSON to FILE.json")
     add_overwrite(st)
     add_json(st, "the status")
@@ -200,7 +202,8 @@ def _run(args, kind: str, items, inputs=()) -> int:
     s = summary
     rate = f", {60.0 * s.done / s.seconds:.2f} items/min" if s.seconds > 0 and s.done else ""
     elsewhere = f"{s.failed_elsewhere} failed in another run, " if s.failed_elsewhere else ""
-    line = (f"batch {kind}: {s.total} items in {out}: {s.done} computed, {s.skipped_done} already done, "
+    changed = f" ({s.inputs_changed} because an input changed)" if s.inputs_changed else ""
+    line = (f"batch {kind}: {s.total} items in {out}: {s.done} computed{changed}, {s.skipped_done} already done, "
             f"{s.done_elsewhere} by another run, {s.failed + s.skipped_failed} failed, {elsewhere}"
             f"{s.remaining} remaining ({s.seconds:.1f} s{rate}; {engine.name} engine)")
     if args.json:
@@ -284,7 +287,7 @@ def run_status(args) -> int:
         from ..io import check_output_path
 
         check_output_path(args.output, overwrite=args.overwrite, extensions=(".json",))
-    s = batch_status(args.folder, slowest=args.slowest)
+    s = batch_status(args.folder, slowest=args.slowest, check_inputs=args.check_inputs)
     if args.output:
         from ..io import write_json
 
@@ -305,6 +308,12 @@ def run_status(args) -> int:
         for g in s["failures"]:
             more = ", ..." if g["count"] > len(g["items"]) else ""
             lines.append(f"  {g['count']} × {g['error']} ({', '.join(g['items'])}{more})")
+    changed = s["inputs_changed"]
+    if changed is not None:
+        more = ", ..." if changed["count"] > len(changed["items"]) else ""
+        names = f" ({', '.join(changed['items'])}{more})" if changed["items"] else ""
+        lines.append(f"inputs changed since: {changed['count']} of {changed['checked']} done items checked{names}; "
+                     "a rerun computes them again")
     if s["slowest"]:
         lines.append("slowest items:")
         lines.extend(f"  {r['seconds']:.1f} s  {r['item']}  ({r['host']})" for r in s["slowest"])

@@ -3,6 +3,7 @@ and Ray workers import them by reference; the tests put this folder on the worke
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import time
@@ -44,15 +45,33 @@ def write_item(p):
     if p.get("die_marker") and not Path(p["die_marker"]).exists():
         Path(p["die_marker"]).write_text(str(os.getpid()))
         os.kill(os.getpid(), signal.SIGKILL)
-    if p.get("fail"):
+    src = Path(p["src"]).read_text() if p.get("src") else ""
+    if p.get("fail") or src.startswith("bad"):
         raise ValueError(f"item {p['name']} cannot be done")
     log = p.get("log")
     if log:  # every computation leaves a line: the tests count them
         with open(log, "a") as fh:
             fh.write(f"{p['name']} {os.getpid()}\n")
     out = p["output"]
-    write_files({out: f"{p['name']} {p.get('value', 0)}\n", f"{out}.json": '{"sidecar": true}\n'})
+    batch = p.get("batch") or {}
+    # as the real items: the sidecar keeps "batch" (the input digests), and replaces (output first) when asked
+    text = f"{p['name']} {p.get('value', 0)}\n{src}"
+    write_files({out: text, f"{out}.json": json.dumps({"sidecar": True, "batch": batch}) + "\n"},
+                overwrite=bool(batch.get("replace")), reverse_commit=not batch.get("replace"))
     return {"outputs": [out, f"{out}.json"]}
+
+
+def photo_item(p):
+    """A persona item's stand-in: its output lists the photo folder's files and their bytes."""
+    folder = Path(p["photo_dir"])
+    text = "".join(f"{f.name} {f.read_bytes().hex()}\n" for f in sorted(folder.iterdir()) if f.is_file())
+    return write_item(dict(p, name=folder.name, value=text))
+
+
+def pair_item(p):
+    """A transfer item's stand-in: its output holds the content's and the style's bytes."""
+    text = Path(p["content"]).read_text() + Path(p["style"]).read_text()
+    return write_item(dict(p, name=Path(p["output"]).stem, value=text))
 
 
 def slow_write(p):

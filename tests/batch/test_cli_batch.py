@@ -77,6 +77,32 @@ def test_batch_transfer_equals_the_api_and_resumes(tmp_path, capsys, no_leftover
     assert "made with other settings" in capsys.readouterr().err
 
 
+def test_batch_transfer_redoes_the_pair_whose_style_was_replaced(tmp_path, capsys, no_leftover_processes):
+    """Issue 23: a style replaced under its name (same file name, other bytes) makes the rerun
+    compute that pair again and replace its image and sidecar; the other pair stays."""
+    import hashlib
+    import shutil
+
+    for src, name in ((A, "a.jpg"), (B, "b.jpg"), (C, "c.jpg")):
+        shutil.copy(src, tmp_path / name)
+    pairs = _csv(tmp_path / "pairs.csv", "content,style\na.jpg,b.jpg\nc.jpg,a.jpg\n")
+    out = tmp_path / "out"
+    cmd = ["batch", "transfer", str(pairs), "--out", str(out), "--jobs", "1", *SMALL]
+    assert main(cmd) == 0
+    capsys.readouterr()
+    redone, kept = out / "a__b__facetex.png", out / "c__a__facetex.png"
+    before = {p: p.read_bytes() for p in (redone, kept, Path(f"{kept}.json"))}
+    shutil.copy(C, tmp_path / "b.jpg")
+    assert main(cmd) == 0
+    assert "1 computed (1 because an input changed), 1 already done" in capsys.readouterr().out
+    assert redone.read_bytes() != before[redone] and all(p.read_bytes() == b for p, b in before.items() if p != redone)
+    sha = hashlib.sha256(Path(C).read_bytes()).hexdigest()
+    rec = json.loads(Path(f"{redone}.json").read_text())
+    assert rec["inputs"]["style"]["sha256"] == sha == rec["batch"]["input_digests"][str((tmp_path / "b.jpg").resolve())]
+    assert _manifest(out)["a__b__facetex"]["input_digests"] == rec["batch"]["input_digests"]
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".a__b")]  # no temporaries or backups left
+
+
 @pytest.mark.parametrize("csv_text, message", [
     ("content;style\na.jpg;b.jpg\n", "must name the columns"),
     ("content,style,colour\n{A},{B},red\n", "unknown column 'colour'"),
