@@ -95,7 +95,8 @@ def lip_weights(points68, shape, *, feather: float = 0.02) -> tuple[np.ndarray, 
     return np.clip(cv2.GaussianBlur(outer.astype(np.float32), (0, 0), sig), 0, 1), ring
 
 
-def open_lip_weights(points68, shape, *, feather: float = 0.02, band: float = 0.1) -> list:
+def open_lip_weights(points68, shape, *, feather: float = 0.02, band: float = 0.1,
+                     corner: float = 0.15) -> list:
     """The upper and the lower lip as two regions of
     :func:`~facetex.puppet.lighting.transfer_skin_colour`: [(weight (H, W), pixels (H, W) bool)] x 2,
     each weight scaled by how open the mouth is (1 - :func:`~facetex.puppet.mouth.mouth_closure`;
@@ -107,7 +108,8 @@ def open_lip_weights(points68, shape, *, feather: float = 0.02, band: float = 0.
     measured on each lip's outer part: the inner-lip points pulled ``band`` of the way towards
     the outer lip contour (0.1: Arroyo/bbaf2n's mouth r 0.83 -> 0.86 over the whole lip, 0.88 at 0.2
     and 0.4, but Bush/sbwe5n's slope 1.10 -> 1.19, 1.32 at 0.2, 1.37 at 0.4, Arroyo/lbax4n
-    0.83, 0.80, 0.75: the inner band carries some of the driver's look of the opening)."""
+    0.83, 0.80, 0.75: the inner band carries some of the driver's look of the opening). The
+    weights fall to 0 over ``corner`` x the mouth width at each corner."""
     from .mouth import mouth_closure
 
     p = np.asarray(points68, np.float64)
@@ -122,12 +124,19 @@ def open_lip_weights(points68, shape, *, feather: float = 0.02, band: float = 0.
     q = p.copy()
     for inner, outer in ((61, 50), (62, 51), (63, 52), (65, 56), (66, 57), (67, 58)):
         q[inner] = p[inner] + band * (p[outer] - p[inner])
+    # tapered to 0 at the mouth corners, where the two lips' thin wedges meet the corner's
+    # shadow: each lip's own colour offset there drew dark red ticks (Arroyo/bbaf2n, 8x crops);
+    # the lips' common colour (lip_weights) stays
+    axis = p[54] - p[48]
+    yy, xx = np.mgrid[0:h, 0:w]
+    t = ((xx - p[48, 0]) * axis[0] + (yy - p[48, 1]) * axis[1]) / max(float(axis @ axis), 1e-9)
+    taper = np.clip(np.minimum(t, 1.0 - t) / corner, 0.0, 1.0).astype(np.float32) if corner > 0 else 1.0
     parts = []
     for upper in (True, False):
         idx = [*range(48, 55), 64, 63, 62, 61, 60] if upper else [*range(54, 60), 48, 60, 67, 66, 65, 64]
         m = polygon_mask(p[idx], (h, w))
         ring = cv2.erode((polygon_mask(q[idx], (h, w)) > 0.5).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-        parts.append((o * np.clip(cv2.GaussianBlur(m.astype(np.float32), (0, 0), sig), 0, 1), ring))
+        parts.append((o * taper * np.clip(cv2.GaussianBlur(m.astype(np.float32), (0, 0), sig), 0, 1), ring))
     return parts
 
 
