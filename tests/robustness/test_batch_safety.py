@@ -156,3 +156,29 @@ def test_a_quoted_line_break_in_a_csv_field_is_part_of_the_field(tmp_path, capsy
     r = run_cli(capsys, "batch", "transfer", csv, "--out", tmp_path / "o", *T)
     assert_one_error(r, names=["pairs.csv"], cause=r"gone\\nfile\.jpg: content image not found.*pairs\.csv:4\)")
     assert not (tmp_path / "o").exists()
+
+
+def test_an_input_replaced_under_its_name_is_computed_again_not_already_done(tmp_path, capsys):
+    """Issue 23: items are keyed by their inputs' content. A rerun after the style was replaced
+    under the same name computes the pair again (it used to say "already done"); a rerun with
+    nothing changed computes nothing and leaves the outputs and the manifest byte-identical (each
+    run adds only its own record under .facetex-batch/runs)."""
+    content, style = tmp_path / "c.jpg", tmp_path / "s.jpg"
+    shutil.copy(FACE, content)
+    shutil.copy(OTHER, style)
+    csv = tmp_path / "pairs.csv"
+    csv.write_text(f"content,style\n{content},{style}\n")
+    out = tmp_path / "o"
+    assert run_cli(capsys, "batch", "transfer", csv, "--out", out, *T).code == 0
+    def outputs():
+        return {k: v for k, v in snapshot(out).items() if not k.startswith(".facetex-batch/runs")}
+
+    same = outputs()
+    r = run_cli(capsys, "batch", "transfer", csv, "--out", out, *T)
+    assert r.code == 0 and "already done" in r.out and outputs() == same
+    shutil.copy(FACE, style)  # other bytes, same name
+    r = run_cli(capsys, "batch", "transfer", csv, "--out", out, *T)
+    assert r.code == 0 and "because an input changed" in r.out, r.out
+    after = outputs()
+    png = "c__s__facetex.png"
+    assert after[png] != same[png] and sorted(after) == sorted(same)  # replaced in place, nothing left over
