@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any, Callable, Literal, Sequence
 import numpy as np
 
 from .._args import check_device, check_seed
-from ..errors import BadImageError, BadInputError
+from ..errors import BadInputError
 
 if TYPE_CHECKING:  # pragma: no cover
 
@@ -73,11 +73,9 @@ def _init_arg(init, content: np.ndarray):
         return init
     if isinstance(init, str) and not os.path.exists(init) and "/" not in init and "." not in init:
         raise BadInputError(f"init must be 'content', 'random', an image file or an (H, W, 3) array, not {init!r}")
-    img = as_image(init, "init image")
-    if img.shape != content.shape:
-        raise BadImageError(f"init image is {img.shape[1]}x{img.shape[0]} px, the content "
-                            f"{content.shape[1]}x{content.shape[0]}: it must have the content's size")
-    return img
+    from ..transfer._regions import _init_image
+
+    return _init_image(as_image(init, "init image"), content)  # the pipeline's own size check
 
 
 def _keep_large(image, name: str):

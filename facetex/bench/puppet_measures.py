@@ -248,16 +248,22 @@ def sharpness_ratio(image, reference, mask, *, min_pixels: int = 30) -> float:
     return _laplacian_variance(image, m) / ref if ref > 1e-12 else float("nan")
 
 
-def _shortfall(key: str, value) -> float:
-    """Relative distance of ``value`` beyond the target of ``key`` (0 when met, 1 when missing)."""
+def _margin(key: str, value) -> float:
+    """Signed relative distance of ``value`` inside the target of ``key``: the smaller of
+    (v − lo) / lo and (hi − v) / hi over its bounds, >= 0 when met, < 0 beyond a bound; NaN when
+    not measured."""
     lo, hi = TARGETS[key]
     if value is None or not np.isfinite(value):
-        return 1.0
-    if lo is not None and value < lo:
-        return (lo - value) / abs(lo)  # below a lower bound: (lo − v) / lo
-    if hi is not None and value > hi:
-        return (value - hi) / abs(hi)  # above an upper bound: (v − hi) / hi
-    return 0.0
+        return float("nan")
+    return min((value - lo) / abs(lo) if lo is not None else float("inf"),
+               (hi - value) / abs(hi) if hi is not None else float("inf"))
+
+
+def _shortfall(key: str, value) -> float:
+    """Relative distance of ``value`` beyond the target of ``key`` (0 when met, 1 when missing):
+    below a lower bound (lo − v) / lo, above an upper bound (v − hi) / hi."""
+    m = _margin(key, value)
+    return 1.0 if np.isnan(m) else max(0.0, -m)
 
 
 def run_score(row) -> float:
@@ -273,19 +279,12 @@ def failed_targets(row) -> list[str]:
 
 def headroom(row) -> tuple[float, str | None]:
     """(smallest relative margin, its target key) of a run meeting every target: how close it
-    came to failing, the margin of a measure as :func:`_shortfall` measures the shortfall
-    ((v − lo) / lo above a lower bound, (hi − v) / hi below an upper one); (-inf, None) when a
-    target is missed."""
-    best, key = float("inf"), None
-    for k, (lo, hi) in TARGETS.items():
-        v = row.get(k)
-        if _shortfall(k, v) > 0:
-            return float("-inf"), None
-        for m in ((v - lo) / abs(lo) if lo is not None else float("inf"),
-                  (hi - v) / abs(hi) if hi is not None else float("inf")):
-            if m < best:
-                best, key = m, k
-    return best, key
+    came to failing (:func:`_margin`); (-inf, None) when a target is missed."""
+    margins = {k: _margin(k, row.get(k)) for k in TARGETS}
+    if not all(m >= 0 for m in margins.values()):
+        return float("-inf"), None
+    key = min(margins, key=margins.get)  # ties: the first target
+    return margins[key], key
 
 
 def worst_runs(rows, n: int = N_WORST) -> list[int]:

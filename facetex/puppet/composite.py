@@ -128,8 +128,8 @@ def open_lip_weights(points68, shape, *, feather: float = 0.02, band: float = 0.
     # shadow: each lip's own colour offset there drew dark red ticks (Arroyo/bbaf2n, 8x crops);
     # the lips' common colour (lip_weights) stays
     axis = p[54] - p[48]
-    yy, xx = np.mgrid[0:h, 0:w]
-    t = ((xx - p[48, 0]) * axis[0] + (yy - p[48, 1]) * axis[1]) / max(float(axis @ axis), 1e-9)
+    t = (((np.arange(w) - p[48, 0]) * axis[0])[None, :] + ((np.arange(h) - p[48, 1]) * axis[1])[:, None]) \
+        / max(float(axis @ axis), 1e-9)
     taper = np.clip(np.minimum(t, 1.0 - t) / corner, 0.0, 1.0).astype(np.float32) if corner > 0 else 1.0
     parts = []
     for upper in (True, False):

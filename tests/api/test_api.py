@@ -116,6 +116,8 @@ def test_bad_options_fail_before_reading_images(tmp_path):
         facetex.transfer(missing, OTHER, no_such_option=1)
     with pytest.raises(ValueError, match="init must be"):
         facetex.transfer(FACE, OTHER, init="noise")
+    with pytest.raises(facetex.BadImageError, match="init image is 50x50 px, the content .*: it must have"):
+        facetex.transfer(FACE, OTHER, init=np.zeros((50, 50, 3), np.float32))  # before any work
 
 
 def test_texture_options_are_checked_before_the_persona_is_read(tmp_path):
