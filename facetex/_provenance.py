@@ -53,17 +53,31 @@ def set_command(argv: Iterable[str] | None) -> None:
 _HASH_CACHE: dict[tuple[str, int, int], str] = {}
 
 
+def sha256_stream(fh) -> str:
+    """Hex sha256 of the bytes of the open binary file ``fh``, read in blocks."""
+    h = hashlib.sha256()
+    for block in iter(lambda: fh.read(_CHUNK), b""):
+        h.update(block)
+    return h.hexdigest()
+
+
+def folder_sha256(names_and_digests: Iterable[tuple[str, str]]) -> str:
+    """A folder's digest from ``(name, sha256)`` of its files: the sha256 of the sorted lines
+    ``<name>\0<sha256 of the file>\n`` (recorded as ``sha256_of_files``)."""
+    h = hashlib.sha256()
+    for name, digest in sorted(names_and_digests):
+        h.update(f"{name}\0{digest}\n".encode())
+    return h.hexdigest()
+
+
 def sha256_file(path) -> str:
     """Hex sha256 of a file's bytes (cached per path, size and modification time)."""
     p = Path(path)
     st = p.stat()
     key = (os.path.abspath(p), st.st_size, st.st_mtime_ns)
     if key not in _HASH_CACHE:
-        h = hashlib.sha256()
         with open(p, "rb") as fh:
-            for block in iter(lambda: fh.read(_CHUNK), b""):
-                h.update(block)
-        _HASH_CACHE[key] = h.hexdigest()
+            _HASH_CACHE[key] = sha256_stream(fh)
     return _HASH_CACHE[key]
 
 
@@ -120,11 +134,8 @@ def _input_record(path) -> dict:
         if p.is_file():
             rec.update(sha256=sha256_file(p), bytes=p.stat().st_size)
         elif p.is_dir():
-            files = sorted(f for f in p.iterdir() if f.is_file() and not f.name.startswith("."))
-            h = hashlib.sha256()
-            for f in files:
-                h.update(f"{f.name}\0{sha256_file(f)}\n".encode())
-            rec.update(sha256_of_files=h.hexdigest(), files=len(files),
+            files = [f for f in p.iterdir() if f.is_file() and not f.name.startswith(".")]
+            rec.update(sha256_of_files=folder_sha256((f.name, sha256_file(f)) for f in files), files=len(files),
                        note="sha256 of the sorted lines '<name>\\0<sha256 of the file>\\n' of the folder's files")
         else:
             rec["missing"] = True

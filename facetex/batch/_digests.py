@@ -12,23 +12,14 @@ modification time (``cp -p``) must still count as changed.
 
 from __future__ import annotations
 
-import hashlib
 import os
 from typing import Iterable
 
+from .._provenance import folder_sha256, sha256_stream
 from ..errors import BadInputError
 from ._store import _filesystem, _strip, is_url, name_of
 
 __all__ = ["InputDigests", "file_sha256", "folder_sha256", "digests_differ"]
-
-_BLOCK = 1 << 20
-
-
-def _sha256_stream(fh) -> str:
-    h = hashlib.sha256()
-    for block in iter(lambda: fh.read(_BLOCK), b""):
-        h.update(block)
-    return h.hexdigest()
 
 
 def file_sha256(path) -> str:
@@ -36,17 +27,9 @@ def file_sha256(path) -> str:
     if is_url(path):
         fs = _filesystem(str(path))
         with fs.open(_strip(fs, path), "rb") as fh:
-            return _sha256_stream(fh)
+            return sha256_stream(fh)
     with open(path, "rb") as fh:
-        return _sha256_stream(fh)
-
-
-def folder_sha256(names_and_digests: Iterable[tuple[str, str]]) -> str:
-    """The digest of a folder from ``(name, sha256)`` of its files (sorted here)."""
-    h = hashlib.sha256()
-    for name, digest in sorted(names_and_digests):
-        h.update(f"{name}\0{digest}\n".encode())
-    return h.hexdigest()
+        return sha256_stream(fh)
 
 
 def digests_differ(record: dict | None, digests: dict) -> bool:
