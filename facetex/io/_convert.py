@@ -17,13 +17,22 @@ def to_float32(img: np.ndarray) -> np.ndarray:
     return img.astype(np.float32, copy=False)
 
 
+_STRIP = 1 << 22  # values per row strip of a large image
+
+
+def _row_strips(a: np.ndarray) -> list:
+    """Indices of row strips of ``a`` of about :data:`_STRIP` values each; ``...`` (all of it)
+    for a small (or 0-d) array."""
+    if a.ndim == 0 or a.size <= _STRIP:
+        return [...]
+    rows = max(1, _STRIP // (a.size // a.shape[0]))
+    return [slice(i, i + rows) for i in range(0, a.shape[0], rows)]
+
+
 def _all_finite(a: np.ndarray) -> bool:
     """Whether every value of ``a`` is finite; a large array in row strips (no boolean
     temporary of its size: a 6000 x 6000 float64 image would need 108 MB)."""
-    if a.ndim == 0 or a.size <= 1 << 22:
-        return bool(np.all(np.isfinite(a)))
-    rows = max(1, (1 << 22) // (a.size // a.shape[0]))
-    return all(bool(np.all(np.isfinite(a[i:i + rows]))) for i in range(0, a.shape[0], rows))
+    return all(bool(np.all(np.isfinite(a[r]))) for r in _row_strips(a))
 
 
 def check_float_pixels(a: np.ndarray, name: str, *, slack: float = 1e-3, path=None) -> None:
@@ -48,10 +57,7 @@ def to_uint8(img: np.ndarray) -> np.ndarray:
     if img.dtype == np.uint16:
         return ((img.astype(np.uint32) + 128) // 257).astype(np.uint8)
     a = np.asarray(img, np.float32)
-    if a.ndim == 0 or a.size <= 1 << 22:
-        return np.clip(np.rint(a * 255.0), 0, 255).astype(np.uint8)
     out = np.empty(a.shape, np.uint8)  # a 36 MP image in strips: no float temporaries of its size
-    rows = max(1, (1 << 22) // (a.size // a.shape[0]))
-    for i in range(0, a.shape[0], rows):
-        out[i:i + rows] = np.clip(np.rint(a[i:i + rows] * 255.0), 0, 255)
+    for r in _row_strips(a):
+        out[r] = np.clip(np.rint(a[r] * 255.0), 0, 255)
     return out
