@@ -74,7 +74,7 @@ class Job:
         """The JSON of the job: no server path, only names inside the job."""
         return {"id": self.id, "kind": self.kind, "state": self.state, "position": position,
                 "step": self.step, "steps": [s.label for s in self.steps], "stage": self.stage,
-                "progress": round(self.progress, 4), "error": self.error, "info": self.info,
+                "progress": round(self.progress, 4), "error": self.error, "info": self.info, "result": self.result,
                 "files": sorted(n for n, f in self.outputs.items() if (self.folder / f).is_file()),
                 "seconds": None if self.started is None else round((self.finished or time.time()) - self.started, 2)}
 
