@@ -90,6 +90,12 @@ def run(args) -> int:
         server.run()
     except SystemExit:  # uvicorn's way out of a failed bind (it has logged the OS's reason)
         pass
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM, re-raised by uvicorn once it has shut down: the way to stop
+        if server.started:
+            if not (args.quiet or args.json):
+                print("facetex studio stopped")
+            return 0
+        raise
     if not server.started:
         raise BadInputError(f"cannot listen on {args.host}:{args.port} (in use, or not an address of this machine)")
     return 0

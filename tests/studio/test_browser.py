@@ -65,7 +65,7 @@ def screenshot(pg, name: str) -> None:
     folder = os.environ.get("FACETEX_STUDIO_SCREENSHOTS")
     if folder:
         Path(folder).mkdir(parents=True, exist_ok=True)
-        pg.screenshot(path=str(Path(folder) / f"studio_{name}.png"))
+        pg.screenshot(path=str(Path(folder) / f"studio_{name}.png"), full_page=True)
 
 
 def test_transfer_page_runs_a_preview_transfer_end_to_end(browser, studio):
