@@ -13,6 +13,12 @@ api("/api/info").then((info) => {
   }
 }).catch((e) => showError($("error"), e.message));
 
+// a chosen file wins over the sample list, and picking a sample drops the file: what is shown is what is sent
+for (const role of ["content", "style"]) {
+  $(`${role}-file`).addEventListener("change", () => { if ($(`${role}-file`).files.length) $(`${role}-sample`).value = ""; });
+  $(`${role}-sample`).addEventListener("change", () => { if ($(`${role}-sample`).value) $(`${role}-file`).value = ""; });
+}
+
 $("form").addEventListener("submit", async (ev) => {
   ev.preventDefault();
   showError($("error"), "");
