@@ -15,7 +15,18 @@ from pathlib import Path
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Write the average and one texture per photo; progress as a tqdm bar on stderr."""
+    """Write the average and one texture per photo; progress as a tqdm bar on stderr.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        ``PERSONA OUT_DIR PHOTO...`` (default: the process's arguments).
+
+    Returns
+    -------
+    int
+        The exit code: 0, or the error's (2) after its one line on stderr.
+    """
     from tqdm import tqdm
 
     from .. import load_persona, persona_average, persona_texture
