@@ -102,6 +102,23 @@ def test_transfer_page_runs_a_preview_transfer_end_to_end(browser, studio):
     pg.close()
 
 
+def test_transfer_page_shows_a_bad_upload_as_the_one_line_error(browser, studio, tmp_path):
+    bad = tmp_path / "holiday.jpg"
+    bad.write_text("not a photo")
+    pg = open_page(browser, f"{studio.url}/transfer")
+    pg.wait_for_function("document.querySelectorAll('#preset option').length > 0")
+    pg.set_input_files("#content-file", str(bad))
+    assert pg.input_value("#content-sample") == ""  # the file is what is sent
+    pg.click("#run")
+    pg.wait_for_selector("#error:not(.hidden)")
+    text = pg.inner_text("#error")
+    assert text.startswith("error: holiday.jpg: not an image file") and "\n" not in text
+    assert pg.is_hidden("#result")
+    # the browser logs the refused request (400) itself; nothing else
+    assert [m for m in pg.messages if "status of 400" not in m] == []
+    pg.close()
+
+
 def test_persona_page_builds_a_persona_stage_by_stage(browser, studio, photo_dir):
     pg = open_page(browser, f"{studio.url}/persona")
     pg.set_input_files("#photos", sorted(str(p) for p in photo_dir.iterdir()))
