@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from conftest import face_frames
+from _studio import face_frames
 
 pytest.importorskip("fastapi", reason="the studio extra is not installed (pip install -e '.[studio]')")
 
