@@ -96,7 +96,7 @@ def add_routes(app, config, jobs) -> None:
         except Exception as e:  # noqa: BLE001 - the page shows one line, like the CLI's last resort
             await _close_with(ws, f"internal error: {type(e).__name__}: {e}")
         finally:
-            if engine is not None:
+            if engine is not None and callable(getattr(engine, "close", None)):  # close() is optional
                 await run_in_threadpool(engine.close)
             busy.release()
 

@@ -41,7 +41,8 @@ class LiveEngine(Protocol):
         """The puppet frame (uint8 RGB) for one camera frame (uint8 RGB), or None (no face)."""
 
     def close(self) -> None:
-        """Free what the engine holds (threads, temporary files)."""
+        """Free what the engine holds (threads, temporary files); optional: the endpoint calls it
+        when the engine has it."""
 
 
 def make_live_engine(persona_path, size: int, mode: str) -> LiveEngine:

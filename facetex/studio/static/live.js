@@ -5,7 +5,7 @@ const $ = (id) => document.getElementById(id);
 fillPersonas($("persona")).catch((e) => showError($("error"), e.message));
 
 // counters of the page (window.liveStats: what the page shows, also for tests)
-const stats = window.liveStats = { received: 0, dropped: 0, noface: 0, sent: 0, fps: 0, p50: null, p95: null, latencies: [], times: [] };
+const stats = window.liveStats = { first: null, received: 0, dropped: 0, noface: 0, sent: 0, fps: 0, p50: null, p95: null, latencies: [], times: [] };
 let ws = null, stream = null, inFlight = false, sentAt = 0, lastUrl = null, running = false;
 const canvas = document.createElement("canvas");
 
@@ -16,8 +16,11 @@ function percentile(values, q) {
 
 function showCounters() {
   const now = performance.now();
-  stats.times = stats.times.filter((t) => now - t < 2000);  // frames received in the last 2 s
-  stats.fps = stats.times.length / 2;
+  // frames received in the last 5 s (or since the first one): steady enough to read, recent enough to follow
+  stats.times = stats.times.filter((t) => now - t < 5000);
+  if (stats.first == null && stats.times.length) stats.first = stats.times[0];
+  const span = stats.first == null ? 5 : Math.min(5, Math.max(1, (now - stats.first) / 1000));
+  stats.fps = stats.times.length / span;
   const recent = stats.latencies.slice(-100);
   stats.p50 = recent.length ? percentile(recent, 0.5) : null;
   stats.p95 = recent.length ? percentile(recent, 0.95) : null;
