@@ -11,17 +11,24 @@ import socket
 import subprocess
 import sys
 import time
+import urllib.error
+import urllib.parse
+import urllib.request
 
 import pytest
 
 pytest.importorskip("uvicorn", reason="the studio extra is not installed (pip install -e '.[studio]')")
-httpx = pytest.importorskip("httpx")
 
 
 def serve(*args: str, cwd) -> subprocess.Popen:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in [os.getcwd(), os.environ.get("PYTHONPATH", "")] if p))
     return subprocess.Popen([sys.executable, "-m", "facetex", "serve", *args], cwd=cwd, env=env, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+
+def get(url: str) -> bytes:
+    with urllib.request.urlopen(url, timeout=30) as r:
+        return r.read()
 
 
 def started(proc: subprocess.Popen) -> dict:
@@ -44,11 +51,13 @@ def test_serve_answers_on_a_free_localhost_port_and_stops_on_ctrl_c(tmp_path):
         info = started(proc)
         url = info["url"]
         assert url.startswith("http://127.0.0.1:") and info["workdir"] == str((tmp_path / "work").resolve())
-        with httpx.Client(base_url=url, timeout=30) as c:
-            assert c.get("/api/info").json()["max_upload_mb"] == 5
-            assert "Texture transfer" in c.get("/transfer").text
-            r = c.post("/api/transfer", data={"content_sample": "frl_004_neutral.jpg"})
-            assert r.status_code == 400 and r.json() == {"error": "no style image: upload one or pick a sample"}
+        assert json.loads(get(url + "api/info"))["max_upload_mb"] == 5
+        assert "Texture transfer" in get(url + "transfer").decode()
+        form = urllib.parse.urlencode({"content_sample": "frl_004_neutral.jpg"}).encode()
+        with pytest.raises(urllib.error.HTTPError) as e:
+            urllib.request.urlopen(url + "api/transfer", data=form, timeout=30)
+        assert e.value.code == 400
+        assert json.loads(e.value.read()) == {"error": "no style image: upload one or pick a sample"}
         proc.send_signal(signal.SIGINT)
         assert proc.wait(30) == 0
         assert "Traceback" not in proc.stderr.read()
