@@ -15,7 +15,7 @@ from facetex._resources import sample_path
 from facetex.cli import iter_commands, main
 
 #: commands whose result is printed, not written
-PRINTS_ONLY = {"identity", "metrics", "compare", "completion", "samples"}
+PRINTS_ONLY = {"identity", "metrics", "compare", "completion", "samples", "serve"}
 
 
 LEAVES = dict(iter_commands())
