@@ -1,0 +1,58 @@
+"""Settings of the live puppetry (:class:`LiveParams`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from ..errors import BadInputError
+from .filters import OneEuroParams
+
+__all__ = ["LiveParams"]
+
+
+@dataclass(frozen=True)
+class LiveParams:
+    """Settings of :class:`facetex.live.LiveSession` beyond the puppet's own (:class:`facetex.puppet.PuppetParams`).
+
+    warmup / max_warmup: the driver's reference (its mean mesh, canonical frame and mean landmarks,
+    which the offline puppetry takes from the whole clip) is made from the tracked frames seen before
+    the puppet is ready: at least ``warmup`` frames, the last ``max_warmup`` of them while the persona
+    is still loading. pose / shape / landmarks / lips: One-Euro filters (:mod:`facetex.live.filters`)
+    of the head pose (rotation vector in rad, log scale and translation in px), the mesh's expression
+    residuals (canonical px), the un-posed landmarks (canonical px) and the lip and jaw landmarks
+    (unfiltered by default, as the offline lips: a syllable's opening lasts 3-6 frames). track_side:
+    frames are tracked with their longer side at most this (px; the output panel is made from the
+    full frame). texture_step: the expression texture is cached by its target fiducials quantised to
+    this many canonical px (0: no cache; the texture is then blended for the exact fiducials);
+    texture_cache: most textures kept. shape_floor / shape_factor: a tracked face whose landmarks differ
+    from the reference's mean shape (similarity-aligned, mean point distance over the eye distance) by
+    more than max(shape_floor, shape_factor x the reference frames' median) counts as lost (squashed or
+    torn landmarks: the offline check of :func:`facetex.puppet.driver.implausible_shapes`, against the
+    reference instead of the whole clip). lost_output: what a frame without a usable face shows, "driver" (its own frame,
+    a plain panel in face mode, as the offline puppetry) or "last" (the last puppet frame)."""
+
+    warmup: int = 8
+    max_warmup: int = 50
+    pose: OneEuroParams = field(default_factory=lambda: OneEuroParams(min_cutoff=2.0, beta=0.5, d_cutoff=1.0))
+    shape: OneEuroParams = field(default_factory=lambda: OneEuroParams(min_cutoff=3.0, beta=0.5, d_cutoff=1.0))
+    landmarks: OneEuroParams = field(default_factory=lambda: OneEuroParams(min_cutoff=3.0, beta=0.5,
+                                                                             d_cutoff=1.0))
+    lips: OneEuroParams = field(default_factory=lambda: OneEuroParams(min_cutoff=float("inf")))
+    track_side: int = 640
+    texture_step: float = 0.0
+    texture_cache: int = 256
+    shape_floor: float = 0.08
+    shape_factor: float = 4.0
+    lost_output: str = "driver"
+
+    def check(self) -> "LiveParams":
+        """Self, or BadInputError naming the first bad value."""
+        if not 1 <= self.warmup <= self.max_warmup:
+            raise BadInputError(f"live warm-up must be 1 <= warmup <= max_warmup, got {self.warmup}, {self.max_warmup}")
+        if self.track_side < 64:
+            raise BadInputError(f"live track_side must be >= 64 px, got {self.track_side}")
+        if not self.texture_step >= 0:
+            raise BadInputError(f"live texture_step must be >= 0, got {self.texture_step}")
+        if self.lost_output not in ("driver", "last"):
+            raise BadInputError(f"live lost_output must be 'driver' or 'last', got {self.lost_output!r}")
+        return self

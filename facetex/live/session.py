@@ -1,0 +1,345 @@
+"""One live puppet stream: :class:`LiveSession` turns driver frames into puppet frames one at a time.
+
+The offline puppetry (:mod:`facetex.puppet.puppetry`) sees the whole driver video before it renders
+a frame; a live session sees each frame once, as it arrives. What changes (the rest is the offline
+code, :class:`facetex.puppet.Puppeteer` per frame):
+
+* the driver is tracked frame by frame, seeded by the previous frame (:class:`~facetex.live.motion.CausalTracker`);
+* the clip-wide reference (mean mesh, canonical frame, mean landmarks) comes from the first tracked
+  frames, those seen while the persona loads (:func:`~facetex.live.motion.reference_motion`): until
+  it is made, :meth:`LiveSession.process` returns None;
+* the motion is smoothed causally (One-Euro, :class:`~facetex.live.motion.LiveMotion`);
+* the expression texture is blended per frame from the frame's own regional weights
+  (``weight_smoothing=0``: the offline bilateral filter over ±0.1 s looks ahead), optionally through
+  a cache keyed by the quantised target fiducials (``LiveParams.texture_step``);
+* a frame without a usable face (not found, partly outside the frame, landmarks and mesh
+  disagreeing, an implausible shape) shows the driver's own frame (a plain panel in face mode), as
+  offline; with ``LiveParams(lost_output="last")`` the last puppet frame instead. The filters restart
+  when the face comes back.
+
+The puppet's per-frame state lives in a few slots appended to the reference's arrays, so up to
+:data:`SLOTS` frames may be between :meth:`LiveSession.prepare` and :meth:`LiveSession.finish` (a
+pipelined runner tracks frame t+1 while frame t renders)."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import OrderedDict, deque
+from dataclasses import replace
+
+import cv2
+import numpy as np
+
+from ..errors import BadInputError, NoFaceError
+from ..puppet.params import MODES, PuppetParams
+from .motion import CausalTracker, LiveMotion, reference_motion, shape_residual
+from .params import LiveParams
+from .stats import LiveStats
+
+__all__ = ["LiveSession", "SLOTS"]
+
+#: frames that may be between prepare() and finish() at once
+SLOTS = 8
+
+
+def _uint8_rgb(frame) -> np.ndarray:
+    a = np.asarray(frame)
+    if a.ndim != 3 or a.shape[2] != 3 or a.dtype != np.uint8 or min(a.shape[:2]) < 16:
+        raise BadInputError(f"a live frame must be an (H, W, 3) uint8 RGB array of at least 16 px, "
+                            f"got {a.dtype} {a.shape}")
+    return np.ascontiguousarray(a)
+
+
+class LiveSession:
+    """A persona puppet driven by frames as they arrive (module doc).
+
+    Parameters
+    ----------
+    persona : str, os.PathLike or Persona
+        The puppet (a ``.persona`` file or a loaded :class:`facetex.persona.Persona`).
+    size : int or None
+        Longer side of the output frame in px (32..4096; None: the tracked frame's size).
+    mode : {"composite", "face"}
+        The puppet put into the driver's frame, or alone on a plain panel.
+    params : PuppetParams, optional
+        The puppet's settings (default :class:`facetex.puppet.PuppetParams`); ``weight_smoothing``
+        is set to 0 (the offline filter looks ahead).
+    live : LiveParams, optional
+        The live settings (warm-up, filters, texture cache; :class:`facetex.live.LiveParams`).
+    background : bool
+        Load the persona on a thread (default): frames given meanwhile are tracked for the
+        reference and give None. False: the constructor returns once the persona is loaded.
+
+    Raises
+    ------
+    facetex.BadInputError
+        A bad mode, size or setting; the persona's errors (missing file, not a persona) are raised
+        by the constructor with ``background=False``, else by the first :meth:`process` after the
+        load failed.
+
+    Examples
+    --------
+    >>> s = LiveSession("george.persona", size=256)            # doctest: +SKIP
+    >>> out = s.process(frame)   # (H, W, 3) uint8 RGB -> uint8 RGB, or None while warming up  # doctest: +SKIP
+    >>> s.stats()["latency_ms_p95"]                             # doctest: +SKIP
+    """
+
+    def __init__(self, persona, *, size: int | None = 256, mode: str = "composite",
+                 params: PuppetParams | None = None, live: LiveParams | None = None, background: bool = True):
+        from ..puppet.puppetry import output_size
+
+        if mode not in MODES:
+            raise BadInputError(f"unknown puppet mode {mode!r}: use one of {', '.join(MODES)}")
+        output_size((1, 1), size)  # a bad size fails here
+        self.size, self.mode = size, mode
+        self.live = (live or LiveParams()).check()
+        params = params or PuppetParams()
+        params.texture_params()  # checks the texture weights
+        self.params = replace(params, weight_smoothing=0.0)
+        self.stats_ = LiveStats()
+        self.tracker = CausalTracker(self.params.driver)
+        self._warm: deque = deque(maxlen=self.live.max_warmup)
+        self._index = 0
+        self._last_out: np.ndarray | None = None
+        self._geometry = None  # (tracked W, H, track scale, out W, H, panel scale) of the first frame
+        self.puppeteer = self.motion = None
+        self._persona = None
+        self.timings: dict = {}
+        self._cache: OrderedDict = OrderedDict()
+        self.cache_hits = self.cache_misses = 0
+        self._loaded = threading.Event()
+        self._load_error: BaseException | None = None
+        self._thread = threading.Thread(target=self._load, args=(persona,), name="facetex-live-load", daemon=True)
+        self._thread.start()
+        if not background:
+            self.wait_loaded()
+
+    # ------------------------------------------------------------------ set-up
+    def _load(self, persona) -> None:
+        try:
+            from ..puppet.puppetry import load_puppet
+
+            t0 = time.perf_counter()
+            loaded, tm = load_puppet(persona, self._puppet_params(persona))
+            self.timings.update(tm, load_s=time.perf_counter() - t0)
+            self._persona = loaded
+        except BaseException as e:  # noqa: BLE001 - re-raised by the caller's thread
+            self._load_error = e
+        finally:
+            self._loaded.set()
+
+    def _puppet_params(self, persona) -> PuppetParams:
+        from ..puppet.puppetry import _persona_size
+
+        size = _persona_size(persona)
+        p = self.params
+        if tuple(p.driver.size) != tuple(size):  # the puppet works in the persona's canonical frame
+            p = replace(p, driver=replace(p.driver, size=tuple(size)))
+        self.params = p
+        return p
+
+    def wait_loaded(self, timeout: float | None = None) -> bool:
+        """Wait for the persona; True when it is loaded. Its load error (missing file, ...) is raised here."""
+        done = self._loaded.wait(timeout)
+        if self._load_error is not None:
+            raise self._load_error
+        return done
+
+    @property
+    def ready(self) -> bool:
+        """Whether puppet frames come out (the persona is loaded and the reference made)."""
+        return self.puppeteer is not None
+
+    def _build(self, fps: float) -> None:
+        """The reference from the warm-up frames, the puppet and the per-frame motion."""
+        from ..puppet.correspondence import driver_collection
+        from ..puppet.puppeteer import Puppeteer
+
+        t0 = time.perf_counter()
+        p68, mesh, score = (np.array([w[k] for w in self._warm]) for k in range(3))
+        tw, th = self._geometry[:2]
+        track, motion = reference_motion(p68, mesh, score, (tw, th), fps=fps, params=self.params.driver)
+        coll = driver_collection(track, params=self.params)
+        mean68 = p68.mean(axis=0)
+        res = [shape_residual(q, mean68) for q in p68]
+        self._shape = (mean68, max(self.live.shape_floor, self.live.shape_factor * float(np.median(res))))
+        k, S = len(p68), SLOTS
+
+        def ext(a, fill=0.0):
+            return np.concatenate([a, np.full((S,) + a.shape[1:], fill, a.dtype)])
+
+        found = np.r_[np.ones(k, bool), np.zeros(S, bool)]  # the reference's means: its own frames only
+        motion = replace(motion, pose_A=ext(motion.pose_A), pose_b=ext(motion.pose_b), deltas=ext(motion.deltas),
+                         fiducials=ext(motion.fiducials), fiducials68=ext(motion.fiducials68), found=found,
+                         opening=ext(motion.opening), points68=ext(motion.points68))
+        track = replace(track, points68=ext(track.points68), mesh=ext(track.mesh), found=found.copy(),
+                        score=ext(track.score), lost_reason=track.lost_reason + [""] * S)
+        self._k = k
+        self.puppeteer = Puppeteer(self._persona, motion, coll, self.params, track)
+        self.motion = LiveMotion(motion, self.live)
+        self.timings["reference_frames"] = k
+        self.timings["build_s"] = time.perf_counter() - t0
+
+    # ------------------------------------------------------------------ per frame
+    def _frame_geometry(self, frame: np.ndarray):
+        from ..puppet.puppetry import check_output_frame
+
+        h, w = frame.shape[:2]
+        k = min(1.0, self.live.track_side / max(w, h))
+        tw, th = (w, h) if k >= 1 else (max(16, int(round(w * k))), max(16, int(round(h * k))))
+        W, H, scale = check_output_frame((tw, th), self.size, mode=self.mode)
+        return tw, th, W, H, scale
+
+    def prepare(self, frame, *, arrival: float | None = None, t: float | None = None, fps: float = 25.0) -> dict:
+        """The first half of :meth:`process` (tracking, motion, mesh, texture): a work record for
+        :meth:`finish`. Call it from one thread, frames in order; ``arrival``: the frame's arrival
+        (``time.perf_counter()``, default now: its latency is measured from it); ``t``: its time in
+        the stream (seconds; default its arrival), which the filters use; ``fps``: the stream's
+        nominal rate (the reference's)."""
+        arrival = time.perf_counter() if arrival is None else arrival
+        t = arrival if t is None else t
+        frame = _uint8_rgb(frame)
+        if self._load_error is not None:
+            raise self._load_error
+        if self._geometry is None:
+            self._geometry = self._frame_geometry(frame)
+        elif frame.shape[1::-1] != self._geometry_src:
+            raise BadInputError(f"live frames changed size from {self._geometry_src} to {frame.shape[1::-1]}")
+        self._geometry_src = frame.shape[1::-1]
+        tw, th = self._geometry[:2]
+        t0 = time.perf_counter()
+        small = frame if (tw, th) == frame.shape[1::-1] else cv2.resize(frame, (tw, th), interpolation=cv2.INTER_AREA)
+        p68, mesh, score, why = self.tracker(small)
+        if not why and self.puppeteer is not None and shape_residual(p68, self._shape[0]) > self._shape[1]:
+            why = "implausible shape"
+            self.tracker.lose()
+        t1 = time.perf_counter()
+        self.stats_.stage_time("track", t1 - t0)
+        index, self._index = self._index, self._index + 1
+        work = {"index": index, "arrival": arrival, "frame": frame, "lost": bool(why), "why": why, "warmup": False}
+        if self.puppeteer is None:
+            if not why:
+                self._warm.append((p68, mesh, score))
+            if self._loaded.is_set() and len(self._warm) >= self.live.warmup:
+                if self._load_error is not None:
+                    raise self._load_error
+                self._build(fps)
+                self.stats_.stage_time("build", time.perf_counter() - t1)
+                t1 = time.perf_counter()
+            else:
+                work["warmup"] = True
+                return work
+        if why:
+            self.motion.reset()
+            return work
+        slot = self._k + index % SLOTS
+        m = self.motion(p68, mesh, t)
+        pup = self.puppeteer
+        pup.motion.pose_A[slot], pup.motion.pose_b[slot] = m["A"], m["b"]
+        pup.motion.deltas[slot] = m["deltas"]
+        pup.motion.fiducials68[slot] = m["fiducials68"]
+        from ..landmarks import POINTS49_INDEX
+
+        pup.motion.fiducials[slot] = m["fiducials68"][POINTS49_INDEX]
+        pup.track.points68[slot], pup.track.mesh[slot] = p68, mesh
+        t2 = time.perf_counter()
+        work["grid"] = pup.grid(slot)
+        t3 = time.perf_counter()
+        work["texture"] = self._texture(slot)
+        t4 = time.perf_counter()
+        work["slot"] = slot
+        st = self.stats_
+        st.stage_time("motion", t2 - t1)
+        st.stage_time("mesh", t3 - t2)
+        st.stage_time("texture", t4 - t3)
+        return work
+
+    def _texture(self, slot: int) -> np.ndarray:
+        """The expression texture of a slot's frame: blended for its target fiducials, or through the
+        cache of textures keyed by the fiducials quantised to ``LiveParams.texture_step`` px."""
+        pup = self.puppeteer
+        step = self.live.texture_step
+        if step <= 0 or self.params.texture != "ours":
+            return pup.textures([slot])[0]
+        from ..puppet.puppeteer import neutral_textures
+
+        q = np.round(pup.target(slot) / step)
+        key = q.astype(np.int32).tobytes()
+        tex = self._cache.get(key)
+        if tex is None:
+            self.cache_misses += 1
+            tex = neutral_textures(self._persona, [q * step], params=self.params.texture_params())[0]
+            self._cache[key] = tex
+            if len(self._cache) > self.live.texture_cache:
+                self._cache.popitem(last=False)
+        else:
+            self.cache_hits += 1
+            self._cache.move_to_end(key)
+        return pup._close_interiors([slot], [tex])[0]
+
+    def finish(self, work: dict) -> dict:
+        """The second half of :meth:`process`: the record of a :meth:`prepare` work record with its
+        output frame ("output": uint8 RGB (H, W, 3), None in the warm-up) and "kind" ("puppet",
+        "lost" or "warmup"). Call it from one thread, records in the order prepared."""
+        t0 = time.perf_counter()
+        rec = {k: work[k] for k in ("index", "arrival", "lost", "why", "warmup")}
+        if work["warmup"]:
+            rec.update(output=None, kind="warmup")
+            self.stats_.output(work["arrival"], "warmup")
+            return rec
+        from ..io import to_uint8
+
+        tw, th, W, H, scale = self._geometry
+        frame = work["frame"]
+        drv = cv2.resize(frame, (W, H), interpolation=cv2.INTER_AREA if W < frame.shape[1] else cv2.INTER_LINEAR)
+        if work["lost"]:
+            if self.live.lost_output == "last" and self._last_out is not None:
+                out = self._last_out
+            elif self.mode == "composite":
+                out = drv
+            else:
+                out = np.empty_like(drv)
+                out[:] = to_uint8(np.asarray(self.params.plain, np.float32))
+            rec.update(output=out, kind="lost")
+        else:
+            img, alpha = self.puppeteer.render(work["slot"], work["grid"], work["texture"],
+                                               drv.astype(np.float32) * np.float32(1 / 255), scale, self.mode)
+            out = to_uint8(img)
+            self._last_out = out
+            rec.update(output=out, kind="puppet", alpha=alpha)
+        now = time.perf_counter()
+        self.stats_.stage_time("render", now - t0)
+        self.stats_.output(work["arrival"], rec["kind"], now)
+        rec["latency"] = now - work["arrival"]
+        return rec
+
+    def process(self, frame, *, arrival: float | None = None, t: float | None = None) -> np.ndarray | None:
+        """The output frame (uint8 RGB (H, W, 3) at ``size``) of one driver frame (uint8 RGB (H, W, 3)),
+        or None while the persona loads and the reference is made (module doc).
+
+        Raises
+        ------
+        facetex.BadInputError
+            Not an (H, W, 3) uint8 frame, or a frame of another size than the first.
+        """
+        self.stats_.arrived()
+        return self.finish(self.prepare(frame, arrival=arrival, t=t))["output"]
+
+    def stats(self) -> dict:
+        """{"frames_in", "frames_out", "puppet_frames", "lost_frames", "warmup_frames", "dropped",
+        "dropped_pct", "fps", "sustained_fps", "latency_ms_p50", "latency_ms_p95", "latency_ms_max",
+        "first_puppet_s" (from the session's start), "stage_ms" (median per stage), "detections",
+        "texture_cache" (hits, misses), "timings" (set-up)}: see :class:`facetex.live.stats.LiveStats`."""
+        d = self.stats_.summary()
+        d.update(detections=self.tracker.detections, texture_cache={"hits": self.cache_hits,
+                                                                   "misses": self.cache_misses},
+                 timings={k: round(v, 3) if isinstance(v, float) else v for k, v in self.timings.items()})
+        return d
+
+    def require_face(self, source=None) -> None:
+        """NoFaceError naming ``source`` when no puppet frame came out (no usable face in the stream)."""
+        if self.stats_.puppet == 0:
+            why = "not enough frames with a usable face for the reference" if self._warm else "no usable face"
+            raise NoFaceError(f"{why} in the driver stream ({self.stats_.frames_in} frames): use a video showing "
+                              "one face frontally, at least ~80 px wide", path=source)
