@@ -36,7 +36,16 @@ from ..puppet.motion import DriverMotion, _lift_points, driver_motion
 from .filters import OneEuroFilter
 from .params import LiveParams
 
-__all__ = ["CausalTracker", "reference_motion", "shape_residual", "LiveMotion"]
+__all__ = ["CausalTracker", "load_tracking_models", "reference_motion", "shape_residual", "LiveMotion"]
+
+
+def load_tracking_models() -> None:
+    """Load dlib's face detector and landmark model and the face mesh network now (~1.5 s), not at
+    the first frame."""
+    from ..landmarks import _model
+
+    for name in ("hog", "shape68", "mesh"):
+        _model(name)
 
 
 class CausalTracker:

@@ -29,7 +29,9 @@ class LiveParams:
     more than max(shape_floor, shape_factor x the reference frames' median) counts as lost (squashed or
     torn landmarks: the offline check of :func:`facetex.puppet.driver.implausible_shapes`, against the
     reference instead of the whole clip). lost_output: what a frame without a usable face shows, "driver" (its own frame,
-    a plain panel in face mode, as the offline puppetry) or "last" (the last puppet frame)."""
+    a plain panel in face mode, as the offline puppetry) or "last" (the last puppet frame). tracking:
+    "process" (default; a child process tracks frame t+1 while this one renders frame t:
+    :mod:`facetex.live._tracking`) or "thread" (in the calling thread)."""
 
     warmup: int = 8
     max_warmup: int = 50
@@ -44,6 +46,7 @@ class LiveParams:
     shape_floor: float = 0.08
     shape_factor: float = 4.0
     lost_output: str = "driver"
+    tracking: str = "process"
 
     def check(self) -> "LiveParams":
         """Self, or BadInputError naming the first bad value."""
@@ -55,4 +58,6 @@ class LiveParams:
             raise BadInputError(f"live texture_step must be >= 0, got {self.texture_step}")
         if self.lost_output not in ("driver", "last"):
             raise BadInputError(f"live lost_output must be 'driver' or 'last', got {self.lost_output!r}")
+        if self.tracking not in ("process", "thread"):
+            raise BadInputError(f"live tracking must be 'process' or 'thread', got {self.tracking!r}")
         return self

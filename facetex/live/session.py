@@ -98,7 +98,12 @@ class LiveSession:
         params.texture_params()  # checks the texture weights
         self.params = replace(params, weight_smoothing=0.0)
         self.stats_ = LiveStats()
-        self.tracker = CausalTracker(self.params.driver)
+        if self.live.tracking == "process":
+            from ._tracking import ProcessTracker
+
+            self.tracker = ProcessTracker(self.params.driver)
+        else:
+            self.tracker = CausalTracker(self.params.driver)
         self._warm: deque = deque(maxlen=self.live.max_warmup)
         self._index = 0
         self._last_out: np.ndarray | None = None
@@ -121,6 +126,10 @@ class LiveSession:
             from ..puppet.puppetry import load_puppet
 
             t0 = time.perf_counter()
+            if isinstance(self.tracker, CausalTracker):  # the tracking process loads its own
+                from .motion import load_tracking_models
+
+                load_tracking_models()
             loaded, tm = load_puppet(persona, self._puppet_params(persona))
             self.timings.update(tm, load_s=time.perf_counter() - t0)
             self._persona = loaded
@@ -128,6 +137,18 @@ class LiveSession:
             self._load_error = e
         finally:
             self._loaded.set()
+
+    def close(self) -> None:
+        """Stop the tracking process (if any); the session cannot process frames after."""
+        close = getattr(self.tracker, "close", None)
+        if close is not None:
+            close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
 
     def _puppet_params(self, persona) -> PuppetParams:
         from ..puppet.puppetry import _persona_size
@@ -144,6 +165,8 @@ class LiveSession:
         done = self._loaded.wait(timeout)
         if self._load_error is not None:
             raise self._load_error
+        if done and hasattr(self.tracker, "wait_ready"):
+            self.tracker.wait_ready()
         return done
 
     @property
@@ -176,8 +199,14 @@ class LiveSession:
         track = replace(track, points68=ext(track.points68), mesh=ext(track.mesh), found=found.copy(),
                         score=ext(track.score), lost_reason=track.lost_reason + [""] * S)
         self._k = k
-        self.puppeteer = Puppeteer(self._persona, motion, coll, self.params, track)
+        pup = Puppeteer(self._persona, motion, coll, self.params, track)
         self.motion = LiveMotion(motion, self.live)
+        # one frame of the reference through every stage: their first calls' set-up (lazy imports,
+        # caches) is not paid by the first live frame
+        tw, th, W, H, scale = self._geometry
+        pup.render(k - 1, pup.grid(k - 1), pup.textures([k - 1])[0], np.zeros((H, W, 3), np.float32), scale,
+                   self.mode)
+        self.puppeteer = pup
         self.timings["reference_frames"] = k
         self.timings["build_s"] = time.perf_counter() - t0
 
