@@ -18,6 +18,7 @@ _LAZY = {
     "run_live": "runner",
     "open_source": "sources",
     "LatestFrame": "sources",
+    "PushSource": "sources",
 }
 
 __getattr__, __dir__ = _lazy_attributes(__name__, globals(), _LAZY)

@@ -207,7 +207,7 @@ def run_live(source, persona=None, *, session=None, size: int | None = 256, mode
                 if stop.is_set() or (duration is not None and time.perf_counter() - t_start >= duration):
                     break
                 stats.arrived()
-                if mailbox.put((frame, time.perf_counter(), t)):
+                if mailbox.put((frame, time.perf_counter(), t, n)):
                     stats.drop()
                 n += 1
                 if max_frames is not None and n >= max_frames:
@@ -223,8 +223,8 @@ def run_live(source, persona=None, *, session=None, size: int | None = 256, mode
                 item = mailbox.get()
                 if item is None:
                     break
-                frame, arrival, t = item
-                work = session.prepare(frame, arrival=arrival, t=t, fps=src.fps)
+                frame, arrival, t, index = item
+                work = session.prepare(frame, arrival=arrival, t=t, fps=src.fps, index=index)
                 while not stop.is_set():
                     try:
                         handoff.put(work, timeout=0.2)
@@ -242,8 +242,8 @@ def run_live(source, persona=None, *, session=None, size: int | None = 256, mode
         item = mailbox.get()
         if item is None:
             return _END
-        frame, arrival, t = item
-        return session.prepare(frame, arrival=arrival, t=t, fps=src.fps)
+        frame, arrival, t, index = item
+        return session.prepare(frame, arrival=arrival, t=t, fps=src.fps, index=index)
 
     reader = threading.Thread(target=read, name="facetex-live-reader", daemon=True)
     tracker = threading.Thread(target=track, name="facetex-live-tracker", daemon=True) if pipeline else None

@@ -220,12 +220,14 @@ class LiveSession:
         W, H, scale = check_output_frame((tw, th), self.size, mode=self.mode)
         return tw, th, W, H, scale
 
-    def prepare(self, frame, *, arrival: float | None = None, t: float | None = None, fps: float = 25.0) -> dict:
+    def prepare(self, frame, *, arrival: float | None = None, t: float | None = None, fps: float = 25.0,
+                index: int | None = None) -> dict:
         """The first half of :meth:`process` (tracking, motion, mesh, texture): a work record for
         :meth:`finish`. Call it from one thread, frames in order; ``arrival``: the frame's arrival
         (``time.perf_counter()``, default now: its latency is measured from it); ``t``: its time in
         the stream (seconds; default its arrival), which the filters use; ``fps``: the stream's
-        nominal rate (the reference's)."""
+        nominal rate (the reference's); ``index``: the frame's number in the source (default: the
+        count of frames prepared; a runner that drops frames gives the source's), the records' "index"."""
         arrival = time.perf_counter() if arrival is None else arrival
         t = arrival if t is None else t
         frame = _uint8_rgb(frame)
@@ -245,7 +247,8 @@ class LiveSession:
             self.tracker.lose()
         t1 = time.perf_counter()
         self.stats_.stage_time("track", t1 - t0)
-        index, self._index = self._index, self._index + 1
+        count, self._index = self._index, self._index + 1
+        index = count if index is None else int(index)
         work = {"index": index, "arrival": arrival, "frame": frame, "lost": bool(why), "why": why, "warmup": False}
         if self.puppeteer is None:
             if not why:
@@ -262,7 +265,7 @@ class LiveSession:
         if why:
             self.motion.reset()
             return work
-        slot = self._k + index % SLOTS
+        slot = self._k + count % SLOTS  # frames in flight have consecutive counts: distinct slots
         m = self.motion(p68, mesh, t)
         pup = self.puppeteer
         pup.motion.pose_A[slot], pup.motion.pose_b[slot] = m["A"], m["b"]

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import BadInputError
 
-__all__ = ["LatestFrame", "FrameSource", "open_source", "source_kind"]
+__all__ = ["LatestFrame", "FrameSource", "PushSource", "open_source", "source_kind"]
 
 
 class LatestFrame:
@@ -59,6 +59,8 @@ class LatestFrame:
 
 def source_kind(source) -> str:
     """"camera", "url" or "file" of a ``--source`` value (an int or digits: a camera index)."""
+    if isinstance(source, FrameSource):
+        return "push"
     s = str(source)
     if isinstance(source, int) or s.isdigit() or re.fullmatch(r"/dev/video\d+", s):
         return "camera"
@@ -86,6 +88,54 @@ class FrameSource:
         self.stopped.set()
         if self._closer is not None:
             self._closer()
+
+
+class PushSource(FrameSource):
+    """A source whose frames the caller hands in (the studio's WebSocket handler): :meth:`push` each
+    decoded uint8 RGB frame as it arrives, :meth:`close` at the end of the stream. Give it to
+    :func:`facetex.live.run_live` as the source and take the outputs from its ``on_frame``: the runner
+    drops stale frames and pipelines the stages as for a camera.
+
+    Parameters
+    ----------
+    fps : float
+        The stream's nominal frame rate (the output file's, when one is written).
+    name : str
+        What errors and the report call the stream.
+
+    Examples
+    --------
+    >>> feed = PushSource(fps=25)                                        # doctest: +SKIP
+    >>> threading.Thread(target=run_live, args=(feed,), kwargs=dict(session=s, on_frame=send)).start()  # doctest: +SKIP
+    >>> feed.push(frame)   # per received frame; feed.close() when the socket closes  # doctest: +SKIP
+    """
+
+    _END = object()
+
+    def __init__(self, fps: float = 25.0, name: str = "pushed frames"):
+        import queue
+
+        self._q: queue.Queue = queue.Queue()
+        self._t0 = None
+        super().__init__(name, float(fps), self._pull())
+
+    def push(self, frame: np.ndarray, t: float | None = None) -> None:
+        """Hand in one frame (``t``: its time in the stream in seconds; default the time since the first)."""
+        now = time.perf_counter()
+        if self._t0 is None:
+            self._t0 = now
+        self._q.put((frame, now - self._t0 if t is None else float(t)))
+
+    def close(self) -> None:
+        self._q.put(self._END)
+        super().close()
+
+    def _pull(self):
+        while True:
+            item = self._q.get()
+            if item is self._END:
+                return
+            yield item
 
 
 def _camera(source) -> FrameSource:
@@ -172,8 +222,9 @@ def open_source(source, *, realtime: bool = True, loop: int = 1) -> FrameSource:
 
     Parameters
     ----------
-    source : int, str or os.PathLike
-        ``0`` (a camera index), ``/dev/video0``, ``rtsp://...`` (any URL FFmpeg reads) or a video file.
+    source : int, str, os.PathLike or FrameSource
+        ``0`` (a camera index), ``/dev/video0``, ``rtsp://...`` (any URL FFmpeg reads), a video file, or
+        a :class:`PushSource` (returned as it is).
     realtime : bool
         A file is played at its own frame rate (default); False: as fast as it decodes.
     loop : int
@@ -189,6 +240,8 @@ def open_source(source, *, realtime: bool = True, loop: int = 1) -> FrameSource:
         The camera is not available, the URL cannot be opened; a file's errors (missing,
         unreadable, no video stream) name it.
     """
+    if isinstance(source, FrameSource):  # already open (a PushSource)
+        return source
     kind = source_kind(source)
     if kind == "camera":
         return _camera(source)

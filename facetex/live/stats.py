@@ -27,6 +27,7 @@ class LiveStats:
         self.latencies: list[float] = []
         self.out_times: list[float] = []
         self.first_puppet: float | None = None
+        self.first_puppet_unix: float | None = None
         self.stage: dict[str, list[float]] = {}
 
     def arrived(self, n: int = 1, now: float | None = None) -> None:
@@ -53,7 +54,7 @@ class LiveStats:
             if kind == "warmup":
                 return
             if kind == "puppet" and self.first_puppet is None:
-                self.first_puppet = now
+                self.first_puppet, self.first_puppet_unix = now, time.time() - (time.perf_counter() - now)
             self.latencies.append(now - arrival)
             self.out_times.append(now)
 
@@ -87,4 +88,5 @@ class LiveStats:
             d[f"latency_ms_p{p}"] = round(1000 * float(np.percentile(lk, p)), 1) if len(lk) else None
         d["latency_ms_max"] = round(1000 * float(lk.max()), 1) if len(lk) else None
         d["first_puppet_s"] = None if first is None else round(first - self.start, 3)
+        d["first_puppet_unix"] = self.first_puppet_unix
         return d

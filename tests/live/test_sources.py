@@ -38,8 +38,9 @@ class _SlowSession:
     def wait_loaded(self, timeout=None):
         return True
 
-    def prepare(self, frame, *, arrival, t, fps):
+    def prepare(self, frame, *, arrival, t, fps, index):
         time.sleep(0.12)
+        assert round(frame[0, 0, 0] / 8) == index  # the source's frame number
         return {"id": int(frame[0, 0, 0]), "arrival": arrival}
 
     def finish(self, work):
