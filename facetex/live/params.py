@@ -22,9 +22,9 @@ class LiveParams:
     residuals (canonical px), the un-posed landmarks (canonical px) and the lip and jaw landmarks
     (unfiltered by default, as the offline lips: a syllable's opening lasts 3-6 frames). track_side:
     frames are tracked with their longer side at most this (px; the output panel is made from the
-    full frame). texture_step: the expression texture is cached by its target fiducials quantised to
-    this many canonical px (0: no cache; the texture is then blended for the exact fiducials);
-    texture_cache: most textures kept. shape_floor / shape_factor: a tracked face whose landmarks differ
+    full frame). weight_smoothing: the texture's regional weights are averaged with the past frames'
+    of the same expression (a one-sided bilateral filter, Gaussian of this many seconds; 0: each
+    frame's own; :meth:`facetex.live.LiveSession._texture`). shape_floor / shape_factor: a tracked face whose landmarks differ
     from the reference's mean shape (similarity-aligned, mean point distance over the eye distance) by
     more than max(shape_floor, shape_factor x the reference frames' median) counts as lost (squashed or
     torn landmarks: the offline check of :func:`facetex.puppet.driver.implausible_shapes`, against the
@@ -41,8 +41,7 @@ class LiveParams:
                                                                              d_cutoff=1.0))
     lips: OneEuroParams = field(default_factory=lambda: OneEuroParams(min_cutoff=float("inf")))
     track_side: int = 640
-    texture_step: float = 0.0
-    texture_cache: int = 256
+    weight_smoothing: float = 0.12
     shape_floor: float = 0.08
     shape_factor: float = 4.0
     lost_output: str = "driver"
@@ -54,8 +53,8 @@ class LiveParams:
             raise BadInputError(f"live warm-up must be 1 <= warmup <= max_warmup, got {self.warmup}, {self.max_warmup}")
         if self.track_side < 64:
             raise BadInputError(f"live track_side must be >= 64 px, got {self.track_side}")
-        if not self.texture_step >= 0:
-            raise BadInputError(f"live texture_step must be >= 0, got {self.texture_step}")
+        if not self.weight_smoothing >= 0:
+            raise BadInputError(f"live weight_smoothing must be >= 0 seconds, got {self.weight_smoothing}")
         if self.lost_output not in ("driver", "last"):
             raise BadInputError(f"live lost_output must be 'driver' or 'last', got {self.lost_output!r}")
         if self.tracking not in ("process", "thread"):

@@ -9,9 +9,12 @@ code, :class:`facetex.puppet.Puppeteer` per frame):
   frames, those seen while the persona loads (:func:`~facetex.live.motion.reference_motion`): until
   it is made, :meth:`LiveSession.process` returns None;
 * the motion is smoothed causally (One-Euro, :class:`~facetex.live.motion.LiveMotion`);
-* the expression texture is blended per frame from the frame's own regional weights
-  (``weight_smoothing=0``: the offline bilateral filter over ±0.1 s looks ahead), optionally through
-  a cache keyed by the quantised target fiducials (``LiveParams.texture_step``);
+* the expression texture's regional weights are made temporally coherent by the offline bilateral
+  filter (frames of the same expression share a blend) over the past frames only
+  (``LiveParams.weight_smoothing``; offline it also looks 0.36 s ahead). A cache of textures keyed by
+  the quantised target fiducials was measured and dropped: on GRID clips with the 519-photo persona
+  not one of 68 frames hit it at steps of 0.5-3 canonical px (49 points x 2 coordinates: some always
+  move a step), while the steps changed the texture by 0.5-3/255;
 * a frame without a usable face (not found, partly outside the frame, landmarks and mesh
   disagreeing, an implausible shape) shows the driver's own frame (a plain panel in face mode), as
   offline; with ``LiveParams(lost_output="last")`` the last puppet frame instead. The filters restart
@@ -25,7 +28,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import OrderedDict, deque
+from collections import deque
 from dataclasses import replace
 
 import cv2
@@ -111,8 +114,7 @@ class LiveSession:
         self.puppeteer = self.motion = None
         self._persona = None
         self.timings: dict = {}
-        self._cache: OrderedDict = OrderedDict()
-        self.cache_hits = self.cache_misses = 0
+        self._weights: deque = deque(maxlen=64)  # the last frames' texture weights (the causal filter's window)
         self._loaded = threading.Event()
         self._load_error: BaseException | None = None
         self._thread = threading.Thread(target=self._load, args=(persona,), name="facetex-live-load", daemon=True)
@@ -264,6 +266,7 @@ class LiveSession:
                 return work
         if why:
             self.motion.reset()
+            self._weights.clear()
             return work
         slot = self._k + count % SLOTS  # frames in flight have consecutive counts: distinct slots
         m = self.motion(p68, mesh, t)
@@ -278,7 +281,7 @@ class LiveSession:
         t2 = time.perf_counter()
         work["grid"] = pup.grid(slot)
         t3 = time.perf_counter()
-        work["texture"] = self._texture(slot)
+        work["texture"] = self._texture(slot, fps)
         t4 = time.perf_counter()
         work["slot"] = slot
         st = self.stats_
@@ -287,27 +290,30 @@ class LiveSession:
         st.stage_time("texture", t4 - t3)
         return work
 
-    def _texture(self, slot: int) -> np.ndarray:
-        """The expression texture of a slot's frame: blended for its target fiducials, or through the
-        cache of textures keyed by the fiducials quantised to ``LiveParams.texture_step`` px."""
+    def _texture(self, slot: int, fps: float) -> np.ndarray:
+        """The expression texture of a slot's frame: its regional weights (as the offline blend's)
+        averaged with those of the previous frames of the same expression (a one-sided bilateral
+        filter: :func:`facetex.persona.weights.temporal_weights` over the frames up to this one,
+        ``LiveParams.weight_smoothing`` seconds), then blended; the static texture or the global
+        weights as offline."""
         pup = self.puppeteer
-        step = self.live.texture_step
-        if step <= 0 or self.params.texture != "ours":
+        sigma = self.live.weight_smoothing * fps
+        tp = self.params.texture_params()
+        if self.params.texture != "ours" or tp.weights != "regional" or sigma <= 0:
             return pup.textures([slot])[0]
-        from ..puppet.puppeteer import neutral_textures
+        from ..persona.texture import blend_weights, expression_model, sequence_weights
+        from ..persona.weights import temporal_weights
 
-        q = np.round(pup.target(slot) / step)
-        key = q.astype(np.int32).tobytes()
-        tex = self._cache.get(key)
-        if tex is None:
-            self.cache_misses += 1
-            tex = neutral_textures(self._persona, [q * step], params=self.params.texture_params())[0]
-            self._cache[key] = tex
-            if len(self._cache) > self.live.texture_cache:
-                self._cache.popitem(last=False)
-        else:
-            self.cache_hits += 1
-            self._cache.move_to_end(key)
+        f = pup.target(slot)[None]
+        model = expression_model(self._persona, tp)
+        W = sequence_weights(self._persona, f, tp)[0]  # (R, n): this frame's, cut as offline
+        self._weights.append((W, [c[0] for c in model.coordinates(f)], model.sigmas(f)[0]))
+        win = list(self._weights)[-(int(np.ceil(3 * sigma)) + 1):]
+        Ws = np.stack([w[0] for w in win])
+        coords = [np.stack([w[1][j] for w in win]) for j in range(Ws.shape[1])]
+        smooth = temporal_weights(Ws, coords, np.stack([w[2] for w in win]), sigma_frames=sigma,
+                                  range_scale=self.params.weight_range)[-1]
+        tex = blend_weights(self._persona, smooth[None], params=tp)[0]
         return pup._close_interiors([slot], [tex])[0]
 
     def finish(self, work: dict) -> dict:
@@ -361,11 +367,10 @@ class LiveSession:
     def stats(self) -> dict:
         """{"frames_in", "frames_out", "puppet_frames", "lost_frames", "warmup_frames", "dropped",
         "dropped_pct", "fps", "sustained_fps", "latency_ms_p50", "latency_ms_p95", "latency_ms_max",
-        "first_puppet_s" (from the session's start), "stage_ms" (median per stage), "detections",
-        "texture_cache" (hits, misses), "timings" (set-up)}: see :class:`facetex.live.stats.LiveStats`."""
+        "first_puppet_s" (from the session's start), "first_puppet_unix", "stage_ms" (median per stage),
+        "detections" (runs of the face detector), "timings" (set-up)}: see :class:`facetex.live.stats.LiveStats`."""
         d = self.stats_.summary()
-        d.update(detections=self.tracker.detections, texture_cache={"hits": self.cache_hits,
-                                                                   "misses": self.cache_misses},
+        d.update(detections=self.tracker.detections,
                  timings={k: round(v, 3) if isinstance(v, float) else v for k, v in self.timings.items()})
         return d
 
