@@ -24,7 +24,10 @@ class LiveParams:
     frames are tracked with their longer side at most this (px; the output panel is made from the
     full frame). weight_smoothing: the texture's regional weights are averaged with the past frames'
     of the same expression (a one-sided bilateral filter, Gaussian of this many seconds; 0: each
-    frame's own; :meth:`facetex.live.LiveSession._texture`). shape_floor / shape_factor: a tracked face whose landmarks differ
+    frame's own; :meth:`facetex.live.LiveSession._texture`). static_start: puppet frames start before
+    the texture stacks are ready, with the persona's stored static texture (:mod:`facetex.live._loading`),
+    and cross-fade to the expression textures over ``fade_frames`` frames once they are; False: the
+    first puppet frame waits for the stacks. shape_floor / shape_factor: a tracked face whose landmarks differ
     from the reference's mean shape (similarity-aligned, mean point distance over the eye distance) by
     more than max(shape_floor, shape_factor x the reference frames' median) counts as lost (squashed or
     torn landmarks: the offline check of :func:`facetex.puppet.driver.implausible_shapes`, against the
@@ -42,6 +45,8 @@ class LiveParams:
     lips: OneEuroParams = field(default_factory=lambda: OneEuroParams(min_cutoff=float("inf")))
     track_side: int = 640
     weight_smoothing: float = 0.12
+    static_start: bool = True
+    fade_frames: int = 12
     shape_floor: float = 0.08
     shape_factor: float = 4.0
     lost_output: str = "driver"

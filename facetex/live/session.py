@@ -42,6 +42,12 @@ from .stats import LiveStats
 
 __all__ = ["LiveSession", "SLOTS"]
 
+
+def _load_models() -> None:
+    from .motion import load_tracking_models
+
+    load_tracking_models()
+
 #: frames that may be between prepare() and finish() at once
 SLOTS = 8
 
@@ -77,9 +83,10 @@ class LiveSession:
     Raises
     ------
     facetex.BadInputError
-        A bad mode, size or setting; the persona's errors (missing file, not a persona) are raised
-        by the constructor with ``background=False``, else by the first :meth:`process` after the
-        load failed.
+        A bad mode, size or setting.
+    FileNotFoundError, facetex.BadPersonaError
+        A missing file or not a persona (its header is read here); a persona whose arrays turn out
+        damaged: here with ``background=False``, else from :meth:`wait_loaded` or :meth:`process`.
 
     Examples
     --------
@@ -114,32 +121,18 @@ class LiveSession:
         self.puppeteer = self.motion = None
         self._persona = None
         self.timings: dict = {}
+        self._fade = 0
         self._weights: deque = deque(maxlen=64)  # the last frames' texture weights (the causal filter's window)
-        self._loaded = threading.Event()
-        self._load_error: BaseException | None = None
-        self._thread = threading.Thread(target=self._load, args=(persona,), name="facetex-live-load", daemon=True)
-        self._thread.start()
+        if isinstance(self.tracker, CausalTracker):  # the tracking process loads its own models
+            threading.Thread(target=_load_models, name="facetex-live-models", daemon=True).start()
+        from ._loading import StagedPuppet
+
+        self._loading = StagedPuppet(persona, self._puppet_params(persona), self.timings,
+                                     static=self.live.static_start)
         if not background:
-            self.wait_loaded()
+            self.wait_loaded(textures=True)
 
     # ------------------------------------------------------------------ set-up
-    def _load(self, persona) -> None:
-        try:
-            from ..puppet.puppetry import load_puppet
-
-            t0 = time.perf_counter()
-            if isinstance(self.tracker, CausalTracker):  # the tracking process loads its own
-                from .motion import load_tracking_models
-
-                load_tracking_models()
-            loaded, tm = load_puppet(persona, self._puppet_params(persona))
-            self.timings.update(tm, load_s=time.perf_counter() - t0)
-            self._persona = loaded
-        except BaseException as e:  # noqa: BLE001 - re-raised by the caller's thread
-            self._load_error = e
-        finally:
-            self._loaded.set()
-
     def close(self) -> None:
         """Stop the tracking process (if any); the session cannot process frames after."""
         close = getattr(self.tracker, "close", None)
@@ -162,14 +155,25 @@ class LiveSession:
         self.params = p
         return p
 
-    def wait_loaded(self, timeout: float | None = None) -> bool:
-        """Wait for the persona; True when it is loaded. Its load error (missing file, ...) is raised here."""
-        done = self._loaded.wait(timeout)
-        if self._load_error is not None:
-            raise self._load_error
+    def wait_loaded(self, timeout: float | None = None, *, textures: bool = False) -> bool:
+        """Wait until puppet frames can be made (the persona loaded, its shape made, the tracker's
+        models loaded; with ``textures`` also the expression textures' stacks); True when they can.
+        The load's error (missing file, not a persona, ...) is raised here."""
+        ld = self._loading
+        done = ld.shaped.wait(timeout)
+        if done and (textures or ld.static is None):  # no stored static texture: the stacks are needed
+            done = ld.textured.wait(timeout)
+        if ld.error is not None:
+            raise ld.error
         if done and hasattr(self.tracker, "wait_ready"):
             self.tracker.wait_ready()
         return done
+
+    def _can_build(self) -> bool:
+        ld = self._loading
+        if ld.error is not None:
+            raise ld.error
+        return ld.shaped.is_set() and (ld.static is not None or ld.textured.is_set())
 
     @property
     def ready(self) -> bool:
@@ -206,8 +210,8 @@ class LiveSession:
         # one frame of the reference through every stage: their first calls' set-up (lazy imports,
         # caches) is not paid by the first live frame
         tw, th, W, H, scale = self._geometry
-        pup.render(k - 1, pup.grid(k - 1), pup.textures([k - 1])[0], np.zeros((H, W, 3), np.float32), scale,
-                   self.mode)
+        tex = pup.textures([k - 1])[0] if self._loading.textured.is_set() else self._loading.static
+        pup.render(k - 1, pup.grid(k - 1), tex, np.zeros((H, W, 3), np.float32), scale, self.mode)
         self.puppeteer = pup
         self.timings["reference_frames"] = k
         self.timings["build_s"] = time.perf_counter() - t0
@@ -233,8 +237,8 @@ class LiveSession:
         arrival = time.perf_counter() if arrival is None else arrival
         t = arrival if t is None else t
         frame = _uint8_rgb(frame)
-        if self._load_error is not None:
-            raise self._load_error
+        if self._loading.error is not None:
+            raise self._loading.error
         if self._geometry is None:
             self._geometry = self._frame_geometry(frame)
         elif frame.shape[1::-1] != self._geometry_src:
@@ -255,9 +259,8 @@ class LiveSession:
         if self.puppeteer is None:
             if not why:
                 self._warm.append((p68, mesh, score))
-            if self._loaded.is_set() and len(self._warm) >= self.live.warmup:
-                if self._load_error is not None:
-                    raise self._load_error
+            if len(self._warm) >= self.live.warmup and self._can_build():
+                self._persona = self._loading.persona
                 self._build(fps)
                 self.stats_.stage_time("build", time.perf_counter() - t1)
                 t1 = time.perf_counter()
@@ -297,10 +300,24 @@ class LiveSession:
         ``LiveParams.weight_smoothing`` seconds), then blended; the static texture or the global
         weights as offline."""
         pup = self.puppeteer
+        static = self._loading.static
+        if not self._loading.textured.is_set():  # the stacks are still being made: the stored static texture
+            return pup._close_interiors([slot], [static])[0]
+        if self._loading.error is not None:
+            raise self._loading.error
+        tex = self._expression_texture(slot, fps)
+        if static is not None and self._fade < self.live.fade_frames:  # from the static texture, gradually
+            self._fade += 1
+            a = np.float32(self._fade / (self.live.fade_frames + 1))
+            tex = a * tex + (1 - a) * static
+        return pup._close_interiors([slot], [tex])[0]
+
+    def _expression_texture(self, slot: int, fps: float) -> np.ndarray:
+        pup = self.puppeteer
         sigma = self.live.weight_smoothing * fps
         tp = self.params.texture_params()
         if self.params.texture != "ours" or tp.weights != "regional" or sigma <= 0:
-            return pup.textures([slot])[0]
+            return self._plain_texture(slot)
         from ..persona.texture import blend_weights, expression_model, sequence_weights
         from ..persona.weights import temporal_weights
 
@@ -313,8 +330,15 @@ class LiveSession:
         coords = [np.stack([w[1][j] for w in win]) for j in range(Ws.shape[1])]
         smooth = temporal_weights(Ws, coords, np.stack([w[2] for w in win]), sigma_frames=sigma,
                                   range_scale=self.params.weight_range)[-1]
-        tex = blend_weights(self._persona, smooth[None], params=tp)[0]
-        return pup._close_interiors([slot], [tex])[0]
+        return blend_weights(self._persona, smooth[None], params=tp)[0]
+
+    def _plain_texture(self, slot: int) -> np.ndarray:
+        """The texture of the puppet's own method (static, global weights, or per-frame regional
+        weights) before the mouth-interior fill."""
+        from ..puppet.puppeteer import neutral_textures
+
+        return neutral_textures(self._persona, [self.puppeteer.target(slot)], method=self.params.texture,
+                                params=self.params.texture_params())[0]
 
     def finish(self, work: dict) -> dict:
         """The second half of :meth:`process`: the record of a :meth:`prepare` work record with its

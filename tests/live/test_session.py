@@ -80,7 +80,24 @@ def test_bad_frames_and_settings(live_persona):
         LiveParams(warmup=0).check()
 
 
-def test_missing_persona_raises_on_first_use(tmp_path):
-    s = LiveSession(tmp_path / "none.persona", live=LiveParams(tracking="thread"))
+def test_missing_persona_raises_at_once(tmp_path):
     with pytest.raises(FileNotFoundError):
-        s.wait_loaded()
+        LiveSession(tmp_path / "none.persona", live=LiveParams(tracking="thread"))
+
+
+def test_stored_static_texture_is_the_uniform_blend(live_persona):
+    """The texture the first puppet frames use while the stacks load: the file's static pyramid sums."""
+    from facetex.live._loading import stored_static_texture
+    from facetex.persona import load_persona
+    from facetex.persona.texture import blend_weights
+    from facetex.puppet import PuppetParams
+
+    p = load_persona(live_persona)
+    tp = PuppetParams().texture_params()
+    static = stored_static_texture(p, tp)
+    assert static is not None and static.shape == (120, 96, 3) and static.dtype == np.float32
+    assert 0 <= static.min() and static.max() <= 1
+    uniform = blend_weights(p, np.ones((1, 3, len(p))), params=tp)[0]  # every photo the same weight
+    assert np.abs(static - uniform).mean() < 0.02
+    p.texture_stacks = None  # a persona without stored stacks: no static start
+    assert stored_static_texture(p, tp) is None
