@@ -238,6 +238,14 @@ def main(argv=None):
     n_photos = read_persona_header(persona).get("n_photos")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    # "a cached persona": the first session of a .persona file writes its rebuilt texture stacks to
+    # facetex's cache folder; later sessions map them (facetex.persona._stack_cache)
+    from facetex.live import LiveSession
+
+    t0 = time.perf_counter()
+    with LiveSession(persona, size=args.size, background=False) as s:
+        primed = s.timings.get("stack_cache", "none")
+    print(f"persona stack cache: {primed} ({time.perf_counter() - t0:.1f} s)")
     before = _uptime()
     print(f"before: {before}")
     print(f"persona {persona} ({n_photos} photos); clip {clip} ({info['n_frames']} frames at {info['fps']:g} fps, "

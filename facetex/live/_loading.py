@@ -9,7 +9,11 @@ texture (the uniform blend of all photos, whose pyramid sums the file stores nex
 collapsed in a few ms, the same image the stacks blend with equal weights), and switches to the
 expression-dependent texture when the stacks are ready (``stage="textures"``). Measured with the
 519-photo persona: the static and expression textures differ by ~1.5/255 on average (findings),
-a change one does not see as a jump."""
+a change one does not see as a jump.
+
+The stacks themselves are memory-mapped from facetex's cache folder when an earlier session of the
+same ``.persona`` file wrote them there (:mod:`facetex.persona._stack_cache`, ~1 MB per photo): then
+they are ready at once instead of after seconds of CPU beside the stream."""
 
 from __future__ import annotations
 
@@ -41,13 +45,30 @@ def stored_static_texture(persona, tp) -> np.ndarray | None:
     return np.clip(collapse_pyramid(bands), 0, 1).astype(np.float32)
 
 
+def _cache_folder(persona, tp):
+    """The stack cache folder (:mod:`facetex.persona._stack_cache`) of a .persona path, or None (a
+    Persona object, no writable cache folder)."""
+    import os
+
+    from .._resources import writable_cache_dir
+    from ..persona._stack_cache import stack_cache_folder
+
+    if not isinstance(persona, (str, os.PathLike)):
+        return None
+    root = writable_cache_dir()
+    try:
+        return None if root is None else stack_cache_folder(root, persona, tp)
+    except OSError:
+        return None
+
+
 class StagedPuppet:
     """The persona loaded on a thread in two stages: ``shaped`` (loaded, shape and landmark fields
     made; ``static`` holds the stored static texture or None) and ``textured`` (texture stacks
     ready). ``error``: the load's exception (both events are set then)."""
 
-    def __init__(self, persona, params, timings: dict, *, static: bool = True):
-        self.use_static = static
+    def __init__(self, persona, params, timings: dict, *, static: bool = True, cache: bool = True):
+        self.use_static, self.cache = static, cache
         self.persona = None
         self.static: np.ndarray | None = None
         self.error: BaseException | None = None
@@ -69,6 +90,14 @@ class StagedPuppet:
 
             def texture():
                 try:
+                    t1 = time.perf_counter()
+                    folder = _cache_folder(persona, params.texture_params()) if self.cache else None
+                    if folder is not None:  # the stacks memory-mapped from the cache, or written to it
+                        from ..persona.stacks import prepare_persona
+
+                        self.timings["stack_cache"] = "hit" if (folder / "meta.json").is_file() else "written"
+                        prepare_persona(loaded.value, params.texture_params(), cache=folder)
+                        self.timings["stack_cache_s"] = time.perf_counter() - t1
                     _prepare_puppet_texture(loaded, params, self.timings)
                 except BaseException as e:  # noqa: BLE001 - re-raised below
                     failed.append(e)

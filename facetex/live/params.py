@@ -27,7 +27,9 @@ class LiveParams:
     frame's own; :meth:`facetex.live.LiveSession._texture`). static_start: puppet frames start before
     the texture stacks are ready, with the persona's stored static texture (:mod:`facetex.live._loading`),
     and cross-fade to the expression textures over ``fade_frames`` frames once they are; False: the
-    first puppet frame waits for the stacks. shape_floor / shape_factor: a tracked face whose landmarks differ
+    first puppet frame waits for the stacks. stack_cache: the persona's texture stacks are memory-mapped
+    from facetex's cache folder, written there by the first session of a ``.persona`` file (~1 MB
+    per photo; :mod:`facetex.persona._stack_cache`). shape_floor / shape_factor: a tracked face whose landmarks differ
     from the reference's mean shape (similarity-aligned, mean point distance over the eye distance) by
     more than max(shape_floor, shape_factor x the reference frames' median) counts as lost (squashed or
     torn landmarks: the offline check of :func:`facetex.puppet.driver.implausible_shapes`, against the
@@ -47,6 +49,7 @@ class LiveParams:
     weight_smoothing: float = 0.12
     static_start: bool = True
     fade_frames: int = 12
+    stack_cache: bool = True
     shape_floor: float = 0.08
     shape_factor: float = 4.0
     lost_output: str = "driver"

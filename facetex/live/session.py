@@ -128,7 +128,7 @@ class LiveSession:
         from ._loading import StagedPuppet
 
         self._loading = StagedPuppet(persona, self._puppet_params(persona), self.timings,
-                                     static=self.live.static_start)
+                                     static=self.live.static_start, cache=self.live.stack_cache)
         if not background:
             self.wait_loaded(textures=True)
 
