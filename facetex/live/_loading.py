@@ -62,6 +62,24 @@ def _cache_folder(persona, tp):
         return None
 
 
+#: modules the puppet's set-up and first frame import (scipy.interpolate alone ~0.35 s): imported on a
+#: thread while the persona file is read
+_PREIMPORT = ("scipy.interpolate", "scipy.spatial", "scipy.sparse", "scipy.fft", "facetex.puppet.puppeteer",
+              "facetex.puppet.motion", "facetex.puppet.correspondence", "facetex.puppet.shape",
+              "facetex.puppet.composite", "facetex.puppet.render", "facetex.puppet.deform",
+              "facetex.geometry.frontalize", "facetex.persona.texture", "facetex.persona.weights")
+
+
+def _preimport() -> None:
+    import importlib
+
+    for name in _PREIMPORT:
+        try:
+            importlib.import_module(name)
+        except ImportError:  # reported where it is used
+            pass
+
+
 class StagedPuppet:
     """The persona loaded on a thread in two stages: ``shaped`` (loaded, shape and landmark fields
     made; ``static`` holds the stored static texture or None) and ``textured`` (texture stacks
@@ -82,8 +100,11 @@ class StagedPuppet:
         from ..puppet.puppetry import _Done, _load_puppet, _prepare_puppet_texture, _puppet_shape
 
         t0 = time.perf_counter()
+        pre = threading.Thread(target=_preimport, name="facetex-live-imports", daemon=True)
+        pre.start()
         try:
             loaded = _Done(_load_puppet(persona, self.timings))
+            pre.join()
             if self.use_static:
                 self.static = stored_static_texture(loaded.value, params.texture_params())
             failed: list = []

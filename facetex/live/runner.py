@@ -184,10 +184,22 @@ def run_live(source, persona=None, *, session=None, size: int | None = 256, mode
         out_path = check_output_path(output, overwrite=overwrite, extensions=VIDEO_EXTENSIONS, what="video",
                                      inputs=[p for p in (source, persona) if isinstance(p, (str, os.PathLike))
                                              and os.path.exists(p)])
-    if session is None:
+    own = session is None
+    if own:
         if persona is None:
             raise BadInputError("give a persona or a LiveSession")
         session = LiveSession(persona, size=size, mode=mode, params=params, live=live)
+    try:
+        return _run(session, source, out_path, overwrite=overwrite, window=window, on_frame=on_frame,
+                    max_frames=max_frames, duration=duration, loop=loop, realtime=realtime, progress=progress,
+                    pipeline=pipeline, wait=wait)
+    finally:
+        if own:
+            session.close()
+
+
+def _run(session, source, out_path, *, overwrite, window, on_frame, max_frames, duration, loop, realtime, progress,
+         pipeline, wait) -> dict:
     src = open_source(source, realtime=realtime, loop=loop)
     if wait is None:
         wait = source_kind(source) == "file"
