@@ -189,6 +189,8 @@ def quality(clip: str, live: dict, offline_path: Path, size: int, out: Path) -> 
                   "cheek_de": float(np.nanmedian(de[k])), "eye_ratio": eye_openness_ratio(ear["driver"], ear[k])}
     # frames at 100 %: driver | live | offline, at a closed, a middle and the widest mouth opening
     out.mkdir(parents=True, exist_ok=True)
+    for old in out.glob("frame*_driver_live_offline.png"):
+        old.unlink()
     ok = [i for i in idx if np.isfinite(op["driver"][i])]
     if ok:
         order = sorted(ok, key=lambda i: op["driver"][i])

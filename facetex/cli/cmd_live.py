@@ -30,8 +30,9 @@ def register(sub) -> None:
     p.add_argument("--duration", type=finite_float(0.0, None, open_lo=True), metavar="SECONDS",
                    help="stop after this many seconds")
     p.add_argument("--loop", type=bounded_int(1, 10_000), default=1, help="play a video file N times (default 1)")
-    p.add_argument("--tracking", choices=("process", "thread"), default="process",
-                   help="track the face in a child process beside the rendering (default) or in this one")
+    p.add_argument("--workers", choices=("process", "thread"), default="process",
+                   help="track the face and render the puppet in two child processes beside this one's mesh and "
+                        "texture work (default), or all in this process (threads)")
     add_seed_device(p)
     add_overwrite(p)
     add_quiet(p)
@@ -89,7 +90,7 @@ def run(args) -> int:
     read_persona_header(puppet)  # a missing or wrong persona fails before the source is opened
     from ..live import LiveParams, LiveSession, run_live
 
-    live = LiveParams(lost_output=args.lost, tracking=args.tracking)
+    live = LiveParams(lost_output=args.lost, tracking=args.workers, render=args.workers)
     with LiveSession(puppet, size=args.size, mode=args.mode, live=live) as session:
         report = run_live(args.source, session=session, output=out, overwrite=args.overwrite, window=window,
                           max_frames=args.max_frames, duration=args.duration, loop=args.loop,
@@ -105,7 +106,7 @@ def run(args) -> int:
                                     else None},
             params={"source": str(args.source), "size": args.size, "mode": args.mode, "lost": args.lost,
                     "max_frames": args.max_frames, "duration": args.duration, "loop": args.loop,
-                    "tracking": args.tracking, "device": args.device, "live_params": live},
+                    "workers": args.workers, "device": args.device, "live_params": live},
             seed=args.seed, outputs=[out], result=report), overwrite=args.overwrite, inputs=inputs)
     if args.json:
         print_json(report)

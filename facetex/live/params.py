@@ -36,7 +36,9 @@ class LiveParams:
     reference instead of the whole clip). lost_output: what a frame without a usable face shows, "driver" (its own frame,
     a plain panel in face mode, as the offline puppetry) or "last" (the last puppet frame). tracking:
     "process" (default; a child process tracks frame t+1 while this one renders frame t:
-    :mod:`facetex.live._tracking`) or "thread" (in the calling thread)."""
+    :mod:`facetex.live._tracking`) or "thread" (in the calling thread). render: "process" (default;
+    a child process renders and composites frame t while this one makes frame t+1's mesh and
+    texture: :mod:`facetex.live._render`) or "thread"."""
 
     warmup: int = 8
     max_warmup: int = 50
@@ -54,6 +56,7 @@ class LiveParams:
     shape_factor: float = 4.0
     lost_output: str = "driver"
     tracking: str = "process"
+    render: str = "process"
 
     def check(self) -> "LiveParams":
         """Self, or BadInputError naming the first bad value."""
@@ -65,6 +68,7 @@ class LiveParams:
             raise BadInputError(f"live weight_smoothing must be >= 0 seconds, got {self.weight_smoothing}")
         if self.lost_output not in ("driver", "last"):
             raise BadInputError(f"live lost_output must be 'driver' or 'last', got {self.lost_output!r}")
-        if self.tracking not in ("process", "thread"):
-            raise BadInputError(f"live tracking must be 'process' or 'thread', got {self.tracking!r}")
+        for name in ("tracking", "render"):
+            if getattr(self, name) not in ("process", "thread"):
+                raise BadInputError(f"live {name} must be 'process' or 'thread', got {getattr(self, name)!r}")
         return self

@@ -123,6 +123,14 @@ class LiveSession:
         self.timings: dict = {}
         self._fade = 0
         self._weights: deque = deque(maxlen=64)  # the last frames' texture weights (the causal filter's window)
+        self._renderer = None
+        if self.live.render == "process":
+            from ._render import ProcessRenderer
+
+            try:
+                self._renderer = ProcessRenderer()
+            except OSError:  # no child process here: rendered in this one
+                self._renderer = None
         if isinstance(self.tracker, CausalTracker):  # the tracking process loads its own models
             threading.Thread(target=_load_models, name="facetex-live-models", daemon=True).start()
         from ._loading import StagedPuppet
@@ -135,9 +143,10 @@ class LiveSession:
     # ------------------------------------------------------------------ set-up
     def close(self) -> None:
         """Stop the tracking process (if any); the session cannot process frames after."""
-        close = getattr(self.tracker, "close", None)
-        if close is not None:
-            close()
+        for part in (self.tracker, self._renderer):
+            close = getattr(part, "close", None)
+            if close is not None:
+                close()
 
     def __enter__(self):
         return self
@@ -167,6 +176,8 @@ class LiveSession:
             raise ld.error
         if done and hasattr(self.tracker, "wait_ready"):
             self.tracker.wait_ready()
+        if done and self._renderer is not None:
+            self._renderer.wait_ready()
         return done
 
     def _can_build(self) -> bool:
@@ -211,8 +222,21 @@ class LiveSession:
         # caches) is not paid by the first live frame
         tw, th, W, H, scale = self._geometry
         tex = pup.textures([k - 1])[0] if self._loading.textured.is_set() else self._loading.static
-        pup.render(k - 1, pup.grid(k - 1), tex, np.zeros((H, W, 3), np.float32), scale, self.mode)
+        grid = pup.grid(k - 1)
+        if self._renderer is not None:
+            from ._render import render_kit
+
+            self._renderer.set_kit(render_kit(pup))
+            self._renderer(self._slot_frame(pup, k - 1), grid, tex, np.zeros((H, W, 3), np.uint8), scale, self.mode)
+        else:
+            pup.render(k - 1, grid, tex, np.zeros((H, W, 3), np.float32), scale, self.mode)
         self.puppeteer = pup
+
+    @staticmethod
+    def _slot_frame(pup, i: int) -> dict:
+        """What the renderer reads of frame slot ``i`` (pose, tracked landmarks and mesh)."""
+        return {"A": pup.motion.pose_A[i], "b": pup.motion.pose_b[i], "points68": pup.track.points68[i],
+                "mesh": pup.track.mesh[i]}
         self.timings["reference_frames"] = k
         self.timings["build_s"] = time.perf_counter() - t0
 
@@ -364,6 +388,11 @@ class LiveSession:
                 out = np.empty_like(drv)
                 out[:] = to_uint8(np.asarray(self.params.plain, np.float32))
             rec.update(output=out, kind="lost")
+        elif self._renderer is not None:  # in the rendering process, beside this one's next frame
+            out = self._renderer(self._slot_frame(self.puppeteer, work["slot"]), work["grid"], work["texture"], drv,
+                                 scale, self.mode)
+            self._last_out = out
+            rec.update(output=out, kind="puppet")
         else:
             img, alpha = self.puppeteer.render(work["slot"], work["grid"], work["texture"],
                                                drv.astype(np.float32) * np.float32(1 / 255), scale, self.mode)

@@ -33,7 +33,7 @@ def test_video_file_to_mp4(capsys, tmp_path, live_persona, live_videos):
 
     out = tmp_path / "live.mp4"
     code, stdout, lines = _cli(capsys, "live", "--puppet", live_persona, "--source", live_videos["face.mp4"],
-                               "-o", out, "--size", "96", "--json", "--tracking", "thread")
+                               "-o", out, "--size", "96", "--json", "--workers", "thread")
     assert code == 0, lines
     rep = json.loads(stdout)
     assert rep["puppet_frames"] > 0 and rep["output"] == str(out)
@@ -66,7 +66,7 @@ def test_video_without_faces(capsys, tmp_path, live_persona, live_videos):
     out.mkdir()
     src = live_videos["noface.mp4"]
     code, _, lines = _cli(capsys, "live", "--puppet", live_persona, "--source", src, "-o", out / "o.mp4",
-                          "--tracking", "thread")
+                          "--workers", "thread")
     _one_error(code, lines, src, cause="no usable face")
     assert list(out.iterdir()) == []  # no partial output, no temporary file left
 

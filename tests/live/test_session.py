@@ -13,8 +13,8 @@ N_MORPH, N_BLANK, N_HOLD = 8, 2, 3
 WARMUP = 3
 
 
-def _run(persona, tracking: str, mode: str = "composite"):
-    live = LiveParams(warmup=WARMUP, tracking=tracking)
+def _run(persona, tracking: str, mode: str = "composite", render: str = "thread"):
+    live = LiveParams(warmup=WARMUP, tracking=tracking, render=render)
     with LiveSession(persona, size=128, mode=mode, live=live, background=False) as s:
         # stream times given: the filters' time steps (else the calls' own timing) are the same in every run
         outs = [s.process(f, t=i / 25) for i, f in enumerate(driver_frames(N_MORPH, N_BLANK, N_HOLD))]
@@ -55,8 +55,9 @@ def test_lost_frames_show_the_driver_and_puppet_differs(thread_run):
     assert diff[40:90, 40:90].mean() > 3 * max(diff[:10, :10].mean(), 0.5)
 
 
-def test_child_process_tracking_gives_the_same_frames(live_persona, thread_run):
-    outs, st = _run(live_persona, "process")
+def test_child_processes_give_the_same_frames(live_persona, thread_run):
+    """Tracking and rendering in child processes (the default) make the frames made in this one."""
+    outs, st = _run(live_persona, "process", render="process")
     for a, b in zip(outs, thread_run[0]):
         assert (a is None) == (b is None)
         if a is not None:
