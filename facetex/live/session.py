@@ -108,6 +108,7 @@ class LiveSession:
         params.texture_params()  # checks the texture weights
         self.params = replace(params, weight_smoothing=0.0)
         self.stats_ = LiveStats()
+        params = self._puppet_params(persona)  # reads the persona's header: a missing file fails here
         if self.live.tracking == "process":
             from ._tracking import ProcessTracker
 
@@ -117,7 +118,7 @@ class LiveSession:
         self._warm: deque = deque(maxlen=self.live.max_warmup)
         self._index = 0
         self._last_out: np.ndarray | None = None
-        self._geometry = None  # (tracked W, H, track scale, out W, H, panel scale) of the first frame
+        self._geometry = None  # (tracked W, H, output W, H, output px per tracked px) of the first frame
         self.puppeteer = self.motion = None
         self._persona = None
         self.timings: dict = {}
@@ -135,14 +136,14 @@ class LiveSession:
             threading.Thread(target=_load_models, name="facetex-live-models", daemon=True).start()
         from ._loading import StagedPuppet
 
-        self._loading = StagedPuppet(persona, self._puppet_params(persona), self.timings,
+        self._loading = StagedPuppet(persona, params, self.timings,
                                      static=self.live.static_start, cache=self.live.stack_cache)
         if not background:
             self.wait_loaded(textures=True)
 
     # ------------------------------------------------------------------ set-up
     def close(self) -> None:
-        """Stop the tracking process (if any); the session cannot process frames after."""
+        """Stop the tracking and rendering processes (if any); the session cannot process frames after."""
         for part in (self.tracker, self._renderer):
             close = getattr(part, "close", None)
             if close is not None:
@@ -216,6 +217,8 @@ class LiveSession:
         track = replace(track, points68=ext(track.points68), mesh=ext(track.mesh), found=found.copy(),
                         score=ext(track.score), lost_reason=track.lost_reason + [""] * S)
         self._k = k
+        if self._loading.textured.is_set():  # the expression textures from the first frame: no fade
+            self._fade = self.live.fade_frames
         pup = Puppeteer(self._persona, motion, coll, self.params, track)
         self.motion = LiveMotion(motion, self.live)
         # one frame of the reference through every stage: their first calls' set-up (lazy imports,

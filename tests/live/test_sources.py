@@ -72,3 +72,30 @@ def test_slow_stage_drops_stale_frames_and_takes_the_newest(tmp_path):
     assert ids == sorted(ids) and len(set(ids)) == len(ids)  # in order, never twice
     assert ids[-1] == n - 1  # the newest frame is processed at the end
     assert max(np.diff(ids)) >= 2  # frames in between were skipped, not queued
+
+
+class _FastSession(_SlowSession):
+    def prepare(self, frame, *, arrival, t, fps, index):
+        return {"id": int(frame[0, 0, 0]), "arrival": arrival}
+
+
+def test_push_source_feeds_the_runner():
+    """The studio's hook: frames pushed by the caller come out through on_frame (none lost when the
+    stages keep up)."""
+    import threading
+
+    from facetex.live import PushSource
+    from facetex.live.runner import run_live
+
+    feed = PushSource(fps=25)
+    s = _FastSession()
+    seen = []
+    th = threading.Thread(target=lambda: seen.append(run_live(feed, session=s, on_frame=lambda r: None)))
+    th.start()
+    for i in range(10):
+        feed.push(np.full((32, 32, 3), i, np.uint8))
+        time.sleep(0.02)
+    feed.close()
+    th.join(10)
+    assert not th.is_alive()
+    assert s.seen == list(range(10)) and seen[0]["frames_in"] == 10 and seen[0]["source"] == "pushed frames"
