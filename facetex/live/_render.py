@@ -48,8 +48,12 @@ class _Renderer:
 
         self.kit = None
 
-    def set_kit(self, kit) -> None:
+    def set_kit(self, kit, *first) -> None:
+        """The kit, and one frame rendered with it when ``first`` (render_frame's arguments) is given:
+        the first calls' set-up is then not paid by the first live frame."""
         self.kit = kit
+        if first:
+            render_frame(kit, *first)
 
     def render(self, *args):
         return render_frame(self.kit, *args)
@@ -71,8 +75,10 @@ class ProcessRenderer:
     def wait_ready(self) -> None:
         self._child.wait_ready()
 
-    def set_kit(self, kit) -> None:
-        self._child.call("set_kit", kit)
+    def set_kit(self, kit, *first) -> None:
+        """Hand the child its kit (and a first frame to render; not waited for: the next call queues
+        behind it)."""
+        self._child.cast("set_kit", kit, *first)
 
     def __call__(self, frame: dict, grid, texture, panel, scale: float, mode: str) -> np.ndarray:
         return self._child.call("render", frame, grid, texture, panel, scale, mode)

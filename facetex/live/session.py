@@ -229,8 +229,8 @@ class LiveSession:
         if self._renderer is not None:
             from ._render import render_kit
 
-            self._renderer.set_kit(render_kit(pup))
-            self._renderer(self._slot_frame(pup, k - 1), grid, tex, np.zeros((H, W, 3), np.uint8), scale, self.mode)
+            self._renderer.set_kit(render_kit(pup), self._slot_frame(pup, k - 1), grid, tex,
+                                   np.zeros((H, W, 3), np.uint8), scale, self.mode)
         else:
             pup.render(k - 1, grid, tex, np.zeros((H, W, 3), np.float32), scale, self.mode)
         self.puppeteer = pup
