@@ -149,13 +149,14 @@ class LiveMotion:
         self.pose_f = OneEuroFilter(live.pose)
         self.shape_f = OneEuroFilter(live.shape)
         self.fid_f = OneEuroFilter(live.landmarks)
-        self.lip_f = OneEuroFilter(live.lips)
+        self.lip_f = OneEuroFilter(live.lips) if live.lips is not None else None
         self.t_prev: float | None = None
 
     def reset(self) -> None:
         """Forget the past (after a lost face: the next frame is not smoothed towards the old one)."""
         for f in (self.pose_f, self.shape_f, self.fid_f, self.lip_f):
-            f.reset()
+            if f is not None:
+                f.reset()
         self.t_prev = None
 
     def __call__(self, points68: np.ndarray, mesh: np.ndarray, t: float) -> dict:
@@ -173,5 +174,5 @@ class LiveMotion:
         fid = np.linalg.solve(A, (x3 - b).T).T[:, :2]
         out = np.empty_like(fid)
         out[~self.mouth] = self.fid_f(fid[~self.mouth], dt)
-        out[self.mouth] = self.lip_f(fid[self.mouth], dt)
+        out[self.mouth] = fid[self.mouth] if self.lip_f is None else self.lip_f(fid[self.mouth], dt)
         return {"A": A, "b": b, "deltas": deltas, "fiducials68": out}

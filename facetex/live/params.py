@@ -20,7 +20,7 @@ class LiveParams:
     is still loading. pose / shape / landmarks / lips: One-Euro filters (:mod:`facetex.live.filters`)
     of the head pose (rotation vector in rad, log scale and translation in px), the mesh's expression
     residuals (canonical px), the un-posed landmarks (canonical px) and the lip and jaw landmarks
-    (unfiltered by default, as the offline lips: a syllable's opening lasts 3-6 frames). track_side:
+    (None, the default: unfiltered, as the offline lips: a syllable's opening lasts 3-6 frames). track_side:
     frames are tracked with their longer side at most this (px; the output panel is made from the
     full frame). weight_smoothing: the texture's regional weights are averaged with the past frames'
     of the same expression (a one-sided bilateral filter, Gaussian of this many seconds; 0: each
@@ -46,7 +46,7 @@ class LiveParams:
     shape: OneEuroParams = field(default_factory=lambda: OneEuroParams(min_cutoff=3.0, beta=0.5, d_cutoff=1.0))
     landmarks: OneEuroParams = field(default_factory=lambda: OneEuroParams(min_cutoff=3.0, beta=0.5,
                                                                              d_cutoff=1.0))
-    lips: OneEuroParams = field(default_factory=lambda: OneEuroParams(min_cutoff=float("inf")))
+    lips: OneEuroParams | None = None
     track_side: int = 640
     weight_smoothing: float = 0.12
     static_start: bool = True

@@ -40,7 +40,12 @@ def test_video_file_to_mp4(capsys, tmp_path, live_persona, live_videos):
     assert {"fps", "dropped", "dropped_pct", "latency_ms_p50", "latency_ms_p95", "first_puppet_s"} <= set(rep)
     info = video_info(out)
     assert (info["width"], info["height"]) == (96, 96) and info["n_frames"] >= rep["puppet_frames"]
-    assert (tmp_path / "live.mp4.json").is_file()
+    side = (tmp_path / "live.mp4.json").read_text()
+
+    def strict(name):  # Infinity / NaN are not JSON
+        raise AssertionError(f"non-standard JSON constant {name} in the sidecar")
+
+    assert json.loads(side, parse_constant=strict)["params"]["live_params"]["warmup"] >= 1
 
 
 def test_missing_persona(capsys, tmp_path, live_videos):
