@@ -76,6 +76,11 @@ def run(args) -> int:
     if "numpy" not in sys.modules:  # BLAS on one thread: the live stages run their own threads
         os.environ.update(OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
     puppet = _puppet(args)
+    if args.workers == "process":  # the worker processes start (and load their models) beside this one's imports
+        from ..live._workers import prestart
+
+        prestart("facetex.live._tracking:_make_tracker", name="live tracking")
+        prestart("facetex.live._render:_make_renderer", name="live rendering")
     check_device(args.device)  # the live path runs on the CPU (no torch stage); a bad device is still an error
     inputs = [puppet] + ([args.source] if source_kind(args.source) == "file" else [])
     out = sidecar = None

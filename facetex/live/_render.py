@@ -68,9 +68,9 @@ class ProcessRenderer:
     (OSError: no child could be started)."""
 
     def __init__(self):
-        from ._workers import ChildWorker
+        from ._workers import worker
 
-        self._child = ChildWorker("facetex.live._render:_make_renderer", name="live rendering")
+        self._child = worker("facetex.live._render:_make_renderer", name="live rendering")
 
     def wait_ready(self) -> None:
         self._child.wait_ready()

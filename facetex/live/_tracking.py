@@ -8,13 +8,18 @@ __all__ = ["ProcessTracker"]
 
 
 class _Tracker:
-    """The child's object: a CausalTracker with its models loaded at once."""
+    """The child's object: its models loaded at once, a CausalTracker once the parameters come."""
 
-    def __init__(self, params):
+    def __init__(self):
         from .motion import CausalTracker, load_tracking_models
 
-        self.tracker = CausalTracker(params)
+        self.tracker = CausalTracker()
         load_tracking_models()
+
+    def configure(self, params) -> None:
+        from .motion import CausalTracker
+
+        self.tracker = CausalTracker(params)
 
     def track(self, frame):
         return self.tracker(frame) + (self.tracker.detections,)
@@ -23,8 +28,8 @@ class _Tracker:
         self.tracker.lose()
 
 
-def _make_tracker(params) -> _Tracker:
-    return _Tracker(params)
+def _make_tracker() -> _Tracker:
+    return _Tracker()
 
 
 class ProcessTracker:
@@ -32,17 +37,19 @@ class ProcessTracker:
     Falls back to tracking in this process when no child can be started."""
 
     def __init__(self, params):
-        from ._workers import ChildWorker
+        from ._workers import worker
         from .motion import CausalTracker
 
         self.params = params
         self.detections = 0  # the child's count, updated with each frame
         self._local = None
         try:
-            self._child = ChildWorker("facetex.live._tracking:_make_tracker", params, name="live tracking")
+            self._child = worker("facetex.live._tracking:_make_tracker", name="live tracking")
         except OSError:  # no usable interpreter for a child (embedded Python): track here
             self._child = None
             self._local = CausalTracker(params)
+        else:
+            self._child.cast("configure", params)
 
     def wait_ready(self) -> None:
         """Wait until the child has loaded its models."""

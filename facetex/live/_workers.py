@@ -22,7 +22,7 @@ from pathlib import Path
 
 from ..errors import FacetexError
 
-__all__ = ["ChildWorker"]
+__all__ = ["ChildWorker", "prestart", "worker"]
 
 _MODULE = "facetex.live._workers"
 
@@ -96,13 +96,37 @@ class ChildWorker:
             return self._receive()
 
     def cast(self, method: str, *args) -> None:
-        """``method(*args)`` of the child's object, without waiting for it."""
-        self.wait_ready()
+        """``method(*args)`` of the child's object, without waiting for it (nor for the child's start:
+        the child reads its messages in order)."""
         with self._lock:
             self._send(("cast", method, args))
 
     def close(self) -> None:
         _stop(self._proc)
+
+
+#: workers started ahead by :func:`prestart`, by (factory, pickled args)
+_PRESTARTED: dict = {}
+_PRESTART_LOCK = threading.Lock()
+
+
+def prestart(factory: str, *args, name: str = "live worker") -> None:
+    """Start a worker now (the CLI, before its own imports: the child's start-up, ~1.5 s of model
+    loading, then overlaps them); :func:`worker` with the same factory and arguments takes it."""
+    key = (factory, pickle.dumps(args))
+    with _PRESTART_LOCK:
+        if key not in _PRESTARTED:
+            try:
+                _PRESTARTED[key] = ChildWorker(factory, *args, name=name)
+            except OSError:
+                pass
+
+
+def worker(factory: str, *args, name: str = "live worker") -> ChildWorker:
+    """A prestarted worker of ``factory(*args)``, or a new one (OSError: none can be started)."""
+    with _PRESTART_LOCK:
+        w = _PRESTARTED.pop((factory, pickle.dumps(args)), None)
+    return w if w is not None else ChildWorker(factory, *args, name=name)
 
 
 def _child_main() -> int:
