@@ -204,7 +204,11 @@ def _run(session, source, out_path, *, overwrite, window, on_frame, max_frames, 
     if wait is None:
         wait = source_kind(source) == "file"
     if wait:  # a file starts playing when the puppet can follow it (its first frames make the reference)
-        session.wait_loaded()
+        try:
+            session.wait_loaded()
+        except BaseException:
+            src.close()
+            raise
     writer = _Writer(out_path, src.fps, overwrite, []) if out_path is not None else None
     stats = session.stats_
     mailbox, handoff = LatestFrame(), queue.Queue(maxsize=1)
@@ -246,7 +250,13 @@ def _run(session, source, out_path, *, overwrite, window, on_frame, max_frames, 
         except BaseException as e:  # noqa: BLE001
             errors.append(e)
         finally:
-            handoff.put(_END)
+            while True:  # the end mark, unless the renderer stopped taking (then it is not waiting)
+                try:
+                    handoff.put(_END, timeout=0.2)
+                    break
+                except queue.Full:
+                    if stop.is_set():
+                        break
 
     def next_work():
         if pipeline:
