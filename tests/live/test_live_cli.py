@@ -88,3 +88,14 @@ def test_no_display_without_output(capsys, monkeypatch, live_persona, live_video
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     code, _, lines = _cli(capsys, "live", "--puppet", live_persona, "--source", live_videos["face.mp4"])
     _one_error(code, lines, cause="no display")
+
+
+def test_damaged_persona(capsys, tmp_path, live_persona, live_videos):
+    bad = tmp_path / "cut.persona"
+    raw = live_persona.read_bytes()
+    bad.write_bytes(raw[: len(raw) // 3])
+    out = tmp_path / "out"
+    out.mkdir()
+    code, _, lines = _cli(capsys, "live", "--puppet", bad, "--source", live_videos["face.mp4"], "-o", out / "o.mp4")
+    _one_error(code, lines, bad, cause="corrupt|truncated|damaged")
+    assert list(out.iterdir()) == []
