@@ -66,6 +66,23 @@ def _progress(args):
 def run(args) -> int:
     import os
 
+    if "numpy" not in sys.modules:  # BLAS on one thread: the live stages run their own threads
+        os.environ.update(OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
+    puppet = _puppet(args)
+    if args.workers != "process":
+        return _run(args, puppet)
+    # the worker processes start (and load their models) beside this one's imports and checks
+    from ..live._workers import discard_prestarted, prestart
+
+    prestart("facetex.live._tracking:_make_tracker", name="live tracking")
+    prestart("facetex.live._render:_make_renderer", name="live rendering")
+    try:
+        return _run(args, puppet)
+    finally:
+        discard_prestarted()  # those no session took (an error before it started)
+
+
+def _run(args, puppet) -> int:
     from ..errors import BadInputError
     from ..io import VIDEO_EXTENSIONS, check_output_path
     from ..live.runner import display_available
@@ -73,14 +90,6 @@ def run(args) -> int:
     from ..persona import read_persona_header
     from ._common import check_device
 
-    if "numpy" not in sys.modules:  # BLAS on one thread: the live stages run their own threads
-        os.environ.update(OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
-    puppet = _puppet(args)
-    if args.workers == "process":  # the worker processes start (and load their models) beside this one's imports
-        from ..live._workers import prestart
-
-        prestart("facetex.live._tracking:_make_tracker", name="live tracking")
-        prestart("facetex.live._render:_make_renderer", name="live rendering")
     check_device(args.device)  # the live path runs on the CPU (no torch stage); a bad device is still an error
     inputs = [puppet] + ([args.source] if source_kind(args.source) == "file" else [])
     out = sidecar = None

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from ..errors import FacetexError
 
-__all__ = ["ChildWorker", "prestart", "worker"]
+__all__ = ["ChildWorker", "prestart", "worker", "discard_prestarted"]
 
 _MODULE = "facetex.live._workers"
 
@@ -127,6 +127,15 @@ def worker(factory: str, *args, name: str = "live worker") -> ChildWorker:
     with _PRESTART_LOCK:
         w = _PRESTARTED.pop((factory, pickle.dumps(args)), None)
     return w if w is not None else ChildWorker(factory, *args, name=name)
+
+
+def discard_prestarted() -> None:
+    """Stop the prestarted workers no session took (a command that failed before its session)."""
+    with _PRESTART_LOCK:
+        workers = list(_PRESTARTED.values())
+        _PRESTARTED.clear()
+    for w in workers:
+        w.close()
 
 
 def _child_main() -> int:
