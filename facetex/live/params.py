@@ -29,7 +29,11 @@ class LiveParams:
     and cross-fade to the expression textures over ``fade_frames`` frames once they are; False: the
     first puppet frame waits for the stacks. stack_cache: the persona's texture stacks are memory-mapped
     from facetex's cache folder, written there by the first session of a ``.persona`` file (~1 MB
-    per photo; :mod:`facetex.persona._stack_cache`). shape_floor / shape_factor: a tracked face whose landmarks differ
+    per photo; :mod:`facetex.persona._stack_cache`). reuse_texture: a frame that waited for the
+    stages (it arrived while the previous one was still being prepared: the stream is at the machine's
+    limit) takes the previous frame's texture blend (with its own mouth fill) instead of a new one,
+    never two frames in a row: the blend is the costliest step of this process, and the filtered
+    weights change little from one frame to the next. shape_floor / shape_factor: a tracked face whose landmarks differ
     from the reference's mean shape (similarity-aligned, mean point distance over the eye distance) by
     more than max(shape_floor, shape_factor x the reference frames' median) counts as lost (squashed or
     torn landmarks: the offline check of :func:`facetex.puppet.driver.implausible_shapes`, against the
@@ -52,6 +56,7 @@ class LiveParams:
     static_start: bool = True
     fade_frames: int = 12
     stack_cache: bool = True
+    reuse_texture: bool = True
     shape_floor: float = 0.08
     shape_factor: float = 4.0
     lost_output: str = "driver"

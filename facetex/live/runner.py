@@ -36,6 +36,10 @@ __all__ = ["run_live", "display_available"]
 
 _END = object()
 
+#: libx264's options for the live recording: its default preset (medium, 40 frames of look-ahead)
+#: competed with the stream for the CPU (docs/live.md)
+LIVE_ENCODER = {"preset": "veryfast", "tune": "zerolatency"}
+
 
 def display_available() -> bool:
     """Whether an OpenCV window can be shown here (a display, and OpenCV built with a GUI)."""
@@ -74,7 +78,8 @@ class _Writer:
         from ..io import write_video
 
         try:
-            write_video(self.path, self._frames(), self.fps, overwrite=self.overwrite, inputs=self.inputs)
+            write_video(self.path, self._frames(), self.fps, overwrite=self.overwrite, inputs=self.inputs,
+                        encoder_options=LIVE_ENCODER)
         except BaseException as e:  # noqa: BLE001 - re-raised by the runner
             self.error = e
             while True:  # unblock the producer

@@ -123,6 +123,9 @@ class LiveSession:
         self._persona = None
         self.timings: dict = {}
         self._fade = 0
+        self._last_tex: np.ndarray | None = None  # the last blend (before its mouth fill), for reuse
+        self._reused = False
+        self.texture_reused = 0
         self._weights: deque = deque(maxlen=64)  # the last frames' texture weights (the causal filter's window)
         self._renderer = None
         if self.live.render == "process":
@@ -261,7 +264,9 @@ class LiveSession:
         the stream (seconds; default its arrival), which the filters use; ``fps``: the stream's
         nominal rate (the reference's); ``index``: the frame's number in the source (default: the
         count of frames prepared; a runner that drops frames gives the source's), the records' "index"."""
-        arrival = time.perf_counter() if arrival is None else arrival
+        now = time.perf_counter()
+        arrival = now if arrival is None else arrival
+        late = now - arrival > 0.5 / max(fps, 1.0)  # it waited for this call: the stages are behind
         t = arrival if t is None else t
         frame = _uint8_rgb(frame)
         if self._loading.error is not None:
@@ -297,6 +302,7 @@ class LiveSession:
         if why:
             self.motion.reset()
             self._weights.clear()
+            self._last_tex = None
             return work
         slot = self._k + count % SLOTS  # frames in flight have consecutive counts: distinct slots
         m = self.motion(p68, mesh, t)
@@ -311,7 +317,15 @@ class LiveSession:
         t2 = time.perf_counter()
         work["grid"] = pup.grid(slot)
         t3 = time.perf_counter()
-        work["texture"] = self._texture(slot, fps)
+        if late and self.live.reuse_texture and self._last_tex is not None and not self._reused:
+            # the previous frame's blend with this frame's mouth (its weights still enter the filter)
+            self._push_weights(slot)
+            work["texture"] = self.puppeteer._close_interiors([slot], [self._last_tex])[0]
+            self._reused = True
+            self.texture_reused += 1
+        else:
+            work["texture"] = self._texture(slot, fps)
+            self._reused = False
         t4 = time.perf_counter()
         work["slot"] = slot
         st = self.stats_
@@ -337,6 +351,7 @@ class LiveSession:
             self._fade += 1
             a = np.float32(self._fade / (self.live.fade_frames + 1))
             tex = a * tex + (1 - a) * static
+        self._last_tex = tex
         return pup._close_interiors([slot], [tex])[0]
 
     def _expression_texture(self, slot: int, fps: float) -> np.ndarray:
@@ -345,19 +360,28 @@ class LiveSession:
         tp = self.params.texture_params()
         if self.params.texture != "ours" or tp.weights != "regional" or sigma <= 0:
             return self._plain_texture(slot)
-        from ..persona.texture import blend_weights, expression_model, sequence_weights
+        from ..persona.texture import blend_weights
         from ..persona.weights import temporal_weights
 
-        f = pup.target(slot)[None]
-        model = expression_model(self._persona, tp)
-        W = sequence_weights(self._persona, f, tp)[0]  # (R, n): this frame's, cut as offline
-        self._weights.append((W, [c[0] for c in model.coordinates(f)], model.sigmas(f)[0]))
+        self._push_weights(slot)
         win = list(self._weights)[-(int(np.ceil(3 * sigma)) + 1):]
         Ws = np.stack([w[0] for w in win])
         coords = [np.stack([w[1][j] for w in win]) for j in range(Ws.shape[1])]
         smooth = temporal_weights(Ws, coords, np.stack([w[2] for w in win]), sigma_frames=sigma,
                                   range_scale=self.params.weight_range)[-1]
         return blend_weights(self._persona, smooth[None], params=tp)[0]
+
+    def _push_weights(self, slot: int) -> None:
+        """This frame's regional texture weights (as the offline blend's) into the filter's window."""
+        from ..persona.texture import expression_model, sequence_weights
+
+        tp = self.params.texture_params()
+        if self.params.texture != "ours" or tp.weights != "regional" or not self._loading.textured.is_set():
+            return
+        f = self.puppeteer.target(slot)[None]
+        model = expression_model(self._persona, tp)
+        W = sequence_weights(self._persona, f, tp)[0]  # (R, n): this frame's, cut as offline
+        self._weights.append((W, [c[0] for c in model.coordinates(f)], model.sigmas(f)[0]))
 
     def _plain_texture(self, slot: int) -> np.ndarray:
         """The texture of the puppet's own method (static, global weights, or per-frame regional
@@ -424,9 +448,10 @@ class LiveSession:
         """{"frames_in", "frames_out", "puppet_frames", "lost_frames", "warmup_frames", "dropped",
         "dropped_pct", "fps", "sustained_fps", "latency_ms_p50", "latency_ms_p95", "latency_ms_max",
         "first_puppet_s" (from the session's start), "first_puppet_unix", "stage_ms" (median per stage),
-        "detections" (runs of the face detector), "timings" (set-up)}: see :class:`facetex.live.stats.LiveStats`."""
+        "detections" (runs of the face detector), "texture_reused" (frames that took the previous frame's
+        blend, ``LiveParams.reuse_texture``), "timings" (set-up)}: see :class:`facetex.live.stats.LiveStats`."""
         d = self.stats_.summary()
-        d.update(detections=self.tracker.detections,
+        d.update(detections=self.tracker.detections, texture_reused=self.texture_reused,
                  timings={k: round(v, 3) if isinstance(v, float) else v for k, v in self.timings.items()})
         return d
 
