@@ -279,6 +279,7 @@ def main(argv=None):
     print(f"\noffline `facetex puppet --size {args.size}` (same run): {off['frames']} frames in {off['wall_s']:.2f} s "
           f"= {off['fps_end_to_end']:.1f} fps end to end (load {load_off:.2f})")
     print(f"live stage medians (ms, CLI run): {json.dumps(live['stage_ms'])}; tracker detections {live['detections']}; "
+          f"texture blends reused {live.get('texture_reused', 0)} of {live['puppet_frames']} frames; "
           f"set-up {json.dumps({k: v for k, v in live['timings'].items() if k.endswith('_s')})}")
     print(f"\nquality, {q['frames_compared']} frames of the first pass "
           f"(bench puppet targets: slope 0.8-1.3, r >= 0.85, cheek dE <= 8, eye ratio >= 0.8):")
