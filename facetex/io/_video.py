@@ -243,7 +243,8 @@ def _audio_error(path: Path) -> str | None:
 
 
 def write_video(path, frames: Iterable[np.ndarray], fps: float, *, audio_from=None, crf: int = 18,
-                overwrite: bool = True, progress: Callable | None = None, inputs=()) -> Path:
+                overwrite: bool = True, progress: Callable | None = None, inputs=(),
+                encoder_options: dict | None = None) -> Path:
     """Write RGB frames as H.264 video (.mp4, .mov, .m4v or .mkv), atomically.
 
     Encoder: libx264 (yuv420p, ``crf``); if this PyAV build lacks it, FFmpeg's default
@@ -271,6 +272,9 @@ def write_video(path, frames: Iterable[np.ndarray], fps: float, *, audio_from=No
         Called with ``n=1`` per written frame.
     inputs : sequence of path
         Files the output must not be.
+    encoder_options : dict, optional
+        Further options of the encoder (FFmpeg's names), e.g. ``{"preset": "veryfast", "tune":
+        "zerolatency"}`` for a live recording.
 
     Returns
     -------
@@ -319,7 +323,8 @@ def write_video(path, frames: Iterable[np.ndarray], fps: float, *, audio_from=No
             vs = out.add_stream(codec, rate=rate)
             vs.height, vs.width = shape[0] + shape[0] % 2, shape[1] + shape[1] % 2
             vs.pix_fmt = "yuv420p"
-            vs.options = {"crf": str(int(crf)), **_encoder_options(codec, vs.width * vs.height)}
+            vs.options = {"crf": str(int(crf)), **_encoder_options(codec, vs.width * vs.height),
+                          **{str(k): str(v) for k, v in (encoder_options or {}).items()}}
             if vs.width * vs.height > ENCODER_FULL_PIXELS:
                 vs.codec_context.thread_count = 1
             audio = pending = None

@@ -79,9 +79,12 @@ class _Prepared(_PhotoQuality):
     MASK_CUT = 0.01
 
     def __init__(self, persona: Persona, tp: TextureParams, progress: Callable | None = None,
-                 stored: dict | None = None):
+                 stored: dict | None = None, cache=None):
         """``stored``: the persona's stored stacks (:func:`stored_stacks`); used when they were
-        made with ``tp``'s stack key and this layout, else the stacks are computed."""
+        made with ``tp``'s stack key and this layout, else the stacks are computed. ``cache``: a
+        folder of :mod:`facetex.persona._stack_cache` the stacks rebuilt from ``stored`` are read
+        from (memory-mapped) or, when it does not hold them, written to."""
+        self._cache_folder = cache
         W, H = persona.size
         n = len(persona)
         self.n = n
@@ -229,8 +232,15 @@ class _Prepared(_PhotoQuality):
             g = arrays.get("texture_glasses_scores") if stored["meta"].get("glasses") else None
             if g is not None and g.shape == (self.n,):
                 self._glasses = np.where(g >= 0, g, np.nan).astype(np.float64)
+            from ._stack_cache import read_stack_cache, write_stack_cache
+
             try:
-                self._fill(self._persona_ref, None, packed, static)
+                if self._cache_folder is None or not read_stack_cache(self, self._cache_folder):
+                    self._fill(self._persona_ref, None, packed, static)
+                    if self._cache_folder is not None:
+                        write_stack_cache(self, self._cache_folder, stored.get("path"))
+                else:
+                    self.static = [np.array(x, np.float32) for x in static]
             except (ValueError, zlib.error) as e:  # a stream whose CRC-32 passed but does not unpack
                 raise BadPersonaError(f"corrupt persona file (texture_aligned: {type(e).__name__}: {e}): rebuild it "
                                       "with `facetex persona build`", path=stored.get("path")) from None
@@ -539,14 +549,17 @@ def stored_stacks(persona: Persona) -> dict:
     return prepare_persona(persona).stored()
 
 
-def prepare_persona(persona: Persona, params: TextureParams | None = None, *, progress=None) -> _Prepared:
+def prepare_persona(persona: Persona, params: TextureParams | None = None, *, progress=None,
+                    cache=None) -> _Prepared:
     """Precompute (once, cached on the persona) the target-independent synthesis data: from
-    the stacks stored in its file when they were made with ``params``' stack key."""
+    the stacks stored in its file when they were made with ``params``' stack key. ``cache``: a
+    folder (:func:`facetex.persona._stack_cache.stack_cache_folder`) the stacks rebuilt from the
+    file are memory-mapped from, or written to when it does not hold them yet."""
     tp = params or TextureParams()
     key = ("prepared", tp.stack_key())
     if key not in persona._cache:
         stored = persona.texture_stacks
-        persona._cache[key] = _Prepared(persona, tp, progress, stored)
+        persona._cache[key] = _Prepared(persona, tp, progress, stored, cache)
         if stored is not None and stored["meta"].get("key") == _stored_key(tp):
             persona.texture_stacks = None  # now held by the cache (exported from there by save)
     prep = persona._cache[key]
