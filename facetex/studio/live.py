@@ -1,32 +1,54 @@
-"""The Live page's WebSocket: camera frames in, puppet frames out.
+"""The Live page's WebSocket: camera frames in, puppet frames out, through the streaming engine.
 
-``WS /api/live?persona=<id>&size=256&mode=composite``. The protocol, one frame in flight (the
-page drops the camera frames it captures while waiting: the newest wins)::
+``WS /api/live?persona=<id>&size=256&mode=composite``. The protocol::
 
-    server -> {"status": "loading"}              the engine is being made (persona load, warm-up)
-    server -> {"status": "ready", "engine": ...}
-    page   -> <binary: a JPEG camera frame>
-    server -> {"face": true, "server_ms": 41.2}  then <binary: the JPEG puppet frame>
-           or {"face": false, "server_ms": 12.0} (no usable face: no frame follows)
-    server -> {"error": "<one line>"}            then the socket is closed
+    server -> {"status": "loading", "persona": name}   the session is being opened
+    server -> {"status": "ready", "engine": "facetex.live", "size": 256, "mode": "composite",
+               "max_in_flight": 4}
+    page   -> <binary: a 4-byte big-endian frame id, then a JPEG camera frame>   (at the camera's rate)
+    server -> {"id": 17, "kind": "puppet", "frame": true, "server_ms": 61.3}    then <binary: the JPEG>
+              kind "lost": the face was lost, the frame that follows is the camera's own (composite
+              mode; a plain panel in face mode);
+              kind "warmup": no frame follows (the persona is loading, or the first ~8 tracked frames
+              are making the driver's reference)
+    server -> {"error": "<one line>"}                   then the socket is closed
 
-The page measures fps and latency itself (send to receive, in its own clock). The engine comes
-from :func:`facetex.studio.live_engine.make_live_engine`, the one place to swap in another; it runs
-on a worker thread, so the server keeps serving. One Live session at a time: a second one is told
-so (the machine's cores are the limit, and a second session would halve both).
+The page sends frames without waiting for replies, at most ``max_in_flight`` unanswered at once (a
+slow network then costs frames, not a growing queue). The server replies in frame order; a camera
+frame the engine dropped as stale (a newer one came before it was taken: the newest wins) gets no
+reply, so the page counts as dropped the ids older than a reply that never had one. ``server_ms`` is
+the time from the frame's arrival at the server to its reply (decode, engine, JPEG); the page
+measures the latency in its own clock (send to receive of the same id), its puppet fps and p50/p95.
+
+The engine is a :class:`facetex.live.LiveSession` run by :func:`facetex.live.run_live` from a
+:class:`facetex.live.PushSource` on a thread of its own (tracking and rendering in child processes,
+docs/live.md); its ``on_frame`` hands each record to the event loop with ``call_soon_threadsafe``
+and the JPEG encoding runs on the thread pool, so the loop only moves bytes. One Live session at a
+time: a second one is told so (the machine's cores are the limit, and a second session would halve
+both). When the socket closes, the source is closed, the runner ends and the session stops its
+child processes.
 """
 
 # no `from __future__ import annotations`: FastAPI reads the routes' annotations, whose types are imported
 # inside the factory (fastapi is optional), so they must be evaluated where they are written
 
+import asyncio
 import threading
 import time
 
-from ..errors import BadInputError, FacetexError
+from ..errors import BadInputError, FacetexError, NoFaceError
 
 #: largest camera frame accepted (a 1080p JPEG is ~0.3-0.5 MB)
 MAX_FRAME_BYTES = 4 * 2**20
 JPEG_QUALITY = 85
+#: camera frames the page may have sent without a reply (told to it in the "ready" message). The round
+#: trip is ~100-150 ms in Chromium at 25 fps, so 3 held back 14 % of the camera's frames (20.4 fps with the
+#: 519-photo persona) where 4 held back ~1 % (22.5-23 fps, the engine dropping the rest), same latency
+MAX_IN_FLIGHT = 4
+#: the Live page's output sizes (px, longer side): larger frames would not keep up with a camera
+SIZES = (32, 1024)
+MODES = ("composite", "face")
+_END = object()
 
 
 def _decode(data: bytes):
@@ -48,11 +70,69 @@ def _encode(frame) -> bytes:
     return buf.tobytes()
 
 
+def _frame_message(data) -> tuple:
+    """(id, JPEG bytes) of a page's binary message; BadInputError for anything else."""
+    if data is None:
+        raise BadInputError("send camera frames as binary messages (a 4-byte id, then the JPEG), not text")
+    if len(data) > MAX_FRAME_BYTES:
+        raise BadInputError(f"a camera frame of {len(data) / 2**20:.1f} MB: the limit is "
+                            f"{MAX_FRAME_BYTES / 2**20:.0f} MB")
+    if len(data) < 5:
+        raise BadInputError("a camera frame message is a 4-byte id followed by the JPEG")
+    return int.from_bytes(data[:4], "big"), data[4:]
+
+
+def open_session(persona_path, size: int, mode: str):
+    """The :class:`facetex.live.LiveSession` of one Live page (the persona loads in the background:
+    the frames that arrive meanwhile are tracked for the driver's reference).
+
+    Parameters
+    ----------
+    persona_path : str or os.PathLike
+        The puppet's ``.persona`` file.
+    size : int
+        Longer side of the puppet frames in px (32..1024).
+    mode : {"composite", "face"}
+        The puppet put into the camera frame, or the puppet face alone on grey.
+
+    Returns
+    -------
+    facetex.live.LiveSession
+
+    Raises
+    ------
+    ValueError
+        (:class:`facetex.BadInputError`) a bad size or mode; (:class:`facetex.BadPersonaError`) not a persona.
+    """
+    from ..live import LiveSession
+
+    if mode not in MODES:
+        raise BadInputError(f"unknown live mode {mode!r}: use one of {', '.join(MODES)}")
+    if not SIZES[0] <= int(size) <= SIZES[1]:
+        raise BadInputError(f"live size must be {SIZES[0]}..{SIZES[1]} px, got {size}")
+    return LiveSession(persona_path, size=int(size), mode=mode)
+
+
+def _run(session, feed, post) -> None:
+    """The runner's thread: ``post(record)`` per output record, ``post(error)`` on failure, then ``post(_END)``."""
+    from ..live import run_live
+
+    try:
+        run_live(feed, session=session, wait=False,
+                 on_frame=lambda rec: post({k: rec.get(k) for k in ("index", "kind", "output")}))
+    except NoFaceError:  # the page left before a puppet frame came out: nothing to tell
+        pass
+    except BaseException as e:  # noqa: BLE001 - shown to the page as one line
+        post(e)
+    finally:
+        post(_END)
+
+
 def add_routes(app, config, jobs) -> None:
     from fastapi import WebSocket, WebSocketDisconnect
     from starlette.concurrency import run_in_threadpool
 
-    from .live_engine import make_live_engine
+    from ..live import PushSource
     from .submit import personas
 
     busy = threading.Lock()
@@ -64,31 +144,35 @@ def add_routes(app, config, jobs) -> None:
             await ws.send_json({"error": "another Live session is running on this studio: try again when it ends"})
             await ws.close()
             return
-        engine = None
+        session = feed = runner = None
+        tasks: list = []
         try:
             chosen = personas(config, jobs).get(persona)  # an id of the table, never a path
             if chosen is None:
                 raise BadInputError(f"no persona {persona[:40]!r}: build or upload one first")
             await ws.send_json({"status": "loading", "persona": chosen[0]})
-            engine = await run_in_threadpool(make_live_engine, chosen[1], size, mode)
-            await ws.send_json({"status": "ready", "engine": type(engine).__name__, "size": size, "mode": mode})
-            while True:
-                msg = await ws.receive()
-                if msg["type"] == "websocket.disconnect":
-                    break
-                data = msg.get("bytes")
-                if data is None:
-                    raise BadInputError("send camera frames as binary JPEG messages, not text")
-                if len(data) > MAX_FRAME_BYTES:
-                    raise BadInputError(f"a camera frame of {len(data) / 2**20:.1f} MB: the limit is "
-                                        f"{MAX_FRAME_BYTES / 2**20:.0f} MB")
-                t0 = time.perf_counter()
-                frame = await run_in_threadpool(_decode, data)
-                out = await run_in_threadpool(engine.process, frame)
-                jpeg = None if out is None else await run_in_threadpool(_encode, out)
-                await ws.send_json({"face": jpeg is not None, "server_ms": round(1000 * (time.perf_counter() - t0), 1)})
-                if jpeg is not None:
-                    await ws.send_bytes(jpeg)
+            session = await run_in_threadpool(open_session, chosen[1], size, mode)
+            loop = asyncio.get_running_loop()
+            out: asyncio.Queue = asyncio.Queue()
+
+            def post(item):  # from the runner's threads
+                try:
+                    loop.call_soon_threadsafe(out.put_nowait, item)
+                except RuntimeError:  # the loop has closed: the server is stopping
+                    pass
+
+            feed = PushSource(fps=25, name="the Live page's camera")
+            runner = threading.Thread(target=_run, args=(session, feed, post), name="facetex-studio-live", daemon=True)
+            runner.start()
+            await ws.send_json({"status": "ready", "engine": "facetex.live", "size": int(size), "mode": mode,
+                                "max_in_flight": MAX_IN_FLIGHT})
+            # the runner numbers the pushed frames 0, 1, ...: its record's index -> (page's id, arrival)
+            pushed: dict = {}
+            tasks = [asyncio.create_task(_receive(ws, feed, pushed, run_in_threadpool)),
+                     asyncio.create_task(_reply(ws, out, pushed, run_in_threadpool))]
+            done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+            for t in done:
+                t.result()  # the first error (or the page's disconnect) ends the session
         except WebSocketDisconnect:
             pass
         except FacetexError as e:
@@ -96,9 +180,54 @@ def add_routes(app, config, jobs) -> None:
         except Exception as e:  # noqa: BLE001 - the page shows one line, like the CLI's last resort
             await _close_with(ws, f"internal error: {type(e).__name__}: {e}")
         finally:
-            if engine is not None and callable(getattr(engine, "close", None)):  # close() is optional
-                await run_in_threadpool(engine.close)
+            for t in tasks:
+                t.cancel()
+            if feed is not None:
+                feed.close()  # the runner ends with the source
+            await run_in_threadpool(_stop, session, runner)
             busy.release()
+
+
+def _stop(session, runner) -> None:
+    """Wait for the runner's end, then stop the session's child processes."""
+    if runner is not None:
+        runner.join(timeout=30)
+    if session is not None:
+        session.close()
+
+
+async def _receive(ws, feed, pushed: dict, in_thread) -> None:
+    """The page's frames into the engine as they arrive (returns when the page closes the socket)."""
+    n = 0
+    while True:
+        msg = await ws.receive()
+        if msg["type"] == "websocket.disconnect":
+            return
+        arrival = time.perf_counter()
+        fid, jpeg = _frame_message(msg.get("bytes"))
+        frame = await in_thread(_decode, jpeg)
+        pushed[n] = (fid, arrival)
+        n += 1
+        feed.push(frame)
+
+
+async def _reply(ws, out: asyncio.Queue, pushed: dict, in_thread) -> None:
+    """The engine's records to the page, in order: the JSON line, then the JPEG (if any)."""
+    while True:
+        item = await out.get()
+        if item is _END:
+            raise BadInputError("the live engine stopped")
+        if isinstance(item, BaseException):
+            raise item
+        index = item["index"]
+        for k in [k for k in pushed if k < index]:  # dropped by the runner as stale: no reply
+            del pushed[k]
+        fid, arrival = pushed.pop(index, (None, None))
+        jpeg = None if item["output"] is None else await in_thread(_encode, item["output"])
+        server_ms = None if arrival is None else round(1000 * (time.perf_counter() - arrival), 1)
+        await ws.send_json({"id": fid, "kind": item["kind"], "frame": jpeg is not None, "server_ms": server_ms})
+        if jpeg is not None:
+            await ws.send_bytes(jpeg)
 
 
 async def _close_with(ws, message: str) -> None:

@@ -1,6 +1,7 @@
-"""The Live page's engine interface (the contract any engine behind ``make_live_engine`` keeps) and
-the WebSocket protocol, with the tiny persona: a face frame gives a puppet frame of the asked size,
-a frame without a face gives None, never the input back."""
+"""The Live page's WebSocket protocol with the streaming engine (facetex.live) and the tiny persona:
+camera frames sent with ids, without waiting (at most the server's max_in_flight unanswered),
+replies in order tagged with the id and kind (warm-up first, then puppet frames of the asked size), one-line errors, one session at a
+time, and no child process left behind."""
 
 from __future__ import annotations
 
@@ -13,64 +14,96 @@ from _studio import face_frames
 pytest.importorskip("fastapi", reason="the studio extra is not installed (pip install -e '.[studio]')")
 
 
-@pytest.fixture(scope="module")
-def engine(personas_dir):
-    from facetex.studio.live_engine import make_live_engine
-
-    e = make_live_engine(personas_dir / "tiny.persona", size=200, mode="face")
-    yield e
-    e.close()
+def _message(fid: int, frame: np.ndarray) -> bytes:
+    return fid.to_bytes(4, "big") + cv2.imencode(".jpg", cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))[1].tobytes()
 
 
-def test_engine_turns_a_face_frame_into_a_puppet_frame(engine):
-    frame = cv2.copyMakeBorder(face_frames(1)[0], 0, 0, 40, 40, cv2.BORDER_REPLICATE)  # 320 x 240
-    out = engine.process(frame)
-    assert out is not None and out.dtype == np.uint8 and out.ndim == 3 and out.shape[2] == 3
-    assert max(out.shape[:2]) == 200 and out.shape[:2] == (150, 200)  # the camera's aspect, longer side 200
-    # face mode: the puppet's face alone on plain grey, where the camera frame had its background
-    plain = np.all(np.abs(out.astype(int) - 128) <= 2, axis=2)
-    assert plain[:, :30].all() and plain[:, -30:].all() and 0.5 < plain.mean() < 0.95
-    face = out[~plain].astype(np.float32)
-    assert face[:, 0].mean() > face[:, 2].mean() + 10  # skin: redder than blue
+def _children() -> set:
+    """This process's live child processes (from /proc: their parent's pid, not zombies)."""
+    import os
+    from pathlib import Path
+
+    pids = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:  # gone meanwhile
+            continue
+        if int(fields[1]) == os.getpid() and fields[0] != "Z":
+            pids.add(int(stat.parent.name))
+    return pids
 
 
-def test_engine_returns_none_without_a_face_and_checks_its_arguments(engine, personas_dir):
-    from facetex.errors import BadInputError
-    from facetex.studio.live_engine import make_live_engine
+def _stream(ws, frames, max_in_flight: int, until_puppets: int = 3, limit: int = 120) -> list:
+    """Send frames (cycling) with ids 0, 1, ... keeping at most ``max_in_flight`` unanswered, until
+    ``until_puppets`` puppet frames came back; the replies as (json, decoded image or None)."""
+    sent, replies, unanswered, puppets = [], [], 0, 0
+    while puppets < until_puppets:
+        while unanswered < max_in_flight and len(sent) < limit:
+            ws.send_bytes(_message(len(sent), frames[len(sent) % len(frames)]))
+            sent.append(len(sent))
+            unanswered += 1
+        assert unanswered, f"no puppet frame after {limit} frames: {replies[-3:]}"
+        meta = ws.receive_json()
+        assert "error" not in meta, meta
+        img = None
+        if meta["frame"]:
+            img = cv2.imdecode(np.frombuffer(ws.receive_bytes(), np.uint8), cv2.IMREAD_COLOR)
+        replies.append((meta, img))
+        # the replies come in order: this one answers its id and drops the older unanswered ones
+        unanswered = sum(1 for i in sent if i > meta["id"])
+        puppets += meta["kind"] == "puppet"
+    return sent, replies
 
-    assert engine.process(np.full((240, 320, 3), 120, np.uint8)) is None
-    with pytest.raises(BadInputError, match="mode"):
-        make_live_engine(personas_dir / "tiny.persona", size=200, mode="cartoon")
-    with pytest.raises(BadInputError, match="size"):
-        make_live_engine(personas_dir / "tiny.persona", size=5000, mode="face")
 
-
-def test_websocket_sends_puppet_frames_and_one_line_errors(tmp_path, personas_dir):
+def test_websocket_streams_puppet_frames_with_ids_and_one_line_errors(tmp_path, personas_dir):
     from fastapi.testclient import TestClient
 
     from facetex.studio import create_app
 
+    before = _children()
     app = create_app(tmp_path / "work", personas_dir=personas_dir)
-    frame = cv2.copyMakeBorder(face_frames(1)[0], 0, 0, 40, 40, cv2.BORDER_REPLICATE)
-    jpeg = cv2.imencode(".jpg", cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))[1].tobytes()
+    frames = [cv2.copyMakeBorder(f, 0, 0, 40, 40, cv2.BORDER_REPLICATE) for f in face_frames(12)]  # 320 x 240
+    frames += frames[::-1]
     with TestClient(app) as c:
         persona = c.get("/api/personas").json()[0]["id"]
         with c.websocket_connect(f"/api/live?persona={persona}&size=160&mode=composite") as ws:
             assert ws.receive_json()["status"] == "loading"
             ready = ws.receive_json()
-            assert ready["status"] == "ready" and ready["size"] == 160
-            for _ in range(2):
-                ws.send_bytes(jpeg)
+            assert ready["status"] == "ready" and ready["size"] == 160 and ready["engine"] == "facetex.live"
+            assert ready["max_in_flight"] == 4
+            # a second session while this one runs is refused with one line
+            with c.websocket_connect(f"/api/live?persona={persona}") as ws2:
+                assert "another Live session" in ws2.receive_json()["error"]
+            sent, replies = _stream(ws, frames, ready["max_in_flight"])
+            ids = [m["id"] for m, _ in replies]
+            assert set(ids) <= set(sent) and ids == sorted(set(ids))  # each reply names a sent frame, in order
+            kinds = [m["kind"] for m, _ in replies]
+            assert set(kinds) <= {"warmup", "puppet", "lost"} and kinds[0] == "warmup"  # the reference first
+            assert kinds.index("puppet") >= 7  # ~8 tracked frames make the reference
+            for meta, img in replies:
+                assert meta["frame"] == (meta["kind"] != "warmup") and meta["server_ms"] > 0
+                if meta["kind"] == "puppet":
+                    assert img.shape == (120, 160, 3)  # the camera's aspect, longer side 160
+            ws.send_bytes(b"\0\0\0\x07not a jpeg")
+            while True:  # the replies of frames still in flight, then the error
                 meta = ws.receive_json()
-                assert meta["face"] is True and meta["server_ms"] > 0
-                img = cv2.imdecode(np.frombuffer(ws.receive_bytes(), np.uint8), cv2.IMREAD_COLOR)
-                assert img.shape == (120, 160, 3)
-            ws.send_bytes(b"not a jpeg")
-            assert ws.receive_json() == {"error": "a camera frame is not a JPEG or PNG image"}
-        # one session at a time: the first has ended, so a second one starts
-        with c.websocket_connect(f"/api/live?persona={persona}") as ws:
+                if "error" in meta:
+                    break
+                if meta["frame"]:
+                    ws.receive_bytes()
+            assert meta == {"error": "a camera frame is not a JPEG or PNG image"}
+        # the first session has ended, so a second one starts; a text message is refused
+        with c.websocket_connect(f"/api/live?persona={persona}&mode=face&size=128") as ws:
             assert ws.receive_json()["status"] == "loading"
             ws.send_text("hello")
             assert ws.receive_json()["status"] == "ready"
-            assert "binary JPEG" in ws.receive_json()["error"]
+            assert "binary messages" in ws.receive_json()["error"]
+        with c.websocket_connect(f"/api/live?persona={persona}&size=5000") as ws:
+            assert ws.receive_json()["status"] == "loading"
+            assert ws.receive_json() == {"error": "live size must be 32..1024 px, got 5000"}
+        with c.websocket_connect("/api/live?persona=../../etc/passwd") as ws:
+            assert "no persona" in ws.receive_json()["error"]
     app.state.jobs.close()
+    # the sessions stopped their tracking and rendering processes
+    assert _children() - before == set()

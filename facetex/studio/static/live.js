@@ -1,12 +1,21 @@
-// Live page: camera -> JPEG over a WebSocket -> puppet JPEG back; fps and latency measured here
+// Live page: camera frames stream to the studio over a WebSocket (each with an id, at most a few
+// unanswered at once); puppet frames come back tagged with the id they were made from, so the page
+// measures latency (send to receive of that id), puppet fps, dropped frames and p50/p95 in its own clock
 "use strict";
 studioHeader("/live");
 const $ = (id) => document.getElementById(id);
 fillPersonas($("persona")).catch((e) => showError($("error"), e.message));
 
-// counters of the page (window.liveStats: what the page shows, also for tests)
-const stats = window.liveStats = { first: null, received: 0, dropped: 0, noface: 0, sent: 0, fps: 0, p50: null, p95: null, latencies: [], times: [] };
-let ws = null, stream = null, inFlight = false, sentAt = 0, lastUrl = null, running = false;
+// counters of the page (window.liveStats: what the page shows, also for tests). sent: camera frames
+// sent; received: puppet frames shown; lost / warmup: replies of those kinds; dropped: frames sent that
+// never came back (the studio dropped them as stale: a newer one came first); held: camera frames not
+// sent because MAX_IN_FLIGHT were unanswered
+const stats = window.liveStats = { first: null, sent: 0, received: 0, lost: 0, warmup: 0, dropped: 0, held: 0,
+  fps: 0, p50: null, p95: null, latencies: [], times: [], server: null };
+let MAX_IN_FLIGHT = 4;
+let ws = null, stream = null, running = false, nextId = 0;
+const inFlight = new Map();  // id -> send time (performance.now()), in the order sent
+let pending = null;  // the reply whose JPEG comes next
 const canvas = document.createElement("canvas");
 
 function percentile(values, q) {
@@ -16,80 +25,128 @@ function percentile(values, q) {
 
 function showCounters() {
   const now = performance.now();
-  // frames received in the last 5 s (or since the first one): steady enough to read, recent enough to follow
+  // puppet frames received in the last 5 s (or since the first one): steady enough to read, recent enough to follow
   stats.times = stats.times.filter((t) => now - t < 5000);
   if (stats.first == null && stats.times.length) stats.first = stats.times[0];
   const span = stats.first == null ? 5 : Math.min(5, Math.max(1, (now - stats.first) / 1000));
   stats.fps = stats.times.length / span;
-  const recent = stats.latencies.slice(-100);
+  const recent = stats.latencies.slice(-250);
   stats.p50 = recent.length ? percentile(recent, 0.5) : null;
   stats.p95 = recent.length ? percentile(recent, 0.95) : null;
   $("fps").textContent = stats.fps.toFixed(1);
   $("p50").textContent = stats.p50 == null ? "–" : `${stats.p50.toFixed(0)} ms`;
   $("p95").textContent = stats.p95 == null ? "–" : `${stats.p95.toFixed(0)} ms`;
-  for (const k of ["received", "dropped", "noface"]) $(k).textContent = stats[k];
+  $("server").textContent = stats.server == null ? "–" : `${stats.server.toFixed(0)} ms`;
+  for (const k of ["sent", "received", "dropped", "held", "lost"]) $(k).textContent = stats[k];
 }
 setInterval(showCounters, 250);
 
-function replied() {
-  stats.latencies.push(performance.now() - sentAt);
-  if (stats.latencies.length > 1000) stats.latencies.splice(0, 500);
-  inFlight = false;
+// a reply for `id`: the older ids still unanswered were dropped by the studio (it replies in order)
+function answered(id) {
+  const sentAt = inFlight.get(id);
+  for (const k of inFlight.keys()) {
+    if (k === id) break;
+    inFlight.delete(k);
+    stats.dropped++;
+  }
+  inFlight.delete(id);
+  return sentAt;
 }
 
-// each camera frame: sent when none is in flight, else dropped (the next one is newer)
+// each camera frame: sent with its id unless MAX_IN_FLIGHT are unanswered (then held back: the next is newer)
 function onCameraFrame() {
   if (!running) return;
   const video = $("camera");
   if (ws && ws.readyState === WebSocket.OPEN && ws.ready && video.videoWidth) {
-    if (inFlight) {
-      stats.dropped++;
+    if (inFlight.size >= MAX_IN_FLIGHT) {
+      stats.held++;
     } else {
-      inFlight = true;
+      const id = nextId++;
+      inFlight.set(id, null);  // counted while the JPEG is being made
       canvas.width = video.videoWidth; canvas.height = video.videoHeight;
       canvas.getContext("2d").drawImage(video, 0, 0);
       canvas.toBlob((blob) => {
-        if (!blob || !ws || ws.readyState !== WebSocket.OPEN) { inFlight = false; return; }
-        sentAt = performance.now();
+        if (!blob || !ws || ws.readyState !== WebSocket.OPEN) { inFlight.delete(id); return; }
+        const head = new DataView(new ArrayBuffer(4));
+        head.setUint32(0, id);  // big-endian
+        inFlight.set(id, performance.now());
         stats.sent++;
-        ws.send(blob);
+        ws.send(new Blob([head.buffer, blob]));
       }, "image/jpeg", 0.85);
     }
   }
   if (video.requestVideoFrameCallback) video.requestVideoFrameCallback(onCameraFrame);
-  else setTimeout(onCameraFrame, 33);
+  else setTimeout(onCameraFrame, 40);
+}
+
+function onReply(m) {
+  const sentAt = answered(m.id);
+  if (m.server_ms != null) stats.server = m.server_ms;
+  if (m.kind === "warmup") {
+    stats.warmup++;
+    $("status").textContent = "warming up (the first frames of your face make its reference)…";
+    return;
+  }
+  if (m.kind === "lost") stats.lost++;
+  $("status").textContent = m.kind === "lost" ? "no face: showing the camera" : `running (${ws.info})`;
+  if (m.frame) pending = { kind: m.kind, sentAt };
+}
+
+// a frame is drawn once decoded (an <img> whose src changes 25 times a second shows nothing between
+// loads); `shown` keeps a late decode from drawing over a newer frame
+let decoded = 0, shown = 0;
+function onFrame(blob) {
+  const p = pending;
+  pending = null;
+  if (!p) return;
+  if (p.kind === "puppet") {
+    const now = performance.now();
+    if (p.sentAt != null) {
+      stats.latencies.push(now - p.sentAt);
+      if (stats.latencies.length > 2000) stats.latencies.splice(0, 1000);
+    }
+    stats.received++;
+    stats.times.push(now);
+  }
+  const n = ++decoded;
+  createImageBitmap(blob).then((bmp) => {
+    if (n > shown) {
+      shown = n;
+      const c = $("puppet");
+      if (c.width !== bmp.width || c.height !== bmp.height) { c.width = bmp.width; c.height = bmp.height; }
+      c.getContext("2d").drawImage(bmp, 0, 0);
+    }
+    bmp.close();
+  }).catch((e) => showError($("error"), `a puppet frame could not be shown: ${e.message}`));
 }
 
 async function start() {
   showError($("error"), "");
   if (!$("persona").value) { showError($("error"), "no persona: build one on the Persona page or upload one on the Puppet page"); return; }
   try {
-    stream = await navigator.mediaDevices.getUserMedia({ video: { width: 320, height: 240 }, audio: false });
+    stream = await navigator.mediaDevices.getUserMedia({ video: { width: 320, height: 240, frameRate: { ideal: 25 } }, audio: false });
   } catch (e) {
     showError($("error"), `no camera: ${e.message}`);
     return;
   }
   $("camera").srcObject = stream;
   $("start").disabled = true; $("stop").disabled = false;
+  inFlight.clear(); pending = null;
   const q = new URLSearchParams({ persona: $("persona").value, mode: $("mode").value, size: $("size").value });
   ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/api/live?${q}`);
   ws.binaryType = "blob";
   ws.onmessage = (ev) => {
-    if (typeof ev.data === "string") {
-      const m = JSON.parse(ev.data);
-      if (m.error) { showError($("error"), m.error); stop(); return; }
-      if (m.status === "loading") $("status").textContent = `loading ${m.persona}…`;
-      if (m.status === "ready") { ws.ready = true; $("status").textContent = `running (${m.engine}, ${m.size} px, ${m.mode})`; }
-      if ("server_ms" in m) $("server").textContent = `${m.server_ms.toFixed(0)} ms`;
-      if (m.face === false) { stats.noface++; replied(); }
-      return;
+    if (typeof ev.data !== "string") { onFrame(ev.data); return; }
+    const m = JSON.parse(ev.data);
+    if (m.error) { showError($("error"), m.error); stop(); return; }
+    if (m.status === "loading") $("status").textContent = `loading ${m.persona}…`;
+    if (m.status === "ready") {
+      MAX_IN_FLIGHT = m.max_in_flight || MAX_IN_FLIGHT;
+      ws.info = `${m.engine}, ${m.size} px, ${m.mode}`;
+      ws.ready = true;
+      $("status").textContent = "warming up…";
     }
-    replied();  // the puppet frame: one reply per frame sent
-    stats.received++;
-    stats.times.push(performance.now());
-    if (lastUrl) URL.revokeObjectURL(lastUrl);
-    lastUrl = URL.createObjectURL(ev.data);
-    $("puppet").src = lastUrl;
+    if ("id" in m) onReply(m);
   };
   ws.onclose = () => { if (running) { $("status").textContent = "disconnected"; stop(); } };
   running = true;
@@ -100,9 +157,10 @@ function stop() {
   running = false;
   if (ws) { const w = ws; ws = null; if (w.readyState <= WebSocket.OPEN) w.close(); }
   if (stream) { stream.getTracks().forEach((t) => t.stop()); stream = null; }
-  inFlight = false;
+  inFlight.clear(); pending = null;
   $("start").disabled = false; $("stop").disabled = true;
-  if ($("status").textContent.startsWith("running")) $("status").textContent = "stopped";
+  const s = $("status").textContent;
+  if (s.startsWith("running") || s.startsWith("warming") || s.startsWith("no face")) $("status").textContent = "stopped";
 }
 
 $("start").addEventListener("click", start);
