@@ -17,25 +17,14 @@ import pytest
 
 from facetex.cli import main
 
-BROWSERS = ("chromium", "chromium-browser", "google-chrome")
-
-
-def _missing(reason: str):
-    if os.environ.get("CI"):
-        pytest.fail(f"{reason}: CI must install the test extra and run `make browser-deps` before the tests")
-    pytest.skip(f"{reason} (pip install -e '.[test]'; sudo apt-get install chromium, or `make browser-deps`): "
-                "the report's browser tests are skipped")
-
 
 @pytest.fixture(scope="module")
 def browser():
-    try:
-        from playwright.sync_api import sync_playwright
-    except ImportError:
-        _missing("Playwright is not installed")
-    path = next((shutil.which(n) for n in BROWSERS if shutil.which(n)), None)
-    if path is None:
-        _missing("Chromium is not installed")
+    from _chromium import chromium_path
+
+    path = chromium_path("report")
+    from playwright.sync_api import sync_playwright
+
     with sync_playwright() as p:
         b = p.chromium.launch(executable_path=path, args=["--no-sandbox", "--disable-gpu"])
         yield b

@@ -12,32 +12,21 @@ CI (CI=true) that is a failure."""
 from __future__ import annotations
 
 import os
-import shutil
 import sys
 from pathlib import Path
 
 import pytest
 
-BROWSERS = ("chromium", "chromium-browser", "google-chrome")
 ARGS = ["--no-sandbox", "--disable-gpu"]
-
-
-def _missing(reason: str):
-    if os.environ.get("CI"):
-        pytest.fail(f"{reason}: CI must install the test extra and run `make browser-deps` before the tests")
-    pytest.skip(f"{reason} (pip install -e '.[test]'; sudo apt-get install chromium, or `make browser-deps`): "
-                "the studio's browser tests are skipped")
 
 
 @pytest.fixture(scope="module")
 def playwright():
-    try:
-        from playwright.sync_api import sync_playwright
-    except ImportError:
-        _missing("Playwright is not installed")
-    path = next((shutil.which(n) for n in BROWSERS if shutil.which(n)), None)
-    if path is None:
-        _missing("Chromium is not installed")
+    from _chromium import chromium_path
+
+    path = chromium_path("studio")
+    from playwright.sync_api import sync_playwright
+
     with sync_playwright() as p:
         p.executable = path
         yield p
