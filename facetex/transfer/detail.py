@@ -23,6 +23,8 @@ the *style's own* fine detail into the content's skin at the output's resolution
    rim: what the colour mask misses) is treated as not skin. With ``fill`` (default) the
    style's non-skin there is first filled from its own skin (:func:`fill_from_source`:
    mirrored across thin gaps, random blended pieces in large holes), so those places get the style's skin detail too, never its hair or beard.
+   Only the bands up to ``fill_max_sigma`` are filled: the coarsest band's pieces carry fine lines
+   and folds, laid across the hole as dark strokes; there the output keeps its own band.
    In ``own_zone`` (the pipeline passes the content's beard zone: upper lip and chin)
    the output keeps its own detail as it is: the style's plain pores copied there
    read as stubble specks on a clean-shaven face (FRL 087 ← 067, issue 22).
@@ -63,6 +65,10 @@ class DetailParams:
     # more amplifies the optimiser's faint swirl pattern into visible worms (seen on FRL 083←005)
     eps: float = 1e-6  # energy floor (values in [0, 1]²)
     fill: bool = True  # fill the style's non-skin (hair, beard, highlights) from its skin, not from the output
+    # the fill reaches the bands up to this outer sigma only: pieces of the style's [4, 8] band
+    # are fine lines and folds, which the fill laid across a cheek as dark strokes (FRL 042 <- 003);
+    # pores and grain (finer bands) fill without a trace, coarser holes keep the output's own band
+    fill_max_sigma: float = 4.0
     strength: float = 1.0  # 0 = output unchanged, 1 = full style detail
 
 
@@ -146,38 +152,44 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
         own_soft = np.clip(_gauss(own.astype(np.float32), 0.01 * float(face_width)), 0, 1)
         ms = ms * (1.0 - own_soft)
     skin = (mc > 0.5) & (ms > 0.5)
+    ms_band = [ms] * len(sig)  # per band: where the style's (or its fill's) band is copied
+    e_targets = list(e_targets)
     if params.fill and skin.sum() >= 64 and ((mc > 0) & (ms < 0.5) & ~own).any():
         # what the style's hair, beard, highlights or features cover is filled from its own
         # skin (mirrored across the nearest skin edge), so the content's skin there gets
         # the style's skin detail, never its hair (issue 22)
         src = ms > 0.5
         # the bands, not the pixels: copied pieces of a band carry no step in brightness
-        b_sty = fill_from_source(b_sty, src, (mc > 0) & ~src & ~own, block=max(8, int(round(0.1 * float(face_width)))),
-                                 mirror_max=0.03 * float(face_width))
-        filled = [band_energy(b, params.energy_scale * s) for b, s in zip(b_sty, sig)]
-        e_aligned = filled
-        e_targets = [np.where(src, e, f) for e, f in zip(e_targets, filled)]
-        ms = np.where((mc > 0) & ~own, 1.0, ms).astype(np.float32)
-        skin = (mc > 0.5) & (ms > 0.5)
-    both = (mc * ms)[..., None]
-    only_content = (mc * (1.0 - ms))[..., None]
+        fine = [k for k, s0 in enumerate(params.sigmas) if s0 <= params.fill_max_sigma]
+        filled = fill_from_source([b_sty[k] for k in fine], src, (mc > 0) & ~src & ~own,
+                                  block=max(8, int(round(0.1 * float(face_width)))), mirror_max=0.03 * float(face_width))
+        ms_filled = np.where((mc > 0) & ~own, 1.0, ms).astype(np.float32)
+        for k, b in zip(fine, filled):
+            b_sty[k] = b
+            e_aligned[k] = band_energy(b, params.energy_scale * sig[k])
+            e_targets[k] = np.where(src, e_targets[k], e_aligned[k])
+            ms_band[k] = ms_filled
+    skin_band = [(mc > 0.5) & (m > 0.5) for m in ms_band]
     result = out.copy()
     info = {"gain_style": [], "gain_own": [], "style_skin_rough_fraction": float(
         np.mean(ms[(mc > 0.5)] < 0.5)) if (mc > 0.5).any() else 0.0}
     for k, s in enumerate(sig):
         es = params.energy_scale * s
+        both = (mc * ms_band[k])[..., None]
+        only_content = (mc * (1.0 - ms_band[k]))[..., None]
         e_target = e_targets[k]
         g_style = np.clip(np.sqrt((e_target + params.eps) / (e_aligned[k] + params.eps)), lo, hi)
         # the style's typical skin energy in this band, for places its warped image is not skin
-        ref = float(np.median(e_target[skin])) if skin.any() else float(np.median(e_target))
+        sk = skin_band[k]
+        ref = float(np.median(e_target[sk])) if sk.any() else float(np.median(e_target))
         e_out = band_energy(b_out[k], es)
         g_own = np.clip(np.sqrt((ref + params.eps) / (e_out + params.eps)), *params.own_gain_range)
         # in the zone the own detail as it is: a gain towards a smoother style would erase stubble
         own_k = (1.0 - own_soft)[..., None] * g_own[..., None] * b_out[k] + own_soft[..., None] * b_own[k]
         new = both * (g_style[..., None] * b_sty[k]) + only_content * own_k + (1.0 - mc[..., None]) * b_out[k]
         result += params.strength * (new - b_out[k])
-        if skin.any():
-            info["gain_style"].append(float(np.median(g_style[skin])))
+        if sk.any():
+            info["gain_style"].append(float(np.median(g_style[sk])))
         if (mc > 0.5).any():
             info["gain_own"].append(float(np.median(g_own[mc > 0.5])))
     result = np.clip(result, 0.0, 1.0)

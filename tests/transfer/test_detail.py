@@ -158,3 +158,28 @@ def test_the_own_zone_keeps_the_outputs_detail_and_the_rest_takes_the_styles():
     np.testing.assert_allclose(res2[:, :30], res[:, :30], atol=1e-6)
     with pytest.raises(BadInputError):
         transfer_skin_detail(out, style, ones, ones, own_zone=zone, own_detail=content[:50])
+
+
+def test_the_fill_takes_the_styles_fine_bands_but_not_its_lines():
+    """Holes in the style's skin get its pores (fine bands) from the fill, while its coarse band
+    there (folds and lines: dark strokes on a cheek, FRL 042 <- 003) stays the output's own."""
+    yy, xx = np.mgrid[0:128, 0:128].astype(np.float32)
+    lines = 0.06 * np.sin(2 * np.pi * (xx + yy) / 40.0)  # diagonal lines of the [4, 8] px band
+    style = np.clip(_noise(21, 0.02, (128, 128)) + lines[..., None], 0, 1)
+    ms = np.ones((128, 128), np.float32)
+    ms[:, 64:] = 0.0  # the style's hair: a hole the fill covers
+    out = np.full((128, 128, 3), 0.6, np.float32)
+    ones = np.ones((128, 128), np.float32)
+    hole = (slice(16, -16), slice(84, 112))
+
+    def in_hole(p):
+        change = (transfer_skin_detail(out, style, ones, ms, face_width=330.0, params=p) - out)[..., 0][hole]
+        ref = lines[hole] - lines[hole].mean()
+        local = (change * ref).sum() / (ref * ref).sum()  # how much of the lines, in place
+        fine, _ = band_stack(np.repeat(change[..., None], 3, 2), (1.0,))
+        return abs(float(local)), float(fine[0].std()), float(np.abs(change).max())
+
+    new, old = in_hole(DetailParams()), in_hole(DetailParams(fill_max_sigma=99.0))
+    assert new[0] < 0.3 * old[0]  # the style's lines do not go on into the hole (measured 0.02 vs 0.15)
+    assert new[2] < old[2]  # and its strongest stroke there is weaker
+    assert new[1] > 0.004 and abs(new[1] - old[1]) < 0.25 * old[1]  # the pores are filled as before
