@@ -23,6 +23,9 @@ the *style's own* fine detail into the content's skin at the output's resolution
    rim: what the colour mask misses) is treated as not skin. With ``fill`` (default) the
    style's non-skin there is first filled from its own skin (:func:`fill_from_source`:
    mirrored across thin gaps, random blended pieces in large holes), so those places get the style's skin detail too, never its hair or beard.
+   The style's bands are scaled by the ratio of the two faces' local colours (``relative``):
+   skin texture modulates reflectance, so the output takes the style's contrast, not its
+   amplitude (a pale style's bands added as they were mottled a dark face grey).
    Only the bands up to ``fill_max_sigma`` are filled: the coarsest band's pieces carry fine lines
    and folds, laid across the hole as dark strokes; there the output keeps its own band.
    In ``own_zone`` (the pipeline passes the content's beard zone: upper lip and chin)
@@ -70,6 +73,12 @@ class DetailParams:
     # pores and grain (finer bands) fill without a trace, coarser holes keep the output's own band
     fill_max_sigma: float = 4.0
     strength: float = 1.0  # 0 = output unchanged, 1 = full style detail
+    # the style's detail is scaled by (output's local colour / style's local skin colour) ** relative,
+    # per channel: skin texture modulates reflectance, so a pore keeps its contrast, not its
+    # amplitude, on a darker or lighter face (added as it was, a pale style's freckles and
+    # capillaries turned FRL 042 mottled and ashen); 0 = added as it is
+    relative: float = 1.0
+    relative_range: tuple[float, float] = (0.25, 2.0)
 
 
 def _gauss(img: np.ndarray, sigma: float) -> np.ndarray:
@@ -152,6 +161,7 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
         own_soft = np.clip(_gauss(own.astype(np.float32), 0.01 * float(face_width)), 0, 1)
         ms = ms * (1.0 - own_soft)
     skin = (mc > 0.5) & (ms > 0.5)
+    src_skin = ms > 0.5  # the style's own skin, before any fill
     ms_band = [ms] * len(sig)  # per band: where the style's (or its fill's) band is copied
     e_targets = list(e_targets)
     if params.fill and skin.sum() >= 64 and ((mc > 0) & (ms < 0.5) & ~own).any():
@@ -170,6 +180,7 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
             e_targets[k] = np.where(src, e_targets[k], e_aligned[k])
             ms_band[k] = ms_filled
     skin_band = [(mc > 0.5) & (m > 0.5) for m in ms_band]
+    ratio, ratio_l = _colour_ratio(out, sty, src_skin, 2.0 * max(sig), params)
     result = out.copy()
     info = {"gain_style": [], "gain_own": [], "style_skin_rough_fraction": float(
         np.mean(ms[(mc > 0.5)] < 0.5)) if (mc > 0.5).any() else 0.0}
@@ -183,10 +194,10 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
         sk = skin_band[k]
         ref = float(np.median(e_target[sk])) if sk.any() else float(np.median(e_target))
         e_out = band_energy(b_out[k], es)
-        g_own = np.clip(np.sqrt((ref + params.eps) / (e_out + params.eps)), *params.own_gain_range)
+        g_own = np.clip(np.sqrt((ref * ratio_l ** 2 + params.eps) / (e_out + params.eps)), *params.own_gain_range)
         # in the zone the own detail as it is: a gain towards a smoother style would erase stubble
         own_k = (1.0 - own_soft)[..., None] * g_own[..., None] * b_out[k] + own_soft[..., None] * b_own[k]
-        new = both * (g_style[..., None] * b_sty[k]) + only_content * own_k + (1.0 - mc[..., None]) * b_out[k]
+        new = both * (g_style[..., None] * ratio * b_sty[k]) + only_content * own_k + (1.0 - mc[..., None]) * b_out[k]
         result += params.strength * (new - b_out[k])
         if sk.any():
             info["gain_style"].append(float(np.median(g_style[sk])))
@@ -194,6 +205,28 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
             info["gain_own"].append(float(np.median(g_own[mc > 0.5])))
     result = np.clip(result, 0.0, 1.0)
     return (result, info) if return_info else result
+
+
+def _colour_ratio(out, sty, style_skin, sigma, params: DetailParams):
+    """((H, W, 3), (H, W)): (local colour of ``out`` / the style's local skin colour) **
+    ``params.relative`` per channel and in luminance, clipped to ``relative_range``. The style's
+    colour is a masked blur over its own skin (its hair, brows or background do not count; far
+    from any skin: the median skin colour)."""
+    h, w = out.shape[:2]
+    if params.relative == 0:
+        return np.ones((h, w, 1), np.float32), np.ones((h, w), np.float32)
+    lo_o = _gauss(out, sigma)
+    m = style_skin.astype(np.float32)
+    if m.sum() < 16:
+        return np.ones((h, w, 1), np.float32), np.ones((h, w), np.float32)
+    wsum = _gauss(m, sigma)[..., None]
+    median = np.median(sty[style_skin], axis=0).astype(np.float32)
+    lo_s = _gauss(sty * m[..., None], sigma) + np.clip(0.05 - wsum, 0, None) * median
+    lo_s = lo_s / np.maximum(wsum + np.clip(0.05 - wsum, 0, None), 1e-6)
+    lo, hi = params.relative_range
+    ratio = np.clip((lo_o / np.maximum(lo_s, 1e-3)) ** params.relative, lo, hi).astype(np.float32)
+    ratio_l = np.clip((_luma(lo_o) / np.maximum(_luma(lo_s), 1e-3)) ** params.relative, lo, hi).astype(np.float32)
+    return ratio, ratio_l
 
 
 def fill_from_source(images, source: np.ndarray, holes: np.ndarray, *, block: int = 32, mirror_max: float = 10.0,
