@@ -76,9 +76,11 @@ class DetailParams:
     # the style's detail is scaled by (output's local colour / style's local skin colour) ** relative,
     # per channel: skin texture modulates reflectance, so a pore keeps its contrast, not its
     # amplitude, on a darker or lighter face (added as it was, a pale style's freckles and
-    # capillaries turned FRL 042 mottled and ashen); 0 = added as it is
+    # capillaries turned FRL 042 mottled and ashen); 0 = added as it is. Never amplified (at most 1):
+    # a darker photo's fine bands carry more of its noise and JPEG blocks, which doubled became a
+    # lumpy orange-peel on a pale face (FRL 068 <- 096)
     relative: float = 1.0
-    relative_range: tuple[float, float] = (0.25, 2.0)
+    relative_range: tuple[float, float] = (0.25, 1.0)
 
 
 def _gauss(img: np.ndarray, sigma: float) -> np.ndarray:
