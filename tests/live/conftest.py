@@ -6,14 +6,6 @@ import numpy as np
 import pytest
 
 
-@pytest.fixture(scope="session", autouse=True)
-def _own_cache_folder(tmp_path_factory):
-    """The sessions' stack caches in a temporary folder, not the user's."""
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("FACETEX_CACHE", str(tmp_path_factory.mktemp("facetex_cache")))
-        yield
-
-
 @pytest.fixture(scope="session")
 def live_persona(tmp_path_factory):
     """A .persona of 8 jittered copies of frl_004 neutral/smiling (half-size canonical frame)."""

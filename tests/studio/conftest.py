@@ -17,14 +17,6 @@ pytest.importorskip("fastapi", reason="the studio extra is not installed (pip in
 pytest.importorskip("uvicorn", reason="the studio extra is not installed (pip install -e '.[studio]')")
 
 
-@pytest.fixture(scope="session", autouse=True)
-def _own_cache_folder(tmp_path_factory):
-    """The Live sessions' stack caches in a temporary folder, not the user's."""
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("FACETEX_CACHE", str(tmp_path_factory.mktemp("facetex_cache")))
-        yield
-
-
 @pytest.fixture(scope="session")
 def photo_dir(tmp_path_factory) -> Path:
     """8 jittered copies of the bundled frl_004 neutral and smiling portraits."""
