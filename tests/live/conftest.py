@@ -9,14 +9,9 @@ import pytest
 @pytest.fixture(scope="session")
 def live_persona(tmp_path_factory):
     """A .persona of 8 jittered copies of frl_004 neutral/smiling (half-size canonical frame)."""
-    from _photos import write_jittered_copies
-    from facetex.persona import PersonaParams, build_persona
+    from _photos import build_tiny_persona
 
-    folder = tmp_path_factory.mktemp("live_photos")
-    write_jittered_copies(folder, 4, np.random.default_rng(0))
-    path = tmp_path_factory.mktemp("live_persona") / "tiny.persona"
-    build_persona(folder, jobs=1, params=PersonaParams(min_photos=6, size=(96, 120))).save(path)
-    return path
+    return build_tiny_persona(tmp_path_factory.mktemp("live_persona") / "tiny.persona", seed=0)
 
 
 def driver_frames(n_morph: int = 8, n_blank: int = 2, n_hold: int = 3, side: int = 192) -> list[np.ndarray]:
