@@ -1,4 +1,5 @@
-"""Small synthetic photo collections for persona tests (shared by several test folders)."""
+"""Small synthetic photo collections and tiny personas for persona tests (shared by several test
+folders)."""
 
 from __future__ import annotations
 
@@ -21,3 +22,20 @@ def write_jittered_copies(folder: Path, copies: int, rng: np.random.Generator) -
             m = cv2.getRotationMatrix2D((w / 2, h / 2), rng.uniform(-6, 6), rng.uniform(0.92, 1.05))
             j = cv2.warpAffine(img, m, (w, h), borderMode=cv2.BORDER_REPLICATE)
             write_image(Path(folder) / f"{name}_{k}.png", np.clip(j * rng.uniform(0.85, 1.1), 0, 1))
+
+
+def build_tiny_persona(path: Path, *, photos: Path | None = None, copies: int = 4, seed: int = 0,
+                       size: tuple[int, int] = (96, 120), min_photos: int = 6) -> Path:
+    """A tiny persona saved as ``path``: built (one job) from ``photos``, by default ``copies``
+    jittered copies (:func:`write_jittered_copies`, ``np.random.default_rng(seed)``) of each frl_004
+    portrait written in a new folder ``<path stem>_photos`` next to ``path``; the canonical frame
+    ``size`` (W, H) is half the default one, fast to build, load and render. Returns ``path``."""
+    from facetex.persona import PersonaParams, build_persona
+
+    path = Path(path)
+    if photos is None:
+        photos = path.parent / f"{path.stem}_photos"
+        photos.mkdir()
+        write_jittered_copies(photos, copies, np.random.default_rng(seed))
+    build_persona(photos, jobs=1, params=PersonaParams(min_photos=min_photos, size=size)).save(path)
+    return path

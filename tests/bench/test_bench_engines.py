@@ -7,7 +7,7 @@ import math
 import cv2
 import numpy as np
 import pytest
-from _photos import write_jittered_copies
+from _photos import build_tiny_persona
 
 from facetex._resources import sample_path
 from facetex.io import read_image, write_video
@@ -18,12 +18,7 @@ pytestmark = pytest.mark.slow
 @pytest.fixture(scope="module")
 def puppet_data(tmp_path_factory):
     """A tiny persona file (8 jittered copies of frl_004, 96 x 120 canonical frame) and two 6-frame driver clips."""
-    from facetex.persona import PersonaParams, build_persona
-
-    photos = tmp_path_factory.mktemp("photos")
-    write_jittered_copies(photos, 4, np.random.default_rng(0))
-    persona_file = tmp_path_factory.mktemp("persona") / "p.persona"
-    build_persona(photos, jobs=1, params=PersonaParams(min_photos=6, size=(96, 120))).save(persona_file)
+    persona_file = build_tiny_persona(tmp_path_factory.mktemp("persona") / "p.persona", seed=0)
     drivers = tmp_path_factory.mktemp("drivers")
     for k, name in enumerate(("frl_005_neutral", "frl_003_neutral")):
         img = cv2.resize(read_image(sample_path(f"{name}.jpg")), (200, 200), interpolation=cv2.INTER_AREA)

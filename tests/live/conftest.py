@@ -6,45 +6,18 @@ import numpy as np
 import pytest
 
 
-@pytest.fixture(scope="session", autouse=True)
-def _own_cache_folder(tmp_path_factory):
-    """The sessions' stack caches in a temporary folder, not the user's."""
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("FACETEX_CACHE", str(tmp_path_factory.mktemp("facetex_cache")))
-        yield
-
-
 @pytest.fixture(scope="session")
 def live_persona(tmp_path_factory):
     """A .persona of 8 jittered copies of frl_004 neutral/smiling (half-size canonical frame)."""
-    from _photos import write_jittered_copies
-    from facetex.persona import PersonaParams, build_persona
+    from _photos import build_tiny_persona
 
-    folder = tmp_path_factory.mktemp("live_photos")
-    write_jittered_copies(folder, 4, np.random.default_rng(0))
-    path = tmp_path_factory.mktemp("live_persona") / "tiny.persona"
-    build_persona(folder, jobs=1, params=PersonaParams(min_photos=6, size=(96, 120))).save(path)
-    return path
-
-
-def driver_frames(n_morph: int = 8, n_blank: int = 2, n_hold: int = 3, side: int = 192) -> list[np.ndarray]:
-    """uint8 frames: frl_004 neutral -> smiling (cross-fade of the aligned pair), ``n_blank`` grey
-    frames (face lost), ``n_hold`` smiling frames."""
-    import cv2
-
-    from facetex._resources import sample_path
-    from facetex.io import read_image, to_uint8
-
-    a = cv2.resize(read_image(sample_path("frl_004_neutral.jpg")), (side, side), interpolation=cv2.INTER_AREA)
-    b = cv2.resize(read_image(sample_path("frl_004_smiling.jpg")), (side, side), interpolation=cv2.INTER_AREA)
-    frames = [to_uint8((1 - t) * a + t * b) for t in np.linspace(0, 1, n_morph)]
-    frames += [np.full((side, side, 3), 115, np.uint8)] * n_blank + [to_uint8(b)] * n_hold
-    return frames
+    return build_tiny_persona(tmp_path_factory.mktemp("live_persona") / "tiny.persona", seed=0)
 
 
 @pytest.fixture(scope="session")
 def live_videos(tmp_path_factory):
     """name -> path: face.mp4 (a face, 25 fps), noface.mp4 (grey frames), text.mp4 (not a video)."""
+    from _live import driver_frames
     from facetex.io import write_video
 
     d = tmp_path_factory.mktemp("live_videos")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import driver_frames
+from _live import driver_frames
 from facetex.errors import BadInputError
 from facetex.live import LiveParams, LiveSession
 

@@ -9,14 +9,9 @@ import pytest
 
 @pytest.fixture(scope="module")
 def persona_path(tmp_path_factory):
-    from _photos import write_jittered_copies
-    from facetex.persona import PersonaParams, build_persona
+    from _photos import build_tiny_persona
 
-    folder = tmp_path_factory.mktemp("cache_photos")
-    write_jittered_copies(folder, 4, np.random.default_rng(1))
-    path = tmp_path_factory.mktemp("cache_persona") / "p.persona"
-    build_persona(folder, jobs=1, params=PersonaParams(min_photos=6, size=(96, 120))).save(path)
-    return path
+    return build_tiny_persona(tmp_path_factory.mktemp("cache_persona") / "p.persona", seed=1)
 
 
 def test_written_then_mapped_with_the_same_blends(persona_path, tmp_path):

@@ -17,14 +17,6 @@ pytest.importorskip("fastapi", reason="the studio extra is not installed (pip in
 pytest.importorskip("uvicorn", reason="the studio extra is not installed (pip install -e '.[studio]')")
 
 
-@pytest.fixture(scope="session", autouse=True)
-def _own_cache_folder(tmp_path_factory):
-    """The Live sessions' stack caches in a temporary folder, not the user's."""
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("FACETEX_CACHE", str(tmp_path_factory.mktemp("facetex_cache")))
-        yield
-
-
 @pytest.fixture(scope="session")
 def photo_dir(tmp_path_factory) -> Path:
     """8 jittered copies of the bundled frl_004 neutral and smiling portraits."""
@@ -38,11 +30,10 @@ def photo_dir(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def personas_dir(photo_dir, tmp_path_factory) -> Path:
     """A folder with one tiny persona (half-size canonical frame: fast to load and render)."""
-    from facetex.persona import PersonaParams, build_persona
+    from _photos import build_tiny_persona
 
     folder = tmp_path_factory.mktemp("studio_personas")
-    persona = build_persona(photo_dir, jobs=1, params=PersonaParams(min_photos=6, size=(96, 120)))
-    persona.save(folder / "tiny.persona")
+    build_tiny_persona(folder / "tiny.persona", photos=photo_dir)
     return folder
 
 
