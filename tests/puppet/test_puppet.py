@@ -162,9 +162,9 @@ def test_open_mouth_shows_the_drivers_mouth_interior(session):
     finally:
         pup.params = saved
     diff = np.abs(r["puppet"] - without).max(axis=2)
-    # the interior replaced the stretched lip texture: 0.0265 when run alone, 0.0199 in the full suite
-    # (some earlier test's state changes it; not found yet)
-    assert diff[inside].mean() > 0.015, diff[inside].mean()
+    # the interior replaced the stretched lip texture: 0.0265 alone and after every earlier test
+    # folder (bisected on 9d40b33); the 0.0199 once seen was on the unmerged live branch
+    assert diff[inside].mean() > 0.02, diff[inside].mean()
     ring = (polygon_mask(lips * 1.0, r["alpha"].shape, samples=1) == 0)
     assert diff[ring].mean() < 0.1 * diff[inside].mean()  # and nothing else
 
