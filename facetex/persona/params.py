@@ -48,8 +48,8 @@ class TextureParams:
     rest of the face's only, not the mouth's: restoring the mouth's three finest bands cost 0.009-0.011
     leave-out mouth SSIM against static on all four 44-71-photo LFW collections (Arroyo +0.014 ->
     +0.023, Williams +0.029 -> +0.040, Koizumi +0.019 -> +0.029, Chavez +0.018 -> +0.029 without it;
-    its finest band alone or its two finest still cost 0.001-0.005), face SSIM +0.002-0.004, eyes
-    unchanged. The puppet keeps it (:data:`RENDER_RESTORE`, :meth:`facetex.puppet.PuppetParams.texture_params`):
+    its finest band alone or its two finest still cost 0.001-0.005) and 0.023 on Blair (124 photos:
+    +0.026 -> +0.050); face SSIM +0.002-0.006, eyes unchanged. The puppet keeps it (:data:`RENDER_RESTORE`, :meth:`facetex.puppet.PuppetParams.texture_params`):
     averaged lips are pale and blurred and dlib read the puppet's mouth opening 0.55-0.7 as wide as its
     mesh's; taking the mouth's detail from the few nearest photos instead, as the eyes', read as well
     but cost 0.04 leave-out mouth SSIM on a 44-photo collection, restoring 0.01.
