@@ -11,6 +11,7 @@ __all__ = [
     "STAGES",
     "WEIGHTS",
     "GLASSES_LEVELS",
+    "RENDER_RESTORE",
 ]
 
 
@@ -43,10 +44,21 @@ class TextureParams:
     eyeglasses in the eyes' and the face's weights (:meth:`_Prepared.glasses_free`; 0: none: a
     collection with a few glasses photos drew the frames as ghost rings round the puppet's eyes);
     restore: (region, levels): the finest ``levels`` bands of ``region`` get their photos' own
-    band energy back (:meth:`_Prepared._restore_detail`), the gain at most ``restore_gain``; the
-    mouth's too (averaged lips were pale and blurred: dlib read the puppet's mouth opening 0.55-0.7
-    as wide as its mesh's; taking the mouth's detail from the few nearest photos instead, as the
-    eyes', read as well but cost 0.04 leave-out mouth SSIM on a 44-photo collection, restoring 0.01)."""
+    band energy back (:meth:`_Prepared._restore_detail`), the gain at most ``restore_gain``. The
+    rest of the face's only, not the mouth's: restoring the mouth's three finest bands cost 0.009-0.011
+    leave-out mouth SSIM against static on all four 44-71-photo LFW collections (Arroyo +0.014 ->
+    +0.023, Williams +0.029 -> +0.040, Koizumi +0.019 -> +0.029, Chavez +0.018 -> +0.029 without it;
+    its finest band alone or its two finest still cost 0.001-0.005) and 0.023 on Blair (124 photos:
+    +0.026 -> +0.050); face SSIM +0.002-0.006, eyes unchanged. The puppet keeps it (:data:`RENDER_RESTORE`, :meth:`facetex.puppet.PuppetParams.texture_params`):
+    averaged lips are pale and blurred and dlib read the puppet's mouth opening 0.55-0.7 as wide as its
+    mesh's; taking the mouth's detail from the few nearest photos instead, as the eyes', read as well
+    but cost 0.04 leave-out mouth SSIM on a 44-photo collection, restoring 0.01.
+    Measured and not the cause of the mouth's gap (Arroyo, 24 photos in the persona): alignment (the
+    held-out photo's own texture sent to the neutral frame and back scores mouth SSIM 0.996); the
+    neutral frame (each photo warped from its own fiducials straight to the target's, then blended,
+    scores the same as the blend in the neutral frame, within 0.0005); what the fiducials can
+    choose (the 4 photos with the best mouth SSIM, an oracle, blended: +0.055; the nearest photo alone:
+    -0.050; the expression weights' rank correlation with the photos' own SSIM: 0.43)."""
 
     sigma: float = 10.0
     alpha: float | None = None
@@ -68,7 +80,7 @@ class TextureParams:
     eye_quality: float = 1.5
     gaze: float = 0.3
     glasses: float = 4.0
-    restore: tuple = (("face", 3), ("mouth", 3))
+    restore: tuple = (("face", 3),)
     restore_gain: float = 3.0
 
     def detail_of(self, region: str) -> tuple[float, int]:
@@ -97,6 +109,10 @@ class TextureParams:
 
 
 WEIGHTS = ("regional", "global")
+#: ``TextureParams.restore`` of the puppet's render: the mouth's detail restored too (legible lips and
+#: teeth for the viewer and for dlib reading the puppet back; the persona texture leaves it out, see
+#: :class:`TextureParams`)
+RENDER_RESTORE = (("face", 3), ("mouth", 3))
 #: per weight region, the multiple of the collection's median glasses score above which a photo's
 #: weight falls (:meth:`_Prepared.glasses_free`): the eyes' from 1.25 (faint rims at 1.5), the rest
 #: of the face's from 2 (strong frames only: from 1.25 it also took weight from 13 of Williams'

@@ -55,7 +55,9 @@ leave-out numbers from ``facetex bench persona`` on the LFW Bush and Blair colle
   for it (a sharp photo's eyes are not the held-out photo's; the average's blur is closer in
   SSIM): on Hugo Chavez (50 photos) eyes gain over static +0.010 -> -0.026, face +0.016 ->
   -0.011, mouth +0.032 -> +0.029 (the 8th power: eyes -0.05; restoring the eyes too: -0.012
-  more).
+  more). The mouth's bands are not restored in the persona texture (restoring them cost
+  0.009-0.011 leave-out mouth SSIM on the 44-71-photo collections); the puppet's render restores
+  them (``facetex.persona.params.RENDER_RESTORE``: pale, blurred lips read badly).
 - The weights are normalised per level and region, the coarse uniform part is precomputed,
   and only photos with a weight count (a sparse product over pixel segments grouped by
   region): ~10-25 ms per target for 500 photos on one core.

@@ -83,10 +83,11 @@ class PuppetParams:
 
     def texture_params(self):
         """The :class:`facetex.persona.TextureParams` of the puppet's textures: the persona
-        texture's defaults with the regional weights, :meth:`TextureParams.paper` with the
+        texture's defaults with the regional weights and the mouth's detail restored too
+        (:data:`facetex.persona.params.RENDER_RESTORE`), :meth:`TextureParams.paper` with the
         global ones (both the static average and the blends use them, so one precomputation
         serves all)."""
-        from ..persona.params import WEIGHTS, TextureParams
+        from ..persona.params import RENDER_RESTORE, WEIGHTS, TextureParams
 
         if self.weights not in WEIGHTS:
             raise BadInputError(f"unknown puppet texture weights {self.weights!r}: use one of {', '.join(WEIGHTS)}")
@@ -94,6 +95,8 @@ class PuppetParams:
             raise BadInputError(f"weight smoothing must be >= 0 seconds, got {self.weight_smoothing}")
         if self.weights == "global":
             return TextureParams.paper(sigma=self.sigma)
-        return TextureParams(neighbours=self.neighbours)
+        # the mouth's detail restored as well (RENDER_RESTORE): the persona texture's default leaves
+        # it out (closer to a held-out photo in SSIM), the puppet's lips need it to read as lips
+        return TextureParams(neighbours=self.neighbours, restore=RENDER_RESTORE)
 
 
