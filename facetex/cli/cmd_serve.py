@@ -59,7 +59,9 @@ def run(args) -> int:
                       "anyone who reaches it can run jobs on this machine and download their results")
     app = create_app(workdir, max_upload_mb=args.max_upload_mb, workers=args.workers,
                      max_queued=args.max_queued, personas_dir=args.personas)
-    config = uvicorn.Config(app, host=args.host, port=args.port, log_level="warning", ws_max_size=8 * 2**20)
+    # no per-message deflate: the Live page's messages are JPEGs, which it would only spend CPU on
+    config = uvicorn.Config(app, host=args.host, port=args.port, log_level="warning", ws_max_size=8 * 2**20,
+                            ws_per_message_deflate=False)
     server = uvicorn.Server(config)
 
     def started():
