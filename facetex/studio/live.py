@@ -169,12 +169,15 @@ def add_routes(app, config, jobs) -> None:
             await ws.send_json({"error": "another Live session is running on this studio: try again when it ends"})
             await ws.close()
             return
-        session = feed = runner = None
+        session = feed = runner = pinned = None
         tasks: list = []
         try:
             chosen = personas(config, jobs).get(persona)  # an id of the table, never a path
             if chosen is None:
                 raise BadInputError(f"no persona {persona[:40]!r}: build or upload one first")
+            if persona.startswith("job-"):  # a persona built or uploaded here: kept from the clean-up meanwhile
+                pinned = persona[4:]
+                jobs.pin(pinned)
             await ws.send_json({"status": "loading", "persona": chosen[0]})
             session = await run_in_threadpool(open_session, chosen[1], size, mode)
             loop = asyncio.get_running_loop()
@@ -210,6 +213,8 @@ def add_routes(app, config, jobs) -> None:
             if feed is not None:
                 feed.close()  # the runner ends with the source
             await run_in_threadpool(_stop, session, runner)
+            if pinned is not None:
+                jobs.unpin(pinned)
             busy.release()
 
 
