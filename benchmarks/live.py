@@ -20,7 +20,7 @@ matching the offline puppet within the puppetry bench's measures.
 * **studio, WebSocket client**: ``facetex serve --port 0`` on a free localhost port in a child process
   (the persona offered through ``--personas``), and a client (the ``websockets`` package) speaking the
   Live page's protocol (facetex/studio/live.py): it connects, waits for "ready", then plays the clip
-  at 25 fps in real time, each frame JPEG 85 at the ``frame_side`` the server asks for (as the page
+  (looped) at 25 fps in real time until ``--seconds`` after the first second of puppet frames, each frame JPEG 85 at the ``frame_side`` the server asks for (as the page
   scales its camera frames), a 4-byte id before it, at most ``max_in_flight`` (4) unanswered (a frame
   beyond is held back, as the page does). Measured in the client's clock: fps of the puppet replies
   (after the first second of them), dropped (the camera frames from the first puppet frame on without
@@ -246,10 +246,12 @@ def _jpeg(frame: np.ndarray, side: int | None) -> bytes:
     return cv2.imencode(".jpg", cv2.cvtColor(frame, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes()
 
 
-async def _play(url: str, persona_id: str, frames: list, fps: float, total: int, size: int, keep: bool) -> dict:
-    """The Live page's protocol from a client: connect, wait for "ready", send the clip's frames at
-    ``fps`` in real time (4-byte id + JPEG, at most ``max_in_flight`` unanswered: a frame beyond is
-    held back, as the page does), read the replies; times in this process's clock."""
+async def _play(url: str, persona_id: str, frames: list, fps: float, seconds: float, size: int, keep: bool,
+                settle: float = 1.0) -> dict:
+    """The Live page's protocol from a client: connect, wait for "ready", send the clip's frames (looped)
+    at ``fps`` in real time (4-byte id + JPEG, at most ``max_in_flight`` unanswered: a frame beyond is
+    held back, as the page does) until ``settle`` + ``seconds`` after the first puppet frame, read the
+    replies; times in this process's clock."""
     import struct
 
     import websockets
@@ -269,10 +271,13 @@ async def _play(url: str, persona_id: str, frames: list, fps: float, total: int,
         side, max_in_flight = m.get("frame_side"), m.get("max_in_flight", 4)
         jpegs = [_jpeg(f, side) for f in frames]  # the page encodes each frame as it comes; done ahead here
         done = asyncio.Event()
+        first = []
 
         async def sender():
             t0 = time.perf_counter()
-            for k in range(total):
+            for k in range(int((seconds + settle + 60) * fps)):  # at most a minute of start-up
+                if first and time.perf_counter() >= first[0] + settle + seconds:
+                    break
                 wait = t0 + k / fps - time.perf_counter()
                 if wait > 0:
                     await asyncio.sleep(wait)
@@ -298,6 +303,8 @@ async def _play(url: str, persona_id: str, frames: list, fps: float, total: int,
                     del in_flight[k]
                 in_flight.pop(fid, None)
                 replies[fid] = (_KINDS.get(kind, "?"), now, server_ms)
+                if kind == 1 and not first:
+                    first.append(now)
                 if keep and kind == 1 and fid < n:
                     kept[fid] = msg[struct.calcsize(_REPLY):]
                 if done.is_set() and not in_flight:
@@ -317,7 +324,8 @@ async def _play(url: str, persona_id: str, frames: list, fps: float, total: int,
 
 
 def _client_stats(r: dict, settle: float = 1.0) -> dict:
-    """fps, dropped, latency of a played stream in the client's clock, as LiveStats.summary counts them."""
+    """fps, dropped, latency of a played stream in the client's clock, as LiveStats.summary counts them
+    (fps and latency from ``settle`` s after the first puppet frame; dropped from the first puppet frame)."""
     replies, sent_at = r["replies"], r["sent_at"]
     puppets = sorted((t, fid) for fid, (kind, t, _) in replies.items() if kind == "puppet")
     if not puppets:
@@ -360,7 +368,7 @@ def studio_ws(persona: str, clip: str, size: int, seconds: float, workdir: Path,
     proc, url, pid = start_studio(persona, workdir, pythonpath)
     try:
         sampler = TreeSampler(proc.pid).start()
-        r = asyncio.run(_play(url, pid, frames, fps, int(round(seconds * fps)), size, keep))
+        r = asyncio.run(_play(url, pid, frames, fps, seconds, size, keep))
         server = sampler.stop()
     finally:
         stop_studio(proc)
@@ -397,6 +405,7 @@ def studio_browser(persona: str, clip: str, size: int, seconds: float, workdir: 
     if exe is None:
         raise SystemExit("--browser needs Chromium (apt-get install chromium) and Playwright")
     fps = int(round(video_info(clip)["fps"] or 25))
+    workdir.mkdir(parents=True, exist_ok=True)
     y4m = _write_y4m(workdir / "camera.y4m", list(iter_video_frames(clip, uint8=True)), fps)
     proc, url, pid = start_studio(persona, workdir, pythonpath)
     try:
