@@ -37,7 +37,8 @@ matching the offline puppet within the puppetry bench's measures.
   :class:`facetex.live.PushSource` at 25 fps with each frame JPEG-decoded before and the output
   JPEG-encoded after: what the engine gives without the server, the socket and the client.
 * **offline**: ``facetex puppet CLIP PERSONA --size N`` in a fresh process, wall time and fps.
-* **quality**: the studio's replies (JPEG, decoded) of the clip's first pass and the offline output,
+* **quality**: the studio's replies (JPEG, decoded; for each of the clip's frames the first puppet
+  frame made from it, whichever pass of the loop: the start-up may outlast the first) and the offline output,
   each measured as ``facetex bench puppet`` measures a run: mouth opening slope and Pearson r against
   the driver's (landmarks found on each panel upscaled to 720 px), cheek ΔE against the driver's
   cheeks, eye openness ratio; plus live against offline directly (mean |difference| in the face,
@@ -305,8 +306,8 @@ async def _play(url: str, persona_id: str, frames: list, fps: float, seconds: fl
                 replies[fid] = (_KINDS.get(kind, "?"), now, server_ms)
                 if kind == 1 and not first:
                     first.append(now)
-                if keep and kind == 1 and fid < n:
-                    kept[fid] = msg[struct.calcsize(_REPLY):]
+                if keep and kind == 1:  # the first puppet frame of each of the clip's frames, whichever pass
+                    kept.setdefault(fid % n, msg[struct.calcsize(_REPLY):])
                 if done.is_set() and not in_flight:
                     return
 
@@ -691,7 +692,7 @@ def main(argv=None):
               f"texture blends reused {live.get('texture_reused', 0)} of {live['puppet_frames']} frames; "
               f"set-up {json.dumps({k: v for k, v in live['timings'].items() if k.endswith('_s')})}")
     if q:
-        print(f"\nquality, {q['frames_compared']} frames of the first pass, live = the studio's JPEG replies "
+        print(f"\nquality, {q['frames_compared']} of the clip's frames, live = the studio's JPEG replies "
               f"(bench puppet targets: slope 0.8-1.3, r >= 0.85, cheek dE <= 8, eye ratio >= 0.8):")
         print(f"{'':10s} {'slope':>7s} {'r':>6s} {'cheek dE':>9s} {'eye ratio':>10s}")
         for k in ("live", "offline"):
