@@ -4,9 +4,23 @@ from __future__ import annotations
 
 import sys
 
+import argparse
+import math
+import re
+
 from ._common import add_json, add_quiet, bounded_int, finite_float, print_json
 
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
+_UNITS = {"": 1, "s": 1, "m": 60, "h": 3600, "d": 86400}
+
+
+def duration(text: str) -> float:
+    """argparse type: seconds, or a number with s, m, h or d (``90m``, ``12h``, ``7d``)."""
+    m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*([smhd]?)\s*", text.lower())
+    v = float(m.group(1)) * _UNITS[m.group(2)] if m else math.nan
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive duration such as 3600, 90m, 12h or 7d, not {text!r}")
+    return v
 
 
 def register(sub) -> None:
@@ -26,6 +40,13 @@ def register(sub) -> None:
                    help="jobs run at once (default 1; the others wait in order)")
     p.add_argument("--max-queued", type=bounded_int(1, 10_000), default=8, metavar="N",
                    help="jobs that may wait (default 8; beyond, a new job is refused until one finishes)")
+    p.add_argument("--keep-jobs", type=bounded_int(0, 1_000_000), default=100, metavar="N",
+                   help="finished jobs whose folders are kept, the newest (default 100); older ones are removed at "
+                        "start-up and then every --cleanup-interval, those an earlier server left in --workdir too")
+    p.add_argument("--job-ttl", type=duration, metavar="TIME",
+                   help="remove a finished job's folder after this long (seconds, or 90m, 12h, 7d; default: never)")
+    p.add_argument("--cleanup-interval", type=duration, default=60.0, metavar="TIME",
+                   help="time between two clean-ups of the job folders (default 60 s)")
     p.add_argument("--personas", metavar="DIR",
                    help="a folder of .persona files offered on the Puppet and Live pages")
     p.add_argument("--open", action="store_true", help="open the studio in the web browser")
@@ -58,8 +79,11 @@ def run(args) -> int:
         warnings.warn(f"--host {args.host}: the studio is reachable from other machines; it has no login, and "
                       "anyone who reaches it can run jobs on this machine and download their results")
     app = create_app(workdir, max_upload_mb=args.max_upload_mb, workers=args.workers,
-                     max_queued=args.max_queued, personas_dir=args.personas)
-    config = uvicorn.Config(app, host=args.host, port=args.port, log_level="warning", ws_max_size=8 * 2**20)
+                     max_queued=args.max_queued, personas_dir=args.personas, keep_jobs=args.keep_jobs,
+                     job_ttl=args.job_ttl, cleanup_interval=args.cleanup_interval)
+    # no per-message deflate: the Live page's messages are JPEGs, which it would only spend CPU on
+    config = uvicorn.Config(app, host=args.host, port=args.port, log_level="warning", ws_max_size=8 * 2**20,
+                            ws_per_message_deflate=False)
     server = uvicorn.Server(config)
 
     def started():

@@ -10,9 +10,11 @@ Routes (the job submissions are in :mod:`facetex.studio.submit`, the Live WebSoc
     GET  /api/jobs  /api/jobs/{id}                   job states (JSON)
     GET  /api/jobs/{id}/events                       a job's progress (Server-Sent Events)
     GET  /api/jobs/{id}/files/{name}                 one of the job's outputs
+    POST /api/jobs/{id}/cancel                       cancel a queued or running job (its folder is removed)
 
 Every error is ``{"error": "<one line>"}`` with a 4xx status (bad input 400, unknown job or file
-404, too large 413, queue full 503), the same line the CLI prints after ``facetex: error:``.
+404, a job that has already finished cannot be cancelled 409, too large 413, queue full 503), the
+same line the CLI prints after ``facetex: error:``.
 """
 
 # no `from __future__ import annotations`: FastAPI reads the routes' annotations, whose types are imported
@@ -26,7 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import BadInputError, FacetexError
-from .jobs import JobQueue, QueueFullError
+from .jobs import FINISHED, JobQueue, QueueFullError
 from .uploads import BodyLimit, UploadTooLargeError
 
 STATIC = Path(__file__).parent / "static"
@@ -51,7 +53,8 @@ def _samples() -> dict:
 
 
 def create_app(workdir=None, *, max_upload_mb: float = 200, workers: int = 1, max_queued: int = 8,
-               personas_dir=None, job_env: dict | None = None):
+               personas_dir=None, job_env: dict | None = None, keep_jobs: int | None = None,
+               job_ttl: float | None = None, cleanup_interval: float = 60.0):
     """The studio as an ASGI app (serve it with uvicorn: ``facetex serve`` does).
 
     Parameters
@@ -69,6 +72,13 @@ def create_app(workdir=None, *, max_upload_mb: float = 200, workers: int = 1, ma
         personas built or uploaded in the studio.
     job_env : dict, optional
         Extra environment variables of the jobs' processes (e.g. ``OMP_NUM_THREADS``).
+    keep_jobs : int, optional
+        Finished jobs whose folders are kept, the newest (default: all); older ones are removed at
+        start-up and every ``cleanup_interval`` seconds, folders an earlier server left included.
+    job_ttl : float, optional
+        Seconds after which a finished job's folder is removed (default: never).
+    cleanup_interval : float
+        Seconds between two clean-ups (when ``keep_jobs`` or ``job_ttl`` is set).
 
     Returns
     -------
@@ -91,11 +101,16 @@ def create_app(workdir=None, *, max_upload_mb: float = 200, workers: int = 1, ma
         raise BadInputError(f"the upload limit must be positive, not {max_upload_mb} MB")
     workdir = Path(workdir) if workdir is not None else Path(tempfile.mkdtemp(prefix="facetex-studio-"))
     workdir.mkdir(parents=True, exist_ok=True)
+    if keep_jobs is not None and keep_jobs < 0:
+        raise BadInputError(f"keep_jobs must be 0 or more, not {keep_jobs}")
+    if job_ttl is not None and not job_ttl > 0:
+        raise BadInputError(f"the jobs' time to live must be positive, not {job_ttl} s")
     if personas_dir is not None and not Path(personas_dir).is_dir():
         raise BadInputError("not a folder of .persona files", path=personas_dir)
     config = StudioConfig(workdir.resolve(), int(max_upload_mb * 2**20),
                           Path(personas_dir).resolve() if personas_dir else None, _samples())
-    jobs = JobQueue(workdir, workers=workers, max_queued=max_queued, env=job_env)
+    jobs = JobQueue(workdir, workers=workers, max_queued=max_queued, env=job_env, keep=keep_jobs, ttl=job_ttl,
+                    cleanup_interval=cleanup_interval)
 
     @contextlib.asynccontextmanager
     async def lifespan(app):
@@ -173,11 +188,21 @@ def create_app(workdir=None, *, max_upload_mb: float = 200, workers: int = 1, ma
                 if state != last:
                     last = state
                     yield f"data: {state}\n\n"
-                if job.state in ("done", "failed") or await request.is_disconnected():
+                if job.state in FINISHED or await request.is_disconnected():
                     return
                 await asyncio.sleep(0.2)
 
         return StreamingResponse(stream(), media_type="text/event-stream", headers={"Cache-Control": "no-cache"})
+
+    @app.post("/api/jobs/{job_id}/cancel")
+    async def cancel_job(job_id: str):
+        from starlette.concurrency import run_in_threadpool
+
+        job = job_or_404(job_id)
+        if job.state in ("done", "failed"):
+            raise HTTPException(409, f"job {job_id} has already finished ({job.state})")
+        job = await run_in_threadpool(jobs.cancel, job_id)  # waits for a running command's end
+        return job.public(jobs.position(job_id))
 
     @app.get("/api/jobs/{job_id}/files/{name}")
     async def job_file(job_id: str, name: str, download: bool = False):

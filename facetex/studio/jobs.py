@@ -11,6 +11,19 @@ a failed step's message is its ``facetex: error: ...`` line, with the job folder
 
 Jobs wait in a bounded FIFO: with one worker (the default) two users cannot run two heavy jobs at
 once on a small machine, and a full queue refuses a new job instead of growing without bound.
+
+**Cancelling** (:meth:`JobQueue.cancel`): a queued job leaves the queue; a running job's command is
+stopped with its whole process group (each step runs in a session of its own: SIGTERM, then SIGKILL
+after :data:`KILL_GRACE` s), and no later step starts. Either way the job ends "cancelled" and its
+folder (inputs and partial outputs) is removed.
+
+**Cleaning up** (:meth:`JobQueue.cleanup`): the folders of finished jobs (done, failed, cancelled),
+and job folders left by an earlier server on the same work folder, are removed when there are more
+than ``keep`` of them (the newest are kept) or when they are older than ``ttl`` seconds; at start-up
+and then every ``cleanup_interval`` seconds. Only directories directly under ``WORKDIR/jobs`` whose
+name is a job id are ever removed (never a symbolic link, never a path outside it); queued and running
+jobs, the folders being uploaded to, and the personas used by a queued or running job or by an open
+Live session are kept.
 """
 
 from __future__ import annotations
@@ -18,6 +31,8 @@ from __future__ import annotations
 import os
 import re
 import secrets
+import shutil
+import signal
 import subprocess
 import threading
 import time
@@ -32,6 +47,10 @@ JOB_ID = re.compile(r"^[0-9a-f]{16}$")
 #: tqdm's bar: "desc:  45%|####      | 12/27 [00:03<00:04, 3.2eval/s, level=1, stage=flow]"
 _BAR = re.compile(r"^(?P<desc>[^:|]*):\s*(?P<pct>\d+)%\|[^|]*\|\s*(?P<n>\d+)/(?P<total>\d+)(?P<rest>.*)$")
 _STAGE = re.compile(r"stage=([A-Za-z][\w ]*)")
+#: seconds a cancelled command has between SIGTERM and SIGKILL
+KILL_GRACE = 3.0
+#: states of a job that has ended
+FINISHED = ("done", "failed", "cancelled")
 
 
 class QueueFullError(FacetexError):
@@ -60,7 +79,7 @@ class Job:
     outputs: dict = field(default_factory=dict)
     #: what the pages show besides the files (names of inputs, options)
     info: dict = field(default_factory=dict)
-    state: str = "queued"  # queued | running | done | failed
+    state: str = "queued"  # queued | running | done | failed | cancelled
     step: int = 0
     stage: str = ""
     progress: float = 0.0
@@ -69,6 +88,9 @@ class Job:
     created: float = field(default_factory=time.time)
     started: float | None = None
     finished: float | None = None
+    #: ids of the jobs whose files this job reads (a puppet job's persona): kept while it runs
+    uses: list = field(default_factory=list)
+    cancelling: bool = False
 
     def public(self, position: int | None = None) -> dict:
         """The JSON of the job: no server path, only names inside the job."""
@@ -92,20 +114,34 @@ class JobQueue:
         Jobs that may wait; :meth:`submit` raises :class:`QueueFullError` beyond.
     env : dict, optional
         Extra environment of the child processes.
+    keep : int, optional
+        Finished jobs whose folders are kept (the newest); None: no limit.
+    ttl : float, optional
+        Seconds after which a finished job's folder is removed; None: no limit.
+    cleanup_interval : float
+        Seconds between two clean-ups (the first runs at once) when ``keep`` or ``ttl`` is set.
     """
 
-    def __init__(self, workdir, *, workers: int = 1, max_queued: int = 8, env: dict | None = None):
+    def __init__(self, workdir, *, workers: int = 1, max_queued: int = 8, env: dict | None = None,
+                 keep: int | None = None, ttl: float | None = None, cleanup_interval: float = 60.0):
         self.root = Path(workdir).resolve() / "jobs"
         self.root.mkdir(parents=True, exist_ok=True)
         self.max_queued = max_queued
         self.env = {**os.environ, **(env or {})}
+        self.keep, self.ttl = keep, ttl
         self._jobs: dict[str, Job] = {}
         self._waiting: deque[str] = deque()
         self._cond = threading.Condition()
         self._closed = False
         self._procs: dict[str, subprocess.Popen] = {}
+        self._reserved: set[str] = set()  # folders made for a job not submitted yet (uploads arriving)
+        self._pins: dict[str, int] = {}  # job ids whose files are in use outside the queue (a Live session)
         self._threads = [threading.Thread(target=self._work, name=f"facetex-studio-worker-{i}", daemon=True)
                          for i in range(workers)]
+        if keep is not None or ttl is not None:
+            self.cleanup()  # at start-up: what an earlier server left
+            self._threads.append(threading.Thread(target=self._cleaner, args=(max(0.05, cleanup_interval),),
+                                                  name="facetex-studio-cleanup", daemon=True))
         for t in self._threads:
             t.start()
 
@@ -115,10 +151,12 @@ class JobQueue:
         while True:
             job_id = secrets.token_hex(8)
             folder = self.root / job_id
-            try:
-                folder.mkdir()
-            except FileExistsError:  # 64 random bits: practically never
-                continue
+            with self._cond:
+                try:
+                    folder.mkdir()
+                except FileExistsError:  # 64 random bits: practically never
+                    continue
+                self._reserved.add(job_id)
             return job_id, folder
 
     def add_done(self, job_id: str, folder: Path, kind: str, outputs: dict, info: dict | None = None) -> Job:
@@ -127,20 +165,145 @@ class JobQueue:
         job.started = job.finished = time.time()
         with self._cond:
             self._jobs[job_id] = job
+            self._reserved.discard(job_id)
         return job
 
     def submit(self, job_id: str, folder: Path, kind: str, steps: list[Step], outputs: dict,
-               info: dict | None = None) -> Job:
-        """Queue a job whose inputs are in ``folder``; :class:`QueueFullError` when the queue is full."""
-        job = Job(job_id, kind, folder, steps, outputs=dict(outputs), info=info or {})
+               info: dict | None = None, uses: list | None = None) -> Job:
+        """Queue a job whose inputs are in ``folder``; :class:`QueueFullError` when the queue is full.
+        ``uses``: ids of the jobs whose files the job reads (kept by the clean-up while it runs)."""
+        job = Job(job_id, kind, folder, steps, outputs=dict(outputs), info=info or {}, uses=list(uses or []))
         with self._cond:
             if len(self._waiting) >= self.max_queued:
                 raise QueueFullError(f"the studio's queue is full ({self.max_queued} jobs waiting): "
                                      "try again when a job has finished")
             self._jobs[job_id] = job
+            self._reserved.discard(job_id)
             self._waiting.append(job_id)
             self._cond.notify()
         return job
+
+    def discard(self, job_id: str, folder: Path) -> None:
+        """Remove the folder of a job that was never submitted (its uploads were refused)."""
+        with self._cond:
+            self._reserved.discard(job_id)
+        self._remove(folder)
+
+    def cancel(self, job_id: str) -> Job | None:
+        """Cancel a queued or running job: it ends "cancelled", its command's process group is
+        stopped (SIGTERM, then SIGKILL after :data:`KILL_GRACE` s) and its folder is removed. Returns
+        the job (unchanged when it had already finished), or None for no such job. Blocks until a
+        running command has ended."""
+        with self._cond:
+            job = self._jobs.get(job_id) if isinstance(job_id, str) and JOB_ID.match(job_id) else None
+            if job is None or job.state in FINISHED:
+                return job
+            job.cancelling = True
+            queued = job.state == "queued"
+            if queued:
+                self._waiting.remove(job_id)
+                job.state, job.finished = "cancelled", time.time()
+            proc = self._procs.get(job_id)
+        if queued:
+            self._remove(job.folder)
+            return job
+        if proc is not None:
+            self._kill(proc)
+        deadline = time.monotonic() + KILL_GRACE + 10
+        while job.state not in FINISHED and time.monotonic() < deadline:  # the worker removes the folder
+            time.sleep(0.02)
+        return job
+
+    def pin(self, job_id: str) -> None:
+        """Keep a job's folder from the clean-up until :meth:`unpin` (a persona open in a Live session)."""
+        with self._cond:
+            self._pins[job_id] = self._pins.get(job_id, 0) + 1
+
+    def unpin(self, job_id: str) -> None:
+        with self._cond:
+            n = self._pins.get(job_id, 0) - 1
+            if n > 0:
+                self._pins[job_id] = n
+            else:
+                self._pins.pop(job_id, None)
+
+    def cleanup(self, now: float | None = None) -> list[str]:
+        """Remove finished jobs' folders beyond the newest ``keep`` or older than ``ttl`` (module
+        doc), and forget those jobs. Returns the ids removed."""
+        now = time.time() if now is None else now
+        with self._cond:
+            busy = set(self._reserved) | set(self._pins)
+            for j in self._jobs.values():
+                if j.state not in FINISHED:
+                    busy.add(j.id)
+                    busy.update(j.uses)
+            known = {j.id: j for j in self._jobs.values()}
+        candidates = []  # (finished time, id, folder)
+        try:
+            entries = list(os.scandir(self.root))
+        except OSError:
+            return []
+        for e in entries:
+            if not JOB_ID.match(e.name) or e.name in busy or not e.is_dir(follow_symlinks=False):
+                continue  # only real folders named as jobs, directly under the jobs root
+            job = known.get(e.name)
+            if job is not None:
+                when = job.finished or job.created
+            else:
+                try:
+                    when = e.stat(follow_symlinks=False).st_mtime
+                except OSError:
+                    continue
+            candidates.append((when, e.name, Path(e.path)))
+        candidates.sort(reverse=True)
+        removed = []
+        for k, (when, job_id, folder) in enumerate(candidates):
+            if (self.keep is not None and k >= self.keep) or (self.ttl is not None and now - when > self.ttl):
+                with self._cond:  # not taken by a new job meanwhile
+                    if job_id in self._reserved or job_id in self._pins or (
+                            job_id in self._jobs and self._jobs[job_id].state not in FINISHED):
+                        continue
+                    self._jobs.pop(job_id, None)
+                self._remove(folder)
+                removed.append(job_id)
+        return removed
+
+    def _cleaner(self, interval: float) -> None:
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._closed, timeout=interval)
+                if self._closed:
+                    return
+            try:
+                self.cleanup()
+            except Exception:  # noqa: BLE001 - the next round tries again
+                pass
+
+    def _remove(self, folder: Path) -> None:
+        """Remove a job folder: only a real folder directly under the jobs root, named as a job."""
+        folder = Path(folder)
+        if folder.parent != self.root or not JOB_ID.match(folder.name) or folder.is_symlink():
+            raise ValueError(f"not a job folder of this studio: {folder}")
+        shutil.rmtree(folder, ignore_errors=True)
+
+    @staticmethod
+    def _kill(proc: subprocess.Popen) -> None:
+        """Stop a step's process group: SIGTERM, then SIGKILL after KILL_GRACE s."""
+        for sig, wait in ((signal.SIGTERM, KILL_GRACE), (signal.SIGKILL, 10.0)):
+            try:
+                os.killpg(proc.pid, sig)
+            except (ProcessLookupError, PermissionError):
+                return
+            try:
+                proc.wait(wait)
+                # the leader has ended; the rest of its group gets the same signal once more
+                try:
+                    os.killpg(proc.pid, sig)
+                except (ProcessLookupError, PermissionError):
+                    pass
+                return
+            except subprocess.TimeoutExpired:
+                continue
 
     def get(self, job_id: str) -> Job | None:
         """The job of ``job_id``, or None (also for a string that is not a job id)."""
@@ -172,13 +335,16 @@ class JobQueue:
         return path if path.is_file() else None
 
     def close(self) -> None:
-        """Stop the workers; a running command is terminated."""
+        """Stop the workers and the clean-up; a running command is terminated (its process group)."""
         with self._cond:
             self._closed = True
             self._cond.notify_all()
             procs = list(self._procs.values())
         for p in procs:
-            p.terminate()
+            try:
+                os.killpg(p.pid, signal.SIGTERM)
+            except (ProcessLookupError, PermissionError):
+                pass
 
     # -- running them ---------------------------------------------------------------------------
     def _work(self) -> None:
@@ -192,22 +358,31 @@ class JobQueue:
                 job.state, job.started = "running", time.time()
             try:
                 for k, step in enumerate(job.steps):
+                    if job.cancelling:
+                        break
                     job.step, job.stage, job.progress = k, step.label, 0.0
                     self._run_step(job, step)
-                    if job.error:
+                    if job.error or job.cancelling:
                         break
             except Exception as e:  # noqa: BLE001 - a job's failure is its own, the worker goes on
                 job.error = f"internal error: {type(e).__name__}: {e}"
+            if job.cancelling:  # its command has ended: nothing writes to the folder any more
+                self._remove(job.folder)
+                job.error = None
             job.finished = time.time()
-            job.state = "failed" if job.error else "done"
-            if not job.error:
+            job.state = "cancelled" if job.cancelling else "failed" if job.error else "done"
+            if job.state == "done":
                 job.progress = 1.0
 
     def _run_step(self, job: Job, step: Step) -> None:
+        # a session of its own: cancelling stops the command and whatever it started (its process group)
         proc = subprocess.Popen(step.argv, cwd=job.folder, env=self.env, stdin=subprocess.DEVNULL,
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
         with self._cond:
             self._procs[job.id] = proc
+            cancelled = job.cancelling  # cancelled while it was being started
+        if cancelled:
+            threading.Thread(target=self._kill, args=(proc,), daemon=True).start()
         out: list[bytes] = []
         reader = threading.Thread(target=lambda: out.append(proc.stdout.read()), daemon=True)
         reader.start()
@@ -226,7 +401,7 @@ class JobQueue:
         reader.join()
         with self._cond:
             self._procs.pop(job.id, None)
-        if code != 0:
+        if code != 0 and not job.cancelling:
             job.error = self._message(job, lines, code)
             return
         text = b"".join(out).decode("utf-8", "replace").strip()

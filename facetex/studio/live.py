@@ -4,14 +4,21 @@
 
     server -> {"status": "loading", "persona": name}   the session is being opened
     server -> {"status": "ready", "engine": "facetex.live", "size": 256, "mode": "composite",
-               "max_in_flight": 4}
-    page   -> <binary: a 4-byte big-endian frame id, then a JPEG camera frame>   (at the camera's rate)
-    server -> {"id": 17, "kind": "puppet", "frame": true, "server_ms": 61.3}    then <binary: the JPEG>
-              kind "lost": the face was lost, the frame that follows is the camera's own (composite
-              mode; a plain panel in face mode);
-              kind "warmup": no frame follows (the persona is loading, or the first ~8 tracked frames
-              are making the driver's reference)
+               "max_in_flight": 4, "frame_side": 256}
+    page   -> <binary: a 4-byte big-endian frame id, then a JPEG camera frame>   (at the camera's rate,
+              scaled down so that its longer side is at most frame_side)
+    server -> <binary: a 12-byte header (big-endian uint32 id, uint8 kind, uint8 0, uint16 0, float32
+              server_ms), then the JPEG of the reply, or nothing>
+              kind 1 "puppet": the puppet frame; 2 "lost": the face was lost, the JPEG is the camera's own
+              frame (composite mode; a plain panel in face mode); 0 "warmup": no JPEG (the persona is
+              loading, or the first ~8 tracked frames are making the driver's reference)
     server -> {"error": "<one line>"}                   then the socket is closed
+
+Frames and replies are single binary messages (no base64, no JSON per frame), and a camera frame is
+sent no larger than the output needs (``frame_side``: the output's longer side, at least
+:data:`MIN_FRAME_SIDE` for the tracker): the page's JPEG encode, the server's decode and the bytes on
+the socket are those of a 256 px frame, not of the camera's. ``facetex serve`` turns off the
+WebSocket's per-message deflate, which only spent CPU on JPEGs on both sides.
 
 The page sends frames without waiting for replies, at most ``max_in_flight`` unanswered at once (a
 slow network then costs frames, not a growing queue). The server replies in frame order; a camera
@@ -33,6 +40,7 @@ child processes.
 # inside the factory (fastapi is optional), so they must be evaluated where they are written
 
 import asyncio
+import struct
 import threading
 import time
 
@@ -48,7 +56,24 @@ MAX_IN_FLIGHT = 4
 #: the Live page's output sizes (px, longer side): larger frames would not keep up with a camera
 SIZES = (32, 1024)
 MODES = ("composite", "face")
+#: smallest longer side of the camera frames asked for (the tracker's landmarks need a face of ~80 px)
+MIN_FRAME_SIDE = 256
+#: a reply's header: frame id, kind, two zero fields, server ms
+REPLY_HEADER = struct.Struct(">IBBHf")
+KINDS = {"warmup": 0, "puppet": 1, "lost": 2}
 _END = object()
+
+
+def frame_side(size: int) -> int:
+    """The longer side (px) the page scales its camera frames to: the output's, at least MIN_FRAME_SIDE."""
+    return max(int(size), MIN_FRAME_SIDE)
+
+
+def reply_message(fid, kind: str, server_ms, jpeg: bytes | None) -> bytes:
+    """One reply: :data:`REPLY_HEADER` then the JPEG (nothing for a warm-up frame)."""
+    head = REPLY_HEADER.pack(0xFFFFFFFF if fid is None else int(fid) & 0xFFFFFFFF, KINDS.get(kind, 0), 0, 0,
+                             float(server_ms or 0.0))
+    return head + (jpeg or b"")
 
 
 def _decode(data: bytes):
@@ -144,12 +169,15 @@ def add_routes(app, config, jobs) -> None:
             await ws.send_json({"error": "another Live session is running on this studio: try again when it ends"})
             await ws.close()
             return
-        session = feed = runner = None
+        session = feed = runner = pinned = None
         tasks: list = []
         try:
             chosen = personas(config, jobs).get(persona)  # an id of the table, never a path
             if chosen is None:
                 raise BadInputError(f"no persona {persona[:40]!r}: build or upload one first")
+            if persona.startswith("job-"):  # a persona built or uploaded here: kept from the clean-up meanwhile
+                pinned = persona[4:]
+                jobs.pin(pinned)
             await ws.send_json({"status": "loading", "persona": chosen[0]})
             session = await run_in_threadpool(open_session, chosen[1], size, mode)
             loop = asyncio.get_running_loop()
@@ -165,7 +193,7 @@ def add_routes(app, config, jobs) -> None:
             runner = threading.Thread(target=_run, args=(session, feed, post), name="facetex-studio-live", daemon=True)
             runner.start()
             await ws.send_json({"status": "ready", "engine": "facetex.live", "size": int(size), "mode": mode,
-                                "max_in_flight": MAX_IN_FLIGHT})
+                                "max_in_flight": MAX_IN_FLIGHT, "frame_side": frame_side(size)})
             # the runner numbers the pushed frames 0, 1, ...: its record's index -> (page's id, arrival)
             pushed: dict = {}
             tasks = [asyncio.create_task(_receive(ws, feed, pushed, run_in_threadpool)),
@@ -185,6 +213,8 @@ def add_routes(app, config, jobs) -> None:
             if feed is not None:
                 feed.close()  # the runner ends with the source
             await run_in_threadpool(_stop, session, runner)
+            if pinned is not None:
+                jobs.unpin(pinned)
             busy.release()
 
 
@@ -212,7 +242,7 @@ async def _receive(ws, feed, pushed: dict, in_thread) -> None:
 
 
 async def _reply(ws, out: asyncio.Queue, pushed: dict, in_thread) -> None:
-    """The engine's records to the page, in order: the JSON line, then the JPEG (if any)."""
+    """The engine's records to the page, in order: one binary message each (header and JPEG)."""
     while True:
         item = await out.get()
         if item is _END:
@@ -224,10 +254,8 @@ async def _reply(ws, out: asyncio.Queue, pushed: dict, in_thread) -> None:
             del pushed[k]
         fid, arrival = pushed.pop(index, (None, None))
         jpeg = None if item["output"] is None else await in_thread(_encode, item["output"])
-        server_ms = None if arrival is None else round(1000 * (time.perf_counter() - arrival), 1)
-        await ws.send_json({"id": fid, "kind": item["kind"], "frame": jpeg is not None, "server_ms": server_ms})
-        if jpeg is not None:
-            await ws.send_bytes(jpeg)
+        server_ms = None if arrival is None else 1000 * (time.perf_counter() - arrival)
+        await ws.send_bytes(reply_message(fid, item["kind"], server_ms, jpeg))
 
 
 async def _close_with(ws, message: str) -> None:

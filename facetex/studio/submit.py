@@ -89,7 +89,7 @@ def add_routes(app, config, jobs) -> None:
             c, c_shown = await image_input(folder, "content", content, content_sample)
             s, s_shown = await image_input(folder, "style", style, style_sample)
         except BaseException:
-            shutil.rmtree(folder, ignore_errors=True)
+            jobs.discard(job_id, folder)
             raise
         args = ["transfer", c, s, "-o", "result.png", "--method", method, "--preset", preset]
         if size is not None:
@@ -126,7 +126,7 @@ def add_routes(app, config, jobs) -> None:
                 raise BadInputError(f"{n} photo(s) uploaded, fewer than the {min_photos} needed (min_photos): "
                                     "give more photos of the person")
         except BaseException:
-            shutil.rmtree(folder, ignore_errors=True)
+            jobs.discard(job_id, folder)
             raise
         names = sorted(p.name for p in pdir.iterdir())
         refs = names[:: max(1, len(names) // TEXTURES)][:TEXTURES]  # spread over the collection
@@ -153,7 +153,7 @@ def add_routes(app, config, jobs) -> None:
             await save_upload(persona, folder / "persona.persona", config.max_upload)
             await run_in_threadpool(check_persona, folder / "persona.persona", shown_name(persona.filename))
         except BaseException:
-            shutil.rmtree(folder, ignore_errors=True)
+            jobs.discard(job_id, folder)
             raise
         name = Path(shown_name(persona.filename)).stem
         job = jobs.add_done(job_id, folder, "persona-upload", {"persona.persona": "persona.persona"},
@@ -180,7 +180,7 @@ def add_routes(app, config, jobs) -> None:
         try:
             await save_upload(driver, folder / f"driver{suffix}", config.max_upload)
         except BaseException:
-            shutil.rmtree(folder, ignore_errors=True)
+            jobs.discard(job_id, folder)
             raise
         args = ["puppet", f"driver{suffix}", str(chosen[1]), "-o", "puppet.mp4", "--mode", mode, "--size", str(size)]
         if side_by_side:
@@ -188,6 +188,7 @@ def add_routes(app, config, jobs) -> None:
         if max_frames:
             args += ["--max-frames", str(max_frames)]
         job = jobs.submit(job_id, folder, "puppet", [Step("puppet", facetex_command(*args))],
+                          uses=[persona[4:]] if persona.startswith("job-") else [],
                           outputs={"puppet.mp4": "puppet.mp4", "puppet.mp4.json": "puppet.mp4.json"},
                           info={"driver": shown_name(driver.filename), "persona": chosen[0], "mode": mode,
                                 "size": size})

@@ -2,7 +2,7 @@
 ``executable_path``, as the report's browser test), against a real uvicorn server on a free
 localhost port: Transfer runs a preview transfer of two bundled samples end to end (the
 before/after slider and the zooms show it), Persona builds a tiny persona from photos of a
-bundled sample, Puppet renders a short clip that plays, and Live, with Chromium's fake camera
+bundled sample, Puppet renders a short clip that plays, a running job is cancelled with its Cancel button, and Live, with Chromium's fake camera
 fed a .y4m clip, shows puppet frames and its fps / latency counters. No page logs a console
 error. ``FACETEX_STUDIO_SCREENSHOTS=DIR`` keeps a screenshot of each page there.
 
@@ -105,6 +105,26 @@ def test_transfer_page_shows_a_bad_upload_as_the_one_line_error(browser, studio,
     assert pg.is_hidden("#result")
     # the browser logs the refused request (400) itself; nothing else
     assert [m for m in pg.messages if "status of 400" not in m] == []
+    pg.close()
+
+
+def test_transfer_page_cancels_a_running_job(browser, studio):
+    pg = open_page(browser, f"{studio.url}/transfer")
+    pg.wait_for_function("document.querySelectorAll('#preset option').length > 0")
+    pg.select_option("#preset", "default")  # long enough to be cancelled while it runs
+    pg.click("#run")
+    pg.wait_for_selector("#progress button.cancel:not(.hidden)")
+    pg.wait_for_function("document.querySelector('#progress .stage').textContent.startsWith('transfer')",
+                         timeout=60_000)  # running, not queued
+    job = pg.evaluate("fetch('/api/jobs').then(r => r.json()).then(js => js[js.length - 1])")
+    assert job["state"] == "running"
+    pg.click("#progress button.cancel")
+    pg.wait_for_function("document.querySelector('#progress .stage').textContent.startsWith('cancelled')",
+                         timeout=30_000)
+    assert pg.is_hidden("#progress button.cancel") and pg.is_hidden("#result") and pg.is_enabled("#run")
+    assert pg.request.get(f"{studio.url}/api/jobs/{job['id']}").json()["state"] == "cancelled"
+    assert not (studio.app.state.jobs.root / job["id"]).exists()
+    assert pg.messages == []
     pg.close()
 
 

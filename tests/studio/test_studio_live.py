@@ -1,9 +1,12 @@
 """The Live page's WebSocket protocol with the streaming engine (facetex.live) and the tiny persona:
 camera frames sent with ids, without waiting (at most the server's max_in_flight unanswered),
-replies in order tagged with the id and kind (warm-up first, then puppet frames of the asked size), one-line errors, one session at a
+replies in order, each one binary message (a 12-byte header with the id, kind and server time, then
+the JPEG) (warm-up first, then puppet frames of the asked size), one-line errors, one session at a
 time, and no child process left behind."""
 
 from __future__ import annotations
+
+import json
 
 import cv2
 import numpy as np
@@ -16,6 +19,17 @@ pytest.importorskip("fastapi", reason="the studio extra is not installed (pip in
 
 def _message(fid: int, frame: np.ndarray) -> bytes:
     return fid.to_bytes(4, "big") + cv2.imencode(".jpg", cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))[1].tobytes()
+
+
+def _reply(data: bytes):
+    """(header dict, decoded image or None) of a reply message."""
+    from facetex.studio.live import KINDS, REPLY_HEADER
+
+    fid, kind, a, b, server_ms = REPLY_HEADER.unpack_from(data)
+    assert a == b == 0
+    body = data[REPLY_HEADER.size:]
+    img = cv2.imdecode(np.frombuffer(body, np.uint8), cv2.IMREAD_COLOR) if body else None
+    return {"id": fid, "kind": {v: k for k, v in KINDS.items()}[kind], "frame": bool(body), "server_ms": server_ms}, img
 
 
 def _children() -> set:
@@ -44,11 +58,9 @@ def _stream(ws, frames, max_in_flight: int, until_puppets: int = 3, limit: int =
             sent.append(len(sent))
             unanswered += 1
         assert unanswered, f"no puppet frame after {limit} frames: {replies[-3:]}"
-        meta = ws.receive_json()
-        assert "error" not in meta, meta
-        img = None
-        if meta["frame"]:
-            img = cv2.imdecode(np.frombuffer(ws.receive_bytes(), np.uint8), cv2.IMREAD_COLOR)
+        msg = ws.receive()
+        assert msg.get("text") is None, msg["text"]
+        meta, img = _reply(msg["bytes"])
         replies.append((meta, img))
         # the replies come in order: this one answers its id and drops the older unanswered ones
         unanswered = sum(1 for i in sent if i > meta["id"])
@@ -71,7 +83,7 @@ def test_websocket_streams_puppet_frames_with_ids_and_one_line_errors(tmp_path, 
             assert ws.receive_json()["status"] == "loading"
             ready = ws.receive_json()
             assert ready["status"] == "ready" and ready["size"] == 160 and ready["engine"] == "facetex.live"
-            assert ready["max_in_flight"] == 4
+            assert ready["max_in_flight"] == 4 and ready["frame_side"] == 256  # at least the tracker's 256 px
             # a second session while this one runs is refused with one line
             with c.websocket_connect(f"/api/live?persona={persona}") as ws2:
                 assert "another Live session" in ws2.receive_json()["error"]
@@ -87,18 +99,20 @@ def test_websocket_streams_puppet_frames_with_ids_and_one_line_errors(tmp_path, 
                     assert img.shape == (120, 160, 3)  # the camera's aspect, longer side 160
             ws.send_bytes(b"\0\0\0\x07not a jpeg")
             while True:  # the replies of frames still in flight, then the error
-                meta = ws.receive_json()
-                if "error" in meta:
+                msg = ws.receive()
+                if msg.get("text") is not None:
                     break
-                if meta["frame"]:
-                    ws.receive_bytes()
-            assert meta == {"error": "a camera frame is not a JPEG or PNG image"}
+            assert json.loads(msg["text"]) == {"error": "a camera frame is not a JPEG or PNG image"}
         # the first session has ended, so a second one starts; a text message is refused
         with c.websocket_connect(f"/api/live?persona={persona}&mode=face&size=128") as ws:
             assert ws.receive_json()["status"] == "loading"
             ws.send_text("hello")
-            assert ws.receive_json()["status"] == "ready"
+            ready = ws.receive_json()
+            assert ready["status"] == "ready" and ready["frame_side"] == 256
             assert "binary messages" in ws.receive_json()["error"]
+        with c.websocket_connect(f"/api/live?persona={persona}&size=400") as ws:
+            assert ws.receive_json()["status"] == "loading"
+            assert ws.receive_json()["frame_side"] == 400  # a larger output asks for larger frames
         with c.websocket_connect(f"/api/live?persona={persona}&size=5000") as ws:
             assert ws.receive_json()["status"] == "loading"
             assert ws.receive_json() == {"error": "live size must be 32..1024 px, got 5000"}

@@ -1,6 +1,8 @@
 // Live page: camera frames stream to the studio over a WebSocket (each with an id, at most a few
 // unanswered at once); puppet frames come back tagged with the id they were made from, so the page
-// measures latency (send to receive of that id), puppet fps, dropped frames and p50/p95 in its own clock
+// measures latency (send to receive of that id), puppet fps, dropped frames and p50/p95 in its own clock.
+// Both ways a frame is one binary message: 4-byte id + JPEG to the studio (the camera frame scaled down
+// to the "frame_side" the studio asks for), a 12-byte header (id, kind, server ms) + JPEG back
 "use strict";
 studioHeader("/live");
 const $ = (id) => document.getElementById(id);
@@ -12,10 +14,10 @@ fillPersonas($("persona")).catch((e) => showError($("error"), e.message));
 // sent because MAX_IN_FLIGHT were unanswered
 const stats = window.liveStats = { first: null, sent: 0, received: 0, lost: 0, warmup: 0, dropped: 0, held: 0,
   fps: 0, p50: null, p95: null, latencies: [], times: [], server: null };
-let MAX_IN_FLIGHT = 4;
+let MAX_IN_FLIGHT = 4, FRAME_SIDE = 0;  // from the studio's "ready" message (0: the camera's size)
+const KINDS = ["warmup", "puppet", "lost"], HEADER = 12;
 let ws = null, stream = null, running = false, nextId = 0;
 const inFlight = new Map();  // id -> send time (performance.now()), in the order sent
-let pending = null;  // the reply whose JPEG comes next
 const canvas = document.createElement("canvas");
 
 function percentile(values, q) {
@@ -63,8 +65,12 @@ function onCameraFrame() {
     } else {
       const id = nextId++;
       inFlight.set(id, null);  // counted while the JPEG is being made
-      canvas.width = video.videoWidth; canvas.height = video.videoHeight;
-      canvas.getContext("2d").drawImage(video, 0, 0);
+      // the frame at the size the studio works at: a smaller JPEG to encode, send and decode
+      const w = video.videoWidth, h = video.videoHeight;
+      const k = FRAME_SIDE ? Math.min(1, FRAME_SIDE / Math.max(w, h)) : 1;
+      const cw = Math.round(w * k), ch = Math.round(h * k);
+      if (canvas.width !== cw || canvas.height !== ch) { canvas.width = cw; canvas.height = ch; }
+      canvas.getContext("2d").drawImage(video, 0, 0, cw, ch);
       canvas.toBlob((blob) => {
         if (!blob || !ws || ws.readyState !== WebSocket.OPEN) { inFlight.delete(id); return; }
         const head = new DataView(new ArrayBuffer(4));
@@ -79,35 +85,36 @@ function onCameraFrame() {
   else setTimeout(onCameraFrame, 40);
 }
 
-function onReply(m) {
-  const sentAt = answered(m.id);
-  if (m.server_ms != null) stats.server = m.server_ms;
-  if (m.kind === "warmup") {
+// a reply (ArrayBuffer): the header (id, kind, server ms), then the JPEG unless it is a warm-up frame
+function onReply(buf) {
+  const now = performance.now();
+  const head = new DataView(buf, 0, HEADER);
+  const id = head.getUint32(0), kind = KINDS[head.getUint8(4)] || "warmup";
+  const sentAt = answered(id);
+  stats.server = head.getFloat32(8);
+  if (kind === "warmup") {
     stats.warmup++;
     $("status").textContent = "warming up (the first frames of your face make its reference)…";
     return;
   }
-  if (m.kind === "lost") stats.lost++;
-  $("status").textContent = m.kind === "lost" ? "no face: showing the camera" : `running (${ws.info})`;
-  if (m.frame) pending = { kind: m.kind, sentAt };
-}
-
-// a frame is drawn once decoded (an <img> whose src changes 25 times a second shows nothing between
-// loads); `shown` keeps a late decode from drawing over a newer frame
-let decoded = 0, shown = 0;
-function onFrame(blob) {
-  const p = pending;
-  pending = null;
-  if (!p) return;
-  if (p.kind === "puppet") {
-    const now = performance.now();
-    if (p.sentAt != null) {
-      stats.latencies.push(now - p.sentAt);
+  if (kind === "lost") stats.lost++;
+  $("status").textContent = kind === "lost" ? "no face: showing the camera" : `running (${ws.info})`;
+  if (kind === "puppet") {
+    if (sentAt != null) {
+      stats.latencies.push(now - sentAt);
       if (stats.latencies.length > 2000) stats.latencies.splice(0, 1000);
     }
     stats.received++;
     stats.times.push(now);
   }
+  if (buf.byteLength > HEADER) show(new Blob([new Uint8Array(buf, HEADER)], { type: "image/jpeg" }));
+}
+
+// a frame is drawn once decoded (createImageBitmap decodes off the main thread; an <img> whose src
+// changes 25 times a second shows nothing between loads); `shown` keeps a late decode from drawing
+// over a newer frame
+let decoded = 0, shown = 0;
+function show(blob) {
   const n = ++decoded;
   createImageBitmap(blob).then((bmp) => {
     if (n > shown) {
@@ -131,22 +138,22 @@ async function start() {
   }
   $("camera").srcObject = stream;
   $("start").disabled = true; $("stop").disabled = false;
-  inFlight.clear(); pending = null;
+  inFlight.clear();
   const q = new URLSearchParams({ persona: $("persona").value, mode: $("mode").value, size: $("size").value });
   ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/api/live?${q}`);
-  ws.binaryType = "blob";
+  ws.binaryType = "arraybuffer";
   ws.onmessage = (ev) => {
-    if (typeof ev.data !== "string") { onFrame(ev.data); return; }
+    if (typeof ev.data !== "string") { onReply(ev.data); return; }
     const m = JSON.parse(ev.data);
     if (m.error) { showError($("error"), m.error); stop(); return; }
     if (m.status === "loading") $("status").textContent = `loading ${m.persona}…`;
     if (m.status === "ready") {
       MAX_IN_FLIGHT = m.max_in_flight || MAX_IN_FLIGHT;
+      FRAME_SIDE = m.frame_side || 0;
       ws.info = `${m.engine}, ${m.size} px, ${m.mode}`;
       ws.ready = true;
       $("status").textContent = "warming up…";
     }
-    if ("id" in m) onReply(m);
   };
   ws.onclose = () => { if (running) { $("status").textContent = "disconnected"; stop(); } };
   running = true;
@@ -157,7 +164,7 @@ function stop() {
   running = false;
   if (ws) { const w = ws; ws = null; if (w.readyState <= WebSocket.OPEN) w.close(); }
   if (stream) { stream.getTracks().forEach((t) => t.stop()); stream = null; }
-  inFlight.clear(); pending = null;
+  inFlight.clear();
   $("start").disabled = false; $("stop").disabled = true;
   const s = $("status").textContent;
   if (s.startsWith("running") || s.startsWith("warming") || s.startsWith("no face")) $("status").textContent = "stopped";

@@ -27,6 +27,7 @@ $("form").addEventListener("submit", async (ev) => {
     const job = await api("/api/persona", { method: "POST", body: fd });
     const done = await watchJob(job.id, progressView($("progress")));
     if (done.state === "failed") throw new Error(done.error);
+    if (done.state === "cancelled") return;  // the progress block says so
     showResult(done);
   } catch (e) {
     showError($("error"), e.message);

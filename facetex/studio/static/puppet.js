@@ -35,6 +35,7 @@ $("form").addEventListener("submit", async (ev) => {
     const job = await api("/api/puppet", { method: "POST", body: fd });
     const done = await watchJob(job.id, progressView($("progress")));
     if (done.state === "failed") throw new Error(done.error);
+    if (done.state === "cancelled") return;  // the progress block says so
     $("result").classList.remove("hidden");
     const v = $("video");
     v.src = fileUrl(done, "puppet.mp4");

@@ -34,14 +34,16 @@ function fileUrl(job, name, download) {
   return `/api/jobs/${job.id}/files/${encodeURIComponent(name)}` + (download ? "?download=1" : "");
 }
 
-// follow a job over Server-Sent Events until it is done or failed; onUpdate(job) each change
+const FINISHED = ["done", "failed", "cancelled"];
+
+// follow a job over Server-Sent Events until it is done, failed or cancelled; onUpdate(job) each change
 function watchJob(jobId, onUpdate) {
   return new Promise((resolve) => {
     const es = new EventSource(`/api/jobs/${jobId}/events`);
     es.onmessage = (ev) => {
       const job = JSON.parse(ev.data);
       onUpdate(job);
-      if (job.state === "done" || job.state === "failed") { es.close(); resolve(job); }
+      if (FINISHED.includes(job.state)) { es.close(); resolve(job); }
     };
     es.onerror = () => {  // the stream ended without a final state: ask once more
       es.close();
@@ -50,12 +52,31 @@ function watchJob(jobId, onUpdate) {
   });
 }
 
-// a progress block: <progress>, the stage, and the list of stages seen (each marked done when the next starts)
+// a progress block: <progress>, the stage, the list of stages seen (each marked done when the next
+// starts) and a Cancel button while the job is queued or running (the studio stops its command and
+// removes its folder)
 function progressView(root) {
   const bar = root.querySelector("progress"), stage = root.querySelector(".stage"), list = root.querySelector("ol.stages");
+  let cancel = root.querySelector("button.cancel");
+  if (!cancel) {
+    cancel = document.createElement("button");
+    cancel.type = "button"; cancel.className = "secondary cancel"; cancel.textContent = "Cancel";
+    stage.after(cancel);
+  }
   const seen = [];
   return (job) => {
     root.classList.remove("hidden");
+    const active = job.state === "queued" || job.state === "running";
+    cancel.classList.toggle("hidden", !active);
+    cancel.onclick = () => {
+      cancel.disabled = true;
+      api(`/api/jobs/${job.id}/cancel`, { method: "POST" }).catch((e) => { stage.textContent = `error: ${e.message}`; });
+    };
+    if (active) cancel.disabled = false;
+    if (job.state === "cancelled") {
+      stage.textContent = "cancelled" + (job.seconds != null ? ` after ${job.seconds.toFixed(1)} s` : "");
+      return;
+    }
     const n = job.steps.length, step = Math.min(job.step, n - 1);
     bar.value = job.state === "done" ? 1 : (step + job.progress) / Math.max(1, n);
     const where = job.state === "queued" ? `queued (position ${job.position + 1})` : job.stage || job.state;

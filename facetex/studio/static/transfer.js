@@ -36,6 +36,7 @@ $("form").addEventListener("submit", async (ev) => {
     const job = await api("/api/transfer", { method: "POST", body: fd });
     const done = await watchJob(job.id, progressView($("progress")));
     if (done.state === "failed") throw new Error(done.error);
+    if (done.state === "cancelled") return;  // the progress block says so
     await showResult(done);
   } catch (e) {
     showError($("error"), e.message);
