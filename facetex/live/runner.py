@@ -238,14 +238,39 @@ def _run(session, source, out_path, *, overwrite, window, on_frame, max_frames, 
         finally:
             mailbox.close()
 
-    def track():
+    # three stages when the session splits its preparation (LiveSession.track / prepare_tracked):
+    # frame t+1 is tracked (in the tracking process) while frame t's motion, mesh and texture are made
+    split = pipeline and hasattr(session, "track") and hasattr(session, "prepare_tracked")
+    tracked = LatestFrame() if split else None
+
+    def track_only():
         try:
             while not stop.is_set():
                 item = mailbox.get()
                 if item is None:
                     break
                 frame, arrival, t, index = item
-                work = session.prepare(frame, arrival=arrival, t=t, fps=src.fps, index=index)
+                if tracked.put(session.track(frame, arrival=arrival, t=t, fps=src.fps, index=index)):
+                    stats.drop()  # tracked, but a newer frame was tracked before it could be prepared
+        except BaseException as e:  # noqa: BLE001
+            errors.append(e)
+        finally:
+            tracked.close()
+
+    def track():
+        try:
+            while not stop.is_set():
+                if split:
+                    work = tracked.get()
+                    if work is None:
+                        break
+                    work = session.prepare_tracked(work)
+                else:
+                    item = mailbox.get()
+                    if item is None:
+                        break
+                    frame, arrival, t, index = item
+                    work = session.prepare(frame, arrival=arrival, t=t, fps=src.fps, index=index)
                 while not stop.is_set():
                     try:
                         handoff.put(work, timeout=0.2)
@@ -274,11 +299,14 @@ def _run(session, source, out_path, *, overwrite, window, on_frame, max_frames, 
 
     reader = threading.Thread(target=read, name="facetex-live-reader", daemon=True)
     tracker = threading.Thread(target=track, name="facetex-live-tracker", daemon=True) if pipeline else None
+    tracker0 = threading.Thread(target=track_only, name="facetex-live-tracking", daemon=True) if split else None
     error = None
     shown = False
     next_report = time.perf_counter() + 1.0
     try:
         reader.start()
+        if tracker0 is not None:
+            tracker0.start()
         if tracker is not None:
             tracker.start()
         while True:
@@ -311,12 +339,16 @@ def _run(session, source, out_path, *, overwrite, window, on_frame, max_frames, 
         stop.set()
         src.close()
         mailbox.close()
+        if tracked is not None:
+            tracked.close()
         while True:  # unblock the tracker
             try:
                 handoff.get_nowait()
             except queue.Empty:
                 break
         reader.join(timeout=5)
+        if tracker0 is not None:
+            tracker0.join(timeout=5)
         if tracker is not None:
             tracker.join(timeout=5)
         written = writer.close(error) if writer is not None else None
