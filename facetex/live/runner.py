@@ -239,13 +239,18 @@ def _run(session, source, out_path, *, overwrite, window, on_frame, max_frames, 
             mailbox.close()
 
     # three stages when the session splits its preparation (LiveSession.track / prepare_tracked):
-    # frame t+1 is tracked (in the tracking process) while frame t's motion, mesh and texture are made
+    # frame t+1 is tracked (in the tracking process) while frame t's motion, mesh and texture are
+    # made (before: the tracking's ~8 ms of waiting for its process were part of that stage's period)
     split = pipeline and hasattr(session, "track") and hasattr(session, "prepare_tracked")
     tracked = LatestFrame() if split else None
 
     def track_only():
         try:
             while not stop.is_set():
+                # the next frame is taken once the previous tracked one was: a frame tracked while the
+                # stage after is still busy with an older one would only be dropped (CPU spent for
+                # nothing on a loaded machine), and the newest frame is tracked as the stage frees
+                tracked.wait_taken()
                 item = mailbox.get()
                 if item is None:
                     break
