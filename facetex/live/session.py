@@ -392,20 +392,22 @@ class LiveSession:
         Ws = np.stack([w[0] for w in win])
         coords = [np.stack([w[1][j] for w in win]) for j in range(Ws.shape[1])]
         smooth = temporal_weights(Ws, coords, np.stack([w[2] for w in win]), sigma_frames=sigma,
-                                  range_scale=self.params.weight_range)[-1]
+                                  range_scale=self.params.weight_range, last=True)[-1]
         return blend_weights(self._persona, smooth[None], params=tp)[0]
 
     def _push_weights(self, slot: int) -> None:
         """This frame's regional texture weights (as the offline blend's) into the filter's window."""
-        from ..persona.texture import expression_model, sequence_weights
+        from ..persona.pyramid import SPARSE_MASS, _cut_small
+        from ..persona.texture import _fiducials49, expression_model
 
         tp = self.params.texture_params()
         if self.params.texture != "ours" or tp.weights != "regional" or not self._loading.textured.is_set():
             return
-        f = self.puppeteer.target(slot)[None]
-        model = expression_model(self._persona, tp)
-        W = sequence_weights(self._persona, f, tp)[0]  # (R, n): this frame's, cut as offline
-        self._weights.append((W, [c[0] for c in model.coordinates(f)], model.sigmas(f)[0]))
+        f = _fiducials49(self.puppeteer.target(slot))[None]
+        coords, sigmas, S = expression_model(self._persona, tp).evaluate(f)
+        # (R, n): this frame's weights, cut as offline (facetex.persona.texture.sequence_weights)
+        W = np.stack([_cut_small(S[:, j], SPARSE_MASS, tp.max_photos) for j in range(S.shape[1])], axis=1)[0]
+        self._weights.append((W, [c[0] for c in coords], sigmas[0]))
 
     def _plain_texture(self, slot: int) -> np.ndarray:
         """The texture of the puppet's own method (static, global weights, or per-frame regional
