@@ -6,7 +6,10 @@ Threads (numpy, OpenCV, the mesh network and PyAV release the GIL in most of the
 * the **reader** takes frames from the source as they arrive (a file at its own frame rate) into a
   one-frame mailbox (:class:`~facetex.live.sources.LatestFrame`): a frame not taken before the next
   arrives is dropped, so the processing always takes the newest frame;
-* the **tracker** runs :meth:`LiveSession.prepare` (tracking, motion, mesh, texture) of frame t+1
+* the **tracking** thread runs :meth:`LiveSession.track` of frame t+2 (in the tracking process), taking
+  the next frame once the previous tracked one was taken, while
+* the **tracker** runs :meth:`LiveSession.prepare_tracked` (motion, mesh, texture) of frame t+1
+  (a session without those two methods: :meth:`LiveSession.prepare` of frame t+1, tracking included)
   while
 * the **renderer** (the calling thread) runs :meth:`LiveSession.finish` (render, composite) of frame
   t and hands the output to the sinks;
