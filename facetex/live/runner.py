@@ -6,10 +6,7 @@ Threads (numpy, OpenCV, the mesh network and PyAV release the GIL in most of the
 * the **reader** takes frames from the source as they arrive (a file at its own frame rate) into a
   one-frame mailbox (:class:`~facetex.live.sources.LatestFrame`): a frame not taken before the next
   arrives is dropped, so the processing always takes the newest frame;
-* the **tracking** thread runs :meth:`LiveSession.track` of frame t+2 (in the tracking process), taking
-  the next frame once the previous tracked one was taken, while
-* the **tracker** runs :meth:`LiveSession.prepare_tracked` (motion, mesh, texture) of frame t+1
-  (a session without those two methods: :meth:`LiveSession.prepare` of frame t+1, tracking included)
+* the **tracker** runs :meth:`LiveSession.prepare` (tracking, motion, mesh, texture) of frame t+1
   while
 * the **renderer** (the calling thread) runs :meth:`LiveSession.finish` (render, composite) of frame
   t and hands the output to the sinks;
@@ -241,44 +238,14 @@ def _run(session, source, out_path, *, overwrite, window, on_frame, max_frames, 
         finally:
             mailbox.close()
 
-    # three stages when the session splits its preparation (LiveSession.track / prepare_tracked):
-    # frame t+1 is tracked (in the tracking process) while frame t's motion, mesh and texture are
-    # made (before: the tracking's ~8 ms of waiting for its process were part of that stage's period)
-    split = pipeline and hasattr(session, "track") and hasattr(session, "prepare_tracked")
-    tracked = LatestFrame() if split else None
-
-    def track_only():
+    def track():
         try:
             while not stop.is_set():
-                # the next frame is taken once the previous tracked one was: a frame tracked while the
-                # stage after is still busy with an older one would only be dropped (CPU spent for
-                # nothing on a loaded machine), and the newest frame is tracked as the stage frees
-                tracked.wait_taken()
                 item = mailbox.get()
                 if item is None:
                     break
                 frame, arrival, t, index = item
-                if tracked.put(session.track(frame, arrival=arrival, t=t, fps=src.fps, index=index)):
-                    stats.drop()  # tracked, but a newer frame was tracked before it could be prepared
-        except BaseException as e:  # noqa: BLE001
-            errors.append(e)
-        finally:
-            tracked.close()
-
-    def track():
-        try:
-            while not stop.is_set():
-                if split:
-                    work = tracked.get()
-                    if work is None:
-                        break
-                    work = session.prepare_tracked(work)
-                else:
-                    item = mailbox.get()
-                    if item is None:
-                        break
-                    frame, arrival, t, index = item
-                    work = session.prepare(frame, arrival=arrival, t=t, fps=src.fps, index=index)
+                work = session.prepare(frame, arrival=arrival, t=t, fps=src.fps, index=index)
                 while not stop.is_set():
                     try:
                         handoff.put(work, timeout=0.2)
@@ -307,14 +274,11 @@ def _run(session, source, out_path, *, overwrite, window, on_frame, max_frames, 
 
     reader = threading.Thread(target=read, name="facetex-live-reader", daemon=True)
     tracker = threading.Thread(target=track, name="facetex-live-tracker", daemon=True) if pipeline else None
-    tracker0 = threading.Thread(target=track_only, name="facetex-live-tracking", daemon=True) if split else None
     error = None
     shown = False
     next_report = time.perf_counter() + 1.0
     try:
         reader.start()
-        if tracker0 is not None:
-            tracker0.start()
         if tracker is not None:
             tracker.start()
         while True:
@@ -347,16 +311,12 @@ def _run(session, source, out_path, *, overwrite, window, on_frame, max_frames, 
         stop.set()
         src.close()
         mailbox.close()
-        if tracked is not None:
-            tracked.close()
         while True:  # unblock the tracker
             try:
                 handoff.get_nowait()
             except queue.Empty:
                 break
         reader.join(timeout=5)
-        if tracker0 is not None:
-            tracker0.join(timeout=5)
         if tracker is not None:
             tracker.join(timeout=5)
         written = writer.close(error) if writer is not None else None

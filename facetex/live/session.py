@@ -266,8 +266,8 @@ class LiveSession:
         nominal rate (the reference's); ``index``: the frame's number in the source (default: the
         count of frames prepared; a runner that drops frames gives the source's), the records' "index".
 
-        It is :meth:`track` then :meth:`prepare_tracked`, which a pipelined runner calls on two
-        threads (frame t+1 tracked while frame t's motion, mesh and texture are made)."""
+        It is :meth:`track` then :meth:`prepare_tracked` (a caller may run them on two threads:
+        frame t+1 tracked while frame t's motion, mesh and texture are made)."""
         return self.prepare_tracked(self.track(frame, arrival=arrival, t=t, fps=fps, index=index))
 
     def track(self, frame, *, arrival: float | None = None, t: float | None = None, fps: float = 25.0,

@@ -49,13 +49,7 @@ class LatestFrame:
             if self._item is None and not self._closed:
                 self._cond.wait_for(lambda: self._item is not None or self._closed, timeout)
             item, self._item = self._item, None
-            self._cond.notify_all()  # wait_taken()
             return item
-
-    def wait_taken(self, timeout: float | None = None) -> None:
-        """Wait until no item is waiting (taken by :meth:`get`), or the mailbox is closed."""
-        with self._cond:
-            self._cond.wait_for(lambda: self._item is None or self._closed, timeout)
 
     def close(self) -> None:
         with self._cond:
