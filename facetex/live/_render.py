@@ -44,8 +44,13 @@ class _Renderer:
     """The child's object: started at once (its imports made), given the kit when the puppet is made."""
 
     def __init__(self):
+        import cv2
+
         from ..puppet import composite, puppeteer, render  # noqa: F401 - imported now, not at the first frame
 
+        # OpenCV builds its CIELAB tables at the first conversion (~0.1 s): now, not in the first frame
+        for code in (cv2.COLOR_LRGB2Lab, cv2.COLOR_Lab2RGB, cv2.COLOR_RGB2Lab, cv2.COLOR_Lab2LRGB):
+            cv2.cvtColor(np.zeros((1, 1, 3), np.float32), code)
         self.kit = None
 
     def set_kit(self, kit, *first) -> None:

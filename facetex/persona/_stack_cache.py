@@ -76,7 +76,32 @@ def read_stack_cache(prep, folder) -> bool:
             seg.stack = a
     prep._gaze = gaze.astype(np.float64)
     prep._stage["band_energy"] = energy
+    _prefetch([a for arrs in stacks for a in arrs])
     return True
+
+
+def _willneed(arrays) -> None:
+    import mmap
+
+    for a in arrays:
+        m = getattr(a, "_mmap", None)
+        if m is not None:
+            try:
+                m.madvise(mmap.MADV_WILLNEED)
+            except (OSError, ValueError):
+                pass
+
+
+def _prefetch(arrays) -> None:
+    """Ask the kernel to read the mapped files into the page cache, on a thread (the reads are
+    asynchronous; the call may still wait for the disk's queue). Why: a blend reads ~80 of the
+    photos' rows, scattered over the files; from a cold page cache the first blends fault them
+    in a few pages at a time (the first live frame's set-up took 2.3 s instead of 0.5 s)."""
+    import mmap
+    import threading
+
+    if hasattr(mmap, "MADV_WILLNEED"):
+        threading.Thread(target=_willneed, args=(arrays,), name="facetex-stack-prefetch", daemon=True).start()
 
 
 def write_stack_cache(prep, folder, persona_path=None) -> None:

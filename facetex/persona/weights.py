@@ -145,15 +145,19 @@ class ExpressionModel:
         ``neighbours``-th nearest photo / :data:`SIGMA_DIVISOR` (:func:`adaptive_sigma`)."""
         t = np.asarray(targets, np.float64)
         one = t.ndim == 2
-        if one:
-            t = t[None]
-        out = []
-        for r, c in zip(self.regions, self.coordinates(t)):
-            d2 = ((c[:, None, :] - r.coords[None]) ** 2).sum(-1)
-            sig = adaptive_sigma(np.sqrt(d2), r.k, floor=1e-3 * r.kth)
-            out.append(np.exp(-d2 / (2.0 * sig[:, None] ** 2)))
-        s = np.stack(out, axis=1)
+        s = self.evaluate(t[None] if one else t)[2]
         return s[0] if one else s
+
+    def evaluate(self, targets) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+        """(:meth:`coordinates`, :meth:`sigmas`, :meth:`similarities`) of (B, 49, 2) targets at once
+        (each computed once)."""
+        coords = self.coordinates(np.asarray(targets, np.float64))
+        sig, out = [], []
+        for r, c in zip(self.regions, coords):
+            d2 = ((c[:, None, :] - r.coords[None]) ** 2).sum(-1)
+            sig.append(adaptive_sigma(np.sqrt(d2), r.k, floor=1e-3 * r.kth))
+            out.append(np.exp(-d2 / (2.0 * sig[-1][:, None] ** 2)))
+        return coords, np.stack(sig, axis=1), np.stack(out, axis=1)
 
     def sigmas(self, targets) -> np.ndarray:
         """(B, R) adaptive sigmas (IOD units) of (B, 49, 2) targets."""
@@ -284,8 +288,8 @@ def global_similarity(target, fiducials, sigma: float = 10.0, *, scale: float = 
     return np.exp(-d2 / (2.0 * sigma**2))
 
 
-def temporal_weights(weights, coordinates, sigmas, *, sigma_frames: float, range_scale: float = 1.0
-                     ) -> np.ndarray:
+def temporal_weights(weights, coordinates, sigmas, *, sigma_frames: float, range_scale: float = 1.0,
+                     last: bool = False) -> np.ndarray:
     """Expression weights of a frame sequence made temporally coherent (puppetry, beyond the paper).
 
     ``weights`` (N, R, n): each frame's per-region photo weights as its blend would use them;
@@ -298,7 +302,9 @@ def temporal_weights(weights, coordinates, sigmas, *, sigma_frames: float, range
     swaps them from frame to frame (the texture shimmers); frames with the same expression now
     share one blend, while frames with another expression (a mouth opening) are not mixed in,
     so the expression stays. Each frame keeps its total weight (the uniform term of Eq. 3 is
-    relative to it). Frames are filtered in a band (cost O(N x window x n))."""
+    relative to it). Frames are filtered in a band (cost O(N x window x n)). ``last``: only the
+    last frame's weights, (1, R, n) (a causal filter's newest frame; the same values as the last
+    row of the full result, at 1/N of the cost)."""
     W = np.asarray(weights, np.float64)
     if W.ndim != 3:
         raise BadInputError(f"temporal weights need (frames, regions, photos) weights, got {W.shape}")
@@ -307,27 +313,28 @@ def temporal_weights(weights, coordinates, sigmas, *, sigma_frames: float, range
     if len(coordinates) != R:
         raise BadInputError(f"{len(coordinates)} coordinate sets for {R} regions")
     if sigma_frames <= 0 or N < 2:
-        return W.copy()
+        return W[-1:].copy() if last else W.copy()
     half = int(math.ceil(3.0 * sigma_frames))
-    out = np.empty_like(W)
+    t0 = N - 1 if last else 0  # the first frame filtered
+    out = np.empty((N - t0, R, n))
     for j in range(R):
         tot = W[:, j].sum(axis=-1)
         P = W[:, j] / np.maximum(tot, 1e-300)[:, None]
         c = np.asarray(coordinates[j], np.float64).reshape(N, -1)
         s2 = 2.0 * (range_scale * np.maximum(sig[:, j], 1e-12)) ** 2 if range_scale > 0 else None
-        acc = np.zeros((N, n))
-        norm = np.zeros(N)
+        acc = np.zeros((N - t0, n))
+        norm = np.zeros(N - t0)
         for o in range(-half, half + 1):
-            lo, hi = max(0, -o), min(N, N - o)  # frames t with t + o inside
+            lo, hi = max(t0, -o), min(N, N - o)  # frames t with t + o inside
             if hi <= lo:
                 continue
             k = np.full(hi - lo, math.exp(-(o * o) / (2.0 * sigma_frames**2)))
             if s2 is not None and o:
                 d2 = ((c[lo:hi] - c[lo + o:hi + o]) ** 2).sum(axis=-1)
                 k *= np.exp(-d2 / s2[lo:hi])
-            acc[lo:hi] += k[:, None] * P[lo + o:hi + o]
-            norm[lo:hi] += k
-        out[:, j] = acc / norm[:, None] * tot[:, None]
+            acc[lo - t0:hi - t0] += k[:, None] * P[lo + o:hi + o]
+            norm[lo - t0:hi - t0] += k
+        out[:, j] = acc / norm[:, None] * tot[t0:, None]
     return out
 
 

@@ -114,6 +114,21 @@ def test_temporal_weights_hand_computed_three_frames():
     np.testing.assert_allclose(out.sum(axis=-1), W.sum(axis=-1), rtol=1e-12)  # totals kept
 
 
+def test_temporal_weights_last_frame_only_is_the_last_row():
+    """``last=True`` (the live session's causal filter) gives exactly the full result's last row."""
+    from facetex.persona.weights import temporal_weights
+
+    rng = np.random.default_rng(3)
+    for N in (1, 2, 7, 12):
+        W = rng.random((N, 2, 9))
+        coords = [rng.random((N, 6)), rng.random((N, 4))]
+        sig = rng.random((N, 2)) + 0.1
+        full = temporal_weights(W, coords, sig, sigma_frames=2.0, range_scale=1.0)
+        last = temporal_weights(W, coords, sig, sigma_frames=2.0, range_scale=1.0, last=True)
+        assert last.shape == (1, 2, 9)
+        np.testing.assert_array_equal(last[0], full[-1])
+
+
 def test_temporal_weights_still_sequence_gets_constant_weights():
     """A still face whose nearest photos swap with landmark jitter (photo 0 or 1 alternately)
     gets one blend: interior frames all ~[0.5, 0.5] x their total; a still face that already
