@@ -22,18 +22,7 @@ $("form").addEventListener("submit", async (ev) => {
   for (const f of files) fd.append("photos", f);
   fd.append("min_photos", $("min-photos").value);
   if ($("name").value) fd.append("name", $("name").value);
-  $("build").disabled = true;
-  try {
-    const job = await api("/api/persona", { method: "POST", body: fd });
-    const done = await watchJob(job.id, progressView($("progress")));
-    if (done.state === "failed") throw new Error(done.error);
-    if (done.state === "cancelled") return;  // the progress block says so
-    showResult(done);
-  } catch (e) {
-    showError($("error"), e.message);
-  } finally {
-    $("build").disabled = false;
-  }
+  await runJob("/api/persona", fd, $("build"), showResult);
 });
 
 function figure(caption, ...srcs) {

@@ -30,12 +30,7 @@ $("form").addEventListener("submit", async (ev) => {
   fd.append("size", $("size").value);
   fd.append("side_by_side", $("side-by-side").checked ? "true" : "false");
   if ($("max-frames").value) fd.append("max_frames", $("max-frames").value);
-  $("render").disabled = true;
-  try {
-    const job = await api("/api/puppet", { method: "POST", body: fd });
-    const done = await watchJob(job.id, progressView($("progress")));
-    if (done.state === "failed") throw new Error(done.error);
-    if (done.state === "cancelled") return;  // the progress block says so
+  await runJob("/api/puppet", fd, $("render"), (done) => {
     $("result").classList.remove("hidden");
     const v = $("video");
     v.src = fileUrl(done, "puppet.mp4");
@@ -45,9 +40,5 @@ $("form").addEventListener("submit", async (ev) => {
     const r = (done.result && done.result.puppet) || {};
     $("summary").textContent = `${done.info.driver} driving ${done.info.persona}: ${r.frames ?? "?"} frames, ` +
       `${r.lost_frames ?? 0} with the face lost; ${done.seconds.toFixed(1)} s`;
-  } catch (e) {
-    showError($("error"), e.message);
-  } finally {
-    $("render").disabled = false;
-  }
+  });
 });

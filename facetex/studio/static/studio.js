@@ -52,6 +52,25 @@ function watchJob(jobId, onUpdate) {
   });
 }
 
+// submit a job (POST ``url`` with the FormData ``body``), follow it in the page's #progress block and
+// call show(job) once it is done; a failure is shown in #error as the CLI's one line, a cancelled job
+// only in the progress block; ``button`` is disabled meanwhile
+async function runJob(url, body, button, show) {
+  const byId = (id) => document.getElementById(id);
+  button.disabled = true;
+  try {
+    const job = await api(url, { method: "POST", body });
+    const done = await watchJob(job.id, progressView(byId("progress")));
+    if (done.state === "failed") throw new Error(done.error);
+    if (done.state === "cancelled") return;  // the progress block says so
+    await show(done);
+  } catch (e) {
+    showError(byId("error"), e.message);
+  } finally {
+    button.disabled = false;
+  }
+}
+
 // a progress block: <progress>, the stage, the list of stages seen (each marked done when the next
 // starts) and a Cancel button while the job is queued or running (the studio stops its command and
 // removes its folder)

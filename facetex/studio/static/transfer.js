@@ -31,18 +31,7 @@ $("form").addEventListener("submit", async (ev) => {
   fd.append("method", $("method").value);
   fd.append("preset", $("preset").value);
   if ($("size").value) fd.append("size", $("size").value);
-  $("run").disabled = true;
-  try {
-    const job = await api("/api/transfer", { method: "POST", body: fd });
-    const done = await watchJob(job.id, progressView($("progress")));
-    if (done.state === "failed") throw new Error(done.error);
-    if (done.state === "cancelled") return;  // the progress block says so
-    await showResult(done);
-  } catch (e) {
-    showError($("error"), e.message);
-  } finally {
-    $("run").disabled = false;
-  }
+  await runJob("/api/transfer", fd, $("run"), showResult);
 });
 
 function loaded(img, src) {
