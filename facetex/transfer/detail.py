@@ -170,16 +170,15 @@ def transfer_skin_detail(output, aligned_style, content_skin, style_skin, *, sty
         # what the style's hair, beard, highlights or features cover is filled from its own
         # skin (mirrored across the nearest skin edge), so the content's skin there gets
         # the style's skin detail, never its hair (issue 22)
-        src = ms > 0.5
         # the bands, not the pixels: copied pieces of a band carry no step in brightness
         fine = [k for k, s0 in enumerate(params.sigmas) if s0 <= params.fill_max_sigma]
-        filled = fill_from_source([b_sty[k] for k in fine], src, (mc > 0) & ~src & ~own,
+        filled = fill_from_source([b_sty[k] for k in fine], src_skin, (mc > 0) & ~src_skin & ~own,
                                   block=max(8, int(round(0.1 * float(face_width)))), mirror_max=0.03 * float(face_width))
         ms_filled = np.where((mc > 0) & ~own, 1.0, ms).astype(np.float32)
         for k, b in zip(fine, filled):
             b_sty[k] = b
             e_aligned[k] = band_energy(b, params.energy_scale * sig[k])
-            e_targets[k] = np.where(src, e_targets[k], e_aligned[k])
+            e_targets[k] = np.where(src_skin, e_targets[k], e_aligned[k])
             ms_band[k] = ms_filled
     skin_band = [(mc > 0.5) & (m > 0.5) for m in ms_band]
     ratio, ratio_l = _colour_ratio(out, sty, src_skin, 2.0 * max(sig), params)
@@ -215,12 +214,10 @@ def _colour_ratio(out, sty, style_skin, sigma, params: DetailParams):
     colour is a masked blur over its own skin (its hair, brows or background do not count; far
     from any skin: the median skin colour)."""
     h, w = out.shape[:2]
-    if params.relative == 0:
+    if params.relative == 0 or style_skin.sum() < 16:
         return np.ones((h, w, 1), np.float32), np.ones((h, w), np.float32)
     lo_o = _gauss(out, sigma)
     m = style_skin.astype(np.float32)
-    if m.sum() < 16:
-        return np.ones((h, w, 1), np.float32), np.ones((h, w), np.float32)
     wsum = _gauss(m, sigma)[..., None]
     median = np.median(sty[style_skin], axis=0).astype(np.float32)
     lo_s = _gauss(sty * m[..., None], sigma) + np.clip(0.05 - wsum, 0, None) * median
