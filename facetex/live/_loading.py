@@ -63,26 +63,15 @@ def _cache_folder(persona, tp):
 
 
 def _read_ahead(persona, tp) -> None:
-    """Ask the kernel to read a cached persona's stack files into the page cache (posix_fadvise
-    WILLNEED: asynchronous reads). From a cold page cache the first blends otherwise fault their
-    rows in a few pages at a time: measured with the 519-photo persona's ~500 MB evicted, the set-up
-    before the first frame took 2.3 s instead of 0.3-0.5 s; the stacks' own mapping also asks for it
-    (:func:`facetex.persona._stack_cache.read_stack_cache`), ~1 s later."""
-    import os
+    """The cached stack files of a .persona path read ahead
+    (:func:`facetex.persona._stack_cache.read_ahead`): from a cold page cache the first blends
+    otherwise fault their rows in a few pages at a time (measured with the 519-photo persona's
+    ~500 MB evicted: the set-up before the first frame took 2.3 s instead of 0.3-0.5 s)."""
+    from ..persona._stack_cache import read_ahead
 
     folder = _cache_folder(persona, tp)
-    if folder is None or not hasattr(os, "posix_fadvise"):
-        return
-    try:
-        files = sorted(folder.glob("s*.npy"), key=lambda f: f.stat().st_size)  # the small levels first
-        for f in files:
-            fd = os.open(f, os.O_RDONLY)
-            try:
-                os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_WILLNEED)
-            finally:
-                os.close(fd)
-    except OSError:
-        pass
+    if folder is not None:
+        read_ahead(folder)
 
 
 #: modules the puppet's set-up and first frame import (scipy.interpolate alone ~0.35 s): imported on a

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["stack_cache_folder", "read_stack_cache", "write_stack_cache"]
+__all__ = ["stack_cache_folder", "read_stack_cache", "write_stack_cache", "read_ahead"]
 
 FORMAT = 1
 
@@ -102,6 +102,24 @@ def _prefetch(arrays) -> None:
 
     if hasattr(mmap, "MADV_WILLNEED"):
         threading.Thread(target=_willneed, args=(arrays,), name="facetex-stack-prefetch", daemon=True).start()
+
+
+def read_ahead(folder) -> None:
+    """Ask the kernel to read ``folder``'s stack files into the page cache, the small levels first
+    (posix_fadvise WILLNEED: asynchronous reads; nothing where the call does not exist), before they
+    are mapped: the live session starts it beside the persona's own load, ~1 s before
+    :func:`read_stack_cache` maps the files (whose :func:`_prefetch` covers systems without it)."""
+    if not hasattr(os, "posix_fadvise"):
+        return
+    try:
+        for f in sorted(Path(folder).glob("s*_*.npy"), key=lambda f: f.stat().st_size):
+            fd = os.open(f, os.O_RDONLY)
+            try:
+                os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_WILLNEED)
+            finally:
+                os.close(fd)
+    except OSError:
+        pass
 
 
 def write_stack_cache(prep, folder, persona_path=None) -> None:
