@@ -75,6 +75,9 @@ def _race(folder, keys, out, barrier):
     won = [k for k in keys if c.acquire(k) is not None]
     with open(out, "w") as fh:
         fh.write("\n".join(won))
+    # stay alive until every racer is done: a claim of a process of this host that has exited
+    # has expired (by design), so a slower racer would rightly take it over
+    barrier.wait()
 
 
 @pytest.mark.parametrize("stale", [False, True])
