@@ -57,3 +57,31 @@ def test_zoom_sheets(tmp_path):
     sheet = read_image(tmp_path / "zoom_mouth.png")
     x, y, w, h = boxes["mouth"]
     assert sheet.shape[0] == 28 + 2 * (3 * h + 4) and sheet.shape[1] == 4 * 3 * w + 3 * 4
+
+
+def test_k_fold_leave_out_scores_every_photo_once_with_a_persona_without_it(tmp_path):
+    import json
+
+    import pytest
+    from _photos import write_jittered_copies
+
+    from facetex.bench.persona import run_bench_persona
+    from facetex.errors import BadInputError
+    from facetex.persona import load_persona
+
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    write_jittered_copies(photos, 10, np.random.default_rng(2))  # 20 photos: two folds of 10
+    with pytest.raises(BadInputError, match="--folds"):
+        run_bench_persona(photos, folds=1, out=tmp_path / "bad")
+    res = run_bench_persona(photos, folds=2, out=tmp_path / "out", jobs=1, grid_rows=1)
+    files = sorted(t["file"] for t in res["targets"])
+    assert files == sorted(p.name for p in photos.iterdir())  # every photo a target, once
+    for k in (0, 1):
+        persona = load_persona(tmp_path / "out" / f"photos_fold{k}of2_seed0.persona")
+        held = {t["file"] for t in res["targets"] if t["fold"] == k}
+        assert len(held) == 10 and not held & set(persona.photos) and len(persona) == 10
+    summary = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert summary["folds"] == 2 and summary["holdout"] is None and summary["persona_photos"] == [10, 10]
+    assert [r["n"] for r in res["rows"]] == [20] * len(res["rows"])
+    assert "2 folds (seed 0): every usable photo (20)" in res["table"]
