@@ -198,7 +198,12 @@ def test_live_page_shows_puppet_frames_from_the_fake_camera(playwright, studio, 
         # the page streams: more frames sent than one per reply round trip would allow
         assert stats["sent"] >= stats["received"] + stats["warmup"]
         assert shown["p95"].endswith("ms") and shown["fps"] != "–" and shown["server"].endswith("ms")
-        assert pg.inner_text("#status").startswith("running (facetex.live, 256 px")
+        # the page says what runs; a frame whose face the tracker lost in between (the clip drifts; on a
+        # loaded machine more frames are dropped and the jumps grow) shows "no face" for that frame only
+        running = "running (facetex.live, 256 px"
+        final = pg.evaluate("window.statuses")
+        assert any(s.startswith(running) for s in final), final
+        assert pg.inner_text("#status").startswith((running, "no face")) and stats["lost"] <= 0.1 * stats["received"]
         assert pg.evaluate("document.getElementById('puppet').width") == 256  # the canvas takes the frame's size
         # the puppet canvas shows a frame: not blank, not one flat colour
         px = pg.evaluate("""() => { const c = document.getElementById('puppet');
