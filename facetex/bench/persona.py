@@ -341,7 +341,8 @@ def evaluate(persona, held: list[dict], *, params=None, rows=ROWS, keep_images: 
     for k, h in enumerate(held):
         ref = h["image"].astype(np.float32) / 255
         masks = evaluation_masks(h["points68"], h["visibility"].astype(np.float32) / 255)
-        rec = {"file": h["file"], "yaw": h["pose"][0], **{f"px_{r}": int(m.sum()) for r, m in masks.items()}}
+        rec = {"file": h["file"], "yaw": h["pose"][0], "mouth_expression": mouth_expression(persona, h["fiducials"]),
+               **{f"px_{r}": int(m.sum()) for r, m in masks.items()}}
         imgs = {"reference": ref}
         for name, method, weights in rows:
             p = tp if weights is None else dataclasses.replace(tp, weights=weights)
@@ -358,6 +359,30 @@ def evaluate(persona, held: list[dict], *, params=None, rows=ROWS, keep_images: 
         if progress:
             progress(n=1, stage="targets")
     return records, items
+
+
+def mouth_expression(persona, fiducials) -> float:
+    """How far a target's mouth is from the collection's average mouth: its distance in the
+    regional weights' normalised mouth coordinates (:mod:`facetex.persona.weights`) to the mean
+    of the persona's photos, over the photos' own median distance (1: a typical photo)."""
+    from ..persona import TextureParams
+    from ..persona.texture import _fiducials49, expression_model
+
+    model = expression_model(persona, TextureParams())
+    j = model.names.index("mouth")
+    coords = model.regions[j].coords
+    mean = coords.mean(axis=0)
+    own = model.coordinates(_fiducials49(fiducials)[None])[j][0]
+    return float(np.linalg.norm(own - mean) / max(float(np.median(np.linalg.norm(coords - mean, axis=1))), 1e-12))
+
+
+def gain_by_expression(records: list[dict], name: str = "ours", parts: int = 3) -> list[float]:
+    """Mean mouth SSIM gain of row ``name`` over static in ``parts`` equal groups of the targets
+    by :func:`mouth_expression`, nearest the average mouth first (NaN for an empty group)."""
+    d = np.array([t["mouth_expression"] for t in records], np.float64)
+    g = np.array([t[f"{name}_mouth_ssim"] - t["static_mouth_ssim"] for t in records], np.float64)
+    order = np.argsort(d, kind="stable")
+    return [float(np.nanmean(g[idx])) if len(idx) else float("nan") for idx in np.array_split(order, parts)]
 
 
 def summarize(records: list[dict], rows=ROWS) -> list[dict]:
@@ -465,6 +490,11 @@ def run_bench_persona(data, *, holdout: int = 20, seed: int = 0, out="bench_out/
                  f"{np.nanmean([t['exact_mouth_ssim'] for t in ex]):.4f} vs precomputed ours "
                  f"{np.mean([t['ours_face_ssim'] for t in ex]):.4f} / "
                  f"{np.nanmean([t['ours_mouth_ssim'] for t in ex]):.4f}.\n")
+    by_expr = gain_by_expression(targets)
+    extra += ("\nMouth SSIM gain of ours over static by how far the target's mouth is from the collection's "
+              "average mouth (thirds of the targets, nearest first): "
+              + " / ".join(f"{v:+.4f}" for v in by_expr)
+              + " (a target with the average expression has little to gain over the average texture).\n")
     table = head + markdown_table(COLUMNS, rows) + extra
     files_out = {
         "table.md": write_text(out / "table.md", table),
@@ -493,7 +523,7 @@ def run_bench_persona(data, *, holdout: int = 20, seed: int = 0, out="bench_out/
                "folds": folds or None, "persona_photos": sizes, "seed": seed, "sigma": sigma, "weights": tp.weights,
                "neighbours": tp.neighbours, "expression_model": model.summary() if model else None,
                "photos": len(persona), "skipped": persona.skipped, "held_out": [h["file"] for h in held],
-               "rows": rows, "build_s": t_build, "precompute_s": t_prep, "versions": versions()}
+               "rows": rows, "mouth_gain_by_expression": by_expr, "build_s": t_build, "precompute_s": t_prep, "versions": versions()}
     files_out["results.json"] = write_json(out / "results.json", summary, overwrite=True)
     return {"rows": rows, "targets": targets, "files": {k: str(v) for k, v in files_out.items()}, "table": table}
 

@@ -267,7 +267,7 @@ def _load_bench_persona(folder: Path, run: Run, path: Path, guard: ReadGuard) ->
     summary = _read_json(path, guard, OBJECT, "bench persona summary")
     run.kind = "bench persona"
     run.method_order = PERSONA_ORDER  # Tom Hanks Fig. 5: static, weighted, prewarp, paper, ours
-    run.settings = {k: v for k, v in summary.items() if k not in ("rows", "skipped", "held_out", "teeth", "bench")}
+    run.settings = {k: v for k, v in summary.items() if k not in ("rows", "skipped", "held_out", "teeth", "bench", "mouth_gain_by_expression")}
     text = guard.read_text(folder / "per_target.csv", "CSV file")
     if text is not None:
         with io.StringIO(text, newline="") as fh:

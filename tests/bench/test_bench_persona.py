@@ -2,6 +2,7 @@
 
 import cv2
 import numpy as np
+import pytest
 
 from facetex.bench.persona import evaluation_masks, region_scores, teeth_score, write_zoom_sheets, zoom_boxes
 from facetex.geometry.frontalize import canonical_points68
@@ -85,3 +86,28 @@ def test_k_fold_leave_out_scores_every_photo_once_with_a_persona_without_it(tmp_
     assert summary["folds"] == 2 and summary["holdout"] is None and summary["persona_photos"] == [10, 10]
     assert [r["n"] for r in res["rows"]] == [20] * len(res["rows"])
     assert "2 folds (seed 0): every usable photo (20)" in res["table"]
+
+
+def test_gain_by_expression_groups_targets_by_mouth_distance():
+    from facetex.bench.persona import gain_by_expression
+
+    # distances 0..5 (given shuffled), gains: the three nearest gain nothing, the farthest the most
+    d = [5, 0, 3, 1, 4, 2]
+    gain = {0: 0.0, 1: 0.0, 2: 0.01, 3: 0.03, 4: 0.05, 5: 0.09}
+    recs = [{"mouth_expression": float(x), "ours_mouth_ssim": 0.5 + gain[x], "static_mouth_ssim": 0.5} for x in d]
+    assert gain_by_expression(recs) == pytest.approx([0.0, 0.02, 0.07])
+    assert gain_by_expression(recs, parts=2) == pytest.approx([0.01 / 3, 0.17 / 3])
+
+
+def test_mouth_expression_is_one_for_the_typical_photo_and_grows_with_an_open_mouth(tmp_path):
+    from _photos import build_tiny_persona
+
+    from facetex.bench.persona import mouth_expression
+    from facetex.persona import load_persona
+
+    persona = load_persona(build_tiny_persona(tmp_path / "p.persona"))
+    own = [mouth_expression(persona, f) for f in persona.fiducials]
+    assert np.median(own) == pytest.approx(1.0)
+    wide = persona.fiducials.mean(axis=0).copy()
+    wide[[38, 39, 40, 41, 42, 46, 47, 48], 1] += 0.5 * (wide[25, 0] - wide[19, 0])  # lower lip (iBUG 55-59, 65-67) down
+    assert mouth_expression(persona, wide) > 3 * max(own)
