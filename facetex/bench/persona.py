@@ -261,7 +261,7 @@ def load_or_build(data: Path, out: Path, holdout: int, seed: int, jobs: int, pro
     if len(held) < holdout:
         raise BadInputError(f"only {len(held)} usable photos to hold out (asked {holdout})", path=data)
     cache = out / f"{data.name}_holdout{holdout}_seed{seed}.persona"
-    return (*_persona_without(data, rest, held, cache, jobs, progress, params, engine),)
+    return _persona_without(data, rest, held, cache, jobs, progress, params, engine)
 
 
 def _fold_records(files: list[Path], folds: int, seed: int, params, progress) -> list[list[dict]]:
