@@ -258,8 +258,11 @@ def test_sigterm_stops_a_local_ray_batch_and_its_ray(tmp_path, ray_before):
     from test_cli_batch import _start_and_wait_running
 
     out = tmp_path / "out"
+    # enough work (~3 s an item, 6 items on 2 slots) that the SIGTERM, 3 s after the first item starts,
+    # lands mid-batch: 3 items of 2 iterations at 96 px all ended within that time on a quiet machine,
+    # and the signal then hit the interpreter's exit (returncode -15, no "interrupted" line)
     cmd = [sys.executable, "-m", "facetex", "batch", "transfer", "--contents", str(sample_path()), "--styles",
-           str(sample_path()), "--pairs", "3", "--size", "96", "--iters", "2,2,2", "--out", str(out),
+           str(sample_path()), "--pairs", "6", "--size", "128", "--iters", "40,40,40", "--out", str(out),
            "--engine", "ray", "-q"]
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([REPO] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
     from _procs import children
