@@ -116,8 +116,7 @@ class LiveSession:
         else:
             self.tracker = CausalTracker(self.params.driver)
         self._warm: deque = deque(maxlen=self.live.max_warmup)
-        self._index = self._prepared = 0
-        self._track_lock = threading.Lock()  # the tracker's calls (lose() may come from another thread)
+        self._index = 0
         self._last_out: np.ndarray | None = None
         self._geometry = None  # (tracked W, H, output W, H, output px per tracked px) of the first frame
         self.puppeteer = self.motion = None
@@ -264,17 +263,7 @@ class LiveSession:
         (``time.perf_counter()``, default now: its latency is measured from it); ``t``: its time in
         the stream (seconds; default its arrival), which the filters use; ``fps``: the stream's
         nominal rate (the reference's); ``index``: the frame's number in the source (default: the
-        count of frames prepared; a runner that drops frames gives the source's), the records' "index".
-
-        It is :meth:`track` then :meth:`prepare_tracked` (a caller may run them on two threads:
-        frame t+1 tracked while frame t's motion, mesh and texture are made)."""
-        return self.prepare_tracked(self.track(frame, arrival=arrival, t=t, fps=fps, index=index))
-
-    def track(self, frame, *, arrival: float | None = None, t: float | None = None, fps: float = 25.0,
-              index: int | None = None) -> dict:
-        """The tracking of :meth:`prepare` (its arguments): a record for :meth:`prepare_tracked`.
-        Call it from one thread, frames in order; :meth:`prepare_tracked` may skip some of its
-        records (a runner that keeps up with the tracking but not with the rest)."""
+        count of frames prepared; a runner that drops frames gives the source's), the records' "index"."""
         now = time.perf_counter()
         arrival = now if arrival is None else arrival
         late = now - arrival > 0.5 / max(fps, 1.0)  # it waited for this call: the stages are behind
@@ -290,27 +279,15 @@ class LiveSession:
         tw, th = self._geometry[:2]
         t0 = time.perf_counter()
         small = frame if (tw, th) == frame.shape[1::-1] else cv2.resize(frame, (tw, th), interpolation=cv2.INTER_AREA)
-        with self._track_lock:
-            p68, mesh, score, why = self.tracker(small)
-        self.stats_.stage_time("track", time.perf_counter() - t0)
+        p68, mesh, score, why = self.tracker(small)
+        if not why and self.puppeteer is not None and shape_residual(p68, self._shape[0]) > self._shape[1]:
+            why = "implausible shape"
+            self.tracker.lose()
+        t1 = time.perf_counter()
+        self.stats_.stage_time("track", t1 - t0)
         count, self._index = self._index, self._index + 1
         index = count if index is None else int(index)
-        return {"index": index, "arrival": arrival, "frame": frame, "lost": bool(why), "why": why, "warmup": False,
-                "late": late, "t": t, "fps": fps, "tracked": (p68, mesh, score), "tracked_at": time.perf_counter()}
-
-    def prepare_tracked(self, work: dict) -> dict:
-        """The rest of :meth:`prepare` (the reference, motion, mesh, texture) of a :meth:`track`
-        record: the work record for :meth:`finish`. Call it from one thread, records in order."""
-        t1 = time.perf_counter()
-        p68, mesh, score = work.pop("tracked")
-        late, t, fps = work.pop("late"), work.pop("t"), work.pop("fps")
-        late = late or t1 - work.pop("tracked_at") > 0.5 / max(fps, 1.0)  # it waited after its tracking
-        why = work["why"]
-        if not why and self.puppeteer is not None and shape_residual(p68, self._shape[0]) > self._shape[1]:
-            why = work["why"] = "implausible shape"
-            work["lost"] = True
-            with self._track_lock:
-                self.tracker.lose()
+        work = {"index": index, "arrival": arrival, "frame": frame, "lost": bool(why), "why": why, "warmup": False}
         if self.puppeteer is None:
             if not why:
                 self._warm.append((p68, mesh, score))
@@ -327,7 +304,6 @@ class LiveSession:
             self._weights.clear()
             self._last_tex = None
             return work
-        count, self._prepared = self._prepared, self._prepared + 1
         slot = self._k + count % SLOTS  # frames in flight have consecutive counts: distinct slots
         m = self.motion(p68, mesh, t)
         pup = self.puppeteer
@@ -379,7 +355,6 @@ class LiveSession:
         return pup._close_interiors([slot], [tex])[0]
 
     def _expression_texture(self, slot: int, fps: float) -> np.ndarray:
-        pup = self.puppeteer
         sigma = self.live.weight_smoothing * fps
         tp = self.params.texture_params()
         if self.params.texture != "ours" or tp.weights != "regional" or sigma <= 0:
@@ -397,16 +372,14 @@ class LiveSession:
 
     def _push_weights(self, slot: int) -> None:
         """This frame's regional texture weights (as the offline blend's) into the filter's window."""
-        from ..persona.pyramid import SPARSE_MASS, _cut_small
-        from ..persona.texture import _fiducials49, expression_model
+        from ..persona.texture import _fiducials49, cut_region_weights, expression_model
 
         tp = self.params.texture_params()
         if self.params.texture != "ours" or tp.weights != "regional" or not self._loading.textured.is_set():
             return
         f = _fiducials49(self.puppeteer.target(slot))[None]
         coords, sigmas, S = expression_model(self._persona, tp).evaluate(f)
-        # (R, n): this frame's weights, cut as offline (facetex.persona.texture.sequence_weights)
-        W = np.stack([_cut_small(S[:, j], SPARSE_MASS, tp.max_photos) for j in range(S.shape[1])], axis=1)[0]
+        W = cut_region_weights(S, tp)[0]  # (R, n): this frame's weights, cut as offline
         self._weights.append((W, [c[0] for c in coords], sigmas[0]))
 
     def _plain_texture(self, slot: int) -> np.ndarray:

@@ -173,13 +173,19 @@ def sequence_weights(persona: Persona, fiducials, params: TextureParams | None =
         raise BadInputError("sequence weights are the regional weights: use TextureParams(weights='regional')")
     f = np.asarray(fiducials, np.float64)
     f = np.stack([_fiducials49(x) for x in f.reshape((-1,) + f.shape[-2:])])
-    S = target_weights(persona, f, tp)  # (N, R, n)
-    W = np.stack([_cut_small(S[:, j], SPARSE_MASS, tp.max_photos) for j in range(S.shape[1])], axis=1)
+    W = cut_region_weights(target_weights(persona, f, tp), tp)  # (N, R, n)
     if sigma_frames <= 0:
         return W
     model = expression_model(persona, tp)
     return temporal_weights(W, model.coordinates(f), model.sigmas(f), sigma_frames=sigma_frames,
                             range_scale=range_scale)
+
+
+def cut_region_weights(similarities, params: TextureParams) -> np.ndarray:
+    """(N, R, n) regional similarities with each region's smallest cut as the blend cuts them (the
+    photos holding the last 0.5 % of the mass, and all but ``params.max_photos``)."""
+    S = np.asarray(similarities)
+    return np.stack([_cut_small(S[:, j], SPARSE_MASS, params.max_photos) for j in range(S.shape[1])], axis=1)
 
 
 def blend_weights(persona: Persona, weights, *, params: TextureParams | None = None) -> np.ndarray:
