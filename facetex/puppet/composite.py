@@ -62,6 +62,7 @@ __all__ = [
     "FACE_OVAL",
     "INNER_LIPS",
     "lip_weights",
+    "lip_regions",
     "lid_weights",
     "eye_weights",
     "skin_pixels",
@@ -138,6 +139,24 @@ def open_lip_weights(points68, shape, *, feather: float = 0.02, band: float = 0.
         ring = cv2.erode((polygon_mask(q[idx], (h, w)) > 0.5).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
         parts.append((o * taper * np.clip(cv2.GaussianBlur(m.astype(np.float32), (0, 0), sig), 0, 1), ring))
     return parts
+
+
+def lip_regions(driver68, puppet68, shape, *, open_lips: bool = True) -> dict:
+    """``lips`` and ``lip_parts`` of :func:`~facetex.puppet.lighting.transfer_skin_colour` for a
+    puppet with landmarks ``puppet68`` in a frame with the driver's ``driver68`` (both (68, 2) px
+    of an image of ``shape``): the lips' colour where the *puppet's* lips are (:func:`lip_weights`,
+    :func:`open_lip_weights` with ``open_lips``), measured on each face's own lip pixels
+    (``puppet68`` None: the driver's lips for both). Placed at the driver's lips, a fuller-lipped
+    persona's lip edge outside them took the skin's mapping and its lighter lips turned white
+    (Serena Williams' persona on GRID lbax4n: a white rim round the opening)."""
+    dw = lip_weights(driver68, shape)
+    dparts = open_lip_weights(driver68, shape) if open_lips else []
+    if puppet68 is None:
+        return {"lips": dw, "lip_parts": dparts}
+    pw = lip_weights(puppet68, shape)
+    pparts = open_lip_weights(puppet68, shape) if open_lips else []
+    parts = [(p[0], d[1], p[1]) for d, p in zip(dparts, pparts)] if dparts and pparts else []
+    return {"lips": (pw[0], dw[1], pw[1]), "lip_parts": parts}
 
 
 def _scaled(weights: tuple, strength: float) -> tuple:
@@ -401,6 +420,10 @@ class CompositeParams:
     a dark persona over a pale driver) greyed the irises; an upper bound of 1.5 (a dark persona's
     skin is ~1.8x darker in L* than a pale driver's) blackened the eye sockets and nostrils and
     turned the lips white, 1.2 keeps them a face's (cheek ΔE 7.4 -> 6.7 on that pair);
+    lip_ceiling: the lips' lightness is at most the driver's lip median + this (L*, None: off;
+    :func:`~facetex.puppet.lighting.transfer_skin_colour`): with the lips' colour where the puppet's
+    lips are (:func:`lip_regions`), teeth of a smiling persona's texture at its inner lips still
+    drew a light line along the opening;
     lid_colour: the lids round the eyes take the driver's lid lightness at this strength
     (:func:`lid_weights`, 0: off, the default): a dark persona's dark lids looked like shadow rings
     on pale drivers, and at 1 Williams' eye openness rose (0.83-0.90 -> 0.84-0.95 of the driver's)
@@ -423,6 +446,7 @@ class CompositeParams:
     colour_gain: tuple[float, float] = (2 / 3, 1.2)
     lip_colour: bool = True
     open_lips: bool = True
+    lip_ceiling: float | None = 6.0
     lid_colour: float = 0.0
     eye_colour: bool = True
     occlusion: bool = True
@@ -433,7 +457,7 @@ class CompositeParams:
     mouth: bool = True
 
 
-def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_points68, puppet_lips=None,
+def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_points68, puppet_points68=None,
                    driver_normals=None, params: CompositeParams = CompositeParams()) -> tuple[np.ndarray, np.ndarray]:
     """The puppet composited into the driver's frame: (image (H, W, 3), alpha (H, W)).
 
@@ -441,7 +465,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     ``coverage`` (H, W) its anti-aliased coverage, ``normals`` (H, W, 3) its unit camera-space
     normals (needed for ``lighting="sh"`` only, else may be None); ``driver_oval`` (K, 2) the
     driver's face outline and ``driver_points68`` its
-    landmarks (frame px); ``puppet_lips`` (8, 2) the puppet's inner lips (output px) or None;
+    landmarks (frame px); ``puppet_points68`` (68, 2) the puppet's landmarks (output px) or None
+    (its lips take the lips' colour and the driver's mouth interior; None: the driver's lips);
     ``driver_normals`` (H, W, 3) the driver's own face normals (its lighting is fitted with them;
     default: the puppet's normals).
     All work happens in the face's bounding box."""
@@ -452,6 +477,7 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     frame = np.asarray(frame, np.float32)
     H, W = frame.shape[:2]
     p68 = np.asarray(driver_points68, np.float64)
+    pp68 = None if puppet_points68 is None else np.asarray(puppet_points68, np.float64)
     iod = float(np.linalg.norm(p68[36] - p68[45]))
     outline = polygon_mask(driver_oval, (H, W)) > 0.5
     k = int(round(params.erode * iod))
@@ -530,12 +556,12 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     if params.lighting in ("sh", "stats"):
         out = transfer_skin_colour(out, fr, pup_skin, drv_skin, sigma=max(1.0, params.colour_sigma * iod),
                                    gain=params.colour_gain, colour=params.colour, shrink=ks,
-                                   lips=lip_weights(p68 - [x0, y0], rg.shape) if params.lip_colour else None,
                                    lids=_scaled(lid_weights(p68 - [x0, y0], rg.shape), params.lid_colour)
                                    if params.lid_colour > 0 else None,
                                    keep=eye_weights(p68 - [x0, y0], rg.shape) if params.eye_colour else None,
-                                   lip_parts=open_lip_weights(p68 - [x0, y0], rg.shape)
-                                   if params.lip_colour and params.open_lips else ())
+                                   **(lip_regions(p68 - [x0, y0], None if pp68 is None else pp68 - [x0, y0],
+                                                  rg.shape, open_lips=params.open_lips) if params.lip_colour else {}),
+                                   lip_ceiling=params.lip_ceiling)
     if params.sharpen > 1:
         # after the colour transfer: a dark persona's detail is small in sRGB until it takes a pale
         # driver's tone (measured before, Williams' puppets were sharpened to 2x the driver's detail).
@@ -551,8 +577,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
                                  coverage=np.asarray(coverage, np.float32)[box])
     if params.poisson and params.colour == "driver":  # the membrane would bring the driver's tone back
         out = poisson_blend(out, fr, rg)
-    if params.mouth and puppet_lips is not None:
-        mi, ma = mouth_interior(fr, p68[list(INNER_LIPS)] - [x0, y0], np.asarray(puppet_lips) - [x0, y0], rg.shape)
+    if params.mouth and pp68 is not None:
+        mi, ma = mouth_interior(fr, p68[list(INNER_LIPS)] - [x0, y0], pp68[list(INNER_LIPS)] - [x0, y0], rg.shape)
         ma = ma * rg
         out = _mix(ma, mi, out)
     # the persona's own skin tone meets the driver's at the outline: a wider ramp than the

@@ -171,7 +171,7 @@ def _lightness_to_luminance(L):
 
 def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 / 3, 1.2), colour: str = "driver",
                          light_limits=(0.5, 2.0), shrink: int = 1, lips=None, lids=None, keep=None,
-                         lip_parts=()) -> np.ndarray:
+                         lip_parts=(), lip_ceiling: float | None = None) -> np.ndarray:
     """``src`` (H, W, 3) sRGB with the low-frequency colour of ``ref`` (the same size, aligned),
     measured on skin pixels only (bool ``src_skin``, ``ref_skin``), the detail of ``src`` kept.
 
@@ -188,8 +188,9 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     (area average; ``src_skin`` and ``ref_skin`` are given at the shrunk size) and resized back
     (bilinear): the same fields at a fraction of the cost.
     ``lips`` (colour "driver"): (weight (H, W) in [0, 1], bool (H, W) lip pixels of both images)
-    or None: where the weight is 1 the low-frequency colour is the lips' own, out = r' + (g, 1, 1)
-    (src − s'), r' and s' the two lip medians: lips are not skin, and the skin's field gave a
+    or (weight, ``ref``'s lip pixels, ``src``'s lip pixels), or None: where the weight is 1 the
+    low-frequency colour is the lips' own, out = r' + (g, 1, 1) (src − s'), r' and s' the two lip
+    medians: lips are not skin, and the skin's field gave a
     dark persona's lips, lighter than her skin, a pale driver's skin tone plus that difference
     (white lips; a pale driver's lips are darker than her skin). ``keep`` (colour "driver"):
     weight (H, W) in [0, 1] or None: where it is 1 ``src`` is kept as it is (the eyeballs,
@@ -198,7 +199,10 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     "driver"): the same as ``lips`` for the skin round the eyes (:func:`lid_weights`): a dark
     persona's lids, darker than her skin, kept that difference on a pale driver as dark rings.
     ``lip_parts``: more regions like ``lips``, applied after it in order (the upper and lower
-    lip of an open mouth, :func:`~facetex.puppet.composite.open_lip_weights`).
+    lip of an open mouth, :func:`~facetex.puppet.composite.open_lip_weights`). ``lip_ceiling``
+    (with ``lips``): the lips' lightness at most ``ref``'s lip median + this (L*, 0..100): a
+    persona whose photos smile has teeth at its texture's inner lips, lighter than any lip, and
+    the kept detail drew them as a white rim on the puppet's lips.
     Returns sRGB float32 in [0, 1]."""
     if colour not in COLOURS:
         raise BadInputError(f"unknown colour {colour!r}: use one of {', '.join(COLOURS)}")
@@ -237,18 +241,26 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     field = full(field)
     a = _lab(src)
     ref_lab = None
+    ceiling = None
     for region in (lips, *lip_parts, lids):
         if region is None:
             continue
         wl, lm = np.asarray(region[0], np.float32), np.asarray(region[1], bool)
-        if lm.sum() >= 8 and wl.max() > 0:
+        sl = np.asarray(region[2], bool) if len(region) > 2 else lm
+        if lm.sum() >= 8 and sl.sum() >= 8 and wl.max() > 0:
             ref_lab = _lab(ref) if ref_lab is None else ref_lab
-            own = np.median(_pixels(ref_lab, lm), axis=0) - g * np.median(_pixels(a, lm), axis=0)
+            med = np.median(_pixels(ref_lab, lm), axis=0)
+            own = med - g * np.median(_pixels(a, sl), axis=0)
+            if region is lips and lip_ceiling is not None:
+                ceiling = (wl, float(med[0]) + float(lip_ceiling))
             for c in range(3):
                 field[..., c] += wl * (own[c] - field[..., c])
     out = np.empty(a.shape, np.float32)
     for c in range(3):
         out[..., c] = g[c] * a[..., c] + field[..., c]
+    if ceiling is not None:
+        wl, top = ceiling
+        out[..., 0] -= wl * np.maximum(out[..., 0] - top, 0.0)
     if keep is not None:
         k = np.asarray(keep, np.float32)[..., None]
         out += k * (a - out)

@@ -91,8 +91,9 @@ def _lip_arcs(lips: np.ndarray, R: np.ndarray, c: np.ndarray):
 
 
 def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float = 1.0,
-                   closed: float = 0.04, soft: float = 0.15,
-                   lip_key: tuple[float, float] | None = (4.0, 12.0)) -> tuple[np.ndarray, np.ndarray]:
+                   closed: float = 0.02, soft: float = 0.15,
+                   lip_key: tuple[float, float] | None = (4.0, 12.0),
+                   cavity: float | None = 25.0, grow: float = 0.015) -> tuple[np.ndarray, np.ndarray]:
     """The driver's mouth interior moved into the puppet's mouth: (image (H, W, 3), alpha (H, W)).
 
     ``driver_lips``, ``puppet_lips`` (8, 2): iBUG inner-lip points 60-67 in ``frame`` px (driver)
@@ -115,7 +116,21 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     shadow lose it and teeth lose it and gain light (measured on GRID clips with the Bush and
     Blair puppets: median a-b distance 3-4 on the inner lip surface of slightly open mouths,
     14-25 in open mouths with teeth).
-    The lip colour is the median of the driver's frame just outside its inner-lip contour."""
+    The lip colour is the median of the driver's frame just outside its inner-lip contour.
+    ``cavity`` (percentile, None: off): under the interior's soft edge and its keyed-out lips, the
+    puppet's whole opening, from ``grow`` x its mouth width outside its contour in, is the mean
+    colour of the interior's darkest ``cavity`` % (the cavity's shadow; 0.35 x the driver's lip
+    colour when all of the interior is keyed out) instead of the persona's texture, while both
+    mouths are open (the same fade at ``closed``). Measured with ``facetex bench puppet`` (6
+    personas x 6 GRID clips): with the puppet's lips in the lips' colour
+    (:func:`~facetex.puppet.composite.lip_regions`) the persona's own teeth at its texture's inner
+    lips had been what made an opening read open: without them (the texture's interior filled,
+    :meth:`~facetex.puppet.Puppeteer.textures`) and without the cavity Arroyo's mouth-opening
+    slopes fell to 0.58-0.82; with the cavity at the contour (``grow`` 0) to 0.72-0.90 (its
+    slightly open mouths a thin line); with ``closed`` 0.04 -> 0.02 and ``grow`` 0.015 all 36 runs
+    read 0.87-1.25 (before: 0.82-1.29 with white rims), mouth r >= 0.90 (0.87). Without the soft
+    edge (the interior's alpha 1 from the grown contour) the opening's edge turned light on
+    Williams' and Koizumi's lower lips and Arroyo/lbax4n read 0.80."""
     f = np.asarray(frame, np.float32)
     h, w = _shape2(f.shape if shape is None else shape)
     dp = np.asarray(driver_lips, np.float64)
@@ -129,8 +144,10 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     cp, Rp, wp, gp = _mouth_frame(pp)
     # closed driver lips have no interior to show (their sliver would draw a red line): fade out
     fade = _open_fade(wd, gd, closed)
+    # the cavity's shadow: where both mouths are open
+    dark_fade = _open_fade(wd, gd, closed) * _open_fade(wp, gp, closed) if cavity is not None else 0.0
     arcs_p, arcs_d = _lip_arcs(pp, Rp, cp), _lip_arcs(dp, Rd, cd)
-    if fade <= 0 or arcs_p is None or arcs_d is None:
+    if max(fade, dark_fade) <= 0 or arcs_p is None or arcs_d is None:
         return none
     # the puppet's mouth box (the corners and the contour's extent, plus a pixel)
     x0, y0 = (max(0, int(np.floor(v)) - 1) for v in pp.min(axis=0))
@@ -155,7 +172,7 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     r = np.clip((depth + 0.5) / width, 0.0, 1.0)
     alpha = np.zeros((h, w), np.float32)
     alpha[y0:y1, x0:x1] = smoothstep(r) * np.clip(gap, 0.0, 1.0) * fade
-    if alpha.max() <= 0:
+    if alpha.max() <= 0 and dark_fade <= 0:
         return none
     # the same place in the driver's mouth: fraction along the corner line and across the gap
     su = 0.5 + inset * ((uc - pu0) / (pu1 - pu0) - 0.5)
@@ -185,7 +202,23 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
         alpha[y0:y1, x0:x1] *= np.clip(k, 0.0, 1.0)
     img = np.zeros((h, w, 3), np.float32)
     img[y0:y1, x0:x1] = warped
-    return img, alpha
+    if cavity is None:
+        return img, alpha
+    # under the interior: the cavity's shadow from the puppet's contour in (1 px anti-aliased),
+    # not the persona's texture there. A persona whose photos smile has teeth up to its
+    # texture's inner lips: the interior's soft edge and the keyed-out lips let them through
+    # as a white rim that dlib read as part of the opening (Williams' persona on GRID lbax4n).
+    base = np.zeros((h, w), np.float32)
+    base[y0:y1, x0:x1] = smoothstep(np.clip(depth + 0.5 + grow * wp, 0.0, 1.0)) * np.clip(gap, 0.0, 1.0) * dark_fade
+    inner = alpha[y0:y1, x0:x1] > 0.5
+    lum = _lab(warped)[..., 0]
+    dark = warped[inner & (lum <= np.percentile(lum[inner], cavity))] if inner.sum() >= 8 else None
+    colour = dark.mean(axis=0) if dark is not None and len(dark) else 0.35 * lip.mean(axis=(0, 1)) \
+        if lip_key is not None else np.zeros(3, np.float32)
+    total = alpha + (1.0 - alpha) * base
+    mix = np.where(total[..., None] > 0, (alpha[..., None] * img + ((1.0 - alpha) * base)[..., None] * colour)
+                   / np.maximum(total[..., None], 1e-6), 0.0)
+    return mix.astype(np.float32), total.astype(np.float32)
 
 
 def mouth_closure(inner_lips, closed: float = 0.04) -> float:

@@ -36,8 +36,10 @@ class PuppetParams:
     puppet's lip and jaw landmarks follow the driver's (:meth:`Puppeteer.grid`); eye_rest: eyes
     narrower than the driver's are opened to the driver's mean lid gap (scaled), lid_sync: the
     puppet's eyelids follow the driver's (blinks; :meth:`Puppeteer.grid`); close_mouth: the
-    texture's mouth interior is filled from its lips as the driver's lips close
-    (:func:`facetex.puppet.mouth.fill_mouth_interior`: no teeth sliver between closed lips);
+    texture's mouth interior is filled from its lips (:func:`facetex.puppet.mouth.fill_mouth_interior`):
+    all of it when the driver's interior is drawn (``composite.mouth``: the persona's teeth at its
+    texture's inner lips showed as a white rim round the driver's interior), else as the driver's
+    lips close (no teeth sliver between closed lips);
     max_depth_error: a reconstructed average depth whose RMS
     difference to the generic face exceeds this fraction of the frame width is replaced by
     the generic depth (too few or too uniformly lit photos); shape "generic" skips the

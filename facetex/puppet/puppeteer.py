@@ -373,14 +373,17 @@ class Puppeteer:
         return self._close_interiors(frames, tex)
 
     def _close_interiors(self, frames: list, tex: list) -> list:
-        """The textures with their mouth interior filled from the lips as the driver's mouth
-        closes (:func:`facetex.puppet.mouth.fill_mouth_interior`; ``params.close_mouth``)."""
+        """The textures with their mouth interior filled from the lips
+        (:func:`facetex.puppet.mouth.fill_mouth_interior`; ``params.close_mouth``): all of it when
+        the driver's interior is drawn, else as the driver's mouth closes."""
         from .mouth import fill_mouth_interior, mouth_closure
 
         m = self.motion
         if not self.params.close_mouth or m.fiducials68 is None:
             return list(tex)
         lips = self.mean68[60:68]
+        if self.params.composite.mouth:  # the opening is the driver's interior on the cavity's shadow
+            return [fill_mouth_interior(t, lips, 1.0) for t in tex]
         return [fill_mouth_interior(t, lips, mouth_closure(m.fiducials68[i][60:68])) for i, t in zip(frames, tex)]
 
     def uses_sequence_weights(self, method: str | None = None) -> bool:
@@ -410,12 +413,16 @@ class Puppeteer:
         b[:2] += 0.5 * scale - 0.5
         return A, b
 
-    def lips(self, i: int, grid: np.ndarray, scale: float) -> np.ndarray:
-        """The puppet's inner lips (8, 2) (iBUG 60-67) in output-panel px for frame i: its
-        texture-frame inner lips carried by the deformed ``grid`` and projected."""
-        X = self._sample_grid(grid, self.mean68[list(INNER_LIPS)])
+    def points(self, i: int, grid: np.ndarray, scale: float) -> np.ndarray:
+        """The puppet's 68 landmarks (68, 2) in output-panel px for frame i: its texture-frame
+        landmarks carried by the deformed ``grid`` and projected."""
+        X = self._sample_grid(grid, self.mean68)
         A, b = self.pose(i, scale)
         return X @ A[:2].T + b[:2]
+
+    def lips(self, i: int, grid: np.ndarray, scale: float) -> np.ndarray:
+        """The puppet's inner lips (8, 2) (iBUG 60-67) of :meth:`points`."""
+        return self.points(i, grid, scale)[list(INNER_LIPS)]
 
     def layers(self, i: int, grid: np.ndarray, texture: np.ndarray, size, scale: float, supersample: int = 1,
                normals: bool = True):
@@ -436,7 +443,8 @@ class Puppeteer:
         sh = mode == "composite" and self.params.composite.lighting == "sh"
         lay = self.layers(i, grid, texture, (w, h), scale, ss, normals=sh)
         tr = self.track
-        lips = self.lips(i, grid, scale)
+        pts = self.points(i, grid, scale)
+        lips = pts[list(INNER_LIPS)]
         drv68 = (tr.points68[i] + 0.5) * scale - 0.5
         if mode == "face":
             bg = np.broadcast_to(np.asarray(self.params.plain, np.float32), (h, w, 3))
@@ -449,7 +457,7 @@ class Puppeteer:
             return img.astype(np.float32), lay.coverage
         oval = (tr.mesh[i][list(FACE_OVAL), :2] + 0.5) * scale - 0.5
         return composite_face(frame, lay.image, lay.coverage, lay.normals, driver_oval=oval, driver_points68=drv68,
-                              puppet_lips=lips, driver_normals=self.driver_normals(i, (w, h), scale) if sh else None,
+                              puppet_points68=pts, driver_normals=self.driver_normals(i, (w, h), scale) if sh else None,
                               params=self.params.composite)
 
     def driver_normals(self, i: int, size, scale: float) -> np.ndarray | None:

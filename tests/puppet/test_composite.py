@@ -13,6 +13,7 @@ from facetex.puppet.composite import (
     CompositeParams,
     boundary_color_step,
     composite_face,
+    lip_regions,
     lip_weights,
     match_sharpness,
     open_lip_weights,
@@ -413,7 +414,7 @@ def test_mouth_interior_moves_the_drivers_mouth_into_the_puppets_lips():
     p_lips = d_lips.copy()
     p_lips[:, 0] = 50 + (d_lips[:, 0] - 35) * 1.3
     p_lips[:, 1] = 55 + (d_lips[:, 1] - 30) * 0.7
-    img, alpha = mouth_interior(frame, d_lips, p_lips)
+    img, alpha = mouth_interior(frame, d_lips, p_lips, cavity=None)
     core = alpha > 0.99
     assert core.sum() > 50
     np.testing.assert_allclose(img[core], np.broadcast_to([0.1, 0.0, 0.2], img[core].shape), atol=0.02)
@@ -466,7 +467,7 @@ def _mouths():
 
 def test_mouth_interior_puts_teeth_and_cavity_where_they_are_in_the_drivers_mouth():
     frame, d, p = _mouths()
-    img, alpha = mouth_interior(frame, d, p)
+    img, alpha = mouth_interior(frame, d, p, cavity=None)
     core = alpha > 0.9
     assert core.sum() > 100
     lum = img[:, 100].mean(axis=1)  # the middle column, top to bottom
@@ -479,7 +480,7 @@ def test_mouth_interior_puts_teeth_and_cavity_where_they_are_in_the_drivers_mout
 
 def test_mouth_interior_alpha_is_soft_and_smooth_under_the_puppets_lips():
     frame, d, p = _mouths()
-    _, alpha = mouth_interior(frame, d, p)
+    _, alpha = mouth_interior(frame, d, p, cavity=None)
     # soft: across the mouth's middle column alpha rises over several pixels, not one
     col = alpha[:, 100]
     ramp = (col > 0.02) & (col < 0.98)
@@ -499,11 +500,38 @@ def test_mouth_interior_keys_out_the_drivers_lip_colour():
     inner = np.zeros(frame.shape[:2], np.uint8)
     cv2.fillPoly(inner, [np.round(d).astype(np.int32)], 1)
     lipped[inner > 0] = (0.75, 0.3, 0.3)  # dlib's inner contour on the lips: only lip inside
-    _, alpha = mouth_interior(lipped, d, p)
-    _, open_alpha = mouth_interior(frame, d, p)
+    _, alpha = mouth_interior(lipped, d, p, cavity=None)
+    _, open_alpha = mouth_interior(frame, d, p, cavity=None)
     assert alpha.max() < 0.05 < 0.9 < open_alpha.max()  # no red polygon; the real interior is drawn
-    _, off = mouth_interior(lipped, d, p, lip_key=None)
+    _, off = mouth_interior(lipped, d, p, lip_key=None, cavity=None)
     assert off.max() > 0.9
+    # with the cavity (the default) the keyed-out opening is the cavity's shadow: darker than the lips
+    img, alpha = mouth_interior(lipped, d, p)
+    drawn = alpha > 0.9
+    assert drawn.sum() > 100
+    np.testing.assert_allclose(img[drawn], np.broadcast_to(0.35 * np.float32([0.75, 0.3, 0.3]), img[drawn].shape),
+                               atol=0.02)
+
+
+def test_mouth_interior_cavity_fills_the_whole_opening_under_the_soft_edge():
+    frame, d, p = _mouths()
+    img, alpha = mouth_interior(frame, d, p)
+    _, inner = mouth_interior(frame, d, p, cavity=None)
+    h, w = alpha.shape
+    grow = 0.015 * np.linalg.norm(p[4] - p[0])
+    inside = polygon_mask(p, (h, w)) > 0.5
+    assert alpha[inside].min() > 0.95  # the persona's texture shows nowhere inside its contour
+    assert (inner[inside] < 0.5).sum() > 20  # where the interior's soft edge alone would let it through
+    edge = inside & (inner < 0.5)
+    lum = img[edge] @ np.float32([0.299, 0.587, 0.114])
+    # more than half the cavity's dark (the interior's darkest quarter): over a white texture (teeth)
+    # the interior alone would be lighter than 0.5 there
+    assert lum.max() < 0.5
+    # grown a little outside the contour, not more
+    near = cv2.dilate(inside.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    assert alpha[near & ~inside].max() > 0.05
+    far = cv2.dilate(inside.astype(np.uint8), np.ones((2 * int(grow + 3) + 1,) * 2, np.uint8)) == 0
+    assert alpha[far].max() == 0
 
 
 # ----------------------------------------------------------------------------- the whole composite
@@ -601,6 +629,64 @@ def _face68(cx=48.0, cy=40.0, iod=40.0, gap=8.0):
     p[60:65] = np.c_[cx + ui, cy + 10 - gap / 2 * np.array([0, 1, 1, 1, 0])]
     p[65:68] = np.c_[cx + ui[3:0:-1], np.full(3, cy + 10 + gap / 2)]
     return p
+
+
+def _fuller(p, k=1.35):
+    """``p`` with its outer lips scaled by ``k`` about the mouth's centre (fuller lips)."""
+    q = p.copy()
+    c = p[48:60].mean(axis=0)
+    q[48:60] = c + k * (p[48:60] - c)
+    return q
+
+
+def test_lip_regions_put_the_lips_colour_where_the_puppets_lips_are():
+    """A fuller-lipped persona (outer lips 1.35x the driver's) lighter-lipped than her skin on a
+    pale driver: with the regions at the driver's lips her lip edge outside them takes the skin's
+    mapping and turns white (the rim); with :func:`lip_regions` all of her lips are the driver's
+    lip colour (hand-computed as in the test above), measured on each face's own lips."""
+    h, w = 80, 96
+    d = _face68(gap=4.0)
+    pp = _fuller(d, 1.5)
+    p_outer = polygon_mask(pp[48:60], (h, w)) > 0.5
+    d_outer = polygon_mask(d[48:60], (h, w)) > 0.5
+    src_lab = np.where(p_outer[..., None], np.float32([60.0, 30.0, 15.0]), np.float32([45.0, 14.0, 20.0]))
+    ref_lab = np.where(d_outer[..., None], np.float32([55.0, 35.0, 12.0]), np.float32([75.0, 10.0, 16.0]))
+    src, ref = _rgb(src_lab.astype(np.float32)), _rgb(ref_lab.astype(np.float32))
+    skin = ~cv2.dilate(p_outer.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    rim = p_outer & ~cv2.dilate(d_outer.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    assert rim.sum() > 30
+    old = _lab(transfer_skin_colour(src, ref, skin, skin, sigma=np.inf, **lip_regions(d, None, (h, w))))
+    assert np.median(old[rim][:, 0]) > 85.0  # the rim: white
+    regions = lip_regions(d, pp, (h, w))
+    wl, ref_ring, src_ring = regions["lips"]
+    assert (src_ring & ~d_outer).sum() > 30 and not (ref_ring & ~d_outer).any()  # each face's own lips
+    new = _lab(transfer_skin_colour(src, ref, skin, skin, sigma=np.inf, **regions))
+    core = rim & (wl > 0.999)
+    np.testing.assert_allclose(new[core], np.broadcast_to([55.0, 35.0, 12.0], new[core].shape), atol=0.4)
+    np.testing.assert_allclose(new[skin], np.broadcast_to([75.0, 10.0, 16.0], new[skin].shape), atol=0.4)
+
+
+def test_lip_ceiling_caps_the_lips_lightness_at_the_drivers_lip_median():
+    """Teeth (L 90) on the persona's lips (L 50) with the driver's lips at L 55: the lip detail
+    would make them 55 + 1.2 x 40 = 100; the ceiling holds them at 55 + 6 = 61 (and only them)."""
+    h, w = 80, 96
+    p = _face68(gap=4.0)
+    outer = polygon_mask(p[48:60], (h, w)) > 0.5
+    wl, ring = lip_weights(p, (h, w))
+    yy, xx = np.mgrid[0:h, 0:w]
+    teeth = ring & (wl > 0.999) & (yy < p[62, 1]) & (np.abs(xx - p[62, 0]) < 5)  # on the upper lip
+    assert teeth.sum() >= 4
+    src_lab = np.where(outer[..., None], np.float32([50.0, 30.0, 15.0]), np.float32([45.0, 14.0, 20.0]))
+    src_lab[teeth] = (90.0, 0.0, 5.0)
+    ref_lab = np.where(outer[..., None], np.float32([55.0, 35.0, 12.0]), np.float32([75.0, 10.0, 16.0]))
+    src, ref = _rgb(src_lab.astype(np.float32)), _rgb(ref_lab.astype(np.float32))
+    skin = ~cv2.dilate(outer.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    free = _lab(transfer_skin_colour(src, ref, skin, skin, sigma=np.inf, lips=(wl, ring)))
+    capped = _lab(transfer_skin_colour(src, ref, skin, skin, sigma=np.inf, lips=(wl, ring), lip_ceiling=6.0))
+    assert free[teeth][:, 0].min() > 90.0
+    np.testing.assert_allclose(capped[teeth][:, 0], 61.0, atol=0.6)
+    lips = ring & (wl > 0.999) & ~cv2.dilate(teeth.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    np.testing.assert_allclose(capped[lips], free[lips], atol=0.05)  # the lips below the ceiling: as they were
 
 
 def test_lips_take_the_drivers_lip_colour_not_the_skins():

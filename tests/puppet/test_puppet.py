@@ -401,6 +401,9 @@ def test_puppeteer_weight_smoothing_zero_is_per_frame(driver_video, tiny_persona
     frames = [0, 3, 7]
     per_frame = pp.neutral_textures(tiny_persona, [pup.target(i) for i in frames],  # with the eyes' rest motion
                                     params=pup.params.texture_params())
+    for a, b in zip(pup.textures(frames), per_frame):  # the driver's interior is drawn: all filled
+        np.testing.assert_array_equal(a, fill_mouth_interior(b, pup.mean68[60:68], 1.0))
+    pup.params = dataclasses.replace(pup.params, composite=dataclasses.replace(pup.params.composite, mouth=False))
     closure = [mouth_closure(pup.motion.fiducials68[i][60:68]) for i in frames]
     for a, b, c in zip(pup.textures(frames), per_frame, closure):  # the interior filled as the lips close
         np.testing.assert_array_equal(a, fill_mouth_interior(b, pup.mean68[60:68], c))
