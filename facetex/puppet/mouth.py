@@ -93,7 +93,8 @@ def _lip_arcs(lips: np.ndarray, R: np.ndarray, c: np.ndarray):
 def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float = 1.0,
                    closed: float = 0.02, soft: float = 0.15,
                    lip_key: tuple[float, float] | None = (4.0, 12.0),
-                   cavity: float | None = 25.0, grow: float = 0.015) -> tuple[np.ndarray, np.ndarray]:
+                   cavity: float | None = 25.0, grow: float = 0.015,
+                   edge: float = 0.025) -> tuple[np.ndarray, np.ndarray]:
     """The driver's mouth interior moved into the puppet's mouth: (image (H, W, 3), alpha (H, W)).
 
     ``driver_lips``, ``puppet_lips`` (8, 2): iBUG inner-lip points 60-67 in ``frame`` px (driver)
@@ -130,7 +131,10 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     slightly open mouths a thin line); with ``closed`` 0.04 -> 0.02 and ``grow`` 0.015 all 36 runs
     read 0.87-1.25 (before: 0.82-1.29 with white rims), mouth r >= 0.90 (0.87). Without the soft
     edge (the interior's alpha 1 from the grown contour) the opening's edge turned light on
-    Williams' and Koizumi's lower lips and Arroyo/lbax4n read 0.80."""
+    Williams' and Koizumi's lower lips and Arroyo/lbax4n read 0.80. The cavity's edge ramps over
+    ``edge`` x the mouth width (at least a pixel): at 256 px a pixel, as measured above; at 512 px
+    the upscaled driver's frame is soft and a 1 px edge drew the slit of a slightly open mouth as a
+    cut-out."""
     f = np.asarray(frame, np.float32)
     h, w = _shape2(f.shape if shape is None else shape)
     dp = np.asarray(driver_lips, np.float64)
@@ -209,7 +213,9 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     # texture's inner lips: the interior's soft edge and the keyed-out lips let them through
     # as a white rim that dlib read as part of the opening (Williams' persona on GRID lbax4n).
     base = np.zeros((h, w), np.float32)
-    base[y0:y1, x0:x1] = smoothstep(np.clip(depth + 0.5 + grow * wp, 0.0, 1.0)) * np.clip(gap, 0.0, 1.0) * dark_fade
+    ramp = max(1.0, edge * wp)
+    base[y0:y1, x0:x1] = smoothstep(np.clip((depth + 0.5 + grow * wp) / ramp, 0.0, 1.0)) * np.clip(gap, 0.0, 1.0) \
+        * dark_fade
     inner = alpha[y0:y1, x0:x1] > 0.5
     lum = _lab(warped)[..., 0]
     dark = warped[inner & (lum <= np.percentile(lum[inner], cavity))] if inner.sum() >= 8 else None
