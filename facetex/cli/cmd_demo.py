@@ -62,7 +62,7 @@ def run(args) -> int:
     from .._provenance import provenance
     from .._resources import sample_path
     from ..errors import BadInputError, OutputError
-    from ..io import check_output_path, encode_image, encode_json, read_image, write_files, write_image
+    from ..io import check_output_path, encode_image, encode_json, read_image, write_files
     from ..landmarks import detect_face
     from ..metrics import transfer_metrics
     from ..nets.dlib_resnet import identity_distance

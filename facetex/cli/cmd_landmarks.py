@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ._common import add_output, add_overwrite, add_quiet, nonnegative_int, print_json, wrote
+from ._common import add_output, add_overwrite, nonnegative_int, print_json, wrote
 
 
 def register(sub) -> None:
@@ -64,7 +64,7 @@ def run(args) -> int:
     import warnings
 
     from ..errors import BadInputError, NoFaceError
-    from ..io import DETECT_MAX_PIXELS, IMAGE_EXTENSIONS, check_output_path, read_image_reduced, write_image
+    from ..io import DETECT_MAX_PIXELS, IMAGE_EXTENSIONS, check_output_path, read_image_reduced
     from ..landmarks import detect_faces
 
     sidecar = None

@@ -126,7 +126,7 @@ class _LevelLoss:
     """Weighted loss terms of one resolution level (Eqs. 2, 3, 4, 6)."""
 
     def __init__(self, builder: "_LossBuilder", shape):
-        p, dev = builder.params, builder.device
+        p = builder.params
         self.p = p
         self.net = builder.texture_net
         self.struct_net = builder.structure_net

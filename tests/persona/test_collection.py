@@ -649,7 +649,7 @@ def test_segmented_sparse_blend_equals_the_dense_formula(persona, monkeypatch):
     prep = tx.prepare_persona(persona, tp)
     S = tx.target_weights(persona, persona.fiducials[[2, 7]], tp)  # (2 targets, 3 regions, n)
     got = prep.blend_many(S)
-    n, bands = len(persona), []
+    bands = []
     full, masks = prep.pyr, prep.level_masks()
     for k in range(prep.levels):
         h, w = prep.level_shapes[k]

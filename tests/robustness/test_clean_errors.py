@@ -5,7 +5,6 @@ audio, FIFOs, devices, symlink loops, animated images."""
 from __future__ import annotations
 
 import json
-import os
 import zipfile
 
 import numpy as np

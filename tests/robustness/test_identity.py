@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from _robust import assert_one_error, run_cli, sha1s, snapshot
+from _robust import assert_one_error, run_cli, snapshot
 from facetex.persona.identity import MAIN_IDENTITY_SHARE, cluster_identities, select_main_identity
 
 OPTS = ["--jobs", "1", "--min-photos", "3"]

@@ -140,7 +140,7 @@ def test_mrf_target_weight_equals_brute_force_weighted_sum():
     w = torch.zeros(9, 11, dtype=D64)
     w[2:6, 3:9] = torch.rand(4, 6, generator=g, dtype=D64) + 0.1
     nn, _ = _brute_force(t, s)
-    c, k = 4, 3
+    k = 3
     sp = extract_patches(s, k, 2)
     tp = extract_patches(t, k, 1)
     wp = extract_patches(w[None], k, 1)[:, 0]  # (N_t, k, k) weights under each target patch
