@@ -149,7 +149,7 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     # closed driver lips have no interior to show (their sliver would draw a red line): fade out
     fade = _open_fade(wd, gd, closed)
     # the cavity's shadow: where both mouths are open
-    dark_fade = _open_fade(wd, gd, closed) * _open_fade(wp, gp, closed) if cavity is not None else 0.0
+    dark_fade = fade * _open_fade(wp, gp, closed) if cavity is not None else 0.0
     arcs_p, arcs_d = _lip_arcs(pp, Rp, cp), _lip_arcs(dp, Rd, cd)
     if max(fade, dark_fade) <= 0 or arcs_p is None or arcs_d is None:
         return none
@@ -186,6 +186,7 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     xy = np.stack([ud, vd], axis=-1) @ Rd + cd
     warped = cv2.remap(f, xy[..., 0].astype(np.float32), xy[..., 1].astype(np.float32), cv2.INTER_LINEAR,
                        borderMode=cv2.BORDER_REPLICATE)
+    lab = _lab(warped)
     if lip_key is not None:
         # the driver's lips: just above its upper and below its lower inner-lip curve, middle 60 %
         us = du0 + np.linspace(0.2, 0.8, 9) * (du1 - du0)
@@ -194,7 +195,6 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
         lip = cv2.remap(f, ring[None, :, 0].astype(np.float32), ring[None, :, 1].astype(np.float32), cv2.INTER_LINEAR,
                         borderMode=cv2.BORDER_REPLICATE)
         lip_lab = np.median(_lab(lip)[0], axis=0)
-        lab = _lab(warped)
         unlike = np.maximum(np.linalg.norm(lab[..., 1:] - lip_lab[1:], axis=-1), lab[..., 0] - lip_lab[0])
         lo, hi = lip_key
         k = np.clip((unlike - lo) / max(hi - lo, 1e-6), 0.0, 1.0)
@@ -208,8 +208,8 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     img[y0:y1, x0:x1] = warped
     if cavity is None:
         return img, alpha
-    # under the interior: the cavity's shadow from the puppet's contour in (1 px anti-aliased),
-    # not the persona's texture there. A persona whose photos smile has teeth up to its
+    # under the interior: the cavity's shadow from just outside the puppet's contour in, not the
+    # persona's texture there. A persona whose photos smile has teeth up to its
     # texture's inner lips: the interior's soft edge and the keyed-out lips let them through
     # as a white rim that dlib read as part of the opening (Williams' persona on GRID lbax4n).
     base = np.zeros((h, w), np.float32)
@@ -217,7 +217,7 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     base[y0:y1, x0:x1] = smoothstep(np.clip((depth + 0.5 + grow * wp) / ramp, 0.0, 1.0)) * np.clip(gap, 0.0, 1.0) \
         * dark_fade
     inner = alpha[y0:y1, x0:x1] > 0.5
-    lum = _lab(warped)[..., 0]
+    lum = lab[..., 0]
     dark = warped[inner & (lum <= np.percentile(lum[inner], cavity))] if inner.sum() >= 8 else None
     colour = dark.mean(axis=0) if dark is not None and len(dark) else 0.35 * lip.mean(axis=(0, 1)) \
         if lip_key is not None else np.zeros(3, np.float32)
