@@ -423,7 +423,7 @@ class CompositeParams:
     lip_ceiling: the lips' lightness is at most the driver's lip median + this (L*, None: off;
     :func:`~facetex.puppet.lighting.transfer_skin_colour`): with the lips' colour where the puppet's
     lips are (:func:`lip_regions`), teeth of a smiling persona's texture at its inner lips still
-    drew a light line along the opening;
+    drew a light line along the opening (the lips' highlights are scaled to it, not clipped);
     lid_colour: the lids round the eyes take the driver's lid lightness at this strength
     (:func:`lid_weights`, 0: off, the default): a dark persona's dark lids looked like shadow rings
     on pale drivers, and at 1 Williams' eye openness rose (0.83-0.90 -> 0.84-0.95 of the driver's)

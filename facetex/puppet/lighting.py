@@ -169,6 +169,11 @@ def _lightness_to_luminance(L):
     return np.maximum(np.where(f > 6 / 29, f ** 3, 3 * (6 / 29) ** 2 * (f - 4 / 29)), 1e-4).astype(np.float32)
 
 
+#: the percentile of the persona's lip lightness that the lips' highlight gain brings to the lip
+#: ceiling (:func:`transfer_skin_colour`)
+LIP_SPREAD_PERCENTILE = 90.0
+
+
 def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 / 3, 1.2), colour: str = "driver",
                          light_limits=(0.5, 2.0), shrink: int = 1, lips=None, lids=None, keep=None,
                          lip_parts=(), lip_ceiling: float | None = None) -> np.ndarray:
@@ -202,7 +207,10 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     lip of an open mouth, :func:`~facetex.puppet.composite.open_lip_weights`). ``lip_ceiling``
     (with ``lips``): the lips' lightness at most ``ref``'s lip median + this (L*, 0..100): a
     persona whose photos smile has teeth at its texture's inner lips, lighter than any lip, and
-    the kept detail drew them as a white rim on the puppet's lips.
+    the kept detail drew them as a white rim on the puppet's lips. Above the lips' median their
+    lightness detail takes the gain that brings the persona's lip 90th percentile to the ceiling
+    (at most g): clipped alone, a dark persona's lower lip, much lighter than her upper lip, was a
+    flat patch with a hard edge on a pale driver.
     Returns sRGB float32 in [0, 1]."""
     if colour not in COLOURS:
         raise BadInputError(f"unknown colour {colour!r}: use one of {', '.join(COLOURS)}")
@@ -240,8 +248,12 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
         field[..., c] = sb[..., c] - g[c] * sa[..., c]
     field = full(field)
     a = _lab(src)
+    out = np.empty(a.shape, np.float32)
+    for c in range(3):
+        out[..., c] = g[c] * a[..., c] + field[..., c]
     ref_lab = None
     ceiling = None
+    g_light = g[0]  # the lips' gain for lightness detail above their median
     for region in (lips, *lip_parts, lids):
         if region is None:
             continue
@@ -250,14 +262,21 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
         if lm.sum() >= 8 and sl.sum() >= 8 and wl.max() > 0:
             ref_lab = _lab(ref) if ref_lab is None else ref_lab
             med = np.median(_pixels(ref_lab, lm), axis=0)
-            own = med - g * np.median(_pixels(a, sl), axis=0)
+            own_px = _pixels(a, sl)
+            own = np.median(own_px, axis=0)
             if region is lips and lip_ceiling is not None:
                 ceiling = (wl, float(med[0]) + float(lip_ceiling))
-            for c in range(3):
-                field[..., c] += wl * (own[c] - field[..., c])
-    out = np.empty(a.shape, np.float32)
-    for c in range(3):
-        out[..., c] = g[c] * a[..., c] + field[..., c]
+                # lightness above the lips' median scaled so that their upper percentile meets the
+                # ceiling: clipped alone, a persona whose lower lip is much lighter than her upper
+                # lip (a dark persona on a pale driver) got a flat pink lower lip with a hard edge
+                spread = float(np.percentile(own_px[:, 0], LIP_SPREAD_PERCENTILE) - own[0])
+                g_light = min(float(g[0]), float(lip_ceiling) / max(spread, 1e-6))
+            d = a - own
+            lip_like = region is lips or any(region is r for r in lip_parts)
+            gl = np.where(d[..., 0] > 0, g_light, g[0]) if lip_like else g[0]
+            out[..., 0] += wl * (med[0] + gl * d[..., 0] - out[..., 0])
+            for c in (1, 2):
+                out[..., c] += wl * (med[c] + g[c] * d[..., c] - out[..., c])
     if ceiling is not None:
         wl, top = ceiling
         out[..., 0] -= wl * np.maximum(out[..., 0] - top, 0.0)

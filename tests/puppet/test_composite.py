@@ -689,6 +689,34 @@ def test_lip_ceiling_caps_the_lips_lightness_at_the_drivers_lip_median():
     np.testing.assert_allclose(capped[lips], free[lips], atol=0.05)  # the lips below the ceiling: as they were
 
 
+def test_lip_ceiling_scales_the_lips_highlights_instead_of_flattening_them():
+    """A persona's lips with L from 40 to 70 (a lower lip much lighter than the upper), the driver's
+    lips uniform at L 55, skins at L 50 and 60 (gain 1.2), ceiling 6: below the lips' median (55)
+    the detail keeps the gain 1.2; above it the gain is 6 / (90th percentile - median), so the
+    lightening lower lip stays a ramp up to the ceiling instead of a flat patch (hand-computed)."""
+    h, w = 40, 64
+    ring = np.zeros((h, w), bool)
+    ring[8:32, 2:62] = True
+    wl = ring.astype(np.float32)
+    L = np.broadcast_to(np.linspace(40.0, 70.0, 60, dtype=np.float32), (24, 60))
+    src_lab = np.broadcast_to(np.float32([50.0, 14.0, 20.0]), (h, w, 3)).copy()
+    src_lab[8:32, 2:62] = np.stack([L, np.full_like(L, 30.0), np.full_like(L, 15.0)], axis=-1)
+    ref_lab = np.broadcast_to(np.float32([60.0, 10.0, 16.0]), (h, w, 3)).copy()
+    ref_lab[ring] = (55.0, 35.0, 12.0)
+    src, ref = _rgb(src_lab), _rgb(ref_lab)
+    skin = ~cv2.dilate(ring.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    out = _lab(transfer_skin_colour(src, ref, skin, skin, sigma=np.inf, lips=(wl, ring), lip_ceiling=6.0))
+    got_src = _lab(src)[ring][:, 0]  # the source lightness after the 8-bit-free sRGB round trip
+    med = np.median(got_src)
+    g_hi = 6.0 / (np.percentile(got_src, 90) - med)
+    assert 0.4 < g_hi < 0.6
+    expect = np.where(got_src > med, 55.0 + g_hi * (got_src - med), 55.0 + 1.2 * (got_src - med))
+    expect = np.minimum(expect, 61.0)
+    np.testing.assert_allclose(out[ring][:, 0], expect, atol=0.3)
+    lower = got_src > med + 1.0
+    assert np.ptp(out[ring][lower & (got_src < np.percentile(got_src, 88)), 0]) > 4.0  # a ramp, not flat
+
+
 def test_lips_take_the_drivers_lip_colour_not_the_skins():
     """A persona whose lips are lighter than her skin (L 45 skin, L 60 lips) on a pale driver whose
     lips are darker than his (L 75 skin, L 55 lips): with the lip weights the lips come out at the
