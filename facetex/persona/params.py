@@ -63,8 +63,10 @@ class TextureParams:
     multiplied by 1 / (1 + (d / (kappa s))^2), d its band's distance from the weighted mean there
     and s the median distance (:func:`facetex.persona.stacks._robust_product`): a hand over the
     mouth in 2 of Williams' 52 photos drew pale finger shapes under the puppet's closed lips
-    (GRID lrwp9a), gone at kappa 2; leave-out mouth SSIM +0.001 (Arroyo +0.0289 -> +0.0302,
-    Koizumi +0.0241 -> +0.0254 at kappa 1-4; the face region too: face SSIM -0.0015 on Koizumi)."""
+    (GRID lrwp9a), gone at kappa 2; leave-out mouth SSIM over static (5 folds) +0.001-0.002 on all
+    six LFW collections (Bush +0.036 -> +0.037, Blair +0.043 -> +0.045, Williams +0.047 -> +0.047,
+    Chavez +0.041 -> +0.043, Koizumi +0.024 -> +0.026, Arroyo +0.029 -> +0.030; kappa 1 and 4
+    alike; the face region too cost face SSIM 0.0015 on Koizumi)."""
 
     sigma: float = 10.0
     alpha: float | None = None

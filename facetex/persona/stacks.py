@@ -577,8 +577,6 @@ def prepare_persona(persona: Persona, params: TextureParams | None = None, *, pr
     return prep
 
 
-
-
 #: the robust blend (``TextureParams.robust``) is used on the levels whose Eq. 3 uniform term is at
 #: most this: the expression-weighted ones (not the shared lighting levels) ...
 ROBUST_UNIFORM = 1e-3
