@@ -61,7 +61,7 @@ class TextureParams:
     -0.050; the expression weights' rank correlation with the photos' own SSIM: 0.43).
     robust: (region, kappa): in ``region``'s expression-weighted bands each photo's pixel weight is
     multiplied by 1 / (1 + (d / (kappa s))^2), d its band's distance from the weighted mean there
-    and s the median distance (:func:`facetex.persona.stacks._robust_product`): a hand over the
+    and s the median distance (:func:`facetex.persona._stack_parts._robust_product`): a hand over the
     mouth in 2 of Williams' 52 photos drew pale finger shapes under the puppet's closed lips
     (GRID lrwp9a), gone at kappa 2; leave-out mouth SSIM over static (5 folds) +0.001-0.002 on all
     six LFW collections (Bush +0.036 -> +0.037, Blair +0.043 -> +0.045, Williams +0.047 -> +0.047,

@@ -19,10 +19,13 @@ from ..geometry.glasses import glasses_bridge_score
 from ._packed import Packed
 from ._photo_quality import _PhotoQuality
 from ._stack_parts import (
+    ROBUST_FINEST,
+    ROBUST_UNIFORM,
     _confidence,
     _csr,
     _float16_to_32,
     _photo_rows_rgbc,
+    _robust_product,
     _Segment,
     _single_stack,
     _small_page_arrays,
@@ -575,43 +578,3 @@ def prepare_persona(persona: Persona, params: TextureParams | None = None, *, pr
         prep = copy.copy(prep)
         prep.tp = tp
     return prep
-
-
-#: the robust blend (``TextureParams.robust``) is used on the levels whose Eq. 3 uniform term is at
-#: most this: the expression-weighted ones (not the shared lighting levels) ...
-ROBUST_UNIFORM = 1e-3
-#: ... from this level on (0 = the finest): the finest band (1-2 px: noise, JPEG, pores) is 4x the
-#: pixels of the next and held no part of the ghosts it is for
-ROBUST_FINEST = 1
-
-
-def _robust_product(W, stack: np.ndarray, kappa: float) -> np.ndarray:
-    """(B, cols) ``W @ stack`` ((B, n) weights, dense or sparse; (n, cols) premultiplied
-    (band x c, c) pixel columns) with each photo's pixel weight times 1 / (1 + d^2 / (kappa s)^2):
-    d = c |band - mean| (RGB; the plain weighted mean there, times the photo's confidence c), s^2
-    the median of d^2 over the pixels it is sure of (c > 0.5) of the photos holding at least 5 %
-    of the largest weight. A photo whose band disagrees with the others there (a hand or a
-    microphone over the mouth) counts less. A Cauchy M-estimator's first reweighting step, by
-    hand: the blend is a sparse product over precomputed stacks that no library's robust mean takes."""
-    Wd = W.toarray() if hasattr(W, "toarray") else np.asarray(W)
-    out = np.zeros((Wd.shape[0], stack.shape[1]), np.float32)
-    for b in range(Wd.shape[0]):
-        idx = np.flatnonzero(Wd[b])
-        if idx.size == 0:
-            continue
-        w = Wd[b, idx].astype(np.float32)
-        X = np.asarray(stack[idx], np.float32).reshape(idx.size, -1, 4)
-        num = w @ X.reshape(idx.size, -1)
-        num = num.reshape(-1, 4)
-        mu = num[:, :3] / np.maximum(num[:, 3:], 1e-12)
-        c = X[..., 3]
-        r = X[..., :3] - c[..., None] * mu[None]
-        d2 = np.einsum("ipc,ipc->ip", r, r)  # (photos, pixels)
-        sure = (c > 0.5) & (w[:, None] >= 0.05 * w.max())
-        s2 = float(np.median(d2[sure])) if sure.any() else 0.0
-        if s2 <= 0:
-            out[b] = num.reshape(-1)
-            continue
-        wr = w[:, None] / (1.0 + d2 * (1.0 / (kappa * kappa * s2)))
-        out[b] = np.einsum("ip,ipc->pc", wr, X).reshape(-1)
-    return out

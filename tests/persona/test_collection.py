@@ -677,7 +677,7 @@ def test_robust_product_reweights_a_hand_computed_pixel():
     1 / (1 + (d / 0.7333)^2) = 0.8, 0.8832, 0.5728 and the red band (0.08832 + 0.5728) / 2.2560."""
     from scipy.sparse import csr_matrix
 
-    from facetex.persona.stacks import _robust_product
+    from facetex.persona._stack_parts import _robust_product
 
     stack = np.float32([[0.0, 0, 0, 1], [0.1, 0, 0, 1], [1.0, 0, 0, 1]])  # (n, 1 pixel x 4)
     W = np.float32([[1.0, 1.0, 1.0]])
