@@ -272,8 +272,7 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
                 spread = float(np.percentile(own_px[:, 0], LIP_SPREAD_PERCENTILE) - own[0])
                 g_light = min(float(g[0]), float(lip_ceiling) / max(spread, 1e-6))
             d = a - own
-            lip_like = region is lips or any(region is r for r in lip_parts)
-            gl = np.where(d[..., 0] > 0, g_light, g[0]) if lip_like else g[0]
+            gl = np.where(d[..., 0] > 0, g_light, g[0]) if region is not lids and g_light != g[0] else g[0]
             out[..., 0] += wl * (med[0] + gl * d[..., 0] - out[..., 0])
             for c in (1, 2):
                 out[..., c] += wl * (med[c] + g[c] * d[..., c] - out[..., c])

@@ -420,10 +420,6 @@ class Puppeteer:
         A, b = self.pose(i, scale)
         return X @ A[:2].T + b[:2]
 
-    def lips(self, i: int, grid: np.ndarray, scale: float) -> np.ndarray:
-        """The puppet's inner lips (8, 2) (iBUG 60-67) of :meth:`points`."""
-        return self.points(i, grid, scale)[list(INNER_LIPS)]
-
     def layers(self, i: int, grid: np.ndarray, texture: np.ndarray, size, scale: float, supersample: int = 1,
                normals: bool = True):
         """:class:`facetex.puppet.render.Layers` of the puppet in frame i (output panel ``size`` (W, H))."""

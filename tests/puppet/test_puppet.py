@@ -145,6 +145,7 @@ def test_open_mouth_shows_the_drivers_mouth_interior(session):
     from dataclasses import replace
 
     from facetex.geometry.masks import polygon_mask
+    from facetex.puppet.composite import INNER_LIPS
     from facetex.puppet.puppetry import render_frames
 
     recs = {r["index"]: r for r in render_frames(session, size=160, keep=True)}
@@ -152,7 +153,7 @@ def test_open_mouth_shows_the_drivers_mouth_interior(session):
     scale = 160 / session.track.frame_size[0]
     i = N_MORPH - 1  # smiling, lips apart
     r = recs[i]
-    lips = pup.lips(i, r["grid"], scale)
+    lips = pup.points(i, r["grid"], scale)[list(INNER_LIPS)]
     inside = polygon_mask(lips, r["alpha"].shape) > 0.5
     assert inside.sum() > 5  # the puppet's lips are open
     saved = pup.params
