@@ -191,8 +191,8 @@ def test_sigterm_stops_the_batch_without_partial_output_or_orphans(tmp_path):
     assert {r["state"] for r in _manifest(out).values()} == {"done"} and len(list(out.glob("*.png"))) == 3
 
 
-def _start_and_wait_running(cmd, env, out, n_running=1, timeout=180):
-    """Start ``cmd``; return (process, its descendants) once ``n_running`` items run."""
+def _start_and_wait_running(cmd, env, out, n_running=1, timeout=180, settle=1.0):
+    """Start ``cmd``; return (process, its descendants) ``settle`` s after ``n_running`` items run."""
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     seen: set[int] = set()
     deadline = time.monotonic() + timeout
@@ -200,7 +200,7 @@ def _start_and_wait_running(cmd, env, out, n_running=1, timeout=180):
         seen |= children(proc.pid)
         states = _states(out)
         if states.count("running") >= n_running and seen:
-            time.sleep(1.0)
+            time.sleep(settle)
             return proc, seen | children(proc.pid)
         if proc.poll() is not None:
             pytest.fail(f"the batch ended early: {proc.communicate()[1]}")
@@ -224,11 +224,11 @@ def _alive(pids):
 def test_a_killed_batch_leaves_no_worker_and_the_next_run_takes_over_at_once(tmp_path):
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "facetex", "batch", "transfer", "--contents", str(sample_path()), "--styles",
-           str(sample_path()), "--pairs", "2", "--out", str(out), "--jobs", "2", *SMALL, "-q",
-           "--claim-timeout", "3600"]
+           str(sample_path()), "--pairs", "2", "--out", str(out), "--jobs", "2", "--size", "256", "--iters",
+           "100,100,100", "-q", "--claim-timeout", "3600"]  # items of seconds: killed while they run
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(__file__).parents[2]),
                                                         os.environ.get("PYTHONPATH", "")]))
-    proc, procs = _start_and_wait_running(cmd, env, out, n_running=2)
+    proc, procs = _start_and_wait_running(cmd, env, out, n_running=2, settle=0.0)
     proc.kill()  # SIGKILL: no clean-up in the batch itself
     proc.wait()
     deadline = time.monotonic() + 30
