@@ -238,6 +238,28 @@ def mouth_closure(inner_lips, closed: float = 0.04) -> float:
     return 1.0 - _open_fade(wd, gd, closed)
 
 
+def _vertical_ramps(filled: np.ndarray, hole: np.ndarray) -> np.ndarray:
+    """``filled`` with each column of ``hole`` replaced by the straight ramp between that column's
+    top and bottom hole pixels. Inpainted from both lips, the hole is dark above a hard seam and
+    pink below; squeezed to a line by the closing mesh and sampled at sub-pixel heights that drift
+    along the mouth, the seam came out as stair steps of dark and pink runs. A ramp has the same
+    mean but no seam, so the line's colour drifts smoothly instead."""
+    out = filled.copy()
+    cols = np.flatnonzero(hole.any(axis=0))
+    if cols.size == 0:
+        return out
+    hc = hole[:, cols]
+    top = hc.argmax(axis=0)
+    bottom = hole.shape[0] - 1 - hc[::-1].argmax(axis=0)
+    y = np.arange(hole.shape[0])[:, None]
+    f = np.clip((y - top) / np.maximum(bottom - top, 1), 0.0, 1.0)[..., None]
+    ramp = filled[top, cols][None] + f * (filled[bottom, cols] - filled[top, cols])[None]
+    sub = out[:, cols]
+    sub[hc] = ramp[hc]
+    out[:, cols] = sub
+    return out
+
+
 def fill_mouth_interior(texture, inner_lips, closure: float) -> np.ndarray:
     """``texture`` (H, W, 3) float with the inside of its inner-lip contour ``inner_lips`` (8, 2),
     grown by a pixel, filled from the lips around it (OpenCV's Telea inpainting), mixed in by
@@ -260,7 +282,7 @@ def fill_mouth_interior(texture, inner_lips, closure: float) -> np.ndarray:
     if not hole.any():
         return t
     u8 = (np.clip(roi, 0, 1) * 255 + 0.5).astype(np.uint8)
-    filled = cv2.inpaint(u8, hole, 2, cv2.INPAINT_TELEA).astype(np.float32) / 255
+    filled = _vertical_ramps(cv2.inpaint(u8, hole, 2, cv2.INPAINT_TELEA).astype(np.float32) / 255, hole > 0)
     a = c * cv2.GaussianBlur(hole.astype(np.float32), (0, 0), 0.7)[..., None]
     out = t.copy()
     out[y0:y1, x0:x1] = roi + a * (filled - roi)

@@ -807,6 +807,33 @@ def test_fill_mouth_interior_replaces_the_teeth_by_the_lips_as_the_mouth_closes(
     np.testing.assert_allclose(half[c], 0.5 * (tex[c] + shut[c]), atol=0.01)
 
 
+def test_fill_mouth_interior_ramps_from_the_upper_lip_to_the_lower_down_each_column():
+    """Upper lip dark (0.3), lower lip pink (0.7) round a 10 px open mouth: every column of the
+    filled hole is a straight ramp between its top and bottom pixels, so a closing mesh that
+    samples it at drifting sub-pixel heights gets a smoothly drifting colour (inpainted, it was dark
+    above a hard seam and pink below: the closed lip line in stair steps of dark and pink runs)."""
+    h, w = 80, 96
+    p = _face68(gap=10.0)
+    yy = np.mgrid[0:h, 0:w][0]
+    mid = 0.5 * (p[62, 1] + p[66, 1])
+    tex = np.where((yy < mid)[..., None], np.float32(0.3), np.float32(0.7)) * np.ones(3, np.float32)
+    inner = polygon_mask(p[60:68], (h, w)) > 0.5
+    tex[inner] = 0.95  # teeth
+    shut = fill_mouth_interior(tex, p[60:68], 1.0)[..., 0]
+    checked = 0
+    for x in range(int(p[60, 0]), int(p[64, 0]) + 1):
+        ys = np.flatnonzero(inner[:, x])
+        if ys.size < 5:  # the corners' short columns
+            continue
+        col = shut[ys, x]
+        top, bottom = col[0], col[-1]
+        assert top < 0.45 and bottom > 0.55  # each end takes its own lip
+        expected = top + (bottom - top) * (ys - ys[0]) / (ys[-1] - ys[0])  # hand-computed ramp
+        np.testing.assert_allclose(col, expected, atol=0.02)
+        checked += 1
+    assert checked >= 8
+
+
 def test_eyeballs_keep_the_personas_colour_the_lids_take_the_drivers():
     """A dark persona's brown iris on a pale driver: with ``keep`` = the eye weights the eyeball is
     the persona's own colour (Lab unchanged), the skin the driver's."""
