@@ -35,6 +35,9 @@ def register(sub) -> None:
     p.add_argument("--sharpen", type=finite_float(1.0, 4.0), default=2.5, metavar="GAIN",
                    help="composite mode: raise the puppet's fine detail towards the driver frame's, at most by "
                         "this gain (default 2.5; 1 = off; 1..4)")
+    p.add_argument("--grain", type=finite_float(0.0, 1.0), default=1.0, metavar="AMOUNT",
+                   help="composite mode: where the puppet is still smoother than the driver's frame, add the "
+                        "frame's own fine grain on the skin, at most at this strength (default 1; 0 = off)")
     p.add_argument("--texture", choices=("ours", "static"), default="ours",
                    help="expression-dependent texture (default) or the static average texture")
     p.add_argument("--weights", choices=("regional", "global"), default="regional",
@@ -101,7 +104,8 @@ def _puppet_params(args):
 
     return PuppetParams(texture=args.texture, weights=args.weights, correspondence=args.correspondence,
                         weight_smoothing=args.weight_smoothing,
-                        composite=CompositeParams(lighting=args.lighting, colour=args.colour, sharpen=args.sharpen))
+                        composite=CompositeParams(lighting=args.lighting, colour=args.colour, sharpen=args.sharpen,
+                                                  grain=args.grain))
 
 
 def _start_loading(args):
@@ -171,7 +175,7 @@ def _run(args, tracker, loading=None) -> int:
         params={"side_by_side": args.side_by_side, "size": args.size, "mode": args.mode, "texture": args.texture,
                 "weights": args.weights, "weight_smoothing": args.weight_smoothing,
                 "correspondence": args.correspondence, "lighting": args.lighting, "colour": args.colour,
-                "sharpen": args.sharpen, "max_frames": args.max_frames,
+                "sharpen": args.sharpen, "grain": args.grain, "max_frames": args.max_frames,
                 "puppet_params": params},
         outputs=[out], result=report), overwrite=args.overwrite, inputs=inputs)
     if report["lost_frames"] and not args.quiet:

@@ -30,7 +30,9 @@ looks pasted on unless its colour, lighting and outline come from the frame it s
   gain, :func:`match_sharpness`): the persona's texture has been resampled four times
   (frontalized, aligned, blended, rendered) and its small collections' photos are soft, so a
   puppet sat in a video frame as a smooth mask (skin detail 0.34-0.68 of the driver's, Laplacian
-  variance, on the 44-71-photo personas);
+  variance, on the 44-71-photo personas); where that bound leaves it smoother than the frame (a
+  frame at its own size, finer than the persona's photos), the frame's own grain is added on the
+  skin (:func:`~facetex.puppet.detail.match_grain`);
 * **gradient-domain blending**: the puppet's gradients with the driver's values on the mask
   border (Pérez et al. 2003; ``seamlessClone``'s guidance field solved in float32 by the DST), so
   the colour is continuous across the border;
@@ -55,6 +57,7 @@ import numpy as np
 from ..errors import BadInputError
 from ..geometry.masks import feature_mask, inner_feather, polygon_mask
 from ._pixels import _LUMA, _mix, _shape2
+from .detail import match_grain, match_sharpness
 from .lighting import COLOURS, _lab, fit_sh_lighting, linear_to_srgb, relight, srgb_to_linear, transfer_skin_colour
 from .mouth import mouth_interior
 
@@ -67,7 +70,6 @@ __all__ = [
     "eye_weights",
     "skin_pixels",
     "occlusion_mask",
-    "match_sharpness",
     "poisson_blend",
     "boundary_color_step",
     "CompositeParams",
@@ -251,45 +253,6 @@ def occlusion_mask(region, skin, features, points68, *, min_size: float = 0.03, 
     return occ * region
 
 
-def match_sharpness(src, ref, src_skin, ref_skin, *, max_gain: float = 2.0, coverage=None) -> tuple[np.ndarray, float]:
-    """(``src`` sharpened, gain g): ``src`` + (g − 1) x its pixel-scale high-pass (``src`` minus
-    the mean of its 4 neighbours, −∇²/4), g chosen so that the variance of the 3 x 3 Laplacian of
-    the luminance on ``src``'s bool ``src_skin`` pixels equals ``ref``'s on ``ref_skin`` (the
-    sharpness the puppet bench measures; a quadratic in g − 1, its larger root), clipped to
-    [1, ``max_gain``]: never blurred, never sharpened more than ``max_gain``. The finest band is
-    what a video frame's skin has and a resampled average texture lacks; an unsharp mask of
-    sigma 1 px raised the mottling between pores instead (0.64 of a GRID driver's Laplacian
-    variance at its 2.5 cap). ``coverage`` (H, W) of ``src``: the neighbours' mean is normalized
-    by their coverage, so the silhouette's edge against the empty outside does not ring. Images
-    (H, W, 3) float [0, 1]; the result is clipped to [0, 1]."""
-    s = np.asarray(src, np.float32)
-    r = np.asarray(ref, np.float32)
-    ms, mr = np.asarray(src_skin, bool), np.asarray(ref_skin, bool)
-    if ms.sum() < 16 or mr.sum() < 16:
-        return s.copy(), 1.0
-    k4 = np.array([[0, 0.25, 0], [0.25, 0, 0.25], [0, 0.25, 0]], np.float32)
-    if coverage is None:
-        hs = s - cv2.filter2D(s, -1, k4, borderType=cv2.BORDER_REFLECT)
-    else:
-        c = np.asarray(coverage, np.float32)
-        num = cv2.filter2D(s * c[..., None], -1, k4, borderType=cv2.BORDER_REFLECT)
-        den = cv2.filter2D(c, -1, k4, borderType=cv2.BORDER_REFLECT)[..., None]
-        hs = s - num / np.maximum(den, 1e-3)
-        hs *= (den > 0.99)  # next to the silhouette (partly uncovered neighbours) left alone
-    lap = [cv2.Laplacian(np.ascontiguousarray(x @ _LUMA), cv2.CV_32F, ksize=1) for x in (s, hs, r)]
-    ls, lh, lr = lap[0][ms], lap[1][ms], lap[2][mr]
-    ls, lh = ls - ls.mean(), lh - lh.mean()
-    # Var(∇²(s + k hs)) = a k² + b k + c + Var(∇² ref) on the skin
-    a, b = float(np.mean(lh * lh)), 2.0 * float(np.mean(ls * lh))
-    c = float(np.mean(ls * ls)) - float(np.var(lr))
-    disc = b * b - 4 * a * c
-    k = (-b + math.sqrt(disc)) / (2 * a) if a > 1e-12 and disc >= 0 else 0.0
-    g = float(np.clip(1.0 + k, 1.0, max_gain))
-    if g <= 1.0:
-        return s.copy(), 1.0
-    return np.clip(s + (g - 1.0) * hs, 0.0, 1.0), g
-
-
 # ----------------------------------------------------------------------------- blending
 #: erosion (3 x 3 steps) of the mask inside which the source's gradients guide the blend: OpenCV's
 #: ``seamlessClone`` uses 3, and the pixels next to the border follow the destination's gradients
@@ -431,7 +394,8 @@ class CompositeParams:
     less open (pwij3p 0.83 -> 0.79, at 0.5 0.80) and Koizumi/id2 came out 80 % closer to the
     persona (100 %); occlusion: keep the driver's occluders in front (:func:`occlusion_mask`); sharpen: the
     puppet's fine detail is raised towards the driver's frame's, at most by this gain (1: off;
-    :func:`match_sharpness`); poisson:
+    :func:`match_sharpness`); grain: then the frame's own grain is added where the puppet is still
+    smoother, at most at this strength (0: off; :func:`~facetex.puppet.detail.match_grain`); poisson:
     gradient-domain blending at the border; feather: width of the inward feather as a fraction of the eye-corner distance;
     erode: the driver's outline is shrunk by this fraction (the face-oval vertices sit on the
     silhouette, where skin meets hair or background); mouth: draw the driver's mouth interior
@@ -451,6 +415,7 @@ class CompositeParams:
     eye_colour: bool = True
     occlusion: bool = True
     sharpen: float = 2.5
+    grain: float = 1.0
     poisson: bool = True
     feather: float = 0.06
     erode: float = 0.03
@@ -562,7 +527,7 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
                                    **(lip_regions(p68 - [x0, y0], None if pp68 is None else pp68 - [x0, y0],
                                                   rg.shape, open_lips=params.open_lips) if params.lip_colour else {}),
                                    lip_ceiling=params.lip_ceiling)
-    if params.sharpen > 1:
+    if params.sharpen > 1 or params.grain > 0:
         # after the colour transfer: a dark persona's detail is small in sRGB until it takes a pale
         # driver's tone (measured before, Williams' puppets were sharpened to 2x the driver's detail).
         # Skin of both at full size: the driver's landmarks (the puppet sits there), features cut out,
@@ -573,8 +538,13 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
             if ks > 1 else drv_skin
         if (skin_full & colour_skin).sum() >= 64:
             skin_full = skin_full & colour_skin
-        out, _ = match_sharpness(out, fr, skin_full, skin_full, max_gain=params.sharpen,
-                                 coverage=np.asarray(coverage, np.float32)[box])
+        if params.sharpen > 1:
+            out, _ = match_sharpness(out, fr, skin_full, skin_full, max_gain=params.sharpen,
+                                     coverage=np.asarray(coverage, np.float32)[box])
+        if params.grain > 0:  # where even the bounded gain left it smoother than the frame
+            if pp68 is not None:  # neither face's features: the frame's lash lines and creases stay out
+                skin_full = skin_full & ~feature_mask(pp68 - [x0, y0], rg.shape)
+            out, _ = match_grain(out, fr, skin_full, max_amount=params.grain)
     if params.poisson and params.colour == "driver":  # the membrane would bring the driver's tone back
         out = poisson_blend(out, fr, rg)
     if params.mouth and pp68 is not None:
