@@ -570,6 +570,34 @@ def test_composite_sits_in_the_frame_and_never_leaves_the_drivers_outline(lighti
     assert boundary_color_step(out, edge)[0] < 1.2 * own
 
 
+def test_composite_gives_a_smooth_puppet_the_frames_grain_only_inside_the_face():
+    """A flat puppet in a frame whose skin has grain (Gaussian noise, sd 0.02): with grain matching
+    the composite's skin has most of the frame's pixel-scale detail (Laplacian variance), without
+    it (``grain=0``) next to none; outside the driver's outline the frame is untouched either way."""
+    h, w = 96, 96
+    yy, xx = np.mgrid[0:h, 0:w]
+    rng = np.random.default_rng(1)
+    frame = np.zeros((h, w, 3), np.float32)
+    frame[:] = (0.1, 0.5, 0.8)
+    face = ((xx - 48) / 26.0) ** 2 + ((yy - 50) / 32.0) ** 2 <= 1
+    frame[face] = np.float32([0.55, 0.4, 0.3]) + rng.normal(0, 0.02, (int(face.sum()), 1)).astype(np.float32)
+    puppet = np.broadcast_to(np.float32([0.6, 0.45, 0.35]), (h, w, 3)).copy()
+    coverage = (((xx - 48) / 34.0) ** 2 + ((yy - 50) / 38.0) ** 2 <= 1).astype(np.float32)
+    t = np.linspace(0, 2 * np.pi, 36, endpoint=False)
+    oval = np.c_[48 + 26 * np.cos(t), 50 + 32 * np.sin(t)]
+    p68 = np.zeros((68, 2))
+    p68[:, 0], p68[:, 1] = 48, 50
+    p68[36], p68[45] = (36, 42), (60, 42)
+    kw = dict(driver_oval=oval, driver_points68=p68)
+    grainy = composite_face(frame, puppet, coverage, None, params=CompositeParams(mouth=False), **kw)[0]
+    smooth = composite_face(frame, puppet, coverage, None, params=CompositeParams(mouth=False, grain=0.0), **kw)[0]
+    inner = ((xx - 48) / 18.0) ** 2 + ((yy - 50) / 24.0) ** 2 <= 1
+    own = _lap_var(frame, inner)
+    assert _lap_var(smooth, inner) < 0.05 * own
+    assert _lap_var(grainy, inner) > 0.5 * own
+    np.testing.assert_array_equal(grainy[~face], frame[~face])
+
+
 def test_composite_rejects_an_unknown_lighting():
     with pytest.raises(BadInputError, match="lighting"):
         composite_face(np.zeros((8, 8, 3)), np.zeros((8, 8, 3)), np.ones((8, 8)), np.zeros((8, 8, 3)),
