@@ -535,34 +535,42 @@ def test_mouth_interior_cavity_fills_the_whole_opening_under_the_soft_edge():
 
 
 # ----------------------------------------------------------------------------- the whole composite
-@pytest.mark.parametrize("lighting", ["stats", "sh"])
-def test_composite_sits_in_the_frame_and_never_leaves_the_drivers_outline(lighting):
-    h, w = 96, 96
+def _oval_scene(h=96, w=96):
+    """A 96 x 96 frame: blue background, an elliptic face of the driver's skin (0.55, 0.4, 0.3),
+    a puppet coverage wider than it, the face's outline and landmarks with only the eye corners set
+    (the face's scale). Returns (frame, face, inner face, coverage, driver_oval/driver_points68 kwargs)."""
     yy, xx = np.mgrid[0:h, 0:w]
     frame = np.zeros((h, w, 3), np.float32)
     frame[:] = (0.1, 0.5, 0.8)  # blue background
     face = ((xx - 48) / 26.0) ** 2 + ((yy - 50) / 32.0) ** 2 <= 1
     frame[face] = (0.55, 0.4, 0.3)  # the driver's darker, warmer skin
-    # a puppet wider than the driver's face, pale grey-pink
-    n, _ = _sphere_normals(h, w, 40.0)
-    puppet = np.broadcast_to(np.float32([0.85, 0.75, 0.75]), (h, w, 3)).copy()
+    inner = ((xx - 48) / 18.0) ** 2 + ((yy - 50) / 24.0) ** 2 <= 1
     coverage = (((xx - 48) / 34.0) ** 2 + ((yy - 50) / 38.0) ** 2 <= 1).astype(np.float32)
     t = np.linspace(0, 2 * np.pi, 36, endpoint=False)
-    oval = np.c_[48 + 26 * np.cos(t), 50 + 32 * np.sin(t)]
     p68 = np.zeros((68, 2))
     p68[:, 0], p68[:, 1] = 48, 50
     p68[36], p68[45] = (36, 42), (60, 42)  # eye corners: the face's scale
-    out, alpha = composite_face(frame, puppet, coverage, n, driver_oval=oval, driver_points68=p68,
-                                params=CompositeParams(lighting=lighting, mouth=False))
+    return frame, face, inner, coverage, {"driver_oval": np.c_[48 + 26 * np.cos(t), 50 + 32 * np.sin(t)],
+                                          "driver_points68": p68}
+
+
+@pytest.mark.parametrize("lighting", ["stats", "sh"])
+def test_composite_sits_in_the_frame_and_never_leaves_the_drivers_outline(lighting):
+    h, w = 96, 96
+    frame, face, inner, coverage, kw = _oval_scene(h, w)
+    # a puppet wider than the driver's face, pale grey-pink
+    n, _ = _sphere_normals(h, w, 40.0)
+    puppet = np.broadcast_to(np.float32([0.85, 0.75, 0.75]), (h, w, 3)).copy()
+    out, alpha = composite_face(frame, puppet, coverage, n, params=CompositeParams(lighting=lighting, mouth=False),
+                                **kw)
     assert alpha[~face].max() == 0.0  # no halo: nothing outside the driver's face outline
     np.testing.assert_array_equal(out[~face], frame[~face])
-    inner = ((xx - 48) / 18.0) ** 2 + ((yy - 50) / 24.0) ** 2 <= 1
     assert alpha[inner].min() > 0.99
     # the pale puppet took the driver's skin colour (it would be ΔE ~ 35 off otherwise)
     de = np.linalg.norm(_lab(out)[inner].mean(axis=0) - _lab(frame)[inner].mean(axis=0))
     assert de < 3.0
-    raw = composite_face(frame, puppet, coverage, n, driver_oval=oval, driver_points68=p68,
-                         params=CompositeParams(lighting="none", poisson=False, mouth=False))[0]
+    raw = composite_face(frame, puppet, coverage, n, params=CompositeParams(lighting="none", poisson=False,
+                                                                           mouth=False), **kw)[0]
     assert np.linalg.norm(_lab(raw)[inner].mean(axis=0) - _lab(frame)[inner].mean(axis=0)) > 20
     # the edge of the composite is no more visible than the driver's own edge at the same place
     edge = alpha > 0.5
@@ -574,24 +582,12 @@ def test_composite_gives_a_smooth_puppet_the_frames_grain_only_inside_the_face()
     """A flat puppet in a frame whose skin has grain (Gaussian noise, sd 0.02): with grain matching
     the composite's skin has most of the frame's pixel-scale detail (Laplacian variance), without
     it (``grain=0``) next to none; outside the driver's outline the frame is untouched either way."""
-    h, w = 96, 96
-    yy, xx = np.mgrid[0:h, 0:w]
+    frame, face, inner, coverage, kw = _oval_scene()
     rng = np.random.default_rng(1)
-    frame = np.zeros((h, w, 3), np.float32)
-    frame[:] = (0.1, 0.5, 0.8)
-    face = ((xx - 48) / 26.0) ** 2 + ((yy - 50) / 32.0) ** 2 <= 1
-    frame[face] = np.float32([0.55, 0.4, 0.3]) + rng.normal(0, 0.02, (int(face.sum()), 1)).astype(np.float32)
-    puppet = np.broadcast_to(np.float32([0.6, 0.45, 0.35]), (h, w, 3)).copy()
-    coverage = (((xx - 48) / 34.0) ** 2 + ((yy - 50) / 38.0) ** 2 <= 1).astype(np.float32)
-    t = np.linspace(0, 2 * np.pi, 36, endpoint=False)
-    oval = np.c_[48 + 26 * np.cos(t), 50 + 32 * np.sin(t)]
-    p68 = np.zeros((68, 2))
-    p68[:, 0], p68[:, 1] = 48, 50
-    p68[36], p68[45] = (36, 42), (60, 42)
-    kw = dict(driver_oval=oval, driver_points68=p68)
+    frame[face] += rng.normal(0, 0.02, (int(face.sum()), 1)).astype(np.float32)
+    puppet = np.broadcast_to(np.float32([0.6, 0.45, 0.35]), frame.shape).copy()
     grainy = composite_face(frame, puppet, coverage, None, params=CompositeParams(mouth=False), **kw)[0]
     smooth = composite_face(frame, puppet, coverage, None, params=CompositeParams(mouth=False, grain=0.0), **kw)[0]
-    inner = ((xx - 48) / 18.0) ** 2 + ((yy - 50) / 24.0) ** 2 <= 1
     own = _lap_var(frame, inner)
     assert _lap_var(smooth, inner) < 0.05 * own
     assert _lap_var(grainy, inner) > 0.5 * own
