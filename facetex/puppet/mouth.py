@@ -242,8 +242,8 @@ def _vertical_ramps(filled: np.ndarray, hole: np.ndarray) -> np.ndarray:
     """``filled`` with each column of ``hole`` replaced by the straight ramp between that column's
     top and bottom hole pixels. Inpainted from both lips, the hole is dark above a hard seam and
     pink below; squeezed to a line by the closing mesh and sampled at sub-pixel heights that drift
-    along the mouth, the seam came out as stair steps of dark and pink runs. A ramp has the same
-    mean but no seam, so the line's colour drifts smoothly instead."""
+    along the mouth, the seam came out as stair steps of dark and pink runs. A ramp has about the
+    same mean but no seam, so the line's colour drifts smoothly instead."""
     out = filled.copy()
     cols = np.flatnonzero(hole.any(axis=0))
     if cols.size == 0:
@@ -262,8 +262,8 @@ def _vertical_ramps(filled: np.ndarray, hole: np.ndarray) -> np.ndarray:
 
 def fill_mouth_interior(texture, inner_lips, closure: float) -> np.ndarray:
     """``texture`` (H, W, 3) float with the inside of its inner-lip contour ``inner_lips`` (8, 2),
-    grown by a pixel, filled from the lips around it (OpenCV's Telea inpainting), mixed in by
-    ``closure`` in [0, 1] (:func:`mouth_closure` of the frame's mouth). A persona whose photos
+    grown by a pixel, filled from the lips around it (OpenCV's Telea inpainting, then each column a
+    straight ramp between its ends: :func:`_vertical_ramps`), mixed in by ``closure`` in [0, 1] (:func:`mouth_closure` of the frame's mouth). A persona whose photos
     mostly smile has teeth between its average's inner lips; lips that close over them leave a
     sub-pixel sliver that rendered as a white strip between dark lines (read as an open mouth)."""
     t = np.asarray(texture, np.float32)
