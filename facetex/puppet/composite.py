@@ -59,7 +59,7 @@ from ..geometry.masks import feature_mask, inner_feather, polygon_mask
 from ._pixels import _LUMA, _mix, _shape2
 from .detail import match_grain, match_sharpness
 from .lighting import COLOURS, _lab, fit_sh_lighting, linear_to_srgb, relight, srgb_to_linear, transfer_skin_colour
-from .mouth import mouth_interior
+from .mouth import lift_inner_lips, mouth_interior
 
 __all__ = [
     "FACE_OVAL",
@@ -399,7 +399,8 @@ class CompositeParams:
     gradient-domain blending at the border; feather: width of the inward feather as a fraction of the eye-corner distance;
     erode: the driver's outline is shrunk by this fraction (the face-oval vertices sit on the
     silhouette, where skin meets hair or background); mouth: draw the driver's mouth interior
-    inside the puppet's lips.
+    inside the puppet's lips; lip_band: an open mouth's inner lip band (this x the mouth width) is
+    lifted to the driver's band lightness (0: off; :func:`~facetex.puppet.mouth.lift_inner_lips`).
     """
 
     lighting: str = "stats"
@@ -420,6 +421,7 @@ class CompositeParams:
     feather: float = 0.06
     erode: float = 0.03
     mouth: bool = True
+    lip_band: float = 0.10
 
 
 def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_points68, puppet_points68=None,
@@ -548,6 +550,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     if params.poisson and params.colour == "driver":  # the membrane would bring the driver's tone back
         out = poisson_blend(out, fr, rg)
     if params.mouth and pp68 is not None:
+        if params.lip_band > 0:
+            out = lift_inner_lips(out, fr, p68 - [x0, y0], pp68 - [x0, y0], band=params.lip_band)
         mi, ma = mouth_interior(fr, p68[list(INNER_LIPS)] - [x0, y0], pp68[list(INNER_LIPS)] - [x0, y0], rg.shape)
         ma = ma * rg
         out = _mix(ma, mi, out)

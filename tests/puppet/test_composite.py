@@ -31,7 +31,7 @@ from facetex.puppet.lighting import (
     srgb_to_linear,
     transfer_skin_colour,
 )
-from facetex.puppet.mouth import fill_mouth_interior, mouth_closure, mouth_interior
+from facetex.puppet.mouth import fill_mouth_interior, lift_inner_lips, mouth_closure, mouth_interior
 
 
 def _lab(img):
@@ -908,3 +908,50 @@ def test_lids_take_the_drivers_lid_lightness():
     np.testing.assert_allclose(np.median(out[core][:, 0]), 68.0, atol=0.5)
     ringed = _lab(transfer_skin_colour(src, ref, skin, skin, sigma=np.inf))
     assert np.median(ringed[core][:, 0]) == pytest.approx(75 + 1.2 * (25 - 45), abs=1.0)
+
+
+def _band_scene(driver_l: float, puppet_dark: float, gap: float = 8.0):
+    """A mouth twice _face68's size (inner width 32 px) open by 2 x ``gap``: the driver's lips
+    CIELAB (driver_l, 35, 15) round a dark interior; the puppet's lips (50, 20, 10) but for the
+    2 px next to its inner contour, (puppet_dark, 0, 0) (a texture's dark inner-lip gap)."""
+    h, w = 160, 192
+    p = _face68(gap=gap)
+    c = p[48:60].mean(axis=0)
+    p = (p - c) * 2.0 + [w / 2, h / 2]
+    inner = polygon_mask(p[60:68], (h, w)) > 0.5
+    outer = polygon_mask(p[48:60], (h, w)) > 0.5
+    d = cv2.distanceTransform((~inner).astype(np.uint8), cv2.DIST_L2, 3)
+    skin = np.float32([60.0, 15.0, 20.0])
+    frame = np.where(outer[..., None], np.float32([driver_l, 35.0, 15.0]), skin)
+    frame[inner] = (12.0, 5.0, 5.0)
+    puppet = np.where(outer[..., None], np.float32([50.0, 20.0, 10.0]), skin)
+    dark = outer & ~inner & (d <= 2.0)
+    puppet[dark] = (puppet_dark, 0.0, 0.0)
+    puppet[inner] = (12.0, 5.0, 5.0)
+    return p, _rgb(frame.astype(np.float32)), _rgb(puppet.astype(np.float32)), dark, inner, outer, d
+
+
+def test_lift_inner_lips_raises_an_open_mouths_dark_inner_band_to_the_drivers():
+    """The 3.2 px band is 2 rows dark, 1 row lip: puppet band percentiles 10, 50, 90 are
+    (10, 10, 50), the driver's 10 and 50 both 50: the dark pixels are lifted by 50 - 10 = 40 L*
+    (hand-computed) and, lifted by more than 20, take the driver's lip chroma (35, 15); the lip
+    pixels at the puppet's 90th percentile are not lifted, and nothing off the band changes."""
+    p, frame, puppet, dark, inner, outer, d = _band_scene(50.0, 10.0)
+    out = lift_inner_lips(puppet, frame, p, p)
+    lab = _lab(out)
+    core = dark & (d >= 1.4) & (d <= 2.0)  # clear of the band's half-pixel feather
+    assert core.sum() > 20
+    np.testing.assert_allclose(np.median(lab[core], axis=0), [50.0, 35.0, 15.0], atol=2.5)
+    assert _lab(puppet)[core][:, 0].max() < 12  # it was dark
+    far = ~(outer & ~inner & (d <= 4.5))
+    assert np.array_equal(out[far], puppet[far])  # only the band changes
+    body = outer & ~inner & (d > 2.6) & (d <= 3.2)  # the band's lip pixels at the quantile top: no lift
+    assert np.abs(lab[body] - _lab(puppet)[body]).max() < 1.0
+
+
+def test_lift_inner_lips_never_darkens_and_leaves_closed_mouths_alone():
+    p, frame, puppet, *_ = _band_scene(20.0, 40.0)  # the driver's band darker than the puppet's
+    assert np.array_equal(lift_inner_lips(puppet, frame, p, p), puppet)
+    p, frame, puppet, *_ = _band_scene(50.0, 10.0, gap=0.0)  # closed lips: the dark line is theirs
+    assert np.array_equal(lift_inner_lips(puppet, frame, p, p), puppet)
+    assert np.array_equal(lift_inner_lips(puppet, frame, np.full((68, 2), np.nan), p), puppet)
