@@ -228,8 +228,9 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
 
 
 def _inner_lip_band(points68, box, width: float) -> tuple[np.ndarray, np.ndarray]:
-    """bool (h, w) of ``box`` (x0, y0, x1, y1): the lips (outer contour 48-59) within ``width`` px
-    outside the inner-lip contour 60-67; and the inside of that contour."""
+    """(band, inside) bool (h, w) of ``box`` (x0, y0, x1, y1): the lips (outer contour 48-59)
+    within ``width`` px outside the inner-lip contour 60-67 (band), and the inside of that
+    contour."""
     x0, y0, x1, y1 = box
     p = np.asarray(points68, np.float64) - [x0, y0]
     shape = (y1 - y0, x1 - x0)
@@ -285,9 +286,11 @@ def lift_inner_lips(image, frame, driver68, puppet68, *, band: float = 0.1, clos
     lift = np.r_[np.maximum(qd - qp[:-1], 0.0), 0.0]
     if lift.max() <= 0:
         return img
-    # its outer edge feathered by half a pixel (it must not draw a line of its own); the opening
-    # inside the contour is the mouth interior's
-    wgt = cv2.GaussianBlur(mp.astype(np.float32), (0, 0), 0.5) * fade * ~inner
+    # its outer edge feathered by half a pixel (it must not draw a line of its own). Also lifted:
+    # the opening's first 1.5 px inside the contour, which the interior's soft edge and the cavity
+    # only partly cover: left dark, the pixels the contour cuts drew a beaded line along it
+    rim = inner & (cv2.distanceTransform(inner.astype(np.uint8), cv2.DIST_L2, 3) <= 1.5)
+    wgt = np.maximum(cv2.GaussianBlur(mp.astype(np.float32), (0, 0), 0.5) * ~inner, rim) * fade
     L = lab[..., 0]
     dl = wgt * np.clip(np.minimum(np.interp(L, qp, lift), qd[-1] - L), 0.0, None)
     lab[..., 0] += dl

@@ -935,7 +935,8 @@ def test_lift_inner_lips_raises_an_open_mouths_dark_inner_band_to_the_drivers():
     """The 3.2 px band is 2 rows dark, 1 row lip: puppet band percentiles 10, 50, 90 are
     (10, 10, 50), the driver's 10 and 50 both 50: the dark pixels are lifted by 50 - 10 = 40 L*
     (hand-computed) and, lifted by more than 20, take the driver's lip chroma (35, 15); the lip
-    pixels at the puppet's 90th percentile are not lifted, and nothing off the band changes."""
+    pixels at the puppet's 90th percentile are not lifted; the opening's first pixel inside the
+    contour is lifted too, and nothing else changes."""
     p, frame, puppet, dark, inner, outer, d = _band_scene(50.0, 10.0)
     out = lift_inner_lips(puppet, frame, p, p)
     lab = _lab(out)
@@ -943,8 +944,11 @@ def test_lift_inner_lips_raises_an_open_mouths_dark_inner_band_to_the_drivers():
     assert core.sum() > 20
     np.testing.assert_allclose(np.median(lab[core], axis=0), [50.0, 35.0, 15.0], atol=2.5)
     assert _lab(puppet)[core][:, 0].max() < 12  # it was dark
-    far = ~(outer & ~inner & (d <= 4.5))
-    assert np.array_equal(out[far], puppet[far])  # only the band changes
+    d_in = cv2.distanceTransform(inner.astype(np.uint8), cv2.DIST_L2, 3)
+    rim = inner & (d_in <= 1.0)  # the opening's edge the contour cuts: lifted with the band
+    assert np.median(lab[rim][:, 0]) > 45.0 and _lab(puppet)[rim][:, 0].max() < 13
+    far = ~(outer & ~inner & (d <= 4.5)) & ~(inner & (d_in <= 2.5))
+    assert np.array_equal(out[far], puppet[far])  # only the band and that edge change
     body = outer & ~inner & (d > 2.6) & (d <= 3.2)  # the band's lip pixels at the quantile top: no lift
     assert np.abs(lab[body] - _lab(puppet)[body]).max() < 1.0
 
