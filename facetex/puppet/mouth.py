@@ -250,8 +250,10 @@ def lift_inner_lips(image, frame, driver68, puppet68, *, band: float = 0.1, clos
     below it, falling to none at the puppet's ``top`` percentile; never darkened, never lifted past
     the driver's band at its highest quantile: a one-way histogram match of the band's darker part;
     the driver's band can hold its teeth, and a lighter top drew a light rim), faded in with both
-    mouths' opening (as :func:`mouth_interior`'s cavity). A pixel lifted by ``chroma_lift`` L* or
-    more takes the driver's band chroma (CIELAB a*, b* median), less lifted ones in part. Why: a
+    mouths' opening (as :func:`mouth_interior`'s cavity). The opening's first 1.5 px inside the
+    puppet's contour, under the interior's soft edge, are lifted the same way. A pixel lifted by
+    ``chroma_lift`` L* or more takes the driver's band chroma (CIELAB a*, b* median), less lifted
+    ones in part. Why: a
     thin-lipped persona's texture holds the dark gap of its mostly closed photos at its inner lips;
     stretched over an open mouth it drew a near-black ring round the driver's teeth (Bush on GRID
     id2: band L* 10th percentile 7 against the driver's 31) that dlib read as part of the opening.
