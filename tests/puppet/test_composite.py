@@ -959,3 +959,32 @@ def test_lift_inner_lips_never_darkens_and_leaves_closed_mouths_alone():
     p, frame, puppet, *_ = _band_scene(50.0, 10.0, gap=0.0)  # closed lips: the dark line is theirs
     assert np.array_equal(lift_inner_lips(puppet, frame, p, p), puppet)
     assert np.array_equal(lift_inner_lips(puppet, frame, np.full((68, 2), np.nan), p), puppet)
+
+
+def test_composite_face_lifts_the_inner_lips_only_with_a_lip_band(monkeypatch):
+    """composite_face hands the puppet, the frame and both faces' landmarks (box px) to
+    lift_inner_lips with CompositeParams.lip_band, and skips it at 0."""
+    import importlib
+
+    comp = importlib.import_module("facetex.puppet.composite")
+    calls = []
+
+    def spy(image, frame, d68, p68, *, band):
+        calls.append((np.asarray(image).shape, np.asarray(frame).shape, np.asarray(d68).copy(), band))
+        return image
+
+    monkeypatch.setattr(comp, "lift_inner_lips", spy)
+    h, w = 96, 96
+    frame, face, inner, coverage, kw = _oval_scene(h, w)
+    n, _ = _sphere_normals(h, w, 40.0)
+    puppet = np.broadcast_to(np.float32([0.85, 0.75, 0.75]), (h, w, 3)).copy()
+    p68 = _face68(cx=48.0, cy=52.0, iod=24.0)
+    kw["driver_points68"] = p68
+    composite_face(frame, puppet, coverage, n, puppet_points68=p68, **kw)
+    assert len(calls) == 1
+    img_shape, fr_shape, d68, band = calls[0]
+    assert band == CompositeParams().lip_band == 0.1 and img_shape == fr_shape
+    assert np.allclose(p68 - d68, p68[0] - d68[0])  # the same points, shifted into the face's box
+    calls.clear()
+    composite_face(frame, puppet, coverage, n, puppet_points68=p68, params=CompositeParams(lip_band=0.0), **kw)
+    assert calls == []
