@@ -551,7 +551,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         out = poisson_blend(out, fr, rg)
     if params.mouth and pp68 is not None:
         if params.lip_band > 0:
-            out = lift_inner_lips(out, fr, p68 - [x0, y0], pp68 - [x0, y0], band=params.lip_band)
+            out = lift_inner_lips(out, fr, p68 - [x0, y0], pp68 - [x0, y0], band=params.lip_band,
+                                  relative=params.colour == "persona" or params.lighting == "none")
         mi, ma = mouth_interior(fr, p68[list(INNER_LIPS)] - [x0, y0], pp68[list(INNER_LIPS)] - [x0, y0], rg.shape)
         ma = ma * rg
         out = _mix(ma, mi, out)

@@ -910,10 +910,11 @@ def test_lids_take_the_drivers_lid_lightness():
     assert np.median(ringed[core][:, 0]) == pytest.approx(75 + 1.2 * (25 - 45), abs=1.0)
 
 
-def _band_scene(driver_l: float, puppet_dark: float, gap: float = 8.0):
+def _band_scene(driver_l: float, puppet_dark: float, gap: float = 8.0, driver_band: float | None = None):
     """A mouth twice _face68's size (inner width 32 px) open by 2 x ``gap``: the driver's lips
-    CIELAB (driver_l, 35, 15) round a dark interior; the puppet's lips (50, 20, 10) but for the
-    2 px next to its inner contour, (puppet_dark, 0, 0) (a texture's dark inner-lip gap)."""
+    CIELAB (driver_l, 35, 15) round a dark interior (their 2 px next to it at L* ``driver_band``
+    if given); the puppet's lips (50, 20, 10) but for the 2 px next to its inner contour,
+    (puppet_dark, 0, 0) (a texture's dark inner-lip gap)."""
     h, w = 160, 192
     p = _face68(gap=gap)
     c = p[48:60].mean(axis=0)
@@ -926,6 +927,8 @@ def _band_scene(driver_l: float, puppet_dark: float, gap: float = 8.0):
     frame[inner] = (12.0, 5.0, 5.0)
     puppet = np.where(outer[..., None], np.float32([50.0, 20.0, 10.0]), skin)
     dark = outer & ~inner & (d <= 2.0)
+    if driver_band is not None:
+        frame[dark] = (driver_band, 35.0, 15.0)
     puppet[dark] = (puppet_dark, 0.0, 0.0)
     puppet[inner] = (12.0, 5.0, 5.0)
     return p, _rgb(frame.astype(np.float32)), _rgb(puppet.astype(np.float32)), dark, inner, outer, d
@@ -934,7 +937,7 @@ def _band_scene(driver_l: float, puppet_dark: float, gap: float = 8.0):
 def test_lift_inner_lips_raises_an_open_mouths_dark_inner_band_to_the_drivers():
     """The 3.2 px band is 2 rows dark, 1 row lip: puppet band percentiles 10, 50, 90 are
     (10, 10, 50), the driver's 10 and 50 both 50: the dark pixels are lifted by 50 - 10 = 40 L*
-    (hand-computed) and, lifted by more than 20, take the driver's lip chroma (35, 15); the lip
+    (hand-computed) and, lifted by more than 20, take the driver's band chroma (35, 15); the lip
     pixels at the puppet's 90th percentile are not lifted; the opening's first pixel inside the
     contour is lifted too, and nothing else changes."""
     p, frame, puppet, dark, inner, outer, d = _band_scene(50.0, 10.0)
@@ -954,7 +957,7 @@ def test_lift_inner_lips_raises_an_open_mouths_dark_inner_band_to_the_drivers():
 
 
 def test_lift_inner_lips_never_darkens_and_leaves_closed_mouths_alone():
-    p, frame, puppet, *_ = _band_scene(20.0, 40.0)  # the driver's band darker than the puppet's
+    p, frame, puppet, *_ = _band_scene(50.0, 40.0, driver_band=20.0)  # the driver's band darker
     assert np.array_equal(lift_inner_lips(puppet, frame, p, p), puppet)
     p, frame, puppet, *_ = _band_scene(50.0, 10.0, gap=0.0)  # closed lips: the dark line is theirs
     assert np.array_equal(lift_inner_lips(puppet, frame, p, p), puppet)
@@ -963,14 +966,15 @@ def test_lift_inner_lips_never_darkens_and_leaves_closed_mouths_alone():
 
 def test_composite_face_lifts_the_inner_lips_only_with_a_lip_band(monkeypatch):
     """composite_face hands the puppet, the frame and both faces' landmarks (box px) to
-    lift_inner_lips with CompositeParams.lip_band, and skips it at 0."""
+    lift_inner_lips with CompositeParams.lip_band (relative to each face's lips with the persona's
+    colour), and skips it at 0."""
     import importlib
 
     comp = importlib.import_module("facetex.puppet.composite")
     calls = []
 
-    def spy(image, frame, d68, p68, *, band):
-        calls.append((np.asarray(image).shape, np.asarray(frame).shape, np.asarray(d68).copy(), band))
+    def spy(image, frame, d68, p68, *, band, relative):
+        calls.append((np.asarray(image).shape, np.asarray(frame).shape, np.asarray(d68).copy(), band, relative))
         return image
 
     monkeypatch.setattr(comp, "lift_inner_lips", spy)
@@ -982,9 +986,24 @@ def test_composite_face_lifts_the_inner_lips_only_with_a_lip_band(monkeypatch):
     kw["driver_points68"] = p68
     composite_face(frame, puppet, coverage, n, puppet_points68=p68, **kw)
     assert len(calls) == 1
-    img_shape, fr_shape, d68, band = calls[0]
-    assert band == CompositeParams().lip_band == 0.1 and img_shape == fr_shape
+    img_shape, fr_shape, d68, band, relative = calls[0]
+    assert band == CompositeParams().lip_band == 0.1 and img_shape == fr_shape and not relative
     assert np.allclose(p68 - d68, p68[0] - d68[0])  # the same points, shifted into the face's box
+    calls.clear()
+    composite_face(frame, puppet, coverage, n, puppet_points68=p68, params=CompositeParams(colour="persona"), **kw)
+    assert calls[0][4]  # the persona keeps its lip colour: its band is lifted relative to its lips
     calls.clear()
     composite_face(frame, puppet, coverage, n, puppet_points68=p68, params=CompositeParams(lip_band=0.0), **kw)
     assert calls == []
+
+
+def test_lift_inner_lips_relative_takes_the_drivers_band_relative_to_each_faces_lips():
+    """The driver's lips are L* 70 all over, the puppet's 50 with a dark (10) band (a persona that
+    keeps its own lip colour): relative, the band is lifted to the puppet's lips, 50 (the driver's
+    band 70 moved by the lips' difference 50 - 70), with their chroma; not to 70, a light rim."""
+    p, frame, puppet, dark, inner, outer, d = _band_scene(70.0, 10.0)
+    core = dark & (d >= 1.4) & (d <= 2.0)
+    assert np.median(_lab(lift_inner_lips(puppet, frame, p, p))[core][:, 0]) > 65.0  # absolute: the rim
+    lab = _lab(lift_inner_lips(puppet, frame, p, p, relative=True))
+    assert abs(np.median(lab[core][:, 0]) - 50.0) < 2.5
+    np.testing.assert_allclose(np.median(lab[core][:, 1:], axis=0), [20.0, 10.0], atol=2.5)  # the puppet's lips' chroma
