@@ -400,7 +400,8 @@ class CompositeParams:
     erode: the driver's outline is shrunk by this fraction (the face-oval vertices sit on the
     silhouette, where skin meets hair or background); mouth: draw the driver's mouth interior
     inside the puppet's lips; lip_band: an open mouth's inner lip band (this x the mouth width) is
-    lifted to the driver's band lightness (0: off; :func:`~facetex.puppet.mouth.lift_inner_lips`).
+    lifted to the driver's band lightness, relative to each face's own lips when the puppet keeps
+    its colour (colour "persona" or lighting "none") (0: off; :func:`~facetex.puppet.mouth.lift_inner_lips`).
     """
 
     lighting: str = "stats"
