@@ -176,7 +176,7 @@ LIP_SPREAD_PERCENTILE = 90.0
 
 def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 / 3, 1.2), colour: str = "driver",
                          light_limits=(0.5, 2.0), shrink: int = 1, lips=None, lids=None, keep=None,
-                         lip_parts=(), lip_ceiling: float | None = None) -> np.ndarray:
+                         lip_parts=(), lip_ceiling: float | None = None, keep_chroma: bool = True) -> np.ndarray:
     """``src`` (H, W, 3) sRGB with the low-frequency colour of ``ref`` (the same size, aligned),
     measured on skin pixels only (bool ``src_skin``, ``ref_skin``), the detail of ``src`` kept.
 
@@ -200,7 +200,9 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     (white lips; a pale driver's lips are darker than her skin). ``keep`` (colour "driver"):
     weight (H, W) in [0, 1] or None: where it is 1 ``src`` is kept as it is (the eyeballs,
     :func:`eye_weights`: iris and whites are not skin; with the skin's field and the bounded
-    lightness gain a dark persona's brown irises turned grey on a pale driver). ``lids`` (colour
+    lightness gain a dark persona's brown irises turned grey on a pale driver); ``keep_chroma``
+    False: only its lightness is kept, its a*, b* take the transfer (the frame's white balance: kept
+    whole, a pale persona's eyeballs were blue-grey patches in an orange frame). ``lids`` (colour
     "driver"): the same as ``lips`` for the skin round the eyes (:func:`lid_weights`): a dark
     persona's lids, darker than her skin, kept that difference on a pale driver as dark rings.
     ``lip_parts``: more regions like ``lips``, applied after it in order (the upper and lower
@@ -281,7 +283,8 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
         out[..., 0] -= wl * np.maximum(out[..., 0] - top, 0.0)
     if keep is not None:
         k = np.asarray(keep, np.float32)[..., None]
-        out += k * (a - out)
+        n = 3 if keep_chroma else 1
+        out[..., :n] += k * (a[..., :n] - out[..., :n])
     return _rgb(out)
 
 

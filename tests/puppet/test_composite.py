@@ -881,6 +881,33 @@ def test_eyeballs_keep_the_personas_colour_the_lids_take_the_drivers():
     assert np.median(grey[core][:, 0]) > 50  # without it: 75 + 1.2 x (25 - 40) = 57, a grey iris
 
 
+def test_grown_eye_weights_reach_past_the_lids_edges_and_keep_lightness_only():
+    """grow 0.1 x the eye distance (56 px: 6 px) keeps the eyeballs' weight at 1 on the lids'
+    edges and ends 6 px beyond them; with keep_chroma False the kept eyeball keeps its lightness (25)
+    and takes the transfer's chroma: the driver's skin (10, 16) + the eyeball's offset from the
+    persona's skin (8 - 14, 14 - 20), hand-computed (4, 10)."""
+    from facetex.puppet.composite import eye_weights
+
+    h, w = 80, 96
+    p = _face68()
+    p[36:42] = [(20, 30), (26, 26), (32, 26), (38, 30), (32, 34), (26, 34)]
+    p[42:48] = [(58, 30), (64, 26), (70, 26), (76, 30), (70, 34), (64, 34)]
+    eyes = np.maximum(polygon_mask(p[36:42], (h, w)), polygon_mask(p[42:48], (h, w))) > 0.5
+    ew = eye_weights(p, (h, w), grow=0.1)
+    edge = eyes & ~(cv2.erode(eyes.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+    assert ew[edge].min() > 0.9 and eye_weights(p, (h, w))[edge].max() < 0.6  # the plain feather pales the edge
+    ring = cv2.dilate(eyes.astype(np.uint8), np.ones((13, 13), np.uint8)) > 0
+    far = ~cv2.dilate(eyes.astype(np.uint8), np.ones((15, 15), np.uint8)).astype(bool)
+    assert ew[ring & ~eyes].max() > 0.5 and ew[far].max() == 0.0
+    src_lab = np.where(eyes[..., None], np.float32([25.0, 8.0, 14.0]), np.float32([40.0, 14.0, 20.0]))
+    ref_lab = np.broadcast_to(np.float32([75.0, 10.0, 16.0]), src_lab.shape)
+    src, ref = _rgb(src_lab.astype(np.float32)), _rgb(np.ascontiguousarray(ref_lab))
+    plain = eye_weights(p, (h, w))
+    out = _lab(transfer_skin_colour(src, ref, ~ring, ~ring, sigma=np.inf, keep=plain, keep_chroma=False))
+    core = plain > 0.99
+    np.testing.assert_allclose(out[core], np.broadcast_to([25.0, 4.0, 10.0], out[core].shape), atol=0.4)
+
+
 def test_lids_take_the_drivers_lid_lightness():
     """A dark persona whose lids are much darker than her skin (L 25 lids, L 45 skin) on a pale
     driver with lids barely darker than his skin (L 68 lids, L 75 skin): with the lid weights the
