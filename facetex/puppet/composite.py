@@ -193,11 +193,12 @@ def eye_weights(points68, shape, *, feather: float = 0.015, grow: float = 0.0) -
     p = np.asarray(points68, np.float64)
     h, w = _shape2(shape)
     m = np.maximum(polygon_mask(p[36:42], (h, w)), polygon_mask(p[42:48], (h, w)))
+    iod = float(np.linalg.norm(p[36] - p[45]))
     if grow > 0:
-        r = max(1, int(round(grow * float(np.linalg.norm(p[36] - p[45])))))
+        r = max(1, int(round(grow * iod)))
         m = cv2.dilate((m > 0.5).astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
                        ).astype(np.float32)
-    sig = max(0.5, feather * float(np.linalg.norm(p[36] - p[45])))
+    sig = max(0.5, feather * iod)
     inner = cv2.erode((m > 0.5).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(np.float32)
     return np.clip(cv2.GaussianBlur(inner, (0, 0), sig), 0, 1) * (m > 0.5)
 

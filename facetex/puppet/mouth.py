@@ -257,10 +257,10 @@ def lift_inner_lips(image, frame, driver68, puppet68, *, band: float = 0.1, clos
     ones in part. ``relative``: the driver's band is taken relative to its own lips (the lips
     beyond the band: their median L*, a*, b* moved to the puppet's), for a puppet that keeps its own
     lip colour (composite ``colour="persona"`` or no lighting), which the driver's band would light
-    up as a rim. Why: a
-    thin-lipped persona's texture holds the dark gap of its mostly closed photos at its inner lips;
-    stretched over an open mouth it drew a near-black ring round the driver's teeth (Bush on GRID
-    id2: band L* 10th percentile 7 against the driver's 31) that dlib read as part of the opening.
+    up as a rim. Why: a thin-lipped persona's texture holds the dark gap of its mostly closed photos
+    at its inner lips; stretched over an open mouth it drew a near-black ring round the driver's
+    teeth (Bush on GRID id2: band L* 10th percentile 7 against the driver's 31) that dlib read as
+    part of the opening.
     Written by hand: no library matches histograms one way on a landmark band."""
     img = np.asarray(image, np.float32)
     dp, pp = np.asarray(driver68, np.float64), np.asarray(puppet68, np.float64)
@@ -354,8 +354,8 @@ def _vertical_ramps(filled: np.ndarray, hole: np.ndarray) -> np.ndarray:
 def fill_mouth_interior(texture, inner_lips, closure: float) -> np.ndarray:
     """``texture`` (H, W, 3) float with the inside of its inner-lip contour ``inner_lips`` (8, 2),
     grown by a pixel, filled from the lips around it (OpenCV's Telea inpainting, then each column a
-    straight ramp between its ends: :func:`_vertical_ramps`), mixed in by ``closure`` in [0, 1] (:func:`mouth_closure` of the frame's mouth). A persona whose photos
-    mostly smile has teeth between its average's inner lips; lips that close over them leave a
+    straight ramp between its ends: :func:`_vertical_ramps`), mixed in by ``closure`` in [0, 1]
+    (:func:`mouth_closure` of the frame's mouth). A persona whose photos mostly smile has teeth between its average's inner lips; lips that close over them leave a
     sub-pixel sliver that rendered as a white strip between dark lines (read as an open mouth)."""
     t = np.asarray(texture, np.float32)
     c = float(np.clip(closure, 0.0, 1.0))
