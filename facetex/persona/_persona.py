@@ -94,6 +94,12 @@ class Persona:
         shape = _lazy_shape(self, "images")
         return int(shape[2]), int(shape[1])
 
+    def image(self, i: int) -> np.ndarray:
+        """Photo i's frontalized image (H, W, 3) uint8, unpacked alone while the stack is packed
+        (a version-4 file's whole stack takes ~0.6 s for 500 photos)."""
+        v = self.__dict__["_images"]
+        return v.photo(i) if isinstance(v, _Lazy) else v[i]
+
     @property
     def mean_fiducials(self) -> np.ndarray:
         """M: the collection's mean pose-corrected fiducials, the neutral frame (49, 2)."""
@@ -184,6 +190,12 @@ class _Lazy:
 
     def __init__(self, packed: Packed, path: Path, name: str):
         self.packed, self.path, self.name = packed, path, name
+
+    def photo(self, i: int) -> np.ndarray:
+        try:
+            return self.packed.photo(i)
+        except _CORRUPT as e:
+            raise _bad(self.path, f"corrupt persona file ({self.name}, photo {i}: {type(e).__name__}: {e})") from None
 
     def value(self) -> np.ndarray:
         try:

@@ -41,6 +41,9 @@ looks pasted on unless its colour, lighting and outline come from the frame it s
   between the upper and lower inner lip (smooth curves through the landmarks), drawn inside the
   puppet's inner lips with a soft edge while the driver's lips are apart, the driver's lip
   colour keyed out.
+* **eyes**: the driver's eyeballs (whites, lash line, gaze) drawn the same way inside the
+  puppet's lids while the driver's eyes are open, its iris in the persona's colour
+  (:mod:`~facetex.puppet.eyes`).
 
 Plus the measure of the result: :func:`boundary_color_step` (ΔE between bands just inside and
 just outside the mask edge).
@@ -59,6 +62,7 @@ from ..geometry.masks import feature_mask, inner_feather, polygon_mask
 from ._pixels import _LUMA, _mix, _shape2
 from .detail import match_grain, match_sharpness
 from .lighting import COLOURS, _lab, fit_sh_lighting, linear_to_srgb, relight, srgb_to_linear, transfer_skin_colour
+from .eyes import eye_interior
 from .mouth import lift_inner_lips, mouth_interior
 
 __all__ = [
@@ -360,6 +364,9 @@ LIGHTINGS = ("stats", "sh", "none")
 #: skin colour, occluders and the low-frequency colour field are worked out on the face's box
 #: shrunk to about this many px between the outer eye corners
 WORK_IOD = 16.0
+#: where the puppet's eyeballs come from: the driver's frame (with the persona's iris colour) or
+#: the persona's texture
+EYE_SOURCES = ("driver", "persona")
 #: the inward feather is this many times wider with ``colour="persona"`` (no Poisson seam there)
 PERSONA_FEATHER = 3.0
 
@@ -413,7 +420,10 @@ class CompositeParams:
     silhouette, where skin meets hair or background); mouth: draw the driver's mouth interior
     inside the puppet's lips; lip_band: an open mouth's inner lip band (this x the mouth width) is
     lifted to the driver's band lightness, relative to each face's own lips when the puppet keeps
-    its colour (colour "persona" or lighting "none") (0: off; :func:`~facetex.puppet.mouth.lift_inner_lips`).
+    its colour (colour "persona" or lighting "none") (0: off; :func:`~facetex.puppet.mouth.lift_inner_lips`);
+    eyes: "driver" (default): the driver's eyeballs (whites, lash line, gaze) drawn inside the
+    puppet's lids with the persona's iris colour (:func:`~facetex.puppet.eyes.eye_interior`);
+    "persona": the eyes of the persona's texture only.
     """
 
     lighting: str = "stats"
@@ -436,10 +446,11 @@ class CompositeParams:
     erode: float = 0.03
     mouth: bool = True
     lip_band: float = 0.10
+    eyes: str = "driver"
 
 
 def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_points68, puppet_points68=None,
-                   driver_normals=None, params: CompositeParams = CompositeParams()) -> tuple[np.ndarray, np.ndarray]:
+                   driver_normals=None, iris=None, params: CompositeParams = CompositeParams()) -> tuple[np.ndarray, np.ndarray]:
     """The puppet composited into the driver's frame: (image (H, W, 3), alpha (H, W)).
 
     ``frame`` (H, W, 3) the driver's frame; ``puppet`` (H, W, 3) the rendered puppet,
@@ -449,12 +460,16 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     landmarks (frame px); ``puppet_points68`` (68, 2) the puppet's landmarks (output px) or None
     (its lips take the lips' colour and the driver's mouth interior; None: the driver's lips);
     ``driver_normals`` (H, W, 3) the driver's own face normals (its lighting is fitted with them;
-    default: the puppet's normals).
+    default: the puppet's normals); ``iris`` (3,) the persona's iris-to-skin ratio
+    (:func:`~facetex.puppet.eyes.persona_iris`) for the driver's eyeballs drawn in the puppet's
+    lids (``params.eyes="driver"``; None: they keep the driver's iris colour).
     All work happens in the face's bounding box."""
     if params.lighting not in LIGHTINGS:
         raise BadInputError(f"unknown lighting {params.lighting!r}: use one of {', '.join(LIGHTINGS)}")
     if params.colour not in COLOURS:
         raise BadInputError(f"unknown colour {params.colour!r}: use one of {', '.join(COLOURS)}")
+    if params.eyes not in EYE_SOURCES:
+        raise BadInputError(f"unknown eyes {params.eyes!r}: use one of {', '.join(EYE_SOURCES)}")
     frame = np.asarray(frame, np.float32)
     H, W = frame.shape[:2]
     p68 = np.asarray(driver_points68, np.float64)
@@ -571,6 +586,12 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         mi, ma = mouth_interior(fr, p68[list(INNER_LIPS)] - [x0, y0], pp68[list(INNER_LIPS)] - [x0, y0], rg.shape)
         ma = ma * rg
         out = _mix(ma, mi, out)
+    if params.eyes == "driver" and pp68 is not None:
+        # the persona's iris under the frame's light: its iris-to-skin ratio times the driver's skin
+        target = None if iris is None else np.asarray(iris, np.float32) * np.median(
+            srgb_to_linear(np.clip(shrunk(fr), 0, 1))[drv_skin], axis=0)
+        ei, ea = eye_interior(fr, p68 - [x0, y0], pp68 - [x0, y0], rg.shape, iris=target)
+        out = _mix(ea * rg, ei, out)
     # the persona's own skin tone meets the driver's at the outline: a wider ramp than the
     # gradient-domain seam needs
     feather = params.feather * (PERSONA_FEATHER if params.colour == "persona" else 1.0)

@@ -9,85 +9,11 @@ import numpy as np
 
 from ..errors import BadInputError
 from ..geometry.masks import polygon_mask, smoothstep
+from ._contours import _lip_arcs, _mouth_frame, _open_fade, _pchip, sample_between  # noqa: F401 (_pchip: tests)
 from ._pixels import _shape2
 from .lighting import _lab, _rgb
 
 __all__ = ["mouth_interior", "mouth_closure", "fill_mouth_interior", "lift_inner_lips"]
-
-
-def _mouth_frame(lips: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """(centre, rotation (2, 2) whose rows are the mouth's u (corner to corner) and v axes,
-    width, opening) of an inner-lip contour 60-67 (8, 2)."""
-    c = lips.mean(axis=0)
-    u = lips[4] - lips[0]
-    width = float(np.linalg.norm(u))
-    u = u / max(width, 1e-9)
-    R = np.array([u, [-u[1], u[0]]])
-    gap = float(np.mean([np.linalg.norm(lips[a] - lips[b]) for a, b in ((1, 7), (2, 6), (3, 5))]))
-    return c, R, width, gap
-
-
-def _open_fade(width: float, gap: float, closed: float) -> float:
-    """0 for a lip gap up to ``closed`` x the mouth ``width``, 1 from twice that, smooth between."""
-    return float(smoothstep(float(np.clip((gap / max(width, 1e-6) - closed) / closed, 0.0, 1.0))))
-
-
-def _pchip(x: np.ndarray, y: np.ndarray):
-    """Monotone piecewise-cubic Hermite interpolant of the points (x, y) (x increasing, >= 2
-    points; Fritsch-Carlson slopes with the end rule of scipy's PchipInterpolator, the end cubics
-    continued beyond the ends). Written out because scipy's PchipInterpolator spends ~1 ms
-    checking its input, four times a frame; tested against it."""
-    h = np.diff(x)
-    d = np.diff(y) / h
-    m = np.zeros_like(y)
-    if len(x) == 2:
-        m[:] = d[0]
-    else:
-        w1, w2 = 2 * h[1:] + h[:-1], h[1:] + 2 * h[:-1]
-        same = (np.sign(d[1:]) == np.sign(d[:-1])) & (d[1:] != 0) & (d[:-1] != 0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            hm = (w1 + w2) / (w1 / d[:-1] + w2 / d[1:])
-        m[1:-1] = np.where(same, hm, 0.0)
-        for end, (h0, h1, d0, d1) in ((0, (h[0], h[1], d[0], d[1])), (-1, (h[-1], h[-2], d[-1], d[-2]))):
-            e = ((2 * h0 + h1) * d0 - h0 * d1) / (h0 + h1)
-            if np.sign(e) != np.sign(d0):
-                e = 0.0
-            elif np.sign(d0) != np.sign(d1) and abs(e) > abs(3 * d0):
-                e = 3 * d0
-            m[end] = e
-
-    def f(t):
-        t = np.asarray(t, np.float64)
-        k = np.clip(np.searchsorted(x, t) - 1, 0, len(x) - 2)
-        s = (t - x[k]) / h[k]
-        s2, s3 = s * s, s * s * s
-        return ((2 * s3 - 3 * s2 + 1) * y[k] + (s3 - 2 * s2 + s) * h[k] * m[k] + (-2 * s3 + 3 * s2) * y[k + 1]
-                + (s3 - s2) * h[k] * m[k + 1])
-
-    return f
-
-
-def _lip_arcs(lips: np.ndarray, R: np.ndarray, c: np.ndarray):
-    """(upper, lower, u0, u1): the inner-lip contour 60-67 in its mouth frame (u along the corner
-    line, v across it, v growing towards the lower lip) as two smooth curves v(u) through the
-    points (monotone cubic, PCHIP: no overshoot between the landmarks), upper 60-64 and lower
-    64-67-60, over the corners' u range [u0, u1]; None when the contour is degenerate."""
-    q = (lips - c) @ R.T
-    u0, u1 = float(q[0, 0]), float(q[4, 0])
-    if not u1 - u0 > 1e-3:
-        return None
-    arcs = []
-    for idx in ((0, 1, 2, 3, 4), (0, 7, 6, 5, 4)):
-        u, v = q[list(idx), 0], q[list(idx), 1]
-        u = np.clip(u, u0, u1)  # points beyond a corner (noisy landmarks) are held at it
-        order = np.argsort(u, kind="stable")
-        u, v = u[order], v[order]
-        keep = np.r_[True, np.diff(u) > 1e-3 * (u1 - u0)]
-        u, v = u[keep], v[keep]
-        if len(u) < 2:
-            return None
-        arcs.append(_pchip(u, v))
-    return arcs[0], arcs[1], u0, u1
 
 
 def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float = 1.0,
@@ -144,48 +70,26 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     none = np.zeros((h, w, 3), np.float32), np.zeros((h, w), np.float32)
     if not (np.isfinite(dp).all() and np.isfinite(pp).all()):
         return none
-    cd, Rd, wd, gd = _mouth_frame(dp)
-    cp, Rp, wp, gp = _mouth_frame(pp)
+    _, _, wd, gd = _mouth_frame(dp)
+    _, _, wp, gp = _mouth_frame(pp)
     # closed driver lips have no interior to show (their sliver would draw a red line): fade out
     fade = _open_fade(wd, gd, closed)
     # the cavity's shadow: where both mouths are open
     dark_fade = fade * _open_fade(wp, gp, closed) if cavity is not None else 0.0
-    arcs_p, arcs_d = _lip_arcs(pp, Rp, cp), _lip_arcs(dp, Rd, cd)
-    if max(fade, dark_fade) <= 0 or arcs_p is None or arcs_d is None:
+    if max(fade, dark_fade) <= 0:
         return none
-    # the puppet's mouth box (the corners and the contour's extent, plus a pixel)
-    x0, y0 = (max(0, int(np.floor(v)) - 1) for v in pp.min(axis=0))
-    x1, y1 = min(w, int(np.ceil(pp[:, 0].max())) + 2), min(h, int(np.ceil(pp[:, 1].max())) + 2)
-    if x1 <= x0 or y1 <= y0:
+    s = sample_between(f, dp, pp, (h, w), inset=inset)
+    if s is None:
         return none
-    yy, xx = np.mgrid[y0:y1, x0:x1].astype(np.float64)
-    q = np.stack([xx - cp[0], yy - cp[1]], axis=-1) @ Rp.T
-    u, v = q[..., 0], q[..., 1]
-    up_p, lo_p, pu0, pu1 = arcs_p
-    up_d, lo_d, du0, du1 = arcs_d
-    uc = np.clip(u, pu0, pu1)
-    a, b = up_p(uc), lo_p(uc)
-    gap = np.maximum(b - a, 0.0)
-    # depth inside the lips (px): to the nearer lip across the mouth, to the nearer corner along it
-    depth = np.minimum(np.minimum(v - a, b - v), np.minimum(u - pu0, pu1 - u))
+    x0, y0, x1, y1 = s.box
+    gap, depth, warped = s.gap, s.depth, s.warped
+    up_d, lo_d, du0, du1, Rd, cd, _ = s.driver
     # one ramp width for the whole mouth (its widest gap's): the thin parts towards the corners
     # fade instead of ending in hard tips
-    width = max(soft * float(gap.max()), 1.0)
-    # a pixel's centre half a pixel inside the lips is half covered (as an anti-aliased polygon's
-    # edge); an opening thinner than a pixel is covered by its thickness (closed lips: nothing)
-    r = np.clip((depth + 0.5) / width, 0.0, 1.0)
     alpha = np.zeros((h, w), np.float32)
-    alpha[y0:y1, x0:x1] = smoothstep(r) * np.clip(gap, 0.0, 1.0) * fade
+    alpha[y0:y1, x0:x1] = s.edge(soft) * fade
     if alpha.max() <= 0 and dark_fade <= 0:
         return none
-    # the same place in the driver's mouth: fraction along the corner line and across the gap
-    su = 0.5 + inset * ((uc - pu0) / (pu1 - pu0) - 0.5)
-    sv = 0.5 + inset * (np.clip((v - a) / np.maximum(gap, 1e-6), 0.0, 1.0) - 0.5)
-    ud = du0 + su * (du1 - du0)
-    vd = up_d(ud) + sv * (lo_d(ud) - up_d(ud))
-    xy = np.stack([ud, vd], axis=-1) @ Rd + cd
-    warped = cv2.remap(f, xy[..., 0].astype(np.float32), xy[..., 1].astype(np.float32), cv2.INTER_LINEAR,
-                       borderMode=cv2.BORDER_REPLICATE)
     lab = _lab(warped)
     if lip_key is not None:
         # the driver's lips: just above its upper and below its lower inner-lip curve, middle 60 %
