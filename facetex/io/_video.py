@@ -207,10 +207,17 @@ def transcode_audio(src, dst) -> Path | None:
 ENCODER_FULL_PIXELS = 3840 * 1080
 
 
+#: libx264's macroblock-tree rate control made this PyAV build encode the same frames differently
+#: from run to run (decoded frames up to 45/255 apart; also on one thread and without threaded
+#: look-ahead: 40 frames of 180 x 144); without it every run writes the same video
+DETERMINISTIC_X264 = "mbtree=0"
+
+
 def _encoder_options(codec: str, pixels: int) -> dict:
-    if pixels <= ENCODER_FULL_PIXELS or codec != "libx264":
+    if codec != "libx264":
         return {}
-    return {"x264-params": "rc-lookahead=5:ref=1:bframes=1"}
+    large = ":rc-lookahead=5:ref=1:bframes=1" if pixels > ENCODER_FULL_PIXELS else ""
+    return {"x264-params": DETERMINISTIC_X264 + large}
 
 
 def _prep_frame(f, shape) -> np.ndarray:
@@ -323,8 +330,10 @@ def write_video(path, frames: Iterable[np.ndarray], fps: float, *, audio_from=No
             vs = out.add_stream(codec, rate=rate)
             vs.height, vs.width = shape[0] + shape[0] % 2, shape[1] + shape[1] % 2
             vs.pix_fmt = "yuv420p"
-            vs.options = {"crf": str(int(crf)), **_encoder_options(codec, vs.width * vs.height),
-                          **{str(k): str(v) for k, v in (encoder_options or {}).items()}}
+            opts = {"crf": str(int(crf)), **_encoder_options(codec, vs.width * vs.height)}
+            for k, v in (encoder_options or {}).items():  # the caller's x264-params after ours
+                opts[str(k)] = f"{opts[k]}:{v}" if k == "x264-params" and k in opts else str(v)
+            vs.options = opts
             if vs.width * vs.height > ENCODER_FULL_PIXELS:
                 vs.codec_context.thread_count = 1
             audio = pending = None
