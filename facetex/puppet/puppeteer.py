@@ -462,8 +462,9 @@ class Puppeteer:
         if self._iris is False:
             from .eyes import persona_iris
 
+            # a render kit without its persona (facetex.live) carries the value measured before
             self._iris = persona_iris(self.persona.image, self.persona.points68) \
-                if self.params.composite.eyes == "driver" else None
+                if self.params.composite.eyes == "driver" and self.persona is not None else None
         return self._iris
 
     def driver_normals(self, i: int, size, scale: float) -> np.ndarray | None:
