@@ -1,6 +1,7 @@
-"""The puppet's eyeballs (:mod:`facetex.puppet.composite`, "eyes"): the driver's own whites, lash
-line and gaze drawn inside the puppet's lids, as the mouth's interior is drawn inside its lips
-(:mod:`facetex.puppet.mouth`), with the persona's iris colour."""
+"""The puppet's eyes in the composite (:mod:`facetex.puppet.composite`): the driver's own whites,
+lash line and gaze drawn inside the puppet's lids, as the mouth's interior is drawn inside its lips
+(:mod:`facetex.puppet.mouth`), with the persona's iris colour; and the weights with which the
+persona's own eyes and lids keep or take colour in the skin colour transfer."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from ._contours import EYE, _contour_frame, _open_fade, sample_between
 from ._pixels import _LUMA, _shape2
 from .lighting import _lab, _rgb, srgb_to_linear
 
-__all__ = ["persona_iris", "iris_shift", "eye_interior"]
+__all__ = ["persona_iris", "iris_shift", "eye_interior", "eye_weights", "lid_weights"]
 
 #: iBUG-68 eye contours (outer or inner corner, upper lid, other corner, lower lid)
 EYES = ((36, 37, 38, 39, 40, 41), (42, 43, 44, 45, 46, 47))
@@ -139,3 +140,41 @@ def eye_interior(frame, driver68, puppet68, shape=None, *, iris=None, inset: flo
         img[y0:y1, x0:x1][take] = warped[take]
         sub[take] = a[take]
     return img, alpha
+
+
+# ----------------------------------------------------------------------------- the persona's own eyes
+def lid_weights(points68, shape, *, margin: float = 0.045, feather: float = 0.015) -> tuple[np.ndarray, np.ndarray]:
+    """(weight (H, W) float32, bool (H, W)) of the lids round both eyes at iBUG landmarks
+    ``points68``: the eye outlines (36-41, 42-47) grown by ``margin`` x the face width (the
+    margin :func:`facetex.geometry.skin.feature_mask` leaves out of the skin) minus the eyeballs,
+    feathered by ``feather`` x the eye-corner distance, and the ring's pixels (a pixel in from
+    both edges) where its colour is measured (:func:`~facetex.puppet.lighting.transfer_skin_colour`)."""
+    from ..geometry.masks import face_width
+
+    p = np.asarray(points68, np.float64)
+    h, w = _shape2(shape)
+    balls = np.maximum(polygon_mask(p[36:42], (h, w)), polygon_mask(p[42:48], (h, w))) > 0.5
+    r = max(1, int(round(margin * face_width(p))))
+    grown = cv2.dilate(balls.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0
+    ring = grown & ~balls
+    inner = cv2.erode(ring.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    sig = max(0.75, feather * float(np.linalg.norm(p[36] - p[45])))
+    return np.clip(cv2.GaussianBlur(grown.astype(np.float32), (0, 0), sig), 0, 1), inner
+
+
+def eye_weights(points68, shape, *, feather: float = 0.015, grow: float = 0.0) -> np.ndarray:
+    """Weight (H, W) float32 in [0, 1] of the eyeballs at iBUG landmarks ``points68``: both eye
+    outlines (36-41, 42-47, the lids' edges), grown by ``grow`` x the eye-corner distance, then
+    feathered by ``feather`` x that distance (Gaussian sigma) inwards: the lids' skin beyond them
+    is not counted."""
+    p = np.asarray(points68, np.float64)
+    h, w = _shape2(shape)
+    m = np.maximum(polygon_mask(p[36:42], (h, w)), polygon_mask(p[42:48], (h, w)))
+    iod = float(np.linalg.norm(p[36] - p[45]))
+    if grow > 0:
+        r = max(1, int(round(grow * iod)))
+        m = cv2.dilate((m > 0.5).astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
+                       ).astype(np.float32)
+    sig = max(0.5, feather * iod)
+    inner = cv2.erode((m > 0.5).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(np.float32)
+    return np.clip(cv2.GaussianBlur(inner, (0, 0), sig), 0, 1) * (m > 0.5)

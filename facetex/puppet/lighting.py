@@ -199,11 +199,11 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     dark persona's lips, lighter than her skin, a pale driver's skin tone plus that difference
     (white lips; a pale driver's lips are darker than her skin). ``keep`` (colour "driver"):
     weight (H, W) in [0, 1] or None: where it is 1 ``src`` is kept as it is (the eyeballs,
-    :func:`eye_weights`: iris and whites are not skin; with the skin's field and the bounded
+    :func:`~facetex.puppet.eyes.eye_weights`: iris and whites are not skin; with the skin's field and the bounded
     lightness gain a dark persona's brown irises turned grey on a pale driver); ``keep_chroma``
     False: only its lightness is kept, its a*, b* take the transfer (the frame's white balance: kept
     whole, a pale persona's eyeballs were blue-grey patches in an orange frame). ``lids`` (colour
-    "driver"): the same as ``lips`` for the skin round the eyes (:func:`lid_weights`): a dark
+    "driver"): the same as ``lips`` for the skin round the eyes (:func:`~facetex.puppet.eyes.lid_weights`): a dark
     persona's lids, darker than her skin, kept that difference on a pale driver as dark rings.
     ``lip_parts``: more regions like ``lips``, applied after it in order (the upper and lower
     lip of an open mouth, :func:`~facetex.puppet.composite.open_lip_weights`). ``lip_ceiling``

@@ -10,10 +10,10 @@ import numpy as np
 from ..errors import BadInputError
 from ..geometry.masks import polygon_mask, smoothstep
 from ._contours import _lip_arcs, _mouth_frame, _open_fade, _pchip, sample_between  # noqa: F401 (_pchip: tests)
-from ._pixels import _shape2
-from .lighting import _lab, _rgb
+from ._pixels import _LUMA, _shape2
+from .lighting import _lab, _rgb, linear_to_srgb, srgb_to_linear
 
-__all__ = ["mouth_interior", "mouth_closure", "fill_mouth_interior", "lift_inner_lips"]
+__all__ = ["mouth_interior", "interior_white_balance", "mouth_closure", "fill_mouth_interior", "lift_inner_lips"]
 
 
 def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float = 1.0,
@@ -284,3 +284,35 @@ def fill_mouth_interior(texture, inner_lips, closure: float) -> np.ndarray:
     return out
 
 
+
+
+def _lip_median(image: np.ndarray, points68: np.ndarray) -> np.ndarray | None:
+    """Median linear-light RGB (3,) of the lips (outer contour 48-59 minus the inner 60-67) of
+    ``image`` at ``points68``, or None when they cover fewer than 8 pixels."""
+    h, w = _shape2(image.shape)
+    x0, y0 = (max(0, int(np.floor(v)) - 1) for v in points68[48:60].min(axis=0))
+    x1, y1 = (min(n, int(np.ceil(v)) + 2) for n, v in zip((w, h), points68[48:60].max(axis=0)))
+    if x1 - x0 < 3 or y1 - y0 < 3:
+        return None
+    q = points68 - [x0, y0]
+    lips = (polygon_mask(q[48:60], (y1 - y0, x1 - x0)) > 0.5) & ~(polygon_mask(q[60:68], (y1 - y0, x1 - x0)) > 0.5)
+    if lips.sum() < 8:
+        return None
+    return np.median(srgb_to_linear(np.clip(image[y0:y1, x0:x1][lips], 0, 1)), axis=0)
+
+
+def interior_white_balance(interior, frame, driver68, image, puppet68, *, bounds=(0.5, 2.0)) -> np.ndarray:
+    """``interior`` (H, W, 3) sRGB, the driver's mouth interior (:func:`mouth_interior`), in the
+    puppet's white balance: per channel in linear light, times the ratio of the puppet's lips
+    (``image`` at ``puppet68``) to the driver's (``frame`` at ``driver68``), that ratio's luminance
+    divided out (the colour cast only: the teeth keep their lightness) and bounded. For a puppet in
+    the persona's own colour (face mode): GRID lbax4n's orange light made the driver's teeth and
+    tongue an orange blob in a persona-coloured face."""
+    f = np.asarray(interior, np.float32)
+    d = _lip_median(np.asarray(frame, np.float32), np.asarray(driver68, np.float64))
+    p = _lip_median(np.asarray(image, np.float32), np.asarray(puppet68, np.float64))
+    if d is None or p is None:
+        return f
+    g = np.sqrt(p / np.maximum(d, 1e-4))  # half the lips' cast: the rest is the two people's lips
+    g = np.clip(g / max(float(g @ _LUMA), 1e-6), *bounds).astype(np.float32)
+    return linear_to_srgb(srgb_to_linear(np.clip(f, 0, 1)) * g).astype(np.float32)

@@ -14,7 +14,7 @@ from .correspondence import DriverCollection, collection_correspondence, landmar
 from .deform import DeformationTransfer
 from .driver import DriverTrack
 from .motion import DriverMotion, unfold_columns
-from .mouth import mouth_interior
+from .mouth import interior_white_balance, lift_inner_lips, mouth_interior
 from .params import CORRESPONDENCES, TEXTURES, PuppetParams
 
 __all__ = [
@@ -448,7 +448,10 @@ class Puppeteer:
             cov = lay.coverage[..., None]
             img = cov * lay.image + (1 - cov) * bg
             if self.params.composite.mouth and np.isfinite(drv68).all():
+                if self.params.composite.lip_band > 0:  # the persona's colour: relative to each face's lips
+                    img = lift_inner_lips(img, frame, drv68, pts, band=self.params.composite.lip_band, relative=True)
                 mi, ma = mouth_interior(frame, drv68[list(INNER_LIPS)], lips, (h, w))
+                mi = interior_white_balance(mi, frame, drv68, img, pts)
                 ma = (ma * lay.coverage)[..., None]
                 img = ma * mi + (1 - ma) * img
             return img.astype(np.float32), lay.coverage

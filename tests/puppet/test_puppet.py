@@ -640,3 +640,38 @@ def test_glasses_scores_are_stored_with_the_stacks(tiny_persona, tmp_path):
     prep._stage = {}
     g = prep.glasses_free(GLASSES_LEVELS["eyes"])
     assert g.shape == (len(q),) and np.all((g > 0) & (g <= 1))
+
+
+def test_face_mode_lifts_the_inner_lips_relative_to_the_lips_and_white_balances_the_interior(session, monkeypatch):
+    """Face mode (the persona's own colour): the open mouth's inner lip band is lifted relative to
+    each face's lips (CompositeParams.lip_band; none at 0) and the driver's interior takes the
+    puppet's white balance."""
+    import importlib
+    from dataclasses import replace
+
+    from facetex.puppet.composite import CompositeParams
+    from facetex.puppet.puppetry import render_frames
+
+    pt = importlib.import_module("facetex.puppet.puppeteer")
+    calls = []
+
+    def lift(image, frame, d68, p68, *, band, relative):
+        calls.append(("lift", band, relative))
+        return image
+
+    def balance(interior, frame, d68, image, p68):
+        calls.append(("balance", np.shape(interior) == np.shape(image)))
+        return interior
+
+    monkeypatch.setattr(pt, "lift_inner_lips", lift)
+    monkeypatch.setattr(pt, "interior_white_balance", balance)
+    list(render_frames(session, size=160, mode="face", max_frames=2))
+    assert ("lift", CompositeParams().lip_band, True) in calls and ("balance", True) in calls
+    calls.clear()
+    pup, saved = session.puppeteer, session.puppeteer.params
+    try:
+        pup.params = replace(saved, composite=replace(saved.composite, lip_band=0.0))
+        list(render_frames(session, size=160, mode="face", max_frames=2))
+    finally:
+        pup.params = saved
+    assert calls and all(c[0] == "balance" for c in calls)
