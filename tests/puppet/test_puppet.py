@@ -675,3 +675,35 @@ def test_face_mode_lifts_the_inner_lips_relative_to_the_lips_and_white_balances_
     finally:
         pup.params = saved
     assert calls and all(c[0] == "balance" for c in calls)
+
+
+def test_open_eyes_show_the_drivers_eyeballs_only_inside_the_puppets_lids(session):
+    """eyes="driver" (the default) changes the composite inside the puppet's eye contours and
+    nowhere else (against the persona's own eyes)."""
+    from dataclasses import replace
+
+    from facetex.geometry.masks import polygon_mask
+    from facetex.puppet.puppetry import render_frames
+
+    recs = {r["index"]: r for r in render_frames(session, size=160, keep=True, max_frames=N_MORPH)}
+    pup = session.puppeteer
+    scale = 160 / session.track.frame_size[0]
+    i = N_MORPH // 2
+    r = recs[i]
+    pts = pup.points(i, r["grid"], scale)
+    shape = r["alpha"].shape
+    inside = (polygon_mask(pts[36:42], shape) > 0.5) | (polygon_mask(pts[42:48], shape) > 0.5)
+    assert inside.sum() > 4  # the puppet's eyes are open
+    saved = pup.params
+    try:
+        pup.params = replace(saved, composite=replace(saved.composite, eyes="persona"))
+        own = pup.render(i, r["grid"], r["texture"], r["driver"], scale)[0]
+    finally:
+        pup.params = saved
+    diff = np.abs(r["puppet"] - own).max(axis=2)
+    assert diff[inside].mean() > 0.03, diff[inside].mean()  # 0.081 when written
+    near = np.zeros(shape, bool)
+    for eye in (pts[36:42], pts[42:48]):
+        c = eye.mean(axis=0)
+        near |= polygon_mask(c + 1.6 * (eye - c), shape, samples=1) > 0
+    assert diff[~near].max() == 0.0
