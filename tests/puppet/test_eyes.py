@@ -157,3 +157,16 @@ def test_composite_draws_the_drivers_eyes_with_the_personas_iris_only_when_asked
     composite_face(frame, puppet, coverage, None, driver_oval=oval, driver_points68=p68, puppet_points68=p68,
                    iris=ratio, params=CompositeParams(eyes="persona"))
     assert calls == []
+
+
+def test_eye_interior_survives_degenerate_and_off_frame_eyes():
+    d68, p68 = _eyes68(), _eyes68()
+    frame = _eye_frame(d68)
+    flat = p68.copy()
+    flat[36:42] = flat[36:42].mean(axis=0)  # a puppet eye shrunk to a point: nothing drawn there
+    img, alpha = eye_interior(frame, d68, flat)
+    assert np.isfinite(img).all() and alpha[:, :48].max() == 0 and alpha[:, 50:].max() == 1
+    off = p68.copy()
+    off[36:48] += (-60.0, -60.0)  # both puppet eyes off the top-left of the frame
+    img, alpha = eye_interior(frame, d68, off)
+    assert np.isfinite(img).all() and alpha.max() == 0
