@@ -99,11 +99,6 @@ def _contour_arcs(points: np.ndarray, R: np.ndarray, c: np.ndarray, layout=LIPS)
     return arcs[0], arcs[1], u0, u1
 
 
-def _lip_arcs(lips: np.ndarray, R: np.ndarray, c: np.ndarray):
-    """:func:`_contour_arcs` of an inner-lip contour 60-67 (upper 60-64, lower 64-67-60)."""
-    return _contour_arcs(lips, R, c, LIPS)
-
-
 @dataclass(frozen=True)
 class Between:
     """The puppet's opening and the driver's pixels at the same places in it (see :func:`sample_between`).

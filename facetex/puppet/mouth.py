@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import BadInputError
 from ..geometry.masks import polygon_mask, smoothstep
-from ._contours import _lip_arcs, _mouth_frame, _open_fade, _pchip, sample_between  # noqa: F401 (_pchip: tests)
+from ._contours import _mouth_frame, _open_fade, sample_between
 from ._pixels import _LUMA, _shape2
 from .lighting import _lab, _rgb, linear_to_srgb, srgb_to_linear
 
@@ -24,8 +24,8 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     """The driver's mouth interior moved into the puppet's mouth: (image (H, W, 3), alpha (H, W)).
 
     ``driver_lips``, ``puppet_lips`` (8, 2): iBUG inner-lip points 60-67 in ``frame`` px (driver)
-    and output px (puppet). Both inner-lip contours are drawn as smooth curves (:func:`_lip_arcs`),
-    and every puppet pixel takes the driver's pixel at the same place between the corners (along
+    and output px (puppet). Both inner-lip contours are drawn as smooth curves
+    (:func:`~facetex.puppet._contours.sample_between`), and every puppet pixel takes the driver's pixel at the same place between the corners (along
     the corner line) and between the upper and lower lip (across it): teeth, tongue and the dark
     cavity land where they are in the driver's mouth, whatever the two mouths' shapes. Both
     coordinates are pulled towards the mouth's centre by ``inset`` (< 1: the edge samples the

@@ -432,7 +432,7 @@ def test_mouth_interior_moves_the_drivers_mouth_into_the_puppets_lips():
 def test_pchip_matches_scipy():
     from scipy.interpolate import PchipInterpolator
 
-    from facetex.puppet.mouth import _pchip
+    from facetex.puppet._contours import _pchip
 
     rng = np.random.default_rng(0)
     for n in (2, 3, 5, 8):
