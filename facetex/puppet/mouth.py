@@ -259,8 +259,9 @@ def fill_mouth_interior(texture, inner_lips, closure: float) -> np.ndarray:
     """``texture`` (H, W, 3) float with the inside of its inner-lip contour ``inner_lips`` (8, 2),
     grown by a pixel, filled from the lips around it (OpenCV's Telea inpainting, then each column a
     straight ramp between its ends: :func:`_vertical_ramps`), mixed in by ``closure`` in [0, 1]
-    (:func:`mouth_closure` of the frame's mouth). A persona whose photos mostly smile has teeth between its average's inner lips; lips that close over them leave a
-    sub-pixel sliver that rendered as a white strip between dark lines (read as an open mouth)."""
+    (:func:`mouth_closure` of the frame's mouth). A persona whose photos mostly smile has teeth
+    between its average's inner lips; lips that close over them leave a sub-pixel sliver that
+    rendered as a white strip between dark lines (read as an open mouth)."""
     t = np.asarray(texture, np.float32)
     c = float(np.clip(closure, 0.0, 1.0))
     p = np.asarray(inner_lips, np.float64)
@@ -284,8 +285,6 @@ def fill_mouth_interior(texture, inner_lips, closure: float) -> np.ndarray:
     return out
 
 
-
-
 def _lip_median(image: np.ndarray, points68: np.ndarray) -> np.ndarray | None:
     """Median linear-light RGB (3,) of the lips (outer contour 48-59 minus the inner 60-67) of
     ``image`` at ``points68``, or None when they cover fewer than 8 pixels."""
@@ -294,8 +293,7 @@ def _lip_median(image: np.ndarray, points68: np.ndarray) -> np.ndarray | None:
     x1, y1 = (min(n, int(np.ceil(v)) + 2) for n, v in zip((w, h), points68[48:60].max(axis=0)))
     if x1 - x0 < 3 or y1 - y0 < 3:
         return None
-    q = points68 - [x0, y0]
-    lips = (polygon_mask(q[48:60], (y1 - y0, x1 - x0)) > 0.5) & ~(polygon_mask(q[60:68], (y1 - y0, x1 - x0)) > 0.5)
+    _, _, lips = _inner_lip_band(points68, (x0, y0, x1, y1), 0.0)  # no band: all of the lips
     if lips.sum() < 8:
         return None
     return np.median(srgb_to_linear(np.clip(image[y0:y1, x0:x1][lips], 0, 1)), axis=0)
@@ -303,11 +301,12 @@ def _lip_median(image: np.ndarray, points68: np.ndarray) -> np.ndarray | None:
 
 def interior_white_balance(interior, frame, driver68, image, puppet68, *, bounds=(0.5, 2.0)) -> np.ndarray:
     """``interior`` (H, W, 3) sRGB, the driver's mouth interior (:func:`mouth_interior`), in the
-    puppet's white balance: per channel in linear light, times the ratio of the puppet's lips
-    (``image`` at ``puppet68``) to the driver's (``frame`` at ``driver68``), that ratio's luminance
-    divided out (the colour cast only: the teeth keep their lightness) and bounded. For a puppet in
-    the persona's own colour (face mode): GRID lbax4n's orange light made the driver's teeth and
-    tongue an orange blob in a persona-coloured face."""
+    puppet's white balance: per channel in linear light, times the square root of the ratio of the
+    puppet's lips (``image`` at ``puppet68``) to the driver's (``frame`` at ``driver68``), its
+    luminance divided out (the colour cast only: the teeth keep their lightness) and bounded. For a
+    puppet in the persona's own colour (face mode): GRID lbax4n's orange light made the driver's
+    teeth and tongue an orange blob in a persona-coloured face; the full ratio turned them olive
+    (part of it is the two people's lips)."""
     f = np.asarray(interior, np.float32)
     d = _lip_median(np.asarray(frame, np.float32), np.asarray(driver68, np.float64))
     p = _lip_median(np.asarray(image, np.float32), np.asarray(puppet68, np.float64))
