@@ -19,7 +19,8 @@ __all__ = ["render_kit", "ProcessRenderer"]
 
 def render_kit(pup):
     """A picklable copy of a Puppeteer with one frame slot, for :meth:`Puppeteer.render` only."""
-    pup.iris()  # measured on the persona's photos, which the kit does not carry
+    if pup.params.composite.eyes == "driver":
+        pup.iris()  # measured on the persona's photos, which the kit does not carry
     kit = copy.copy(pup)
     kit.persona = kit.transfer = kit.correspondence = None
     kit.lip_fields = kit.brow_fields = kit.lid_fields = None

@@ -471,7 +471,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
 
     p_s = (p68 - [x0, y0] + 0.5) * [small[0] / bw, small[1] / bh] - 0.5
     rg_s = rg if ks == 1 else shrunk(rg) > 0.5
-    drv_skin, feats = skin_pixels(shrunk(fr), p_s, rg_s)
+    fr_s = shrunk(fr)
+    drv_skin, feats = skin_pixels(fr_s, p_s, rg_s)
     skin_s = rg_s & ~feats if (rg_s & ~feats).sum() >= 16 else rg_s
     occ = None
     if params.occlusion:
@@ -552,7 +553,7 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     if params.eyes == "driver" and pp68 is not None:
         # the persona's iris under the frame's light: its iris-to-skin ratio times the driver's skin
         target = None if iris is None else np.asarray(iris, np.float32) * np.median(
-            srgb_to_linear(np.clip(shrunk(fr), 0, 1))[drv_skin], axis=0)
+            srgb_to_linear(np.clip(fr_s[drv_skin], 0, 1)), axis=0)
         ei, ea = eye_interior(fr, p68 - [x0, y0], pp68 - [x0, y0], rg.shape, iris=target)
         out = _mix(ea * rg, ei, out)
     # the persona's own skin tone meets the driver's at the outline: a wider ramp than the

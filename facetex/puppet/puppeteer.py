@@ -118,7 +118,7 @@ class Puppeteer:
 
         self.persona, self.motion, self.params, self.track = persona, motion, params, track
         self._sequence_weights = None
-        self._iris = False  # the persona's iris colour, measured on first use
+        self._iris = False  # the persona's iris colour, measured on first use (None: not measurable)
         st = motion.grid_step
         W, H = persona.size
         if (W, H) != tuple(params.driver.size):
@@ -458,17 +458,17 @@ class Puppeteer:
         oval = (tr.mesh[i][list(FACE_OVAL), :2] + 0.5) * scale - 0.5
         return composite_face(frame, lay.image, lay.coverage, lay.normals, driver_oval=oval, driver_points68=drv68,
                               puppet_points68=pts, driver_normals=self.driver_normals(i, (w, h), scale) if sh else None,
-                              iris=self.iris(), params=self.params.composite)
+                              iris=self.iris() if self.params.composite.eyes == "driver" else None,
+                              params=self.params.composite)
 
     def iris(self) -> np.ndarray | None:
         """The persona's iris-to-skin colour ratio (:func:`~facetex.puppet.eyes.persona_iris`), once."""
-        if self._iris is False:
+        # a render kit without its persona (facetex.live) carries the value measured before
+        if self._iris is False and self.persona is not None:
             from .eyes import persona_iris
 
-            # a render kit without its persona (facetex.live) carries the value measured before
-            self._iris = persona_iris(self.persona.image, self.persona.points68) \
-                if self.params.composite.eyes == "driver" and self.persona is not None else None
-        return self._iris
+            self._iris = persona_iris(self.persona.image, self.persona.points68)
+        return None if self._iris is False else self._iris
 
     def driver_normals(self, i: int, size, scale: float) -> np.ndarray | None:
         """(H, W, 3) unit normals of the driver's own tracked face mesh in frame i (output panel
