@@ -61,7 +61,8 @@ from ..errors import BadInputError
 from ..geometry.masks import feature_mask, inner_feather, polygon_mask
 from ._pixels import _LUMA, _mix, _shape2
 from .detail import match_grain, match_sharpness
-from .lighting import COLOURS, _lab, fit_sh_lighting, linear_to_srgb, relight, srgb_to_linear, transfer_skin_colour
+from .lighting import (COLOURS, _lab, _linear, fit_sh_lighting, linear_to_srgb, relight, srgb_to_linear,
+                       transfer_skin_colour)
 from .eyes import eye_interior, eye_weights, lid_weights
 from .mouth import lift_inner_lips, mouth_interior
 
@@ -553,7 +554,7 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     if params.eyes == "driver" and pp68 is not None:
         # the persona's iris under the frame's light: its iris-to-skin ratio times the driver's skin
         target = None if iris is None else np.asarray(iris, np.float32) * np.median(
-            srgb_to_linear(np.clip(fr_s[drv_skin], 0, 1)), axis=0)
+            _linear(fr_s[drv_skin]), axis=0)
         ei, ea = eye_interior(fr, p68 - [x0, y0], pp68 - [x0, y0], rg.shape, iris=target)
         out = _mix(ea * rg, ei, out)
     # the persona's own skin tone meets the driver's at the outline: a wider ramp than the

@@ -13,7 +13,7 @@ from ..geometry.masks import polygon_mask
 from ..geometry.skin import _sample_regions
 from ._contours import EYE, _contour_frame, _open_fade, sample_between
 from ._pixels import _LUMA, _shape2
-from .lighting import _lab, _rgb, srgb_to_linear
+from .lighting import _lab, _linear, _rgb
 
 __all__ = ["persona_iris", "iris_shift", "eye_interior", "eye_weights", "lid_weights"]
 
@@ -36,10 +36,6 @@ def _eye_middles(points68: np.ndarray, shape, middle: float = 0.4) -> np.ndarray
             d = cv2.distanceTransform(m, cv2.DIST_L2, 3)
             out |= d >= middle * d.max()
     return out
-
-
-def _linear(image) -> np.ndarray:
-    return srgb_to_linear(np.clip(np.asarray(image, np.float32), 0, 1))
 
 
 def persona_iris(images, points68, *, dark: float = 40.0, middle: float = 0.4, photos: int = 64) -> np.ndarray | None:

@@ -92,13 +92,18 @@ def relight(image, normals, src_light, dst_light, *, limits=(0.5, 2.0), floor: f
 
 
 # ----------------------------------------------------------------------------- colour statistics
+def _linear(rgb) -> np.ndarray:
+    """Linear light of sRGB clipped to [0, 1]."""
+    return srgb_to_linear(np.clip(np.asarray(rgb, np.float32), 0, 1))
+
+
 def _lab(rgb):
     """CIELAB (L* 0..100) of sRGB [0, 1]: OpenCV's conversion of the linear-light values. Its own
     float sRGB path interpolates a 3-D table: a* and b* move in steps of up to 0.4 for a 1e-5 change
     of the input (0.6 off the exact values), which the skin colour transfer turned into 1.2/255
     jumps of single pixels between two puppets 0.01/255 apart; this one is continuous (within 0.03
     of the exact conversion) at 1.4x its cost."""
-    return cv2.cvtColor(srgb_to_linear(np.clip(np.asarray(rgb, np.float32), 0, 1)), cv2.COLOR_LRGB2Lab)
+    return cv2.cvtColor(_linear(rgb), cv2.COLOR_LRGB2Lab)
 
 
 def _rgb(lab):

@@ -11,7 +11,7 @@ from ..errors import BadInputError
 from ..geometry.masks import polygon_mask, smoothstep
 from ._contours import _mouth_frame, _open_fade, sample_between
 from ._pixels import _LUMA, _shape2
-from .lighting import _lab, _rgb, linear_to_srgb, srgb_to_linear
+from .lighting import _lab, _linear, _rgb, linear_to_srgb
 
 __all__ = ["mouth_interior", "interior_white_balance", "mouth_closure", "fill_mouth_interior", "lift_inner_lips"]
 
@@ -296,7 +296,7 @@ def _lip_median(image: np.ndarray, points68: np.ndarray) -> np.ndarray | None:
     _, _, lips = _inner_lip_band(points68, (x0, y0, x1, y1), 0.0)  # no band: all of the lips
     if lips.sum() < 8:
         return None
-    return np.median(srgb_to_linear(np.clip(image[y0:y1, x0:x1][lips], 0, 1)), axis=0)
+    return np.median(_linear(image[y0:y1, x0:x1][lips]), axis=0)
 
 
 def interior_white_balance(interior, frame, driver68, image, puppet68, *, bounds=(0.5, 2.0)) -> np.ndarray:
@@ -314,4 +314,4 @@ def interior_white_balance(interior, frame, driver68, image, puppet68, *, bounds
         return f
     g = np.sqrt(p / np.maximum(d, 1e-4))  # half the lips' cast: the rest is the two people's lips
     g = np.clip(g / max(float(g @ _LUMA), 1e-6), *bounds).astype(np.float32)
-    return linear_to_srgb(srgb_to_linear(np.clip(f, 0, 1)) * g).astype(np.float32)
+    return linear_to_srgb(_linear(f) * g).astype(np.float32)
