@@ -154,6 +154,7 @@ def _run(session, feed, post) -> None:
 
 
 def add_routes(app, config, jobs) -> None:
+    import anyio
     from fastapi import WebSocket, WebSocketDisconnect
     from starlette.concurrency import run_in_threadpool
 
@@ -208,14 +209,17 @@ def add_routes(app, config, jobs) -> None:
         except Exception as e:  # noqa: BLE001 - the page shows one line, like the CLI's last resort
             await _close_with(ws, f"internal error: {type(e).__name__}: {e}")
         finally:
-            for t in tasks:
-                t.cancel()
-            if feed is not None:
-                feed.close()  # the runner ends with the source
-            await run_in_threadpool(_stop, session, runner)
-            if pinned is not None:
-                jobs.unpin(pinned)
-            busy.release()
+            # shielded: a cancelled handler (the page gone mid-await, a stopping server) must still stop
+            # the session's processes and free the studio for the next page
+            with anyio.CancelScope(shield=True):
+                for t in tasks:
+                    t.cancel()
+                if feed is not None:
+                    feed.close()  # the runner ends with the source
+                await run_in_threadpool(_stop, session, runner)
+                if pinned is not None:
+                    jobs.unpin(pinned)
+                busy.release()
 
 
 def _stop(session, runner) -> None:

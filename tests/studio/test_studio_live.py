@@ -121,3 +121,32 @@ def test_websocket_streams_puppet_frames_with_ids_and_one_line_errors(tmp_path, 
     app.state.jobs.close()
     # the sessions stopped their tracking and rendering processes
     assert _children() - before == set()
+
+
+def test_a_session_cut_short_still_frees_the_studio(tmp_path, personas_dir, monkeypatch):
+    """The test client cancels the handler as soon as it closes the socket (so can a stopping
+    server): the session's clean-up and the one-session lock must survive that cancellation, or the
+    next page is told another session is running (seen once in a full test run)."""
+    import importlib
+    import time as _time
+
+    from fastapi.testclient import TestClient
+
+    from facetex.studio import create_app
+
+    live = importlib.import_module("facetex.studio.live")
+
+    def slow_open(*args, **kwargs):  # still opening when the page goes away (cancelled meanwhile)
+        _time.sleep(0.5)
+
+    app = create_app(tmp_path / "work", personas_dir=personas_dir)
+    with TestClient(app) as c:
+        persona = c.get("/api/personas").json()[0]["id"]
+        monkeypatch.setattr(live, "open_session", slow_open)
+        with c.websocket_connect(f"/api/live?persona={persona}") as ws:
+            assert ws.receive_json()["status"] == "loading"
+        monkeypatch.undo()
+        with c.websocket_connect(f"/api/live?persona={persona}&size=5000") as ws:
+            assert ws.receive_json()["status"] == "loading"
+            assert ws.receive_json() == {"error": "live size must be 32..1024 px, got 5000"}
+    app.state.jobs.close()
