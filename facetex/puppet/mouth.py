@@ -17,7 +17,7 @@ __all__ = ["mouth_interior", "interior_white_balance", "mouth_closure", "fill_mo
 
 
 def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float = 1.0,
-                   closed: float = 0.02, soft: float = 0.15,
+                   closed: float = 0.02, soft: float = 0.3,
                    lip_key: tuple[float, float] | None = (4.0, 12.0),
                    cavity: float | None = 25.0, grow: float = 0.015,
                    edge: float = 0.025) -> tuple[np.ndarray, np.ndarray]:
@@ -32,8 +32,11 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     driver's interior, not its lips; 1, the default: the lip key below removes the lips, and a
     smaller inset shrank the teeth the output shows: mouth-opening slope on Arroyo's persona
     driven by GRID lrwp9a 0.77 at 0.9, 0.84 at 1.0, 0.72 at 0.8). Alpha: 0 outside the puppet's inner lips, rising to 1 over
-    ``soft`` x the local lip gap inside them (the puppet's lips overlap the interior: no polygon
-    edge), faded out as the driver's lip gap falls from 2 x ``closed`` to ``closed`` times its
+    ``soft`` x the opening's widest gap inside them (the puppet's lips overlap the interior: no
+    polygon edge; 0.3, as the eyes' (:func:`~facetex.puppet.eyes.eye_interior`): at 0.15 dlib read
+    the widest, teeth-showing frames of Koizumi's persona on GRID bbaf2n as a quarter open, and
+    ``facetex bench puppet``'s worst mouth r was 0.843, 0.893 at 0.3; its slopes 0.886-1.208 at
+    256 px, 0.891-1.223; at 360 px 0.844-1.147, 0.896-1.118), faded out as the driver's lip gap falls from 2 x ``closed`` to ``closed`` times its
     mouth width (closed lips have no interior to show). ``lip_key`` (lo, hi): the driver's own
     lips are keyed out of the interior (None: off): dlib's inner-lip points of a slightly open
     mouth sit on the lips, whose red, stretched over the puppet's opening, drew a flat red
