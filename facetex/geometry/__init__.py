@@ -8,7 +8,7 @@
 - :mod:`.masks`: the FaceTex facial prior mask, the face-region mask, polygon and feature masks
 - :mod:`.skin`: skin masks (face region, features, the face's skin colour, beards)
 - :mod:`.segment`: face segmentation into skin, hair, brows, beard, highlights
-- :mod:`.glasses`: eyeglasses in a face photo (the frame's bridge over the nose)
+- :mod:`.glasses`: eyeglasses in a face photo (the frame's bridge over the nose) and their rims in a video
 - :mod:`.gaze`: sideways gaze in a face photo (the balance of the eyes' whites)
 """
 

@@ -27,7 +27,8 @@ def render_kit(pup):
     kit._sequence_weights = None
     kit.motion = SimpleNamespace(pose_A=np.zeros((1, 3, 3)), pose_b=np.zeros((1, 3)), grid_step=pup.motion.grid_step,
                                  triangles=pup.motion.triangles)
-    kit.track = SimpleNamespace(points68=np.zeros((1, 68, 2)), mesh=np.zeros((1, 468, 3)))
+    kit.track = SimpleNamespace(points68=np.zeros((1, 68, 2)), mesh=np.zeros((1, 468, 3)),
+                                rims=getattr(pup.track, "rims", None))
     return kit
 
 

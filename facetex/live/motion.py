@@ -82,10 +82,11 @@ class CausalTracker:
 
 
 def reference_motion(points68, meshes, scores, frame_size, *, fps: float = 25.0,
-                     params: DriverParams = DriverParams()) -> tuple[DriverTrack, DriverMotion]:
+                     params: DriverParams = DriverParams(), rims=None) -> tuple[DriverTrack, DriverMotion]:
     """(DriverTrack, DriverMotion) of K tracked frames (``points68`` (K, 68, 2), ``meshes`` (K, 468, 3)
     in the pixels of frames of ``frame_size`` (W, H)), made by the offline code: the reference of a
-    live stream (its mean mesh, canonical frame, mean landmarks)."""
+    live stream (its mean mesh, canonical frame, mean landmarks; ``rims`` the frames'
+    :func:`~facetex.geometry.glasses.rim_template`, the driver's glasses)."""
     from ..geometry.frontalize import pose_corrected_points68
 
     p = np.asarray(points68, np.float64).reshape(-1, 68, 2)
@@ -97,7 +98,7 @@ def reference_motion(points68, meshes, scores, frame_size, *, fps: float = 25.0,
     track = DriverTrack(points68=p, mesh=m, found=np.ones(k, bool), score=np.asarray(scores, np.float64),
                         frontal=np.zeros((0, ch, cw, 3), np.float32), frontal_points68=frontal,
                         frame_size=(int(W), int(H)), fps=float(fps), path="<live>", has_audio=False,
-                        lost_reason=[""] * k)
+                        lost_reason=[""] * k, rims=rims)
     return track, driver_motion(track, params)
 
 

@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from ..errors import BadInputError, NoFaceError
+from ..geometry.glasses import rim_response, rim_template
 from ..puppet.params import MODES, PuppetParams
 from .motion import CausalTracker, LiveMotion, reference_motion, shape_residual
 from .params import LiveParams
@@ -203,7 +204,8 @@ class LiveSession:
         t0 = time.perf_counter()
         p68, mesh, score = (np.array([w[k] for w in self._warm]) for k in range(3))
         tw, th = self._geometry[:2]
-        track, motion = reference_motion(p68, mesh, score, (tw, th), fps=fps, params=self.params.driver)
+        track, motion = reference_motion(p68, mesh, score, (tw, th), fps=fps, params=self.params.driver,
+                                         rims=rim_template([w[3] for w in self._warm]))
         coll = driver_collection(track, params=self.params)
         mean68 = p68.mean(axis=0)
         res = [shape_residual(q, mean68) for q in p68]
@@ -289,8 +291,8 @@ class LiveSession:
         index = count if index is None else int(index)
         work = {"index": index, "arrival": arrival, "frame": frame, "lost": bool(why), "why": why, "warmup": False}
         if self.puppeteer is None:
-            if not why:
-                self._warm.append((p68, mesh, score))
+            if not why:  # with the frame's thin lines: the driver's glasses, averaged over the warm-up
+                self._warm.append((p68, mesh, score, rim_response(small, p68)))
             if len(self._warm) >= self.live.warmup and self._can_build():
                 self._persona = self._loading.persona
                 self._build(fps)

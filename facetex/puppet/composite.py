@@ -375,7 +375,8 @@ class CompositeParams:
     on pale drivers, and at 1 Williams' eye openness rose (0.83-0.90 -> 0.84-0.95 of the driver's)
     and Bush/sbwe5n's mouth slope came into range (1.32 -> 1.20), but Chavez's deep-set eyes read
     less open (pwij3p 0.83 -> 0.79, at 0.5 0.80) and Koizumi/id2 came out 80 % closer to the
-    persona (100 %); occlusion: keep the driver's occluders in front (:func:`occlusion_mask`); sharpen: the
+    persona (100 %); occlusion: keep the driver's occluders in front (:func:`occlusion_mask`; its glasses' rims
+    when ``composite_face`` is given them); sharpen: the
     puppet's fine detail is raised towards the driver's frame's, at most by this gain (1: off;
     :func:`match_sharpness`); grain: then the frame's own grain is added where the puppet is still
     smoother, at most at this strength (0: off; :func:`~facetex.puppet.detail.match_grain`); poisson:
@@ -414,7 +415,8 @@ class CompositeParams:
 
 
 def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_points68, puppet_points68=None,
-                   driver_normals=None, iris=None, params: CompositeParams = CompositeParams()) -> tuple[np.ndarray, np.ndarray]:
+                   driver_normals=None, iris=None, rims=None,
+                   params: CompositeParams = CompositeParams()) -> tuple[np.ndarray, np.ndarray]:
     """The puppet composited into the driver's frame: (image (H, W, 3), alpha (H, W)).
 
     ``frame`` (H, W, 3) the driver's frame; ``puppet`` (H, W, 3) the rendered puppet,
@@ -426,7 +428,9 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     ``driver_normals`` (H, W, 3) the driver's own face normals (its lighting is fitted with them;
     default: the puppet's normals); ``iris`` (3,) the persona's iris-to-skin ratio
     (:func:`~facetex.puppet.eyes.persona_iris`) for the driver's eyeballs drawn in the puppet's
-    lids (``params.eyes="driver"``; None: they keep the driver's iris colour).
+    lids (``params.eyes="driver"``; None: they keep the driver's iris colour); ``rims`` (H, W) in
+    [0, 1]: the driver's glasses (:func:`~facetex.geometry.glasses.rim_mask`), kept in front with its
+    other occluders (``params.occlusion``).
     All work happens in the face's bounding box."""
     if params.lighting not in LIGHTINGS:
         raise BadInputError(f"unknown lighting {params.lighting!r}: use one of {', '.join(LIGHTINGS)}")
@@ -479,6 +483,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     if params.occlusion:
         occ = occlusion_mask(rg_s, drv_skin, feats, p_s)
         occ = (cv2.resize(occ, (bw, bh), interpolation=cv2.INTER_LINEAR) if ks > 1 else occ) * rg
+        if rims is not None:
+            occ = np.maximum(occ, np.asarray(rims, np.float32)[box] * rg)
     # the persona's average texture has no hair or cast shadows on its face (they average out):
     # its features are left out, the trimmed statistics do the rest
     pup_skin = rg_s & ~feats

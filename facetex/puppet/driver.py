@@ -241,7 +241,9 @@ class DriverTrack:
     bool; score (N,) mesh face score; frontal (K, H, W, 3) float32 frontalized frames (none when
     tracked without frontal images) and frontal_points68 (K, 68, 2) their pose-corrected
     landmarks (every ``stride``-th tracked frame, K <= subspace_frames); frame_size (W, H); fps; path; lost_reason (N,) why each
-    lost frame was rejected ("" where found; see :data:`LOST_REASONS`)."""
+    lost frame was rejected ("" where found; see :data:`LOST_REASONS`); rims: the thin lines of those
+    frames averaged in the face's frame (:func:`~facetex.geometry.glasses.rim_template`; the driver's
+    glasses stay in front of the puppet) or None."""
 
     points68: np.ndarray
     mesh: np.ndarray
@@ -254,6 +256,7 @@ class DriverTrack:
     path: str
     has_audio: bool = False
     lost_reason: list | None = None
+    rims: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -383,6 +386,7 @@ def track_driver(path, *, max_frames: int | None = None, params: DriverParams = 
     pose-corrected landmarks are kept (``frontal`` is empty): enough for the landmark
     correspondence, and the frontalization's sampling and symmetry fill are skipped."""
     from ..geometry.frontalize import frontalize, pose_corrected_points68
+    from ..geometry.glasses import rim_response, rim_template
     from ..io import iter_video_frames, video_info
 
     def frontal_sample(frame, p68) -> tuple[np.ndarray | None, np.ndarray]:
@@ -397,6 +401,7 @@ def track_driver(path, *, max_frames: int | None = None, params: DriverParams = 
     n_est = info["n_frames"] if max_frames is None else min(info["n_frames"], int(max_frames))
     stride = max(1, int(math.ceil(max(n_est, 1) / params.subspace_frames)))
     p68s, meshes, found, scores, frontal, frontal_p, frontal_i, reasons = [], [], [], [], [], [], [], []
+    rim_maps = []
     prev = None
     size = None
     last_detect = -(10**9)
@@ -424,6 +429,7 @@ def track_driver(path, *, max_frames: int | None = None, params: DriverParams = 
             scores.append(score)
             reasons.append("")
             if i % stride == 0 and len(frontal_p) < params.subspace_frames:
+                rim_maps.append((i, rim_response(frame, p68)))
                 try:
                     img, pts = frontal_sample(frame, p68)
                     frontal_p.append(pts)
@@ -460,6 +466,6 @@ def track_driver(path, *, max_frames: int | None = None, params: DriverParams = 
         points68=p68a, mesh=mesha, found=found_a, score=np.array(scores),
         frontal=np.array(frontal, np.float32).reshape(-1, H, W, 3), frontal_points68=np.array(frontal_p),
         frame_size=size, fps=float(info["fps"]) or 25.0, path=str(path), has_audio=bool(info["has_audio"]),
-        lost_reason=reasons)
+        lost_reason=reasons, rims=rim_template([r for i, r in rim_maps if found_a[i]]))
 
 

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 
 from ..errors import BadInputError
+from ..geometry.glasses import rim_mask, rims_present
 from .composite import FACE_OVAL, INNER_LIPS, composite_face
 from .correspondence import DriverCollection, collection_correspondence, landmark_correspondence, puppet_average_shape
 from .deform import DeformationTransfer
@@ -456,7 +457,9 @@ class Puppeteer:
                 img = ma * mi + (1 - ma) * img
             return img.astype(np.float32), lay.coverage
         oval = (tr.mesh[i][list(FACE_OVAL), :2] + 0.5) * scale - 0.5
-        return composite_face(frame, lay.image, lay.coverage, lay.normals, driver_oval=oval, driver_points68=drv68,
+        rims = getattr(tr, "rims", None)
+        rims = rim_mask(frame, drv68, rims) if self.params.composite.occlusion and rims_present(rims) else None
+        return composite_face(frame, lay.image, lay.coverage, lay.normals, driver_oval=oval, driver_points68=drv68, rims=rims,
                               puppet_points68=pts, driver_normals=self.driver_normals(i, (w, h), scale) if sh else None,
                               iris=self.iris() if self.params.composite.eyes == "driver" else None,
                               params=self.params.composite)

@@ -1,11 +1,12 @@
-"""Eyeglasses score (facetex.geometry.glasses): a bridge line over the nose, weights by collection."""
+"""Eyeglasses (facetex.geometry.glasses): a bridge line over the nose, weights by collection, a video's rims."""
 
 import cv2
 import numpy as np
 import pytest
 
 from facetex._resources import sample_path
-from facetex.geometry.glasses import glasses_bridge_score, glasses_weights
+from facetex.geometry.glasses import (glasses_bridge_score, glasses_weights, rim_mask, rim_response, rim_template,
+                                      rims_present)
 from facetex.landmarks import detect_face
 
 
@@ -51,3 +52,46 @@ def test_weights_by_the_collections_median():
     assert w == pytest.approx([1, 1, 1, 2.0 ** -4, 1, 1])
     assert glasses_weights([1.0, 9.0], power=4.0) == pytest.approx([1, 1])  # too few photos to judge
     assert glasses_weights([1.0, 1.0, 3.0], power=0) == pytest.approx([1, 1, 1])
+
+
+def _video(img, n=6, seed=0):
+    """n frames of a still face with the codec's noise (independent per frame)."""
+    rng = np.random.default_rng(seed)
+    return [np.clip(img + rng.normal(0, 4, img.shape), 0, 255).astype(np.uint8) for _ in range(n)]
+
+
+def _drawn_rims(img, p):
+    """bool (H, W): the drawn glasses' pixels (where the drawing darkened the face)."""
+    return np.abs(_with_glasses(img, p).astype(int) - img.astype(int)).sum(-1) > 60
+
+
+def test_a_videos_drawn_glasses_are_found_and_kept_and_a_bare_face_has_none(face):
+    img, p = face
+    worn, bare = _video(_with_glasses(img, p)), _video(img)
+    t_worn = rim_template([rim_response(f, p) for f in worn])
+    t_bare = rim_template([rim_response(f, p) for f in bare])
+    assert t_worn.shape == (2, 96, 160)
+    assert rims_present(t_worn) and not rims_present(t_bare)
+    m = rim_mask(worn[0], p, t_worn)
+    assert m.shape == img.shape[:2] and m.dtype == np.float32 and 0 <= m.min() and m.max() <= 1
+    assert not rim_mask(bare[0], p, t_bare).any()
+    # the rims beside and below the eyes and the bridge are kept (the eyes, brows and the nose below
+    # the bridge are the puppet's: parts of the rims there are not)
+    drawn = _drawn_rims(img, p)
+    iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
+    yy, xx = np.mgrid[:img.shape[0], :img.shape[1]]
+    below = drawn & (yy > p[36:48, 1].max() + 0.12 * iod) & (np.abs(xx - p[27, 0]) > 0.25 * iod)
+    assert below.sum() > 50 and (m[below] > 0.5).mean() > 0.6
+    # nothing on the skin away from them: the cheeks, the forehead
+    grown = cv2.dilate(drawn.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
+    far = ~grown & (yy > p[36:48, 1].max() + 0.5 * iod) & (yy < p[33, 1])
+    assert far.sum() > 500 and m[far].max() == 0.0
+    # float frames in [0, 1] give the same mask
+    np.testing.assert_allclose(rim_mask(worn[0].astype(np.float32) / 255, p, t_worn), m, atol=1e-4)
+
+
+def test_rims_without_landmarks_or_frames():
+    img = np.zeros((40, 40, 3), np.uint8)
+    assert rim_response(img, np.full((68, 2), np.nan)) is None
+    assert rim_template([None, None]) is None and not rims_present(None)
+    assert not rim_mask(img, np.full((68, 2), np.nan), np.ones((2, 96, 160), np.float32)).any()

@@ -274,6 +274,28 @@ def test_composite_keeps_the_drivers_fringe_in_front(driver_face):
     assert alpha[c[1], c[0]] > 0.99  # the cheeks are the puppet's
 
 
+
+def test_composite_keeps_the_drivers_glasses_rims_in_front(driver_face):
+    img, p, oval, region = driver_face
+    puppet = np.empty_like(img)
+    puppet[:] = (0.45, 0.3, 0.22)
+    coverage = region.astype(np.float32)
+    rims = np.zeros(region.shape, np.float32)
+    y = int(round(p[41, 1] + 0.1 * np.linalg.norm(p[36] - p[45])))  # a line under the right eye
+    rims[y:y + 2, int(p[36, 0]):int(p[39, 0])] = 1.0
+    kw = dict(driver_oval=oval, driver_points68=p, params=CompositeParams(mouth=False))
+    out, alpha = composite_face(img, puppet, coverage, None, rims=rims, **kw)
+    without = composite_face(img, puppet, coverage, None, **kw)[1]
+    on = (rims > 0) & (without > 0.9)
+    assert on.sum() >= 10
+    assert alpha[on].max() < 0.02
+    np.testing.assert_allclose(out[on], img[on], atol=0.02)
+    np.testing.assert_allclose(alpha[~(cv2.dilate(rims, np.ones((9, 9))) > 0)],
+                               without[~(cv2.dilate(rims, np.ones((9, 9))) > 0)], atol=1e-6)
+    off = composite_face(img, puppet, coverage, None, rims=rims, driver_oval=oval, driver_points68=p,
+                         params=CompositeParams(mouth=False, occlusion=False))[1]
+    assert off[on].min() > 0.9  # occlusion off: the rims too
+
 # ----------------------------------------------------------------------------- lighting
 def test_sh_fit_recovers_the_lighting_despite_outliers():
     n, inside = _sphere_normals()

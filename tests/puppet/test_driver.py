@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
+from facetex.geometry.glasses import rims_present
 from facetex.errors import NoFaceError
 from facetex.io import write_video
 from facetex.puppet.driver import (
@@ -119,6 +120,9 @@ def test_track_counts_lost_frames(tracked):
     assert tr.n_lost == n_blank
     assert not tr.found[n_morph : n_morph + n_blank].any()
     assert tr.frontal.shape[1:] == (240, 192, 3)
+    # the tracked frames' thin lines in the face frame: a bare face, no glasses to keep in front
+    assert tr.rims.shape == (2, 96, 160) and np.isfinite(tr.rims).all()
+    assert not rims_present(tr.rims)
 
 
 def test_tracking_without_frontal_images_keeps_the_landmarks(tracked):
