@@ -124,6 +124,10 @@ def test_the_drivers_glasses_stay_in_front_of_the_live_puppet(live_persona):
             cv2.ellipse(g, c, (int(0.45 * iod), int(0.32 * iod)), 0, 0, 360, (40, 40, 40), 2)
         y = int(round((p[39, 1] + p[42, 1]) / 2 - 0.1 * iod))
         cv2.line(g, (int(p[39, 0]), y), (int(p[42, 0]), y), (40, 40, 40), 2)
+        for eye, jaw in ((p[36:42], p[0]), (p[42:48], p[16])):  # the arms
+            c = eye.mean(0)
+            x = c[0] + np.sign(jaw[0] - c[0]) * 0.45 * iod
+            cv2.line(g, (int(x), int(c[1])), (int(jaw[0]), int(c[1] - 0.05 * iod)), (40, 40, 40), 2)
         worn.append(g)
         points.append(p)
     live = LiveParams(warmup=WARMUP, tracking="thread", render="thread")
