@@ -124,13 +124,13 @@ def _face_region_mask(persona):
     """bool (H, W) mouth region of the persona's texture: the outer lips dilated by 0.15 of the eye distance."""
     import cv2
 
-    from ..geometry.masks import polygon_mask
+    from ..geometry.masks import disc, polygon_mask
 
     p = persona.points68.mean(axis=0)
     W, H = persona.size
     m = polygon_mask(p[48:60], (H, W)) > 0.5
     k = max(1, int(round(0.15 * np.linalg.norm(p[36] - p[45]))))
-    return cv2.dilate(m.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1,) * 2)) > 0
+    return cv2.dilate(m.astype(np.uint8), disc(k)) > 0
 
 
 def _driver_measures(clip: Path, ours: list, found: np.ndarray, p68: np.ndarray, cache: Path | None) -> dict:

@@ -223,10 +223,9 @@ def eye_mask(points68, shape) -> np.ndarray:
 
 
 def _ellipse(radius: float) -> np.ndarray:
-    import cv2
+    from ..geometry.masks import disc
 
-    k = max(1, int(round(radius)))
-    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1))
+    return disc(max(1, int(round(radius))))
 
 
 def _laplacian_variance(image: np.ndarray, mask: np.ndarray) -> float:

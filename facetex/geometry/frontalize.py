@@ -40,6 +40,7 @@ from ._generic_face import (
     load_generic_face,
     surface_on_frame,
 )
+from .masks import disc
 
 __all__ = [
     "HeadPose",
@@ -427,7 +428,7 @@ def symmetry_fill_image(image: np.ndarray, visibility: np.ndarray) -> np.ndarray
     H, W = vis.shape
     k = W / CANONICAL_SIZE[0]
     r = max(1, int(round(FILL_FEATHER_PX * k)))
-    core = cv2.erode((vis > 0.5).astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2))
+    core = cv2.erode((vis > 0.5).astype(np.uint8), disc(r))
     v = np.minimum(vis, cv2.GaussianBlur(core.astype(np.float32), (0, 0), FILL_FEATHER_PX * k))
     vm = v[:, ::-1]
     mir = img[:, ::-1]

@@ -14,6 +14,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from .masks import disc
+
 __all__ = ["glasses_bridge_score", "glasses_weights", "rim_response", "rim_template", "rim_scores", "rims_present",
            "rim_mask"]
 
@@ -102,7 +104,7 @@ def _face_similarity(points68) -> np.ndarray | None:
 def _thin_lines(lum: np.ndarray, radius: int) -> np.ndarray:
     """Dark plus light thin structures of a luminance image: its black-hat plus top-hat with an
     elliptical element of ``radius`` px (rims, lashes, creases; not the slow shading)."""
-    se = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1,) * 2)
+    se = disc(radius)
     return cv2.morphologyEx(lum, cv2.MORPH_BLACKHAT, se) + cv2.morphologyEx(lum, cv2.MORPH_TOPHAT, se)
 
 
@@ -195,7 +197,7 @@ def rim_mask(image, points68, template, *, strong: float = 0.4, level: float = 0
     # eyes, brows and the nose below its bridge (its sides' shading): the puppet's own are drawn there
     for idx in (range(36, 42), range(42, 48), range(17, 22), range(22, 27), range(29, 36)):
         cv2.fillPoly(cut, [cv2.convexHull(pf[list(idx)]).astype(np.int32)], 1)
-    cut = cv2.dilate(cut, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (11, 11))) > 0
+    cut = cv2.dilate(cut, disc(5)) > 0
     zone &= ~cut
     # inside the face's sides (jaw points 0 and 16): beyond them the frame is not replaced
     zone[:, :max(0, int(np.ceil(pf[0, 0])))] = False
@@ -209,11 +211,11 @@ def rim_mask(image, points68, template, *, strong: float = 0.4, level: float = 0
     scale = float(np.sqrt(abs(np.linalg.det(M[:, :2]))))  # face-frame px per frame px
     # at least 5 px: OpenCV's 3 x 3 ellipse is a cross, which does not close a 2 px line
     r = max(2, int(np.ceil(RIM_RADIUS / max(scale, 1e-6))))
-    lines = cv2.morphologyEx(lum, cv2.MORPH_BLACKHAT, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2))
+    lines = cv2.morphologyEx(lum, cv2.MORPH_BLACKHAT, disc(r))
     core = (back * np.clip(lines / (level * strength), 0.0, 1.0)).astype(np.float32)
     if soft <= 0:
         return core
     # the rim's light side and the skin next to it come with it, faded out: a hard-edged dark core
     # alone drew the gold rims as dark lines, twice as sharp as the frame's (Laplacian variance)
-    grown = cv2.dilate(core, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3)))
+    grown = cv2.dilate(core, disc(1))
     return np.clip(cv2.GaussianBlur(grown, (0, 0), soft), 0.0, 1.0).astype(np.float32)

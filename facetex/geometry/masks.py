@@ -30,6 +30,7 @@ from ..errors import BadInputError
 
 __all__ = [
     "REF_FACE_WIDTH",
+    "disc",
     "MESO_CONTOURS",
     "face_width",
     "forehead_points",
@@ -65,6 +66,12 @@ MESO_CONTOURS: tuple[tuple[tuple[int, ...], bool], ...] = (
 #: the arc below typical hairlines).
 FOREHEAD_RATIO = 0.8
 _SHIFT = 4  # sub-pixel bits for OpenCV drawing
+
+
+def disc(radius: int) -> np.ndarray:
+    """OpenCV's elliptical structuring element of ``radius`` px: a disc in a (2 r + 1)² box (r 1: a
+    3 x 3 cross)."""
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * int(radius) + 1,) * 2)
 
 
 def _check(points68, shape):
@@ -237,4 +244,4 @@ def feature_mask(points68, shape, *, dilate: float = 0.06) -> np.ndarray:
         m = np.maximum(m, polygon_mask(np.r_[b, b[::-1] + [0, 0.08 * np.ptp(p[:, 1])]], (h, w)))
     iod = float(np.linalg.norm(p[36] - p[45]))
     k = max(1, int(round(dilate * iod)))
-    return cv2.dilate((m > 0.5).astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1,) * 2)) > 0
+    return cv2.dilate((m > 0.5).astype(np.uint8), disc(k)) > 0

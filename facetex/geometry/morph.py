@@ -23,7 +23,7 @@ import numpy as np
 from scipy.spatial import Delaunay
 
 from ..errors import BadInputError
-from .masks import face_width, forehead_points
+from .masks import disc, face_width, forehead_points
 from .tps import ThinPlateSpline
 
 __all__ = [
@@ -353,7 +353,7 @@ def unfold_map(build, shape, *, mask=None, min_det: float = _MIN_DET, iters: int
         if not bad.any():
             return m
         d = np.linalg.norm(m - build(np.zeros_like(alpha)), axis=2)
-        near = cv2.dilate(bad.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (31, 31))) > 0
+        near = cv2.dilate(bad.astype(np.uint8), disc(15)) > 0
         sigma = float(np.clip(2.0 * d[near].max(), 3.0, 0.1 * max(H, W)))
     for it in range(iters + 1):
         bad = (jacobian_determinant(m) <= min_det) & check
@@ -363,7 +363,7 @@ def unfold_map(build, shape, *, mask=None, min_det: float = _MIN_DET, iters: int
             break
         else:
             r = int(np.ceil(sigma))
-            grow = cv2.dilate(bad.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0
+            grow = cv2.dilate(bad.astype(np.uint8), disc(r)) > 0
             alpha = np.where(grow, alpha * 0.5, alpha)
             alpha = np.minimum(alpha, cv2.GaussianBlur(alpha, (0, 0), sigma))
         m = build(alpha)

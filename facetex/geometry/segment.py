@@ -8,8 +8,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .masks import face_width
-from .skin import _BROWS, SkinParams, _dilate, _disc, _fill_small_holes, _p68, _poly, _rgb01, _sample_regions, _shape, beard_mask, face_region_mask, feature_mask, skin_colour_distance
+from .masks import disc, face_width
+from .skin import _BROWS, SkinParams, _dilate, _fill_small_holes, _p68, _poly, _rgb01, _sample_regions, _shape, beard_mask, face_region_mask, feature_mask, skin_colour_distance
 
 __all__ = [
     "LABELS",
@@ -91,9 +91,9 @@ def hair_strand_mask(image, points68, region, reference, params: SkinParams = Sk
         & (edge < params.strand_edge) & region
     if exclude is not None:
         s &= ~np.asarray(exclude, bool)
-    s = cv2.morphologyEx(s.astype(np.uint8), cv2.MORPH_CLOSE, _disc(max(1, int(0.015 * fw))))
+    s = cv2.morphologyEx(s.astype(np.uint8), cv2.MORPH_CLOSE, disc(max(1, int(0.015 * fw))))
     n, lab, stats, _ = cv2.connectedComponentsWithStats(s, connectivity=8)
-    border = region & ~(cv2.erode(region.astype(np.uint8), _disc(max(1, int(0.02 * fw)))) > 0)
+    border = region & ~(cv2.erode(region.astype(np.uint8), disc(max(1, int(0.02 * fw)))) > 0)
     touching = set(np.unique(lab[border & (s > 0)]).tolist())
     top = float(p[17:27, 1].min())
     keep = [i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= (0.03 * fw) ** 2
@@ -141,7 +141,7 @@ def stubble_mask(image, points68, region, reference, params: SkinParams = SkinPa
     b = (dens > max(params.stubble_density, params.stubble_ratio * ref)) & lower & region
     if exclude is not None:
         b &= ~(_dilate(np.asarray(exclude, np.uint8), 0.025 * fw) > 0)
-    b = cv2.morphologyEx(b.astype(np.uint8), cv2.MORPH_OPEN, _disc(max(1, int(0.015 * fw))))
+    b = cv2.morphologyEx(b.astype(np.uint8), cv2.MORPH_OPEN, disc(max(1, int(0.015 * fw))))
     n, lab, stats, _ = cv2.connectedComponentsWithStats(b, connectivity=8)
     keep = [i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= (0.07 * fw) ** 2]
     return np.isin(lab, keep)
@@ -266,7 +266,7 @@ def segment_face(image, points68, *, mesh=None, params: SkinParams = SkinParams(
     brows = _dilate(brows, params.brow_margin * fw) > 0
     chroma, light = skin_colour_distance(img, p, region=face & ~feats)
     ok = ((chroma < params.chroma_sigmas) | (light > params.highlight_sigmas)) & (light > -params.dark_sigmas)
-    border = region & ~(cv2.erode(region.astype(np.uint8), _disc(max(1, int(0.02 * fw)))) > 0)
+    border = region & ~(cv2.erode(region.astype(np.uint8), disc(max(1, int(0.02 * fw)))) > 0)
     # bright pieces pass as highlights only inside the face: one reaching the
     # region's border is the background or grey hair beyond the hairline (on FRL 042, dark
     # skin, his short grey hair and the wall above it were all "highlight")
@@ -313,7 +313,7 @@ def segment_face(image, points68, *, mesh=None, params: SkinParams = SkinParams(
     speckled = np.zeros((h, w), bool)
     if params.beard:
         # the rough-and-dark test away from the silhouette and the features' shadows
-        inner = (cv2.erode(face.astype(np.uint8), _disc(max(1, int(0.03 * fw)))) > 0) \
+        inner = (cv2.erode(face.astype(np.uint8), disc(max(1, int(0.03 * fw)))) > 0) \
             & ~(_dilate(feats.astype(np.uint8), 0.025 * fw) > 0)
         bare = region & ok & ~hair & ~other & ~feats & (light < params.highlight_sigmas)  # a highlight rings no specks
         beard = (stubble_mask(img, p, bare, ref, params, exclude=feats)
@@ -326,7 +326,7 @@ def segment_face(image, points68, *, mesh=None, params: SkinParams = SkinParams(
         # beyond the hairline (short or grey hair at the hairline), and in the beard zone (a
         # thin moustache, a chin tuft, shaved stubble: the opening of stubble_mask drops them)
         dense = dens > max(params.stubble_density, params.source_speck * ref_d)  # as dense as stubble
-        sp = cv2.morphologyEx((dense & bare).astype(np.uint8), cv2.MORPH_CLOSE, _disc(max(1, int(0.01 * fw))))
+        sp = cv2.morphologyEx((dense & bare).astype(np.uint8), cv2.MORPH_CLOSE, disc(max(1, int(0.01 * fw))))
         n, lab, stats, _ = cv2.connectedComponentsWithStats(sp, connectivity=8)
         if n > 1:
             beyond = _dilate((region & ~bare & ~feats & ~beard).astype(np.uint8), 0.01 * fw) > 0
@@ -336,7 +336,7 @@ def segment_face(image, points68, *, mesh=None, params: SkinParams = SkinParams(
             hair |= np.isin(lab, hairline) & near & region & ~feats
             # (off the lip line and nostril rims and the jaw's silhouette: their shade specks too)
             zone = beard_zone_mask(p, (h, w), params) & inner & ~(_dilate(feats.astype(np.uint8), 0.008 * fw) > 0)
-            tuft = cv2.morphologyEx(((sp > 0) & zone).astype(np.uint8), cv2.MORPH_OPEN, _disc(1))
+            tuft = cv2.morphologyEx(((sp > 0) & zone).astype(np.uint8), cv2.MORPH_OPEN, disc(1))
             n, lab, stats, _ = cv2.connectedComponentsWithStats(tuft, connectivity=8)
             big_t = [i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= (0.03 * fw) ** 2]
             beard |= np.isin(lab, big_t) & ~hair & ~feats
@@ -368,7 +368,7 @@ def _feather_inwards(mask: np.ndarray, sigma: float) -> np.ndarray:
     if sigma <= 0.3:
         return mask.astype(np.float32)
     r = int(np.ceil(2 * sigma))
-    core = cv2.erode(mask.astype(np.uint8), _disc(r))
+    core = cv2.erode(mask.astype(np.uint8), disc(r))
     out = cv2.GaussianBlur(core.astype(np.float32), (0, 0), sigma)
     return np.where(mask, np.clip(out, 0, 1), 0).astype(np.float32)
 

@@ -52,7 +52,7 @@ import cv2
 import numpy as np
 
 from ..errors import BadInputError
-from .masks import face_outline, face_width
+from .masks import disc, face_outline, face_width
 
 __all__ = [
     "FACE_OVAL_468",
@@ -140,7 +140,7 @@ def _dilate(mask: np.ndarray, radius: float) -> np.ndarray:
     r = int(round(radius))
     if r < 1:
         return mask
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    k = disc(r)
     return cv2.dilate(mask, k)
 
 
@@ -201,7 +201,7 @@ def face_region_mask(points68, shape, *, mesh=None, shrink: float = SkinParams.o
         out = np.where(above > 0, out | oval, oval).astype(np.uint8)
     r = int(round(shrink * face_width(p)))
     if r >= 1:
-        out = cv2.erode(out, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+        out = cv2.erode(out, disc(r))
     return out.astype(bool)
 
 
@@ -284,10 +284,6 @@ def skin_colour_distance(image, points68, *, region=None) -> tuple[np.ndarray, n
     return dist, z
 
 
-def _disc(r: int) -> np.ndarray:
-    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-
-
 def beard_mask(image, points68, region, light, params: SkinParams = SkinParams()) -> np.ndarray:
     """bool (H, W): beard, stubble and hair strands on the lower face (below the nose tip).
 
@@ -307,8 +303,8 @@ def beard_mask(image, points68, region, light, params: SkinParams = SkinParams()
     lower = np.zeros(region.shape, bool)
     lower[int(np.clip(p[30, 1], 0, region.shape[0])):] = True
     b = ((energy > params.beard_texture * max(ref, 1e-12)) & dark & lower).astype(np.uint8)
-    b = cv2.morphologyEx(b, cv2.MORPH_CLOSE, _disc(max(1, int(0.03 * fw))))
-    b = cv2.morphologyEx(b, cv2.MORPH_OPEN, _disc(max(1, int(0.035 * fw))))
+    b = cv2.morphologyEx(b, cv2.MORPH_CLOSE, disc(max(1, int(0.03 * fw))))
+    b = cv2.morphologyEx(b, cv2.MORPH_OPEN, disc(max(1, int(0.035 * fw))))
     n, lab, stats, _ = cv2.connectedComponentsWithStats(b, connectivity=8)
     keep = [i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= (0.08 * fw) ** 2]
     return np.isin(lab, keep) & region

@@ -80,7 +80,7 @@ def face_area_mask(image, points68, *, mesh=None, margin: float = 0.03) -> np.nd
     ``mesh`` is given, and with the head region where the transfer may find skin: up to the
     hairline, the temples and the jaw edge) grown by ``margin`` × face width. Its complement
     is the background."""
-    from ..geometry.masks import face_outline, face_width
+    from ..geometry.masks import disc, face_outline, face_width
     from ..geometry.segment import head_region_mask
     from ..geometry.skin import FACE_OVAL_468
 
@@ -93,7 +93,7 @@ def face_area_mask(image, points68, *, mesh=None, margin: float = 0.03) -> np.nd
         cv2.fillPoly(m, [np.round(oval * 16).astype(np.int32)], 1, cv2.LINE_8, 4)
     m |= head_region_mask(p, (h, w), mesh=mesh).astype(np.uint8)
     r = max(1, int(round(margin * face_width(p))))
-    m = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    m = cv2.dilate(m, disc(r))
     return m.astype(bool)
 
 

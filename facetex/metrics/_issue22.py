@@ -124,6 +124,7 @@ def stubble_regions(points68, shape) -> dict[str, np.ndarray]:
     """bool (H, W) masks of the ``upper_lip`` (nostrils 31–35 down to the upper lip's edge
     48–54) and the ``chin`` (the lower lip's edge 54–59 down to the jaw 6–10, drawn 15 % of
     the way back towards the mouth so it stays off the chin's edge), minus the lips."""
+    from ..geometry.masks import disc
     from ..geometry.skin import protected_mask
 
     p = _as_points(points68, "points68")
@@ -135,7 +136,7 @@ def stubble_regions(points68, shape) -> dict[str, np.ndarray]:
              "chin": np.vstack([p[[54, 55, 56, 57, 58, 59, 48]], jaw])}
     lips = protected_mask(p, (h, w))
     r = max(1, int(round(0.01 * float(np.linalg.norm(p[16] - p[0])))))
-    lips = cv2.dilate(lips.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0
+    lips = cv2.dilate(lips.astype(np.uint8), disc(r)) > 0
     out = {}
     for k, poly in polys.items():
         m = np.zeros((h, w), np.uint8)

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..geometry.gaze import gaze_weights
 from ..geometry.glasses import glasses_bridge_score
+from ..geometry.masks import disc
 from .params import GLASSES_LEVELS
 
 
@@ -38,7 +39,7 @@ class _PhotoQuality:
             H, W = self.shape
             m = np.maximum(polygon_mask(p[36:42], (H, W)), polygon_mask(p[42:48], (H, W))) > 0.5
             r = max(1, int(round(0.1 * iod)))
-            m = cv2.dilate(m.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2))
+            m = cv2.dilate(m.astype(np.uint8), disc(r))
             m = m.astype(np.float32)
             num = np.zeros(self.n)
             den = np.zeros(self.n)

@@ -57,6 +57,7 @@ import cv2
 import numpy as np
 
 from ..errors import BadInputError
+from ..geometry.masks import disc
 
 __all__ = [
     "REGIONS",
@@ -243,7 +244,7 @@ def region_masks(points68, shape, regions=("mouth", "eyes", "face"), *, feather_
         cv2.fillPoly(m, [np.round(hull).astype(np.int32)], 1)
         r = int(round(grow * iod))
         if r > 0:
-            m = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+            m = cv2.dilate(m, disc(r))
         return cv2.GaussianBlur(m.astype(np.float32), (0, 0), sig)
 
     brow_top = p[17:27].copy()
@@ -275,7 +276,7 @@ def face_support(points68, shape, *, grow_iod: float = 0.3, feather_iod: float =
     cv2.fillPoly(m, [np.round(face_outline(p)).astype(np.int32)], 1)
     r = int(round(grow_iod * iod))
     if r > 0:
-        m = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+        m = cv2.dilate(m, disc(r))
     return np.clip(cv2.GaussianBlur(m.astype(np.float32), (0, 0), max(feather_iod * iod, 0.5)), 0, 1)
 
 

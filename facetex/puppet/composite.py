@@ -58,7 +58,7 @@ import cv2
 import numpy as np
 
 from ..errors import BadInputError
-from ..geometry.masks import feature_mask, inner_feather, polygon_mask
+from ..geometry.masks import disc, feature_mask, inner_feather, polygon_mask
 from ._pixels import _LUMA, _mix, _shape2
 from .detail import match_grain, match_sharpness
 from .lighting import (COLOURS, _lab, _linear, fit_sh_lighting, linear_to_srgb, relight, srgb_to_linear,
@@ -212,7 +212,7 @@ def occlusion_mask(region, skin, features, points68, *, min_size: float = 0.03, 
     if n < 2:
         return out
     r = max(1, int(round(apart * fw)))
-    near = cv2.dilate(features.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0
+    near = cv2.dilate(features.view(np.uint8), disc(r)) > 0
     away = np.bincount(lab[~near], minlength=n)  # each piece's pixels away from the features
     big = np.flatnonzero(away[1:] >= (min_size * fw) ** 2) + 1
     if not len(big):
@@ -220,7 +220,7 @@ def occlusion_mask(region, skin, features, points68, *, min_size: float = 0.03, 
     occ = np.isin(lab, big).astype(np.uint8)
     r = int(round(margin * fw))
     if r >= 1:
-        occ = cv2.dilate(occ, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2))
+        occ = cv2.dilate(occ, disc(r))
     occ = occ.astype(np.float32)
     if soft * fw > 0.3:  # 1 up to the grown edge, falling to 0 over ~2 sigma outside it
         occ = np.minimum(2 * cv2.GaussianBlur(occ, (0, 0), soft * fw), 1.0)
@@ -446,8 +446,7 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     outline = polygon_mask(driver_oval, (H, W)) > 0.5
     k = int(round(params.erode * iod))
     if k > 0:
-        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1,) * 2)
-        outline = cv2.erode(outline.astype(np.uint8), disc) > 0
+        outline = cv2.erode(outline.astype(np.uint8), disc(k)) > 0
     region = outline & (np.asarray(coverage) > 0.5)
     if np.count_nonzero(region) < 16:
         return frame.copy(), np.zeros((H, W), np.float32)

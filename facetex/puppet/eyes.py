@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 
 from ..errors import BadInputError
-from ..geometry.masks import polygon_mask
+from ..geometry.masks import disc, polygon_mask
 from ..geometry.skin import _sample_regions
 from ._contours import EYE, _contour_frame, _open_fade, sample_between
 from ._pixels import _LUMA, _shape2
@@ -151,7 +151,7 @@ def lid_weights(points68, shape, *, margin: float = 0.045, feather: float = 0.01
     h, w = _shape2(shape)
     balls = np.maximum(polygon_mask(p[36:42], (h, w)), polygon_mask(p[42:48], (h, w))) > 0.5
     r = max(1, int(round(margin * face_width(p))))
-    grown = cv2.dilate(balls.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0
+    grown = cv2.dilate(balls.astype(np.uint8), disc(r)) > 0
     ring = grown & ~balls
     inner = cv2.erode(ring.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
     sig = max(0.75, feather * float(np.linalg.norm(p[36] - p[45])))
@@ -169,7 +169,7 @@ def eye_weights(points68, shape, *, feather: float = 0.015, grow: float = 0.0) -
     iod = float(np.linalg.norm(p[36] - p[45]))
     if grow > 0:
         r = max(1, int(round(grow * iod)))
-        m = cv2.dilate((m > 0.5).astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
+        m = cv2.dilate((m > 0.5).astype(np.uint8), disc(r)
                        ).astype(np.float32)
     sig = max(0.5, feather * iod)
     inner = cv2.erode((m > 0.5).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(np.float32)
