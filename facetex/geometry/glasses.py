@@ -167,20 +167,21 @@ def rims_present(template, *, bridge: float = 8.0, arms: float = 4.0, edge: floa
     return a >= bridge and b >= arms and c >= edge
 
 
-def rim_mask(image, points68, template, *, strong: float = 0.4, level: float = 0.5, soft: float = 0.7
-             ) -> np.ndarray:
+def rim_mask(image, points68, template, *, strong: float = 0.3, piece: int = 10, level: float = 0.5,
+             soft: float = 0.7) -> np.ndarray:
     """float32 (H, W) in [0, 1]: a video frame's pixels on its glasses' rims (they stay in front of
     a puppet); zeros when ``template`` (:func:`rim_template` of the video) shows no glasses
     (:func:`rims_present`). The rims are where the template's thin lines exceed ``strong`` x its
     bridge's (:func:`rims_strength`) in the rim zone (:data:`RIM_ROWS`, :data:`RIM_BRIDGE`,
     inside the jaw's sides; the eyes, brows and the nose below the bridge are left out: the
-    puppet's own are drawn there), moved into the frame, times the frame's own dark thin lines
+    puppet's own are drawn there; pieces less than ``piece`` face-frame px across are dropped:
+    moles; at 0.4 the upper rims by the brows were lost), moved into the frame, times the frame's own dark thin lines
     (full at ``level`` x the rims' median in the template): a head that turns moves the rims off
     the template by a pixel or two. Its light lines are not used: beside the rims they are the
     skin's highlights (the nose's sides by the pads drew light patches on darker puppets). That
     core is grown by a pixel and blurred (Gaussian ``soft`` px; 0: the core alone): the rim's light
     side and the skin beside it come with it (the core alone drew GRID lbax4n's gold rims as hard
-    dark lines: the face's Laplacian variance 1.1-1.6 x the driver's at 360 px; now 0.85-1.37)."""
+    dark lines: the face's Laplacian variance 1.1-1.6 x the driver's at 360 px; now 0.86-1.39)."""
     img = np.asarray(image)
     h, w = img.shape[:2]
     out = np.zeros((h, w), np.float32)
@@ -203,6 +204,9 @@ def rim_mask(image, points68, template, *, strong: float = 0.4, level: float = 0
     zone[:, :max(0, int(np.ceil(pf[0, 0])))] = False
     zone[:, max(0, int(np.floor(pf[16, 0])) + 1):] = False
     rims = ((t > strong * rims_strength(t)) & zone).astype(np.uint8)
+    # rims are long curves: pieces under ``piece`` px across are the frame's moles and pores
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(rims, connectivity=8)
+    rims = np.isin(lab, 1 + np.flatnonzero(stats[1:, 2:4].max(axis=1) >= piece)).astype(np.uint8)
     strength = float(np.median(t[rims > 0])) if rims.any() else 0.0
     if strength <= 0:
         return out
