@@ -41,6 +41,9 @@ def register(sub) -> None:
     p.add_argument("--eyes", choices=("driver", "persona"), default="driver",
                    help="composite mode: the driver's eyeballs (whites, lash line, gaze) inside the puppet's lids "
                         "with the persona's iris colour (default), or the persona's texture's own eyes (persona)")
+    p.add_argument("--occlusion", choices=("on", "off"), default="on",
+                   help="composite mode: keep what lies over the driver's face in front of the puppet: a fringe, "
+                        "a hand, the rims of its glasses (default on)")
     p.add_argument("--texture", choices=("ours", "static"), default="ours",
                    help="expression-dependent texture (default) or the static average texture")
     p.add_argument("--weights", choices=("regional", "global"), default="regional",
@@ -108,7 +111,8 @@ def _puppet_params(args):
     return PuppetParams(texture=args.texture, weights=args.weights, correspondence=args.correspondence,
                         weight_smoothing=args.weight_smoothing,
                         composite=CompositeParams(lighting=args.lighting, colour=args.colour, sharpen=args.sharpen,
-                                                  grain=args.grain, eyes=args.eyes))
+                                                  grain=args.grain, eyes=args.eyes,
+                                                  occlusion=args.occlusion == "on"))
 
 
 def _start_loading(args):
@@ -178,7 +182,8 @@ def _run(args, tracker, loading=None) -> int:
         params={"side_by_side": args.side_by_side, "size": args.size, "mode": args.mode, "texture": args.texture,
                 "weights": args.weights, "weight_smoothing": args.weight_smoothing,
                 "correspondence": args.correspondence, "lighting": args.lighting, "colour": args.colour,
-                "sharpen": args.sharpen, "grain": args.grain, "eyes": args.eyes, "max_frames": args.max_frames,
+                "sharpen": args.sharpen, "grain": args.grain, "eyes": args.eyes, "occlusion": args.occlusion,
+                "max_frames": args.max_frames,
                 "puppet_params": params},
         outputs=[out], result=report), overwrite=args.overwrite, inputs=inputs)
     if report["lost_frames"] and not args.quiet:
