@@ -169,19 +169,22 @@ def rims_present(template, *, bridge: float = 8.0, arms: float = 4.0, edge: floa
 
 def rim_mask(image, points68, template, *, strong: float = 0.3, piece: int = 10, level: float = 0.5,
              soft: float = 0.7) -> np.ndarray:
-    """float32 (H, W) in [0, 1]: a video frame's pixels on its glasses' rims (they stay in front of
-    a puppet); zeros when ``template`` (:func:`rim_template` of the video) shows no glasses
-    (:func:`rims_present`). The rims are where the template's thin lines exceed ``strong`` x its
-    bridge's (:func:`rims_strength`) in the rim zone (:data:`RIM_ROWS`, :data:`RIM_BRIDGE`,
-    inside the jaw's sides; the eyes, brows and the nose below the bridge are left out: the
-    puppet's own are drawn there; pieces less than ``piece`` face-frame px across are dropped:
-    moles; at 0.4 the upper rims by the brows were lost), moved into the frame, times the frame's own dark thin lines
-    (full at ``level`` x the rims' median in the template): a head that turns moves the rims off
-    the template by a pixel or two. Its light lines are not used: beside the rims they are the
-    skin's highlights (the nose's sides by the pads drew light patches on darker puppets). That
-    core is grown by a pixel and blurred (Gaussian ``soft`` px; 0: the core alone): the rim's light
-    side and the skin beside it come with it (the core alone drew GRID lbax4n's gold rims as hard
-    dark lines: the face's Laplacian variance 1.1-1.6 x the driver's at 360 px; now 0.86-1.39)."""
+    """float32 (H, W) in [0, 1]: a video frame's pixels on its glasses' rims, which stay in front of
+    a puppet; zeros when ``template`` (:func:`rim_template` of the video) shows no glasses
+    (:func:`rims_present`).
+
+    1. The rims in the face frame: the template's thin lines over ``strong`` x its bridge's
+       (:func:`rims_strength`; at 0.4 the upper rims by the brows were lost) in the rim zone
+       (:data:`RIM_ROWS`, :data:`RIM_BRIDGE`, inside the jaw's sides), without the eyes, the brows
+       and the nose below the bridge (the puppet's own are drawn there) and without pieces less
+       than ``piece`` px across (moles).
+    2. Moved into the frame, times the frame's own dark thin lines (full at ``level`` x the rims'
+       median in the template): a head that turns moves the rims off the template by a pixel or
+       two. Its light lines are left out: beside the rims they are the skin's highlights (the
+       nose's sides by the pads drew light patches on darker puppets).
+    3. Grown by a pixel and blurred (Gaussian ``soft`` px; 0: not): the rim's light side and the
+       skin beside it come with it. The dark core alone drew GRID lbax4n's gold rims as hard dark
+       lines (the face's Laplacian variance 1.1-1.6 x the driver's at 360 px; now 0.86-1.39)."""
     img = np.asarray(image)
     h, w = img.shape[:2]
     out = np.zeros((h, w), np.float32)
@@ -219,7 +222,5 @@ def rim_mask(image, points68, template, *, strong: float = 0.3, piece: int = 10,
     core = (back * np.clip(lines / (level * strength), 0.0, 1.0)).astype(np.float32)
     if soft <= 0:
         return core
-    # the rim's light side and the skin next to it come with it, faded out: a hard-edged dark core
-    # alone drew the gold rims as dark lines, twice as sharp as the frame's (Laplacian variance)
     grown = cv2.dilate(core, disc(1))
     return np.clip(cv2.GaussianBlur(grown, (0, 0), soft), 0.0, 1.0).astype(np.float32)
