@@ -249,6 +249,7 @@ def test_cli_puppet(tmp_path, driver_video, tiny_persona, capsys):
     assert side["params"]["weights"] == "global" and side["params"]["puppet_params"]["weights"] == "global"
     assert side["params"]["grain"] == 0.5 and side["params"]["puppet_params"]["composite"]["grain"] == 0.5
     assert side["params"]["occlusion"] == "off" and side["params"]["puppet_params"]["composite"]["occlusion"] is False
+    assert side["result"]["driver_glasses"] is False  # a bare face
     # existing output without --overwrite, and a video without faces: one-line errors, non-zero exit
     assert main(["puppet", "--driver", str(driver_video), "--puppet", str(persona_file), "-o", str(out)]) != 0
     blank = tmp_path / "blank.mp4"
