@@ -47,5 +47,6 @@ def test_bench_puppet_on_two_workers_matches_the_sequential_run(puppet_data, tmp
                 continue
             assert _same(a[c.key], b[c.key]), (a["clip"], c.key, a[c.key], b[c.key])
     assert par["partial"] == seq["partial"]
+    assert [r["driver_glasses"] for r in seq["rows"]] == [False, False]  # bare faces: no rims kept
     assert (tmp_path / "par" / "p" / "clip0_side_by_side.mp4").is_file() and (tmp_path / "par" / "table.md").is_file()
     assert [r["run"] for r in par["rows"]] == ["p/clip0", "p/clip1"]
