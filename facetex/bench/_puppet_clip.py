@@ -171,7 +171,6 @@ def _median(a) -> float:
 def _evaluate_clip(clip: Path, persona, ref_desc, out: Path, *, size, max_frames, params, write_media: bool,
                    progress: Callable | None, name: str = "", cache: Path | None = None) -> dict:
     """One run: ``persona`` driven by ``clip``; its row of measures (module docstring) and media."""
-    from ..geometry.glasses import rims_present
     from ..io import write_image, write_video
     from ..puppet import neutral_texture, prepare_puppetry, render_frames
     from ..puppet.composite import boundary_color_step
@@ -264,7 +263,7 @@ def _evaluate_clip(clip: Path, persona, ref_desc, out: Path, *, size, max_frames
         "frames": n,
         "lost": int((~found).sum()),
         "lost_causes": track.lost_causes,
-        "driver_glasses": rims_present(track.rims),  # kept in front of the puppet
+        "driver_glasses": pup.glasses,  # kept in front of the puppet
         "cheek_de": _median(de),
         "sharp": _median(sharp),
         "eye_sharp": _median(eye_sharp),

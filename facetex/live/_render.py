@@ -28,7 +28,7 @@ def render_kit(pup):
     kit.motion = SimpleNamespace(pose_A=np.zeros((1, 3, 3)), pose_b=np.zeros((1, 3)), grid_step=pup.motion.grid_step,
                                  triangles=pup.motion.triangles)
     kit.track = SimpleNamespace(points68=np.zeros((1, 68, 2)), mesh=np.zeros((1, 468, 3)),
-                                rims=getattr(pup.track, "rims", None))
+                                rims=pup.track.rims)
     return kit
 
 

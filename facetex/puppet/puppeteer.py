@@ -120,6 +120,8 @@ class Puppeteer:
         self.persona, self.motion, self.params, self.track = persona, motion, params, track
         self._sequence_weights = None
         self._iris = False  # the persona's iris colour, measured on first use (None: not measurable)
+        #: whether the driver wears glasses (its clip's :func:`~facetex.geometry.glasses.rims_present`), once
+        self.glasses = track is not None and rims_present(track.rims)
         st = motion.grid_step
         W, H = persona.size
         if (W, H) != tuple(params.driver.size):
@@ -457,10 +459,9 @@ class Puppeteer:
                 img = ma * mi + (1 - ma) * img
             return img.astype(np.float32), lay.coverage
         oval = (tr.mesh[i][list(FACE_OVAL), :2] + 0.5) * scale - 0.5
-        rims = getattr(tr, "rims", None)
-        rims = rim_mask(frame, drv68, rims) if self.params.composite.occlusion and rims_present(rims) else None
-        return composite_face(frame, lay.image, lay.coverage, lay.normals, driver_oval=oval, driver_points68=drv68, rims=rims,
-                              puppet_points68=pts, driver_normals=self.driver_normals(i, (w, h), scale) if sh else None,
+        rims = rim_mask(frame, drv68, tr.rims) if self.params.composite.occlusion and self.glasses else None
+        return composite_face(frame, lay.image, lay.coverage, lay.normals, driver_oval=oval, driver_points68=drv68,
+                              rims=rims, puppet_points68=pts, driver_normals=self.driver_normals(i, (w, h), scale) if sh else None,
                               iris=self.iris() if self.params.composite.eyes == "driver" else None,
                               params=self.params.composite)
 

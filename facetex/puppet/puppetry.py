@@ -69,7 +69,6 @@ import cv2
 import numpy as np
 
 from ..errors import BadInputError
-from ..geometry.glasses import rims_present
 from .correspondence import DriverCollection, driver_collection, puppet_average_shape
 from .driver import DriverTrack
 from .motion import DriverMotion, driver_motion
@@ -545,6 +544,6 @@ def _render_video(session: PuppetSession, out, audio, *, driver, inputs, size, m
         "puppet_shape": session.puppeteer.shape_source,
         "driver_collection": session.collection.source,
         # its glasses' rims were kept in front of the puppet (with the default occlusion)
-        "driver_glasses": rims_present(tr.rims),
+        "driver_glasses": session.puppeteer.glasses,
         "timings": {k: round(v, 3) for k, v in tm.items()},
     }
