@@ -39,3 +39,24 @@ def build_tiny_persona(path: Path, *, photos: Path | None = None, copies: int = 
         write_jittered_copies(photos, copies, np.random.default_rng(seed))
     build_persona(photos, jobs=1, params=PersonaParams(min_photos=min_photos, size=size)).save(path)
     return path
+
+
+def draw_glasses(img: np.ndarray, points68: np.ndarray, *, arms: bool = True, colour: int = 30) -> np.ndarray:
+    """uint8 ``img`` with a pair of glasses drawn at its iBUG landmarks: two dark rims round the eyes,
+    the bridge and (``arms``) the arms to the face's sides, lines 0.04 of the eye distance thick
+    (at least 2 px)."""
+    out = img.copy()
+    p = np.asarray(points68, np.float64)
+    iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
+    t = max(2, int(round(0.04 * iod)))
+    c3 = (colour,) * 3
+    for eye, jaw in ((p[36:42], p[0]), (p[42:48], p[16])):
+        c = eye.mean(0)
+        cv2.ellipse(out, tuple(int(v) for v in c), (int(0.42 * iod), int(0.28 * iod)), 0, 0, 360, c3, t)
+        if arms:
+            x = c[0] + np.sign(jaw[0] - c[0]) * 0.42 * iod
+            cv2.line(out, (int(x), int(c[1])), (int(jaw[0]), int(c[1] - 0.05 * iod)), c3, t)
+    y = int(round((p[39, 1] + p[42, 1]) / 2 - 0.1 * iod))
+    cv2.line(out, (int(p[39, 0]), y), (int(p[42, 0]), y), c3, t)
+    return out
+

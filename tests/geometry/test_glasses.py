@@ -4,6 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
+from _photos import draw_glasses
 from facetex._resources import sample_path
 from facetex.geometry.glasses import (glasses_bridge_score, glasses_weights, rim_mask, rim_response, rim_template,
                                       rims_present)
@@ -16,35 +17,10 @@ def face():
     return img, detect_face(img.astype(np.float32) / 255).points68
 
 
-def _with_glasses(img, p):
-    """The face with a pair of glasses drawn: two dark rims round the eyes and the bridge."""
-    out = img.copy()
-    iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
-    t = max(2, int(round(0.04 * iod)))
-    for eye in (p[36:42], p[42:48]):
-        c = eye.mean(0)
-        cv2.ellipse(out, tuple(int(v) for v in c), (int(0.42 * iod), int(0.28 * iod)), 0, 0, 360, (30, 30, 30), t)
-    y = int(round((p[39, 1] + p[42, 1]) / 2 - 0.1 * iod))
-    cv2.line(out, (int(p[39, 0]), y), (int(p[42, 0]), y), (30, 30, 30), t)
-    return out
-
-
-def _with_arms(img, p):
-    """:func:`_with_glasses` with the arms to the face's sides (a pair as a video shows it)."""
-    out = _with_glasses(img, p)
-    iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
-    t = max(2, int(round(0.04 * iod)))
-    for eye, side in ((p[36:42], p[0]), (p[42:48], p[16])):
-        c = eye.mean(0)
-        x = c[0] + np.sign(side[0] - c[0]) * 0.42 * iod
-        cv2.line(out, (int(x), int(c[1])), (int(side[0]), int(c[1] - 0.05 * iod)), (30, 30, 30), t)
-    return out
-
-
 def test_a_bridge_line_raises_the_score(face):
     img, p = face
     bare = glasses_bridge_score(img, p)
-    worn = glasses_bridge_score(_with_glasses(img, p), p)
+    worn = glasses_bridge_score(draw_glasses(img, p, arms=False), p)
     assert np.isfinite(bare) and worn > 2 * bare
     # float input in [0, 1] gives the same score as uint8
     assert glasses_bridge_score(img.astype(np.float32) / 255, p) == pytest.approx(bare, rel=1e-5)
@@ -74,9 +50,9 @@ def _video(img, n=6, seed=0):
 
 def test_a_videos_drawn_glasses_are_found_and_kept_and_a_bare_face_has_none(face):
     img, p = face
-    worn, bare = _video(_with_arms(img, p)), _video(img)
+    worn, bare = _video(draw_glasses(img, p)), _video(img)
     # no arms (or a frown's furrows between the eyes): not a pair of glasses
-    assert not rims_present(rim_template([rim_response(f, p) for f in _video(_with_glasses(img, p))]))
+    assert not rims_present(rim_template([rim_response(f, p) for f in _video(draw_glasses(img, p, arms=False))]))
     t_worn = rim_template([rim_response(f, p) for f in worn])
     t_bare = rim_template([rim_response(f, p) for f in bare])
     assert t_worn.shape == (2, 96, 160)
@@ -86,7 +62,7 @@ def test_a_videos_drawn_glasses_are_found_and_kept_and_a_bare_face_has_none(face
     assert not rim_mask(bare[0], p, t_bare).any()
     # the rims beside and below the eyes and the bridge are kept (the eyes, brows and the nose below
     # the bridge are the puppet's: parts of the rims there are not)
-    drawn = np.abs(_with_arms(img, p).astype(int) - img.astype(int)).sum(-1) > 60
+    drawn = np.abs(draw_glasses(img, p).astype(int) - img.astype(int)).sum(-1) > 60
     iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
     yy, xx = np.mgrid[:img.shape[0], :img.shape[1]]
     below = drawn & (yy > p[36:48, 1].max() + 0.12 * iod) & (np.abs(xx - p[27, 0]) > 0.25 * iod)

@@ -107,33 +107,18 @@ def test_stored_static_texture_is_the_uniform_blend(live_persona):
 def test_the_drivers_glasses_stay_in_front_of_the_live_puppet(live_persona):
     """Rims drawn on the driver's frames (moving with its landmarks): found over the warm-up, kept
     in front of the puppet."""
-    import cv2
-
+    from _photos import draw_glasses
     from facetex.geometry.glasses import rims_present
     from facetex.landmarks import detect_face
 
     side = 320  # the eyes ~44 px apart: at 26 px dlib's 1 px jitter smeared drawn 2 px rims
     frames = driver_frames(N_MORPH, 0, N_HOLD, side=side)
-    worn, points = [], []
-    for f in frames:  # a pair of glasses fixed to the head
-        p = detect_face(f).points68
-        iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
-        g = f.copy()
-        for eye in (p[36:42], p[42:48]):
-            c = tuple(int(v) for v in eye.mean(0) + [0, 0.05 * iod])
-            cv2.ellipse(g, c, (int(0.45 * iod), int(0.32 * iod)), 0, 0, 360, (40, 40, 40), 2)
-        y = int(round((p[39, 1] + p[42, 1]) / 2 - 0.1 * iod))
-        cv2.line(g, (int(p[39, 0]), y), (int(p[42, 0]), y), (40, 40, 40), 2)
-        for eye, jaw in ((p[36:42], p[0]), (p[42:48], p[16])):  # the arms
-            c = eye.mean(0)
-            x = c[0] + np.sign(jaw[0] - c[0]) * 0.45 * iod
-            cv2.line(g, (int(x), int(c[1])), (int(jaw[0]), int(c[1] - 0.05 * iod)), (40, 40, 40), 2)
-        worn.append(g)
-        points.append(p)
+    points = [detect_face(f).points68 for f in frames]
+    worn = [draw_glasses(f, p, colour=40) for f, p in zip(frames, points)]  # fixed to the head
     live = LiveParams(warmup=WARMUP, tracking="thread", render="thread")
     with LiveSession(live_persona, size=side, mode="composite", live=live, background=False) as s:
         outs = [s.process(f, t=i / 25) for i, f in enumerate(worn)]
-        assert rims_present(s.puppeteer.track.rims)
+        assert rims_present(s.puppeteer.track.rims) and s.puppeteer.glasses
     # the lower rims below the eyes (not the eyes, nose or brows, which are the puppet's)
     i, p = N_MORPH - 1, points[N_MORPH - 1]
     iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
