@@ -169,8 +169,7 @@ def eye_weights(points68, shape, *, feather: float = 0.015, grow: float = 0.0) -
     iod = float(np.linalg.norm(p[36] - p[45]))
     if grow > 0:
         r = max(1, int(round(grow * iod)))
-        m = cv2.dilate((m > 0.5).astype(np.uint8), disc(r)
-                       ).astype(np.float32)
+        m = cv2.dilate((m > 0.5).astype(np.uint8), disc(r)).astype(np.float32)
     sig = max(0.5, feather * iod)
     inner = cv2.erode((m > 0.5).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(np.float32)
     return np.clip(cv2.GaussianBlur(inner, (0, 0), sig), 0, 1) * (m > 0.5)

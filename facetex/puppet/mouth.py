@@ -36,8 +36,9 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     polygon edge; 0.3, as the eyes' (:func:`~facetex.puppet.eyes.eye_interior`): at 0.15 dlib read
     the widest, teeth-showing frames of Koizumi's persona on GRID bbaf2n as a quarter open, and
     ``facetex bench puppet``'s worst mouth r was 0.843, 0.893 at 0.3; its slopes 0.886-1.208 at
-    256 px, 0.891-1.223; at 360 px 0.844-1.147, 0.896-1.118), faded out as the driver's lip gap falls from 2 x ``closed`` to ``closed`` times its
-    mouth width (closed lips have no interior to show). ``lip_key`` (lo, hi): the driver's own
+    256 px, 0.891-1.223; at 360 px 0.844-1.147, 0.896-1.118), faded out as the driver's lip gap
+    falls from 2 x ``closed`` to ``closed`` times its mouth width (closed lips have no interior to
+    show). ``lip_key`` (lo, hi): the driver's own
     lips are keyed out of the interior (None: off): dlib's inner-lip points of a slightly open
     mouth sit on the lips, whose red, stretched over the puppet's opening, drew a flat red
     polygon. A pixel counts as lip unless its colour (CIELAB a, b) differs from the lips' or
