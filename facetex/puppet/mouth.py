@@ -13,6 +13,11 @@ from ._contours import _mouth_frame, _open_fade, sample_between
 from ._pixels import _LUMA, _shape2
 from .lighting import _lab, _linear, _rgb, linear_to_srgb
 
+#: linear luminance (CIELAB L* 40) below which the driver's lips are brightened to it before the
+#: lip key (:func:`mouth_interior`): GRID's lips measure L* 42-49; dimmed to half, 21-24, and
+#: the key took the teeth for lips
+KEY_LIP_LUMINANCE = ((40.0 + 16.0) / 116.0) ** 3
+
 __all__ = ["mouth_interior", "interior_white_balance", "mouth_closure", "fill_mouth_interior", "lift_inner_lips"]
 
 
@@ -102,8 +107,13 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
         ring = np.concatenate([np.stack([us, up_d(us) - off], -1), np.stack([us, lo_d(us) + off], -1)]) @ Rd + cd
         lip = cv2.remap(f, ring[None, :, 0].astype(np.float32), ring[None, :, 1].astype(np.float32), cv2.INTER_LINEAR,
                         borderMode=cv2.BORDER_REPLICATE)
-        lip_lab = np.median(_lab(lip)[0], axis=0)
-        unlike = np.maximum(np.linalg.norm(lab[..., 1:] - lip_lab[1:], axis=-1), lab[..., 0] - lip_lab[0])
+        lip_lin = _linear(lip)
+        # a dim frame's teeth differ from its lips by a few CIELAB units only: keyed at the
+        # exposure that brings the lips to KEY_LIP_LUMINANCE
+        gain = max(1.0, KEY_LIP_LUMINANCE / max(float(np.median(lip_lin[0] @ _LUMA)), 1e-4))
+        key_lab = lab if gain == 1.0 else cv2.cvtColor(np.minimum(_linear(warped) * gain, 1.0), cv2.COLOR_LRGB2Lab)
+        lip_lab = np.median(cv2.cvtColor(np.minimum(lip_lin * gain, 1.0), cv2.COLOR_LRGB2Lab)[0], axis=0)
+        unlike = np.maximum(np.linalg.norm(key_lab[..., 1:] - lip_lab[1:], axis=-1), key_lab[..., 0] - lip_lab[0])
         lo, hi = lip_key
         k = np.clip((unlike - lo) / max(hi - lo, 1e-6), 0.0, 1.0)
         k = smoothstep(k).astype(np.float32)

@@ -535,6 +535,25 @@ def test_mouth_interior_keys_out_the_drivers_lip_colour():
                                atol=0.02)
 
 
+def test_mouth_interior_keeps_the_teeth_of_a_dim_frame():
+    """Teeth only 12 CIELAB units lighter than the lips: at a tenth of the exposure they are 4-5
+    units apart; the key measures them at the exposure that brings the lips to L* 40 instead."""
+    from facetex.puppet.lighting import _rgb, linear_to_srgb, srgb_to_linear
+
+    frame, d, p = _mouths()
+    lips, teeth = _rgb(np.float32([[[46, 30, 20], [58, 28, 20]]]))[0]
+    frame[np.all(frame == np.float32([0.75, 0.3, 0.3]), axis=-1)] = lips
+    inner = np.zeros(frame.shape[:2], np.uint8)
+    cv2.fillPoly(inner, [np.round(d).astype(np.int32)], 1)
+    frame[(inner > 0) & (np.mgrid[0:120, 0:160][0] < 35)] = teeth
+    upper = slice(0, 84)  # the upper part of the puppet's opening, where the teeth land
+    normal = mouth_interior(frame, d, p, cavity=None)[1][upper].sum()
+    assert normal > 15
+    for exposure in (0.25, 0.08):
+        dim = linear_to_srgb(srgb_to_linear(frame) * exposure)
+        assert mouth_interior(dim, d, p, cavity=None)[1][upper].sum() > 0.85 * normal
+
+
 def test_mouth_interior_cavity_fills_the_whole_opening_under_the_soft_edge():
     frame, d, p = _mouths()
     img, alpha = mouth_interior(frame, d, p)
