@@ -52,7 +52,9 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     shadow lose it and teeth lose it and gain light (measured on GRID clips with the Bush and
     Blair puppets: median a-b distance 3-4 on the inner lip surface of slightly open mouths,
     14-25 in open mouths with teeth).
-    The lip colour is the median of the driver's frame just outside its inner-lip contour.
+    The lip colour is the median of the driver's frame just outside its inner-lip contour; lips
+    darker than L* 40 are brought to it (one gain on the linear light of the lips and the
+    interior, :data:`KEY_LIP_LUMINANCE`) before the differences are measured.
     ``cavity`` (percentile, None: off): under the interior's soft edge and its keyed-out lips, the
     puppet's whole opening, from ``grow`` x its mouth width outside its contour in, is the mean
     colour of the interior's darkest ``cavity`` % (the cavity's shadow; 0.35 x the driver's lip
