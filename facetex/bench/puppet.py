@@ -42,6 +42,9 @@ shows there). Per run:
   frame with >= 10 % of the face box outside must be rejected, every whole face kept);
 * **flicker**: mean |frame-to-frame change| (0-255) of the composited face on still frames.
 
+**Stress** (``--stress``): three harder copies of the clips (mirrored and side-lit, rotated with the
+face shrunk, dimmed with sensor noise; :mod:`facetex.bench._stress_clips`) are runs like the others.
+
 **Worst runs**: per run, each target measure's relative shortfall ``s`` (0 when met; below a
 lower bound lo: (lo − v) / lo, above an upper bound hi: (v − hi) / hi; a measure that could not
 be taken: 1) gives the score Σ (1[s > 0] + s) over the targets (:func:`run_score`: failed targets
@@ -75,6 +78,7 @@ from ._common import (
     write_text,
 )
 from ._puppet_clip import _collection_descriptor, _evaluate_clip, _partial_check, shifted_clip
+from ._stress_clips import STRESS, stress_clips
 from .puppet_measures import (
     COLUMNS,
     ID_PHOTOS,
@@ -189,14 +193,16 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, puppe
                      clips: int | None = None, size: int | None = 256, max_frames: int | None = None,
                      texture_shape: str = "collection", weights: str = "regional",
                      weight_smoothing: float | None = None, partial: bool = True, resume: bool = False,
-                     progress: Callable | None = None, engine=None) -> dict:
+                     stress: bool = False, progress: Callable | None = None, engine=None) -> dict:
     """Run the puppetry benchmark: every ``*.mpg`` / ``*.mp4`` in ``drivers`` (the first ``clips``)
     drives every persona of ``puppets`` (``puppet``: one or a list; .persona files, or photo
     folders built once and cached in ``out``); ``data`` (or FACETEX_DATA) supplies the defaults
     ``grid/`` and every folder of ``lfw/``. Writes table.md, table.csv, results.json, per run a
     contact sheet, 100 % sheets and zoomed crops (in ``out/<persona>/``), for the first run a
     side-by-side MP4, and the three worst runs' 100 % sheets (module docstring).
-    ``resume``: reuse the runs already stored in ``out/runs`` with the same settings.
+    ``resume``: reuse the runs already stored in ``out/runs`` with the same settings. ``stress``:
+    also a mirrored side-lit, a rotated small-face and a dim noisy copy of the clips
+    (:mod:`facetex.bench._stress_clips`, written to ``out/stress/``), each driving every persona.
     ``engine`` (:mod:`facetex.batch.engines`, started): the runs (and the partial-face check)
     run as its items, in parallel; default: one after another in this process.
     Returns {"out", "rows", "summary", "worst", "worst_runs", "partial", "files", "targets_met"}."""
@@ -224,6 +230,8 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, puppe
         params = replace(params, weight_smoothing=float(weight_smoothing))
     params.texture_params()  # unknown weights, negative smoothing: an error before any work
     out = check_out_dir(out)
+    if stress:
+        files = files + stress_clips(files, out, max_frames=max_frames)
     persona_files = [_persona_file(p, out, progress) for p in puppet_paths]
     names = _persona_names(persona_files)
     from ..batch.engines import InlineEngine
@@ -431,6 +439,9 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
                    help="temporal coherence of the regional weights (bilateral filter over this many seconds; "
                         "0 = per frame; default: the puppet's default)")
     p.add_argument("--no-partial", action="store_true", help="skip the half-out-of-frame check")
+    p.add_argument("--stress", action="store_true",
+                   help="also drive every persona with three harder copies of the clips: mirrored and side-lit, "
+                        "rotated 14 degrees with the face shrunk, dimmed with sensor noise (written to OUT/stress/)")
     p.add_argument("--resume", action="store_true",
                    help="reuse the runs already in OUT/runs with the same settings (persona file, clip, options)")
     from ..cli._common import add_engine_options
@@ -451,14 +462,16 @@ def _run(args) -> int:
     clips = sorted(f for f in drivers.iterdir() if f.suffix.lower() in (".mpg", ".mp4", ".mov", ".avi", ".mkv")) \
         if drivers.is_dir() else [drivers]
     clips = clips[: args.clips or None]
-    total = 0
+    lengths = []
     for c in clips:  # the bar counts evaluated frames
         try:
             n = video_info(c)["n_frames"]
         except Exception:  # noqa: BLE001 - the run itself reports a bad clip
             n = 0
-        total += min(n, args.max_frames) if args.max_frames else n
-    total *= len(puppets)
+        lengths.append(min(n, args.max_frames) if args.max_frames else n)
+    if args.stress and lengths:  # the copies have their clips' lengths
+        lengths += [lengths[k % len(lengths)] for k in range(len(STRESS))]
+    total = sum(lengths) * len(puppets)
     from ..cli._common import engine_from_args
 
     with engine_from_args(args, inline_single=True) as engine, \
@@ -466,7 +479,7 @@ def _run(args) -> int:
         res = run_bench_puppet(drivers, puppets=puppets, out=args.out, clips=args.clips, size=args.size,
                                max_frames=args.max_frames, texture_shape=args.shape, weights=args.weights,
                                weight_smoothing=args.weight_smoothing, partial=not args.no_partial,
-                               resume=args.resume, progress=bar, engine=engine)
+                               resume=args.resume, stress=args.stress, progress=bar, engine=engine)
     table = Path(res["files"]["table_md"]).read_text(encoding="utf-8")
     finish_bench(args, "puppet", res["out"], res["files"],
                  inputs={"drivers": drivers, **{f"puppet{k}": p for k, p in enumerate(puppets)}},

@@ -159,9 +159,9 @@ def fake_runs(tmp_path, monkeypatch):
         calls.append((name, clip.stem, kw["size"]))
         out.mkdir(parents=True, exist_ok=True)
         sheet = out / f"{clip.stem}_sheet3_100.png"
-        write_image(sheet, np.full((30, 45, 3), values[name, clip.stem], np.float32))
+        write_image(sheet, np.full((30, 45, 3), values.get((name, clip.stem), 0.95), np.float32))
         row = {"run": f"{name}/{clip.stem}", "persona": name, "clip": clip.stem, "frames": 5, "lost": 0,
-               "mouth_slope": values[name, clip.stem], "mouth_r": 0.9, "cheek_de": 4.0, "eye_ratio": 0.9,
+               "mouth_slope": values.get((name, clip.stem), 0.95), "mouth_r": 0.9, "cheek_de": 4.0, "eye_ratio": 0.9,
                "sharp": 0.8, "id_closer": 1.0, "media": {"sheet3_100": str(sheet)}, "sheet_frames": [0, 4, 2]}
         row["score"], row["failed"] = bench.run_score(row), bench.failed_targets(row)
         return row
@@ -218,3 +218,26 @@ def test_default_puppets_are_every_collection(tmp_path):
     with pytest.raises(BadInputError, match="--puppets"):
         bench._data_paths(None, None, None)
     assert bench._persona_names(["a/P.persona", "b/P.persona", "c/Q.persona"]) == ["P-0", "P-1", "Q"]
+
+
+def test_cli_stress_adds_the_harder_copies_as_runs(fake_runs, tmp_path, monkeypatch):
+    personas, clips, calls = fake_runs
+
+    def copies(files, out, *, max_frames=None):
+        assert [f.stem for f in files] == ["c1", "c2"] and max_frames is None
+        (out / "stress").mkdir(exist_ok=True)
+        made = [out / "stress" / "c1_dim.mp4"]
+        made[0].write_bytes(b"x")
+        return made
+
+    monkeypatch.setattr(bench, "stress_clips", copies)
+    monkeypatch.setattr("facetex.io.video_info", lambda c: {"n_frames": 5})
+    parser = argparse.ArgumentParser()
+    bench.register_bench(parser.add_subparsers())
+    args = parser.parse_args(["puppet", "--drivers", str(clips), "--puppets", str(personas[0]), "--out",
+                              str(tmp_path / "o"), "--no-partial", "--size", "64", "--stress", "-q", "--jobs", "1"])
+    assert args.func(args) == 0
+    assert [c for c in calls if c[0] == "Anna"] == [("Anna", "c1", 64), ("Anna", "c2", 64), ("Anna", "c1_dim", 64)]
+    res = json.loads((tmp_path / "o" / "results.json").read_text())
+    assert [r["run"] for r in res["rows"]] == ["Anna/c1", "Anna/c2", "Anna/c1_dim"]
+    assert res["rows"][2]["mouth_slope"] == 0.95  # evaluated like the others
