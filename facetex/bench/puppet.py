@@ -339,6 +339,8 @@ def _write_tables(out: Path, rows: list, part, *, drivers, files, persona_files,
                         f"{n_fail[k]}/{len(rows)} |")
     worst_md += ["", f"## The {len(bad)} worst runs (by fail score, then by the smallest margin to a target)", ""]
     sheets = {}
+    for old in out.glob("worst[0-9]_*.png"):  # a resumed run's earlier worst runs: not this table's
+        old.unlink()
     for rank, i in enumerate(bad, 1):
         r = rows[i]
         src = (r.get("media") or {}).get("sheet3_100")

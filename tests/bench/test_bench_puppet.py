@@ -206,6 +206,8 @@ def test_cli_runs_every_puppet_on_every_clip(fake_runs, tmp_path, capsys):
     assert args.func(args) == 0
     assert calls == []
     assert [r["run"] for r in json.loads((out / "results.json").read_text())["rows"]] == ["Bert/c1", "Bert/c2"]
+    # the earlier table's worst sheets are gone: only this table's runs
+    assert sorted(p.name for p in out.glob("worst*.png")) == ["worst1_Bert__c2.png", "worst2_Bert__c1.png"]
 
 
 def test_default_puppets_are_every_collection(tmp_path):
