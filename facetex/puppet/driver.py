@@ -338,11 +338,13 @@ def fit_landmarks(frame, box, *, face_px: float = 200.0, points68=None) -> np.nd
     """dlib's 68 landmarks (frame px) in a face ``box`` (x0, y0, x1, y1), fitted on a bicubic
     upscale of the box's neighbourhood when the box is narrower than ``face_px``.
 
-    dlib's shape predictor reads single pixels: on a GRID face (a ~100 px box) its inner lips
-    jump by a pixel or two between frames, a tenth of a syllable's opening. Fitted at 2x, the
-    tracked opening follows the one measured on 720 px upscaled frames with r 0.959-0.998 on
-    the six GRID clips (0.950-0.997 at 1x) and 0.954-0.988 on mirrored side-lit, rotated small
-    and dim noisy copies (0.952-0.979), together with one refit (``DriverParams.landmark_refits``).
+    dlib's shape predictor reads single pixels: on a GRID face (a ~100 px box) its points move in
+    pixel steps, and a box carried from the previous frame can lag a syllable (GRID bbaf2n frame
+    49: opening 0.063 where the frame measures 0.118). Fitted at 2x with one refit
+    (``DriverParams.landmark_refits``), the tracked opening follows the one measured on 720 px
+    upscaled frames with r 0.981-0.997 on the six GRID clips (0.950-0.997 before) and 0.943-0.989
+    on mirrored side-lit, rotated small-face and dim noisy copies (0.952-0.979; the dim noisy one
+    0.952 -> 0.943: the noise is upscaled too).
     ``points68``: the landmarks already found in ``box`` at 1x (returned as they are when no
     upscale is needed)."""
     import cv2
