@@ -14,8 +14,8 @@ from ._pixels import _LUMA, _shape2
 from .lighting import _lab, _linear, _rgb, linear_to_srgb
 
 #: linear luminance (CIELAB L* 40) below which the driver's lips are brightened to it before the
-#: lip key (:func:`mouth_interior`): GRID's lips measure L* 42-49; dimmed to half, 21-24, and
-#: the key took the teeth for lips
+#: lip key (:func:`mouth_interior`): GRID's lips measure L* 42-49 (no run of ``facetex bench
+#: puppet`` changes); at 0.45 x the sRGB values, 21-24, and the key took the teeth for lips
 KEY_LIP_LUMINANCE = ((40.0 + 16.0) / 116.0) ** 3
 
 __all__ = ["mouth_interior", "interior_white_balance", "mouth_closure", "fill_mouth_interior", "lift_inner_lips"]
