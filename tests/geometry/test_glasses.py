@@ -75,6 +75,21 @@ def test_a_videos_drawn_glasses_are_found_and_kept_and_a_bare_face_has_none(face
     np.testing.assert_allclose(rim_mask(worn[0].astype(np.float32) / 255, p, t_worn), m, atol=1e-4)
 
 
+def test_glasses_are_found_in_a_dim_noisy_video(face):
+    """A webcam in a dim room: 0.45 x the exposure and sensor noise of 6/255 per frame. The noise's
+    thin lines would add up over the frames (a line response is never negative); the lines of the
+    frames' mean luminance keep the rims and lose the noise."""
+    img, p = face
+
+    def dim(im, seed):
+        rng = np.random.default_rng(seed)
+        return [np.clip(im * 0.45 + 8 + rng.normal(0, 6, im.shape), 0, 255).astype(np.uint8) for _ in range(12)]
+
+    assert rims_present(rim_template([rim_response(f, p) for f in dim(draw_glasses(img, p), 1)]))
+    assert not rims_present(rim_template([rim_response(f, p) for f in dim(img, 2)]))
+    assert not rims_present(rim_template([rim_response(f, p) for f in dim(draw_glasses(img, p, arms=False), 3)]))
+
+
 def test_rims_without_landmarks_or_frames():
     img = np.zeros((40, 40, 3), np.uint8)
     assert rim_response(img, np.full((68, 2), np.nan)) is None
