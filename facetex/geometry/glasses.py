@@ -115,8 +115,9 @@ def _thin_lines(lum: np.ndarray, radius: int) -> np.ndarray:
 def rim_response(image, points68) -> np.ndarray | None:
     """One face in the face frame :data:`RIM_FRAME`: float32 (2, 96, 160), its thin lines
     (:func:`_thin_lines`, radius :data:`RIM_RADIUS`) and its luminance; None without usable
-    landmarks. Averaged over a video's frames (:func:`rim_template`) a pair of glasses, fixed to
-    the head, adds up while the codec's block edges and the noise average out."""
+    landmarks (the frame's own lines: :func:`rim_mask`). Over a video's frames (:func:`rim_template`:
+    the lines of the mean luminance) a pair of glasses, fixed to the head, stays while the codec's
+    block edges and the noise average out."""
     lum, p = luminance_and_points(image, points68)
     M = None if p is None else _face_similarity(p)
     if M is None:
@@ -150,8 +151,8 @@ def rims_strength(lines) -> float:
 
 def rim_scores(template) -> tuple[float, float, float]:
     """(bridge, arms, edge) of a :func:`rim_template`. Its thin lines, over the median of the cheeks
-    below the eyes (at least :data:`CHEEK_FLOOR` x the face's median luminance): across the nose's bridge between the eyes (:func:`rims_strength`), and the
-    weaker side's strongest row at eye level (rows 30-49) just inside the face's sides (columns
+    below the eyes (at least :data:`CHEEK_FLOOR` x the face's median luminance): across the nose's
+    bridge between the eyes (:func:`rims_strength`), and the weaker side's strongest row at eye level (rows 30-49) just inside the face's sides (columns
     12-25 and 134-147: the temples' arms; crow's feet fan out, a row does not hold them). And its
     mean luminance's bridge edge: the strongest row of vertical gradient across the bridge (rows
     22-46 of the middle columns 73-87) over the mean horizontal gradient there (as
