@@ -115,9 +115,9 @@ def _thin_lines(lum: np.ndarray, radius: int) -> np.ndarray:
 def rim_response(image, points68) -> np.ndarray | None:
     """One face in the face frame :data:`RIM_FRAME`: float32 (2, 96, 160), its thin lines
     (:func:`_thin_lines`, radius :data:`RIM_RADIUS`) and its luminance; None without usable
-    landmarks (the frame's own lines: :func:`rim_mask`). Over a video's frames (:func:`rim_template`:
-    the lines of the mean luminance) a pair of glasses, fixed to the head, stays while the codec's
-    block edges and the noise average out."""
+    landmarks. Over a video's frames (:func:`rim_template`, which takes the lines of the mean
+    luminance instead of these) a pair of glasses, fixed to the head, stays while the codec's block
+    edges and the noise average out."""
     lum, p = luminance_and_points(image, points68)
     M = None if p is None else _face_similarity(p)
     if M is None:
