@@ -113,33 +113,29 @@ def _thin_lines(lum: np.ndarray, radius: int) -> np.ndarray:
 
 
 def rim_response(image, points68) -> np.ndarray | None:
-    """One face in the face frame :data:`RIM_FRAME`: float32 (2, 96, 160), its thin lines
-    (:func:`_thin_lines`, radius :data:`RIM_RADIUS`) and its luminance; None without usable
-    landmarks. Over a video's frames (:func:`rim_template`, which takes the lines of the mean
-    luminance instead of these) a pair of glasses, fixed to the head, stays while the codec's block
-    edges and the noise average out."""
+    """One face's luminance in the face frame :data:`RIM_FRAME`: float32 (96, 160); None without
+    usable landmarks. Over a video's frames (:func:`rim_template`) a pair of glasses, fixed to the
+    head, stays while the codec's block edges and the noise average out."""
     lum, p = luminance_and_points(image, points68)
     M = None if p is None else _face_similarity(p)
     if M is None:
         return None
-    face = cv2.warpAffine(lum, M, RIM_FRAME, flags=cv2.INTER_AREA if abs(np.linalg.det(M[:, :2])) < 1 else
-                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return np.stack([_thin_lines(face, RIM_RADIUS), face])
+    return cv2.warpAffine(lum, M, RIM_FRAME, flags=cv2.INTER_AREA if abs(np.linalg.det(M[:, :2])) < 1 else
+                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float32)
 
 
 def rim_template(responses) -> np.ndarray | None:
-    """A video's :func:`rim_response` maps (None entries skipped) as one (2, 96, 160) map, or None
-    when none: the mean luminance, and the thin lines of that mean. The lines of the mean, not the
-    mean of the lines: a line response is never negative, so a noisy frame's lines add up over the
-    frames (a dimmed copy of GRID lbax4n with sensor noise: cheek lines 5x the clean clip's, and
-    its glasses scored 1.45, 1.61 where the clean clip scored 12.8, 13.8), while the luminance's
-    noise averages out."""
+    """A video's :func:`rim_response` maps (None entries skipped) as one float32 (2, 96, 160) map,
+    or None when none: the thin lines (:func:`_thin_lines`, radius :data:`RIM_RADIUS`) of the
+    mean luminance, and that mean. The lines of the mean, not the mean of each frame's lines: a
+    line response is never negative, so a noisy frame's lines add up over the frames (a dimmed
+    copy of GRID lbax4n with sensor noise: cheek lines 5x the clean clip's, and its glasses scored
+    1.45, 1.61 where the clean clip scored 12.8, 13.8), while the luminance's noise averages out."""
     maps = [r for r in responses if r is not None]
     if not maps:
         return None
-    t = np.mean(maps, axis=0).astype(np.float32)
-    t[0] = _thin_lines(t[1], RIM_RADIUS)
-    return t
+    mean = np.mean(maps, axis=0).astype(np.float32)
+    return np.stack([_thin_lines(mean, RIM_RADIUS), mean]).astype(np.float32)
 
 
 def rims_strength(lines) -> float:
