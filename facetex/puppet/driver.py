@@ -361,9 +361,8 @@ def fit_landmarks(frame, box, *, face_px: float = 200.0, points68=None) -> np.nd
     x1, y1 = min(w, int(math.ceil(b[2] + pad))), min(h, int(math.ceil(b[3] + pad)))
     if x1 - x0 < 2 or y1 - y0 < 2:
         return landmarks_in_box(frame, b)
+    # the bicubic overshoot is clipped by landmarks_in_box's conversion to uint8
     crop = cv2.resize(np.ascontiguousarray(frame[y0:y1, x0:x1]), None, fx=k, fy=k, interpolation=cv2.INTER_CUBIC)
-    if crop.dtype.kind == "f":  # bicubic overshoot
-        crop = np.clip(crop, 0.0, 1.0 if frame.max() <= 1.0 else 255.0)
     shift = np.array([x0, y0], np.float64)
     up = (b.reshape(2, 2) - shift + 0.5) * k - 0.5
     return (landmarks_in_box(crop, up.ravel()) + 0.5) / k - 0.5 + shift
