@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["STRESS", "stress_frame", "stress_clips"]
+__all__ = ["STRESS", "stress_sources", "stress_frame", "stress_clips"]
 
 #: the perturbations, in the order they take the clips
 STRESS = ("mirror_sidelit", "rotated_small", "dim_noisy")
@@ -43,17 +43,21 @@ def stress_frame(frame: np.ndarray, kind: str, rng: np.random.Generator) -> np.n
     return np.clip(out, 0.0, 1.0).astype(np.float32)
 
 
+def stress_sources(files) -> list[tuple[Path, str]]:
+    """(clip, perturbation) of each copy: :data:`STRESS` in order, taking ``files`` in turn."""
+    files = [Path(f) for f in files]
+    return [(files[k % len(files)], kind) for k, kind in enumerate(STRESS)]
+
+
 def stress_clips(files, out, *, seed: int = 0, max_frames: int | None = None) -> list[Path]:
     """The perturbed copies (:data:`STRESS`, one each, of ``files`` in turn) in ``out/stress/``:
     ``<clip>_<perturbation>.mp4``, written when missing (atomically). Returns their paths."""
     from ..io import iter_video_frames, video_info, write_video
 
-    files = [Path(f) for f in files]
     folder = Path(out) / "stress"
     folder.mkdir(parents=True, exist_ok=True)
     paths = []
-    for k, kind in enumerate(STRESS):
-        src = files[k % len(files)]
+    for k, (src, kind) in enumerate(stress_sources(files)):
         dst = folder / f"{src.stem}_{kind}.mp4"
         if not dst.exists():
             rng = np.random.default_rng([seed, k])

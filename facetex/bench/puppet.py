@@ -78,7 +78,7 @@ from ._common import (
     write_text,
 )
 from ._puppet_clip import _collection_descriptor, _evaluate_clip, _partial_check, shifted_clip
-from ._stress_clips import STRESS, stress_clips
+from ._stress_clips import stress_clips, stress_sources
 from .puppet_measures import (
     COLUMNS,
     ID_PHOTOS,
@@ -464,16 +464,15 @@ def _run(args) -> int:
     clips = sorted(f for f in drivers.iterdir() if f.suffix.lower() in (".mpg", ".mp4", ".mov", ".avi", ".mkv")) \
         if drivers.is_dir() else [drivers]
     clips = clips[: args.clips or None]
-    lengths = []
-    for c in clips:  # the bar counts evaluated frames
+    total = 0
+    runs = clips + ([c for c, _ in stress_sources(clips)] if args.stress and clips else [])
+    for c in runs:  # the bar counts evaluated frames (a stress copy has its clip's length)
         try:
             n = video_info(c)["n_frames"]
         except Exception:  # noqa: BLE001 - the run itself reports a bad clip
             n = 0
-        lengths.append(min(n, args.max_frames) if args.max_frames else n)
-    if args.stress and lengths:  # the copies have their clips' lengths
-        lengths += [lengths[k % len(lengths)] for k in range(len(STRESS))]
-    total = sum(lengths) * len(puppets)
+        total += min(n, args.max_frames) if args.max_frames else n
+    total *= len(puppets)
     from ..cli._common import engine_from_args
 
     with engine_from_args(args, inline_single=True) as engine, \
