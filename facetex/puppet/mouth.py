@@ -101,7 +101,8 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     alpha[y0:y1, x0:x1] = s.edge(soft) * fade
     if alpha.max() <= 0 and dark_fade <= 0:
         return none
-    lab = _lab(warped)
+    lin = _linear(warped)
+    lab = cv2.cvtColor(lin, cv2.COLOR_LRGB2Lab)  # _lab(warped), its linear light kept for the key
     if lip_key is not None:
         # the driver's lips: just above its upper and below its lower inner-lip curve, middle 60 %
         us = du0 + np.linspace(0.2, 0.8, 9) * (du1 - du0)
@@ -113,7 +114,7 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
         # a dim frame's teeth differ from its lips by a few CIELAB units only: keyed at the
         # exposure that brings the lips to KEY_LIP_LUMINANCE
         gain = max(1.0, KEY_LIP_LUMINANCE / max(float(np.median(lip_lin[0] @ _LUMA)), 1e-4))
-        key_lab = lab if gain == 1.0 else cv2.cvtColor(np.minimum(_linear(warped) * gain, 1.0), cv2.COLOR_LRGB2Lab)
+        key_lab = lab if gain == 1.0 else cv2.cvtColor(np.minimum(lin * gain, 1.0), cv2.COLOR_LRGB2Lab)
         lip_lab = np.median(cv2.cvtColor(np.minimum(lip_lin * gain, 1.0), cv2.COLOR_LRGB2Lab)[0], axis=0)
         unlike = np.maximum(np.linalg.norm(key_lab[..., 1:] - lip_lab[1:], axis=-1), key_lab[..., 0] - lip_lab[0])
         lo, hi = lip_key
