@@ -55,7 +55,10 @@ mapped through it: +0.028 / +0.027; to the photos' actual appearance: +0.024 / +
 quality factors (how typical a photo's mouth is, how well its fiducials predict it: 0 to -0.005);
 local-linear weights (the weighted mean expression moved onto the target's, against the average's
 pull to common mouths: -0.003 to -0.04, worst on open mouths); a pose kernel (yaw, pitch; sigma
-8-30 deg: -0.005 to 0); the mouth's blend region grown from 0.35 to 0.5 / 0.7 IOD (+0.001 / 0).
+8-30 deg: -0.005 to 0); the mouth's blend region grown from 0.35 to 0.5 / 0.7 IOD (+0.001 / 0);
+detail weights for the mouth (its finest 2-4 levels from fewer photos, power 2-8, with K 3-8:
+-0.004 to -0.015; from more, power 0.3-0.5: -0.002 to -0.005); a global ridge regression of the
+texture on the mouth coordinates (-0.004 to -0.035; added to ours: +0.001).
 Blending via the neutral frame is not the loss either: each photo warped straight to the target in
 one resampling scores the same (0.8047 vs 0.8049 single-scale, open mouths included).
 """
