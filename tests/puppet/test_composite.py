@@ -528,11 +528,37 @@ def test_mouth_interior_keys_out_the_drivers_lip_colour():
     _, off = mouth_interior(lipped, d, p, lip_key=None, cavity=None)
     assert off.max() > 0.9
     # with the cavity (the default) the keyed-out opening is the cavity's shadow: darker than the lips
-    img, alpha = mouth_interior(lipped, d, p)
+    img, alpha = mouth_interior(lipped, d, p, lip_shade=None)
     drawn = alpha > 0.9
     assert drawn.sum() > 100
     np.testing.assert_allclose(img[drawn], np.broadcast_to(0.35 * np.float32([0.75, 0.3, 0.3]), img[drawn].shape),
                                atol=0.02)
+
+
+def test_mouth_interior_cavity_starts_at_the_contour_in_the_lips_shade():
+    """With ``lip_shade`` the cavity's colour at the puppet's contour is the driver's lips x 0.45 in
+    linear light (sRGB (0.75, 0.3, 0.3) -> (0.521, 0.201, 0.201), hand-computed), turning into the
+    cavity's shadow (0.35 x the lips when all of the interior is keyed out) where the soft edge's
+    ramp ends; darker than the lips everywhere."""
+    from facetex.puppet.lighting import linear_to_srgb, srgb_to_linear
+
+    frame, d, p = _mouths()
+    lip = np.float32([0.75, 0.3, 0.3])
+    lipped = frame.copy()
+    inner = np.zeros(frame.shape[:2], np.uint8)
+    cv2.fillPoly(inner, [np.round(d).astype(np.int32)], 1)
+    lipped[inner > 0] = lip  # all of the interior keyed out: the opening is the cavity's fill only
+    img, alpha = mouth_interior(lipped, d, p)
+    ramp = mouth_interior(frame, d, p, cavity=None)[1]  # the soft edge's ramp (nothing keyed out there)
+    inside = polygon_mask(p, alpha.shape) > 0.5
+    shade = linear_to_srgb(srgb_to_linear(lip) * 0.45)
+    np.testing.assert_allclose(shade, [0.521, 0.201, 0.201], atol=0.002)
+    rim = inside & (ramp < 0.05) & (alpha > 0.9)
+    deep = inside & (ramp > 0.99)
+    assert rim.sum() > 10 and deep.sum() > 50
+    np.testing.assert_allclose(np.median(img[rim], axis=0), shade, atol=0.03)
+    np.testing.assert_allclose(np.median(img[deep], axis=0), 0.35 * lip, atol=0.02)
+    assert (img[inside & (alpha > 0.5)] <= lip + 1e-4).all()
 
 
 def test_mouth_interior_keeps_the_teeth_of_a_dim_frame():
@@ -556,7 +582,8 @@ def test_mouth_interior_keeps_the_teeth_of_a_dim_frame():
 
 def test_mouth_interior_cavity_fills_the_whole_opening_under_the_soft_edge():
     frame, d, p = _mouths()
-    img, alpha = mouth_interior(frame, d, p)
+    img, alpha = mouth_interior(frame, d, p, lip_shade=None)  # the cavity's colour alone (shade: above)
+    assert np.array_equal(mouth_interior(frame, d, p)[1], alpha)  # the lips' shade changes colour, not cover
     _, inner = mouth_interior(frame, d, p, cavity=None)
     h, w = alpha.shape
     grow = 0.015 * np.linalg.norm(p[4] - p[0])
@@ -1011,9 +1038,13 @@ def test_lift_inner_lips_raises_an_open_mouths_dark_inner_band_to_the_drivers():
     p, frame, puppet, dark, inner, outer, d = _band_scene(50.0, 10.0)
     out = lift_inner_lips(puppet, frame, p, p)
     lab = _lab(out)
-    core = dark & (d >= 1.4) & (d <= 2.0)  # clear of the band's half-pixel feather
+    core = dark & (d >= 0.9) & (d <= 1.6)  # in full to half the band's width
     assert core.sum() > 20
     np.testing.assert_allclose(np.median(lab[core], axis=0), [50.0, 35.0, 15.0], atol=2.5)
+    # then tapering: at 2 px, 1.5 - 2 / 3.2 = 0.875 of the 40 L* lift (hand-computed; blurred by 0.7 px)
+    taper = dark & (d > 1.9)
+    assert taper.sum() > 10
+    assert 10.0 + 0.8 * 40.0 < np.median(lab[taper][:, 0]) < 10.0 + 0.95 * 40.0
     assert _lab(puppet)[core][:, 0].max() < 12  # it was dark
     d_in = cv2.distanceTransform(inner.astype(np.uint8), cv2.DIST_L2, 3)
     rim = inner & (d_in <= 1.0)  # the opening's edge the contour cuts: lifted with the band
@@ -1070,7 +1101,7 @@ def test_lift_inner_lips_relative_takes_the_drivers_band_relative_to_each_faces_
     keeps its own lip colour): relative, the band is lifted to the puppet's lips, 50 (the driver's
     band 70 moved by the lips' difference 50 - 70), with their chroma; not to 70, a light rim."""
     p, frame, puppet, dark, inner, outer, d = _band_scene(70.0, 10.0)
-    core = dark & (d >= 1.4) & (d <= 2.0)
+    core = dark & (d >= 0.9) & (d <= 1.6)  # lifted in full (to half the band's width)
     assert np.median(_lab(lift_inner_lips(puppet, frame, p, p))[core][:, 0]) > 65.0  # absolute: the rim
     lab = _lab(lift_inner_lips(puppet, frame, p, p, relative=True))
     assert abs(np.median(lab[core][:, 0]) - 50.0) < 2.5
