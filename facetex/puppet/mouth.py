@@ -76,9 +76,9 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     turning into the cavity's shadow over the soft edge's ramp. With the darkest interior's colour up
     to the contour every open mouth had a uniform dark brown ring round the teeth (a drawn outline
     at 100 %; the driver shows its lips' red inner surface there). Measured with ``facetex bench
-    puppet`` (36 GRID runs, 256 px): mouth slopes 0.890-1.249 and r >= 0.907 at 0.45 (0.942-1.264,
-    0.926 without it; 0.841-1.229, 0.894 at 0.6: the lighter the ring, the less open dlib reads
-    the mouth)."""
+    puppet`` (36 GRID runs, 256 px): mouth slopes 0.889-1.237 and r >= 0.907 at 0.45 (0.933-1.229,
+    0.920 with the dark ring; with a first version of the lift's taper 0.942-1.264, 0.926 without the
+    shade and 0.841-1.229, 0.894 at 0.6: the lighter the ring, the less open dlib reads the mouth)."""
     f = np.asarray(frame, np.float32)
     h, w = _shape2(f.shape if shape is None else shape)
     dp = np.asarray(driver_lips, np.float64)
