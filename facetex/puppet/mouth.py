@@ -25,7 +25,7 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
                    closed: float = 0.02, soft: float = 0.3,
                    lip_key: tuple[float, float] | None = (4.0, 12.0),
                    cavity: float | None = 25.0, grow: float = 0.015,
-                   edge: float = 0.025, lip_shade: float | None = 0.45) -> tuple[np.ndarray, np.ndarray]:
+                   edge: float = 0.025, lip_shade: float | None = 0.3) -> tuple[np.ndarray, np.ndarray]:
     """The driver's mouth interior moved into the puppet's mouth: (image (H, W, 3), alpha (H, W)).
 
     ``driver_lips``, ``puppet_lips`` (8, 2): iBUG inner-lip points 60-67 in ``frame`` px (driver)
@@ -76,9 +76,11 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     turning into the cavity's shadow over the soft edge's ramp. With the darkest interior's colour up
     to the contour every open mouth had a uniform dark brown ring round the teeth (a drawn outline
     at 100 %; the driver shows its lips' red inner surface there). Measured with ``facetex bench
-    puppet`` (36 GRID runs, 256 px): mouth slopes 0.889-1.237 and r >= 0.907 at 0.45 (0.933-1.229,
-    0.920 with the dark ring; with a first version of the lift's taper 0.942-1.264, 0.926 without the
-    shade and 0.841-1.229, 0.894 at 0.6: the lighter the ring, the less open dlib reads the mouth)."""
+    puppet`` (36 GRID runs): the lighter the ring, the less open dlib reads the mouth. At 360 px mouth
+    slopes 0.887-1.112 (mean 0.986), r >= 0.929 at 0.3; 0.833-1.083 (0.953), 0.919 at 0.45; 0.898-1.119
+    (0.987), 0.937 with the dark ring; at 0.45 with the lips' tone over the ramp's first half only,
+    0.815-1.086. At 256 px and 0.45: 0.889-1.237, r 0.907 (0.933-1.229, 0.920 with the ring; 0.841-1.229,
+    0.894 at 0.6 with a first version of the lift's taper)."""
     f = np.asarray(frame, np.float32)
     h, w = _shape2(f.shape if shape is None else shape)
     dp = np.asarray(driver_lips, np.float64)

@@ -536,8 +536,8 @@ def test_mouth_interior_keys_out_the_drivers_lip_colour():
 
 
 def test_mouth_interior_cavity_starts_at_the_contour_in_the_lips_shade():
-    """With ``lip_shade`` the cavity's colour at the puppet's contour is the driver's lips x 0.45 in
-    linear light (sRGB (0.75, 0.3, 0.3) -> (0.521, 0.201, 0.201), hand-computed), turning into the
+    """With ``lip_shade`` the cavity's colour at the puppet's contour is the driver's lips x 0.3 in
+    linear light (sRGB (0.75, 0.3, 0.3) -> (0.432, 0.160, 0.160), hand-computed), turning into the
     cavity's shadow (0.35 x the lips when all of the interior is keyed out) where the soft edge's
     ramp ends; darker than the lips everywhere."""
     from facetex.puppet.lighting import linear_to_srgb, srgb_to_linear
@@ -551,8 +551,8 @@ def test_mouth_interior_cavity_starts_at_the_contour_in_the_lips_shade():
     img, alpha = mouth_interior(lipped, d, p)
     ramp = mouth_interior(frame, d, p, cavity=None)[1]  # the soft edge's ramp (nothing keyed out there)
     inside = polygon_mask(p, alpha.shape) > 0.5
-    shade = linear_to_srgb(srgb_to_linear(lip) * 0.45)
-    np.testing.assert_allclose(shade, [0.521, 0.201, 0.201], atol=0.002)
+    shade = linear_to_srgb(srgb_to_linear(lip) * 0.3)
+    np.testing.assert_allclose(shade, [0.432, 0.160, 0.160], atol=0.002)
     rim = inside & (ramp < 0.05) & (alpha > 0.9)
     deep = inside & (ramp > 0.99)
     assert rim.sum() > 10 and deep.sum() > 50
