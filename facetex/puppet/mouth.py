@@ -154,13 +154,14 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     if lip_shade is not None and lip_key is not None:
         # the lips' shaded inner surface at the contour, the cavity's shadow from the ramp's end in
         shade = linear_to_srgb(np.median(lip_lin[0], axis=0) * np.float32(lip_shade))
-        t = np.ones((h, w, 1), np.float32)
-        t[y0:y1, x0:x1, 0] = ramp
-        colour = shade + t * (np.asarray(colour, np.float32) - shade)
+        colour = shade + ramp[..., None] * (np.asarray(colour, np.float32) - shade)
     total = alpha + (1.0 - alpha) * base
-    mix = np.where(total[..., None] > 0, (alpha[..., None] * img + ((1.0 - alpha) * base)[..., None] * colour)
-                   / np.maximum(total[..., None], 1e-6), 0.0)
-    return mix.astype(np.float32), total.astype(np.float32)
+    # alpha and base are 0 outside the box: the mix is computed in it only
+    a, tb = alpha[y0:y1, x0:x1, None], total[y0:y1, x0:x1, None]
+    mix = np.zeros((h, w, 3), np.float32)
+    mix[y0:y1, x0:x1] = np.where(tb > 0, (a * warped + (1.0 - a) * base[y0:y1, x0:x1, None] * colour)
+                                 / np.maximum(tb, 1e-6), 0.0)
+    return mix, total.astype(np.float32)
 
 
 def _inner_lip_band(points68, box, width: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
