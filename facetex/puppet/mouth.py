@@ -135,9 +135,9 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
         inside = (alpha[y0:y1, x0:x1] > 0).astype(np.float32)
         k = cv2.GaussianBlur(k * inside, (0, 0), 1.0) / np.maximum(cv2.GaussianBlur(inside, (0, 0), 1.0), 1e-6)
         alpha[y0:y1, x0:x1] *= np.clip(k, 0.0, 1.0)
-    img = np.zeros((h, w, 3), np.float32)
-    img[y0:y1, x0:x1] = warped
     if cavity is None:
+        img = np.zeros((h, w, 3), np.float32)
+        img[y0:y1, x0:x1] = warped
         return img, alpha
     # under the interior: the cavity's shadow from just outside the puppet's contour in, not the
     # persona's texture there. A persona whose photos smile has teeth up to its
@@ -164,17 +164,18 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     return mix, total.astype(np.float32)
 
 
-def _inner_lip_band(points68, box, width: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(band, inside, body) bool (h, w) of ``box`` (x0, y0, x1, y1): the lips (outer contour
-    48-59) within ``width`` px outside the inner-lip contour 60-67 (band), the inside of that
-    contour, and the rest of the lips."""
+def _inner_lip_band(points68, box, width: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(band, inside, body, distance) of ``box`` (x0, y0, x1, y1): bool (h, w) the lips (outer
+    contour 48-59) within ``width`` px outside the inner-lip contour 60-67 (band), the inside of that
+    contour, and the rest of the lips; float32 (h, w) each pixel's distance (px) outside that contour
+    (0 inside)."""
     x0, y0, x1, y1 = box
     p = np.asarray(points68, np.float64) - [x0, y0]
     shape = (y1 - y0, x1 - x0)
     inner = polygon_mask(p[60:68], shape) > 0.5
     d = cv2.distanceTransform((~inner).astype(np.uint8), cv2.DIST_L2, 3)
     lips = (d > 0) & (polygon_mask(p[48:60], shape) > 0.5)
-    return lips & (d <= width), inner, lips & (d > width)
+    return lips & (d <= width), inner, lips & (d > width), d
 
 
 def lift_inner_lips(image, frame, driver68, puppet68, *, band: float = 0.1, closed: float = 0.02,
@@ -219,8 +220,8 @@ def lift_inner_lips(image, frame, driver68, puppet68, *, band: float = 0.1, clos
     bp, bd = box(pp), box(dp)
     if bp[2] - bp[0] < 3 or bp[3] - bp[1] < 3 or bd[2] - bd[0] < 3 or bd[3] - bd[1] < 3:
         return img
-    (mp, inner, bodyp), (md, _, bodyd) = (_inner_lip_band(pp, bp, max(1.0, band * wp)),
-                                          _inner_lip_band(dp, bd, max(1.0, band * wd)))
+    (mp, inner, bodyp, out_d), (md, _, bodyd, _) = (_inner_lip_band(pp, bp, max(1.0, band * wp)),
+                                                    _inner_lip_band(dp, bd, max(1.0, band * wd)))
     if mp.sum() < 8 or md.sum() < 8:
         return img
     lab = _lab(img[bp[1]:bp[3], bp[0]:bp[2]])
@@ -243,10 +244,7 @@ def lift_inner_lips(image, frame, driver68, puppet68, *, band: float = 0.1, clos
     # contour, which the interior's soft edge and the cavity only partly cover: left dark, the
     # pixels the contour cuts drew a beaded line along it
     rim = inner & (cv2.distanceTransform(inner.astype(np.uint8), cv2.DIST_L2, 3) <= 1.5)
-    bw = max(1.0, band * wp)
-    out_d = cv2.distanceTransform((~inner).astype(np.uint8), cv2.DIST_L2, 3)
-    lips = polygon_mask(pp[48:60] - [bp[0], bp[1]], inner.shape) > 0.5
-    taper = np.where(inner, 1.0, np.clip(1.5 - out_d / bw, 0.0, 1.0) * lips).astype(np.float32)
+    taper = np.where(inner, 1.0, np.clip(1.5 - out_d / max(1.0, band * wp), 0.0, 1.0) * (mp | bodyp)).astype(np.float32)
     wgt = np.maximum(cv2.GaussianBlur(taper, (0, 0), 0.7) * ~inner, rim) * fade  # (1 inside: no pull at the contour)
     L = lab[..., 0]
     dl = wgt * np.clip(np.minimum(np.interp(L, qp, lift), qd[-1] - L), 0.0, None)
@@ -333,7 +331,7 @@ def _lip_median(image: np.ndarray, points68: np.ndarray) -> np.ndarray | None:
     x1, y1 = (min(n, int(np.ceil(v)) + 2) for n, v in zip((w, h), points68[48:60].max(axis=0)))
     if x1 - x0 < 3 or y1 - y0 < 3:
         return None
-    _, _, lips = _inner_lip_band(points68, (x0, y0, x1, y1), 0.0)  # no band: all of the lips
+    _, _, lips, _ = _inner_lip_band(points68, (x0, y0, x1, y1), 0.0)  # no band: all of the lips
     if lips.sum() < 8:
         return None
     return np.median(_linear(image[y0:y1, x0:x1][lips]), axis=0)
