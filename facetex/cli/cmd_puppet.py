@@ -38,6 +38,9 @@ def register(sub) -> None:
     p.add_argument("--grain", type=finite_float(0.0, 1.0), default=1.0, metavar="AMOUNT",
                    help="composite mode: where the puppet is still smoother than the driver's frame, add the "
                         "frame's own fine grain on the skin, at most at this strength (default 1; 0 = off)")
+    p.add_argument("--nose-sharpen", type=finite_float(1.0, 4.0), default=3.0, metavar="GAIN",
+                   help="composite mode: then raise the puppet's lower nose (nostrils, its shaded sides) towards the "
+                        "driver's nose's fine detail, at most by this further gain (default 3; 1 = off; 1..4)")
     p.add_argument("--eyes", choices=("driver", "persona"), default="driver",
                    help="composite mode: the driver's eyeballs (whites, lash line, gaze) inside the puppet's lids "
                         "with the persona's iris colour (default), or the persona's texture's own eyes (persona)")
@@ -111,7 +114,7 @@ def _puppet_params(args):
     return PuppetParams(texture=args.texture, weights=args.weights, correspondence=args.correspondence,
                         weight_smoothing=args.weight_smoothing,
                         composite=CompositeParams(lighting=args.lighting, colour=args.colour, sharpen=args.sharpen,
-                                                  grain=args.grain, eyes=args.eyes,
+                                                  grain=args.grain, nose_sharpen=args.nose_sharpen, eyes=args.eyes,
                                                   occlusion=args.occlusion == "on"))
 
 
@@ -182,7 +185,7 @@ def _run(args, tracker, loading=None) -> int:
         params={"side_by_side": args.side_by_side, "size": args.size, "mode": args.mode, "texture": args.texture,
                 "weights": args.weights, "weight_smoothing": args.weight_smoothing,
                 "correspondence": args.correspondence, "lighting": args.lighting, "colour": args.colour,
-                "sharpen": args.sharpen, "grain": args.grain, "eyes": args.eyes, "occlusion": args.occlusion,
+                "sharpen": args.sharpen, "grain": args.grain, "nose_sharpen": args.nose_sharpen, "eyes": args.eyes, "occlusion": args.occlusion,
                 "max_frames": args.max_frames,
                 "puppet_params": params},
         outputs=[out], result=report), overwrite=args.overwrite, inputs=inputs)

@@ -41,6 +41,7 @@ __all__ = [
     "polygon_mask",
     "inner_feather",
     "feature_mask",
+    "nose_mask",
     "smoothstep",
 ]
 
@@ -245,3 +246,14 @@ def feature_mask(points68, shape, *, dilate: float = 0.06) -> np.ndarray:
     iod = float(np.linalg.norm(p[36] - p[45]))
     k = max(1, int(round(dilate * iod)))
     return cv2.dilate((m > 0.5).astype(np.uint8), disc(k)) > 0
+
+
+def nose_mask(points68, shape, *, grow: float = 0.08) -> np.ndarray:
+    """bool (H, W): the lower nose of the iBUG-68 ``points68`` (frame px), from the middle of
+    the bridge (point 29) to the tip and the nostrils (31-35), its convex hull grown by ``grow``
+    x the outer eye-corner distance (the alae reach past points 31 and 35). The bridge's top is
+    left out: a pair of glasses sits there."""
+    p = np.asarray(points68, np.float64)
+    m = polygon_mask(cv2.convexHull(p[29:36].astype(np.float32))[:, 0], shape) > 0.5
+    k = max(1, int(round(grow * float(np.linalg.norm(p[36] - p[45])))))
+    return cv2.dilate(m.view(np.uint8), disc(k)) > 0

@@ -37,7 +37,8 @@ def _gain_to_variance(ls: np.ndarray, lh: np.ndarray, target: float) -> float:
     return max(0.0, (-b + math.sqrt(disc)) / (2 * a)) if a > 1e-12 and disc >= 0 else 0.0
 
 
-def match_sharpness(src, ref, src_skin, ref_skin, *, max_gain: float = 2.0, coverage=None) -> tuple[np.ndarray, float]:
+def match_sharpness(src, ref, src_skin, ref_skin, *, max_gain: float = 2.0, coverage=None,
+                    where=None) -> tuple[np.ndarray, float]:
     """(``src`` sharpened, gain g): ``src`` + (g − 1) x its pixel-scale high-pass (``src`` minus
     the mean of its 4 neighbours, −∇²/4), g chosen so that the variance of the 3 x 3 Laplacian of
     the luminance on ``src``'s bool ``src_skin`` pixels equals ``ref``'s on ``ref_skin`` (the
@@ -46,8 +47,9 @@ def match_sharpness(src, ref, src_skin, ref_skin, *, max_gain: float = 2.0, cove
     what a video frame's skin has and a resampled average texture lacks; an unsharp mask of
     sigma 1 px raised the mottling between pores instead (0.64 of a GRID driver's Laplacian
     variance at its 2.5 cap). ``coverage`` (H, W) of ``src``: the neighbours' mean is normalized
-    by their coverage, so the silhouette's edge against the empty outside does not ring. Images
-    (H, W, 3) float [0, 1]; the result is clipped to [0, 1]."""
+    by their coverage, so the silhouette's edge against the empty outside does not ring. ``where``
+    (H, W) in [0, 1]: the high-pass is added only there, in that proportion (the gain is matched
+    with it; default everywhere). Images (H, W, 3) float [0, 1]; the result is clipped to [0, 1]."""
     s = np.asarray(src, np.float32)
     r = np.asarray(ref, np.float32)
     ms, mr = np.asarray(src_skin, bool), np.asarray(ref_skin, bool)
@@ -61,6 +63,8 @@ def match_sharpness(src, ref, src_skin, ref_skin, *, max_gain: float = 2.0, cove
         den = cv2.filter2D(c, -1, _K4, borderType=cv2.BORDER_REFLECT)[..., None]
         hs = s - num / np.maximum(den, 1e-3)
         hs *= (den > 0.99)  # next to the silhouette (partly uncovered neighbours) left alone
+    if where is not None:
+        hs *= np.asarray(where, np.float32)[..., None]
     # Var(∇²(s + k hs)) = Var(∇² ref) on the skin
     k = _gain_to_variance(_lap(s)[ms], _lap(hs)[ms], float(np.var(_lap(r)[mr])))
     g = float(np.clip(1.0 + k, 1.0, max_gain))

@@ -11,6 +11,7 @@ from facetex.geometry.masks import (
     face_width,
     facial_prior_mask,
     forehead_points,
+    nose_mask,
     prior_mask,
 )
 from facetex.landmarks import detect_face
@@ -106,3 +107,17 @@ def test_bad_points():
         face_mask(np.zeros((5, 2)), (10, 10))
     with pytest.raises(BadInputError):
         facial_prior_mask(np.zeros((68, 2)), (0, 10))
+
+
+def test_nose_mask_is_the_lower_nose_grown_by_the_eye_distance():
+    """Hull of points 29-35 grown by 0.08 x the outer eye-corner distance (50 px: 4 px); the
+    bridge's top (27-28, where glasses sit) is left out."""
+    p = np.zeros((68, 2))
+    p[36], p[45] = (20, 30), (70, 30)
+    p[27:36] = [(45, 20), (45, 30), (45, 40), (45, 48), (38, 55), (41, 56), (45, 57), (49, 56), (52, 55)]
+    m = nose_mask(p, (80, 90))
+    assert m[48, 45] and m[45, 41]  # inside the hull
+    assert m[60, 45] and not m[63, 45]  # 3 px below the tip in, 6 px out (grown 4)
+    assert m[55, 35] and not m[55, 31]  # beside the left ala (x 38): 3 px in, 7 px out
+    assert not m[30, 45] and not m[22, 45]  # the bridge's top
+    assert nose_mask(p, (80, 90), grow=0.2)[63, 45]  # grown 10 px
