@@ -74,8 +74,8 @@ AUTO_UPSAMPLE_MAX_SIDE = 1200
 
 Detector = Literal["hog", "cnn"]
 
-#: median luminance (0..1) of a face's box below which :func:`lift_dark_face` lifts its local
-#: contrast in full, and above which it leaves the image alone (GRID faces: 0.55-0.60)
+#: median luminance (0..1) of a face's box below which :func:`lift_dark_face` brightens it in
+#: full, and above which it leaves the image alone (GRID faces: 0.55-0.60)
 DARK_FACE = (0.30, 0.45)
 
 

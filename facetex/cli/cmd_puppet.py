@@ -185,7 +185,8 @@ def _run(args, tracker, loading=None) -> int:
         params={"side_by_side": args.side_by_side, "size": args.size, "mode": args.mode, "texture": args.texture,
                 "weights": args.weights, "weight_smoothing": args.weight_smoothing,
                 "correspondence": args.correspondence, "lighting": args.lighting, "colour": args.colour,
-                "sharpen": args.sharpen, "grain": args.grain, "nose_sharpen": args.nose_sharpen, "eyes": args.eyes, "occlusion": args.occlusion,
+                "sharpen": args.sharpen, "grain": args.grain, "nose_sharpen": args.nose_sharpen, "eyes": args.eyes,
+                "occlusion": args.occlusion,
                 "max_frames": args.max_frames,
                 "puppet_params": params},
         outputs=[out], result=report), overwrite=args.overwrite, inputs=inputs)

@@ -344,8 +344,8 @@ def fit_landmarks(frame, box, *, face_px: float = 200.0, points68=None) -> np.nd
     (``DriverParams.landmark_refits``), the tracked opening follows the one measured on 720 px
     upscaled frames with r 0.981-0.997 on the six GRID clips (0.950-0.997 before) and 0.943-0.989
     on mirrored side-lit, rotated small-face and dim noisy copies (0.952-0.979; the dim noisy one
-    0.952 -> 0.943: the noise is upscaled too). A dark face (a dark skin, a dim room) is fitted with
-    its local contrast lifted (:func:`~facetex.landmarks.lift_dark_face`).
+    0.952 -> 0.943: the noise is upscaled too). A dark face (a dark skin, a dim room) is fitted
+    brightened (:func:`~facetex.landmarks.lift_dark_face`).
     ``points68``: the landmarks already found in ``box`` at 1x (returned as they are when no
     upscale is needed)."""
     import cv2
