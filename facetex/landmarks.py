@@ -45,8 +45,6 @@ __all__ = [
     "detect_faces",
     "detect_face",
     "landmarks_in_box",
-    "lift_dark_face",
-    "DARK_FACE",
     "face_mesh468",
     "MESH_INPUT_SIZE",
     "MESH_MIN_SCORE",
@@ -73,10 +71,6 @@ MESH_MIN_SCORE = 0.5
 AUTO_UPSAMPLE_MAX_SIDE = 1200
 
 Detector = Literal["hog", "cnn"]
-
-#: median luminance (0..1) of a face's box below which :func:`lift_dark_face` brightens it in
-#: full, and above which it leaves the image alone (GRID faces: 0.55-0.60)
-DARK_FACE = (0.30, 0.45)
 
 
 def points66(p68: np.ndarray) -> np.ndarray:
@@ -387,40 +381,6 @@ def landmarks_in_box(image: np.ndarray, box: Sequence[float]) -> np.ndarray:
         raise BadInputError(f"a face box must be 4 finite numbers x0 < x1, y0 < y1, got {list(b)}")
     rect = dlib.rectangle(*(int(round(v)) for v in b))
     return _shape68(_as_uint8_rgb(image), rect)
-
-
-def lift_dark_face(image, box, *, levels: tuple[float, float] = DARK_FACE, target: float = 0.5) -> np.ndarray:
-    """``image`` (float RGB in [0, 1], or uint8) brightened for dlib's shape predictor when the face
-    in ``box`` (x0, y0, x1, y1) is dark: a gamma curve taking the median luminance m inside the box
-    to m + w (``target`` - m), w = 1 below ``levels[0]`` falling linearly to 0 at ``levels[1]``
-    (continuous in m); above ``levels[1]`` ``image`` itself is returned. Float32 [0, 1] otherwise.
-
-    dlib's predictor reads pixel differences: on a dark-skinned face, or a face in a dim room, the
-    lips, the teeth and the cavity are a few grey levels apart, and it reads an open mouth as less
-    open. The driver tracker's mouth opening (:func:`facetex.puppet.driver.track_driver`) against
-    the original clip's (regression slope / r), GRID clips with the skin darkened to a dark-skinned
-    tone (median 0.28): bbaf2n 0.72 / 0.95 -> 0.76 / 0.96, lrwp9a 0.90 -> 0.96; lbax4n dimmed with
-    webcam noise 0.60 / 0.93 -> 0.66 / 0.93. Measured and not taken: local contrast (CLAHE on L,
-    clip limit 1 or 2; with the gamma or alone) read the dim clip far better (0.81-0.87) but the
-    dark-skinned bbaf2n worse (0.62-0.72), and a target of 0.6 helped less (0.72, 0.93, 0.67). On
-    the Helen photos with 300-W ground truth whose face is dark (12 real, 16 darkened copies) the
-    mean landmark error stays (0.029 -> 0.028 and 0.034 -> 0.035 of the eye distance at full
-    size; 0.028 -> 0.028 and 0.033 -> 0.033 as a 90 px face fitted at 2x)."""
-    import cv2
-
-    a = np.asarray(image)
-    h, w = a.shape[:2]
-    x0, y0, x1, y1 = (int(round(v)) for v in np.asarray(box, np.float64).ravel())
-    x0, y0, x1, y1 = max(0, x0), max(0, y0), min(w, x1), min(h, y1)
-    if x1 - x0 < 4 or y1 - y0 < 4:
-        return image
-    f = a[..., :3].astype(np.float32) / 255.0 if a.dtype == np.uint8 else np.clip(a[..., :3], 0, 1).astype(np.float32)
-    med = float(np.median(cv2.cvtColor(np.ascontiguousarray(f[y0:y1, x0:x1]), cv2.COLOR_RGB2GRAY)))
-    weight = float(np.clip((levels[1] - med) / (levels[1] - levels[0]), 0.0, 1.0))
-    if weight <= 0 or med <= 0:
-        return image
-    gamma = math.log(med + weight * (target - med)) / math.log(med)
-    return np.power(f, gamma).astype(np.float32)
 
 
 # ---------------------------------------------------------------------------

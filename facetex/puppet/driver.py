@@ -344,21 +344,23 @@ def fit_landmarks(frame, box, *, face_px: float = 200.0, points68=None) -> np.nd
     (``DriverParams.landmark_refits``), the tracked opening follows the one measured on 720 px
     upscaled frames with r 0.981-0.997 on the six GRID clips (0.950-0.997 before) and 0.943-0.989
     on mirrored side-lit, rotated small-face and dim noisy copies (0.952-0.979; the dim noisy one
-    0.952 -> 0.943: the noise is upscaled too). A dark face (a dark skin, a dim room) is fitted
-    brightened (:func:`~facetex.landmarks.lift_dark_face`).
+    0.952 -> 0.943: the noise is upscaled too).
+    Measured and not taken: brightening a dark face before the fit (a gamma taking the box's median
+    luminance towards 0.5 below 0.45). GRID clips with the skin darkened to a dark-skinned tone
+    read 0.72 / 0.90 of the original clips' opening (bbaf2n / lrwp9a) and 0.76 / 0.96 with it, the
+    dim noisy copy 0.60 -> 0.66 (CLAHE instead: dim 0.81-0.87, dark bbaf2n worse, 0.62-0.72), but
+    through the puppet bench the dim copy's puppet eyes read more shut (Williams 0.82 -> 0.77 of
+    the driver's) and the side-lit copy's mouth wider (Bush slope 1.24 -> 1.32).
     ``points68``: the landmarks already found in ``box`` at 1x (returned as they are when no
     upscale is needed)."""
     import cv2
 
-    from ..landmarks import landmarks_in_box, lift_dark_face
+    from ..landmarks import landmarks_in_box
 
     b = np.asarray(box, np.float64)
     k = min(4.0, float(face_px) / max(b[2] - b[0], 1.0))
     if k <= 1.0:
-        lifted = lift_dark_face(frame, b)
-        if lifted is frame and points68 is not None:
-            return np.asarray(points68, np.float64)
-        return landmarks_in_box(lifted, b)
+        return np.asarray(points68, np.float64) if points68 is not None else landmarks_in_box(frame, b)
     h, w = frame.shape[:2]
     pad = 0.5 * (b[2] - b[0])
     x0, y0 = max(0, int(b[0] - pad)), max(0, int(b[1] - pad))
@@ -369,7 +371,7 @@ def fit_landmarks(frame, box, *, face_px: float = 200.0, points68=None) -> np.nd
     crop = cv2.resize(np.ascontiguousarray(frame[y0:y1, x0:x1]), None, fx=k, fy=k, interpolation=cv2.INTER_CUBIC)
     shift = np.array([x0, y0], np.float64)
     up = (b.reshape(2, 2) - shift + 0.5) * k - 0.5
-    return (landmarks_in_box(lift_dark_face(crop, up.ravel()), up.ravel()) + 0.5) / k - 0.5 + shift
+    return (landmarks_in_box(crop, up.ravel()) + 0.5) / k - 0.5 + shift
 
 
 def _box_of(points68: np.ndarray, ref_box, ref_points: np.ndarray):

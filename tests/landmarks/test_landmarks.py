@@ -19,7 +19,6 @@ from facetex.landmarks import (
     detect_faces,
     face_mesh468,
     landmarks_in_box,
-    lift_dark_face,
     points49,
     points66,
 )
@@ -110,35 +109,6 @@ def test_landmarks_in_known_box_match_detection(images, faces):
     assert np.abs(p - f.points68).max() <= 1.0
     with pytest.raises(BadInputError):
         landmarks_in_box(images["frl_005_smiling"], (10, 10, 5, 20))
-
-
-def test_lift_dark_face_brightens_a_dark_face_by_a_gamma_continuous_in_its_darkness(images, faces):
-    """Median luminance m in the box above 0.45: the image itself; below: the gamma taking m to
-    m + w (0.5 - m), w = (0.45 - m) / 0.15 clipped to [0, 1] (hand-computed), uint8 or float."""
-    bright = images["frl_003_neutral"]
-    assert lift_dark_face(bright, faces["frl_003_neutral"][0].box) is bright
-    rng = np.random.default_rng(0)
-    base = cv2.GaussianBlur(rng.uniform(0, 1, (64, 64)).astype(np.float32), (0, 0), 2.0)
-    base = (base - base.min()) / np.ptp(base)
-    for level, want_median in ((0.2, 0.5), (0.375, 0.4375), (0.449, None)):
-        img = np.repeat((0.1 * base + level - 0.05)[..., None], 3, axis=2).astype(np.float32)
-        m = float(np.median(cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)))
-        w = float(np.clip((0.45 - m) / 0.15, 0, 1))
-        gamma = np.log(m + w * (0.5 - m)) / np.log(m)
-        out = lift_dark_face(img, (0, 0, 64, 64))
-        np.testing.assert_allclose(out, img ** gamma, rtol=1e-5, atol=1e-6)
-        if want_median is not None:
-            assert abs(float(np.median(cv2.cvtColor(out, cv2.COLOR_RGB2GRAY))) - want_median) < 0.01
-        else:  # just below the upper level: next to no change (continuous there)
-            assert np.abs(out - img).max() < 0.01
-        u8 = lift_dark_face((img * 255 + 0.5).astype(np.uint8), (0, 0, 64, 64))
-        assert u8.dtype == np.float32 and np.abs(u8 - out).max() < 0.02
-    # a dark-skinned sample face (median 0.40): brightened, and dlib finds the same face
-    dark, box = images["frl_008_neutral"], faces["frl_008_neutral"][0].box
-    lifted = lift_dark_face(dark, box)
-    assert lifted is not dark and lifted.mean() > dark.mean()
-    p0, p1 = landmarks_in_box(dark, box), landmarks_in_box(lifted, box)
-    assert np.linalg.norm(p1 - p0, axis=1).mean() < 0.05 * np.linalg.norm(p0[36] - p0[45])
 
 
 def test_two_faces_largest_first_and_face_index(images):
