@@ -385,9 +385,9 @@ class CompositeParams:
     nose_sharpen: then the puppet's lower nose (:func:`~facetex.geometry.masks.nose_mask`) is raised
     to the driver's nose's fine detail, at most by this further gain (1: off): half of a GRID frame's
     Laplacian energy inside the face is its nose (nostrils, the shaded sides), which the skin-colour
-    mask of the skin's gain leaves out, and the persona's nose, blended from photos whose nostrils
-    show at different head pitches, is the softest part of its texture (at the driver's 360 px,
-    face sharpness 0.67-0.73 of the driver's on 4 of 36 runs without it, the nose 0.41-0.47); poisson:
+    mask of the skin's gain leaves out, and the persona's nose, a blend of many photos, is soft (at
+    the driver's 360 px, face sharpness 0.67-0.73 of the driver's on 4 of 36 runs without it, the
+    nose 0.41-0.47); poisson:
     gradient-domain blending at the border; feather: width of the inward feather as a fraction of the eye-corner distance;
     erode: the driver's outline is shrunk by this fraction (the face-oval vertices sit on the
     silhouette, where skin meets hair or background); mouth: draw the driver's mouth interior
