@@ -67,6 +67,7 @@ __all__ = [
     "smooth_series",
     "mouth_opening",
     "fit_landmarks",
+    "exposure_gain",
     "GridInterpolator",
 ]
 
@@ -334,9 +335,65 @@ def implausible_shapes(points68: np.ndarray, found: np.ndarray, *, floor: float 
     return bad
 
 
+#: A face whose box's middle has a median sRGB luma below this gets its mouth landmarks refitted at
+#: the exposure that brings it there (:func:`fit_landmarks`), when that takes a gain of at least
+#: MIN_EXPOSURE_GAIN (the refit costs a second fit; a smaller gain hardly moves the points).
+EXPOSED_FACE_LUMA = 0.55
+MIN_EXPOSURE_GAIN = 1.05
+
+
+def _srgb_to_linear(x: np.ndarray) -> np.ndarray:
+    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+
+
+def exposure_gain(image, box) -> float:
+    """The linear-light gain (>= 1) that brings the median sRGB luma of the middle 60 % of a face
+    ``box`` (x0, y0, x1, y1) in ``image`` (uint8 or float RGB) up to :data:`EXPOSED_FACE_LUMA` (1 for
+    a lighter face)."""
+    a = np.asarray(image)
+    b = np.asarray(box, np.float64).ravel()
+    h, w = a.shape[:2]
+    c, half = (b[:2] + b[2:]) / 2, 0.3 * (b[2:] - b[:2])
+    x0, y0 = (int(max(0, v)) for v in c - half)
+    x1, y1 = int(min(w, c[0] + half[0])), int(min(h, c[1] + half[1]))
+    if x1 - x0 < 4 or y1 - y0 < 4:
+        return 1.0
+    sub = a[y0:y1, x0:x1, :3].reshape(-1, 3).astype(np.float32)
+    if a.dtype == np.uint8:
+        sub /= 255.0
+    luma = float(np.median(sub @ np.float32([0.299, 0.587, 0.114])))
+    return max(1.0, float(_srgb_to_linear(np.float64(EXPOSED_FACE_LUMA)) / max(float(_srgb_to_linear(np.float64(luma))), 1e-4)))
+
+
+def _landmarks_exposed(image, box) -> np.ndarray:
+    """dlib's 68 landmarks in ``box``, the mouth's (48-67) fitted again at a normalised exposure on a
+    dark face (:func:`exposure_gain`; one gain in linear light, as a camera's exposure)."""
+    from ..landmarks import landmarks_in_box
+
+    return _mouth_exposed(image, box, landmarks_in_box(image, box))
+
+
+def _mouth_exposed(image, box, p) -> np.ndarray:
+    """``p`` (68, 2) with the mouth's points refitted at a normalised exposure on a dark face."""
+    from ..landmarks import landmarks_in_box
+
+    g = exposure_gain(image, box)
+    if g < MIN_EXPOSURE_GAIN:
+        return p
+    a = np.asarray(image)
+    a = a.astype(np.float32) / 255.0 if a.dtype == np.uint8 else np.clip(np.asarray(a, np.float32), 0, 1)
+    lin = _srgb_to_linear(a) * np.float32(g)
+    exposed = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * np.power(np.minimum(lin, 1.0), 1 / 2.4) - 0.055)
+    q = landmarks_in_box(np.clip(exposed, 0, 1).astype(np.float32), box)
+    p = np.array(p, np.float64)
+    p[48:68] = q[48:68]
+    return p
+
+
 def fit_landmarks(frame, box, *, face_px: float = 200.0, points68=None) -> np.ndarray:
     """dlib's 68 landmarks (frame px) in a face ``box`` (x0, y0, x1, y1), fitted on a bicubic
-    upscale of the box's neighbourhood when the box is narrower than ``face_px``.
+    upscale of the box's neighbourhood when the box is narrower than ``face_px``; on a dark face
+    the mouth's at a normalised exposure.
 
     dlib's shape predictor reads single pixels: on a GRID face (a ~100 px box) its points move in
     pixel steps, and a box carried from the previous frame can lag a syllable (GRID bbaf2n frame
@@ -345,33 +402,39 @@ def fit_landmarks(frame, box, *, face_px: float = 200.0, points68=None) -> np.nd
     upscaled frames with r 0.981-0.997 on the six GRID clips (0.950-0.997 before) and 0.943-0.989
     on mirrored side-lit, rotated small-face and dim noisy copies (0.952-0.979; the dim noisy one
     0.952 -> 0.943: the noise is upscaled too).
-    Measured and not taken: brightening a dark face before the fit (a gamma taking the box's median
-    luminance towards 0.5 below 0.45). GRID clips with the skin darkened to a dark-skinned tone
-    read 0.72 / 0.90 of the original clips' opening (bbaf2n / lrwp9a) and 0.76 / 0.96 with it, the
-    dim noisy copy 0.60 -> 0.66 (CLAHE instead: dim 0.81-0.87, dark bbaf2n worse, 0.62-0.72), but
-    through the puppet bench the dim copy's puppet eyes read more shut (Williams 0.82 -> 0.77 of
-    the driver's) and the side-lit copy's mouth wider (Bush slope 1.24 -> 1.32).
-    ``points68``: the landmarks already found in ``box`` at 1x (returned as they are when no
-    upscale is needed)."""
-    import cv2
 
-    from ..landmarks import landmarks_in_box
+    **Dark faces.** dlib reads a dark face's mouth as less open than it is: GRID clips with the skin
+    darkened in linear light to a dark-skinned tone (median luma 0.28) read 0.72 / 0.90 of the
+    original clips' opening (bbaf2n / lrwp9a; regression slope), 0.59 / 0.86 with the lips darkened
+    too and the inner lips' pink and the teeth kept, and the dim noisy copy 0.60. When the middle of
+    the face box has a median luma below :data:`EXPOSED_FACE_LUMA` the mouth's points (48-67) are
+    fitted again on the frame brightened by one gain in linear light (an exposure change: the
+    colours' ratios kept) that brings that median there (:func:`exposure_gain`; not for a gain below
+    :data:`MIN_EXPOSURE_GAIN`): 0.85 / 1.00, 0.57 / 1.18 and 0.91 (r 0.84-1.00; the dark-lipped
+    bbaf2n copy, whose slightly open mouth shows a pale slit between dark lips, stays under-read). Only the mouth: brightening the whole fit (a gamma, measured in an
+    earlier version) read the dim copy's eyes more shut; a per-channel gain to a light skin colour
+    did as well on the mouth except on the dark-lipped bbaf2n copy (0.54).
+    ``points68``: the landmarks already found in ``box`` at 1x (returned as they are when no
+    upscale is needed and the face is not dark)."""
+    import cv2
 
     b = np.asarray(box, np.float64)
     k = min(4.0, float(face_px) / max(b[2] - b[0], 1.0))
     if k <= 1.0:
-        return np.asarray(points68, np.float64) if points68 is not None else landmarks_in_box(frame, b)
+        if points68 is not None:
+            return _mouth_exposed(frame, b, np.asarray(points68, np.float64))
+        return _landmarks_exposed(frame, b)
     h, w = frame.shape[:2]
     pad = 0.5 * (b[2] - b[0])
     x0, y0 = max(0, int(b[0] - pad)), max(0, int(b[1] - pad))
     x1, y1 = min(w, int(math.ceil(b[2] + pad))), min(h, int(math.ceil(b[3] + pad)))
     if x1 - x0 < 2 or y1 - y0 < 2:
-        return landmarks_in_box(frame, b)
+        return _landmarks_exposed(frame, b)
     # the bicubic overshoot is clipped by landmarks_in_box's conversion to uint8
     crop = cv2.resize(np.ascontiguousarray(frame[y0:y1, x0:x1]), None, fx=k, fy=k, interpolation=cv2.INTER_CUBIC)
     shift = np.array([x0, y0], np.float64)
     up = (b.reshape(2, 2) - shift + 0.5) * k - 0.5
-    return (landmarks_in_box(crop, up.ravel()) + 0.5) / k - 0.5 + shift
+    return (_landmarks_exposed(crop, up.ravel()) + 0.5) / k - 0.5 + shift
 
 
 def _box_of(points68: np.ndarray, ref_box, ref_points: np.ndarray):
