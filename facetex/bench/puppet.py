@@ -42,8 +42,9 @@ shows there). Per run:
   frame with >= 10 % of the face box outside must be rejected, every whole face kept);
 * **flicker**: mean |frame-to-frame change| (0-255) of the composited face on still frames.
 
-**Stress** (``--stress``): three harder copies of the clips (mirrored and side-lit, rotated with the
-face shrunk, dimmed with sensor noise; :mod:`facetex.bench._stress_clips`) are runs like the others.
+**Stress** (``--stress``): four harder copies of the clips (mirrored and side-lit, rotated with the
+face shrunk, dimmed with sensor noise, the skin darkened to a dark-skinned speaker's;
+:mod:`facetex.bench._stress_clips`) are runs like the others.
 
 **Worst runs**: per run, each target measure's relative shortfall ``s`` (0 when met; below a
 lower bound lo: (lo − v) / lo, above an upper bound hi: (v − hi) / hi; a measure that could not
@@ -442,8 +443,9 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
                         "0 = per frame; default: the puppet's default)")
     p.add_argument("--no-partial", action="store_true", help="skip the half-out-of-frame check")
     p.add_argument("--stress", action="store_true",
-                   help="also drive every persona with three harder copies of the clips: mirrored and side-lit, "
-                        "rotated 14 degrees with the face shrunk, dimmed with sensor noise (written to OUT/stress/)")
+                   help="also drive every persona with four harder copies of the clips: mirrored and side-lit, "
+                        "rotated 14 degrees with the face shrunk, dimmed with sensor noise, with a dark skin "
+                        "(written to OUT/stress/)")
     p.add_argument("--resume", action="store_true",
                    help="reuse the runs already in OUT/runs with the same settings (persona file, clip, options)")
     from ..cli._common import add_engine_options

@@ -342,14 +342,12 @@ EXPOSED_FACE_LUMA = 0.55
 MIN_EXPOSURE_GAIN = 1.05
 
 
-def _srgb_to_linear(x: np.ndarray) -> np.ndarray:
-    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
-
-
 def exposure_gain(image, box) -> float:
     """The linear-light gain (>= 1) that brings the median sRGB luma of the middle 60 % of a face
     ``box`` (x0, y0, x1, y1) in ``image`` (uint8 or float RGB) up to :data:`EXPOSED_FACE_LUMA` (1 for
     a lighter face)."""
+    from .lighting import srgb_to_linear
+
     a = np.asarray(image)
     b = np.asarray(box, np.float64).ravel()
     h, w = a.shape[:2]
@@ -362,7 +360,7 @@ def exposure_gain(image, box) -> float:
     if a.dtype == np.uint8:
         sub /= 255.0
     luma = float(np.median(sub @ np.float32([0.299, 0.587, 0.114])))
-    return max(1.0, float(_srgb_to_linear(np.float64(EXPOSED_FACE_LUMA)) / max(float(_srgb_to_linear(np.float64(luma))), 1e-4)))
+    return max(1.0, float(srgb_to_linear(EXPOSED_FACE_LUMA)) / max(float(srgb_to_linear(luma)), 1e-4))
 
 
 def _landmarks_exposed(image, box) -> np.ndarray:
@@ -376,15 +374,14 @@ def _landmarks_exposed(image, box) -> np.ndarray:
 def _mouth_exposed(image, box, p) -> np.ndarray:
     """``p`` (68, 2) with the mouth's points refitted at a normalised exposure on a dark face."""
     from ..landmarks import landmarks_in_box
+    from .lighting import linear_to_srgb, srgb_to_linear
 
     g = exposure_gain(image, box)
     if g < MIN_EXPOSURE_GAIN:
         return p
     a = np.asarray(image)
     a = a.astype(np.float32) / 255.0 if a.dtype == np.uint8 else np.clip(np.asarray(a, np.float32), 0, 1)
-    lin = _srgb_to_linear(a) * np.float32(g)
-    exposed = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * np.power(np.minimum(lin, 1.0), 1 / 2.4) - 0.055)
-    q = landmarks_in_box(np.clip(exposed, 0, 1).astype(np.float32), box)
+    q = landmarks_in_box(linear_to_srgb(srgb_to_linear(a) * np.float32(g)), box)
     p = np.array(p, np.float64)
     p[48:68] = q[48:68]
     return p

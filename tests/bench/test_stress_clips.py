@@ -38,14 +38,30 @@ def test_dim_noisy_is_dim_noisy_and_seeded():
         stress_frame(f, "blurry", np.random.default_rng(0))
 
 
+def test_dark_skin_darkens_skin_coloured_pixels_only():
+    """A light-skin patch on a blue background: the patch's middle darkened in linear light by
+    DARK_SKIN_GAIN per channel (sRGB 0.85, 0.65, 0.55 -> linear 0.692, 0.380, 0.263 -> x (0.24, 0.19,
+    0.15) = 0.1661, 0.0722, 0.0395 -> sRGB 0.444, 0.298, 0.219), the background untouched."""
+    from facetex.bench._stress_clips import DARK_SKIN_GAIN
+
+    f = np.tile(np.float32([0.2, 0.55, 0.8]), (60, 80, 1))
+    f[15:45, 20:60] = [0.85, 0.65, 0.55]
+    out = stress_frame(f, "dark_skin", np.random.default_rng(0))
+    assert DARK_SKIN_GAIN == (0.24, 0.19, 0.15)
+    np.testing.assert_allclose(out[30, 40], [0.444, 0.298, 0.219], atol=2e-3)
+    np.testing.assert_allclose(out[:5], f[:5], atol=1e-6)
+    np.testing.assert_allclose(out[:, :8], f[:, :8], atol=1e-6)
+
+
 def test_stress_clips_one_copy_each_of_the_clips_in_turn(tmp_path):
     src = []
     for k, name in enumerate(("a", "b")):
         frames = [np.full((48, 64, 3), 0.3 + 0.1 * k + 0.05 * t, np.float32) for t in range(4)]
         src.append(write_video(tmp_path / f"{name}.mp4", frames, fps=25))
     paths = stress_clips(src, tmp_path / "out")
-    assert [p.name for p in paths] == ["a_mirror_sidelit.mp4", "b_rotated_small.mp4", "a_dim_noisy.mp4"]
-    assert len(STRESS) == 3
+    assert [p.name for p in paths] == ["a_mirror_sidelit.mp4", "b_rotated_small.mp4", "a_dim_noisy.mp4",
+                                       "b_dark_skin.mp4"]
+    assert len(STRESS) == 4
     dim = list(iter_video_frames(paths[2]))
     assert len(dim) == 4 and abs(float(dim[0].mean()) - (0.3 * 0.45 + 8 / 255)) < 0.03
     # written once: a second call reuses the copies
