@@ -359,7 +359,11 @@ class CompositeParams:
     Williams' eyes on GRID lrwp9a at 360 px 0.77 as open as the driver's, 0.85 with 0.04 and the
     frame's white balance; ``bench puppet`` at 256 px: mean eye ratio 0.984 -> 0.999, share of
     frames at dlib distance < 0.6 worst 0.44 -> 0.56; kept whole, a pale persona's grown eyeballs
-    were blue-grey patches in GRID lbax4n's orange frame). Chosen by the cheek ΔE (CIELAB) to the
+    were blue-grey patches in GRID lbax4n's orange frame). Beyond the lids' edges only a darker
+    lightness is kept (``keep_dark`` of :func:`~facetex.puppet.lighting.transfer_skin_colour`): kept
+    as it was, a pale persona's lid rims and the whites below its irises stayed pale on a dark
+    driver, as white rings and crescents round the eyes (Koizumi's and Bush's personas on GRID clips
+    with the skin darkened). Chosen by the cheek ΔE (CIELAB) to the
     driver's own cheeks over 6 personas x 6 GRID clips (worst run, skin-only masks: mean shift 19,
     MKL 22 (and pink lips), per-channel histogram matching 27, smooth field at 0.4 / 0.25 / 0.15 /
     0.10 / 0.08 eye distances 19 / 16 / 12 / 7.8 / 6.2; 0.12 to 0.08 look alike at 100 %; with the
@@ -393,7 +397,11 @@ class CompositeParams:
     silhouette, where skin meets hair or background); mouth: draw the driver's mouth interior
     inside the puppet's lips; lip_band: an open mouth's inner lip band (this x the mouth width) is
     lifted to the driver's band lightness, relative to each face's own lips when the puppet keeps
-    its colour (colour "persona" or lighting "none") (0: off; :func:`~facetex.puppet.mouth.lift_inner_lips`);
+    its colour (colour "persona" or lighting "none") (0: off; :func:`~facetex.puppet.mouth.lift_inner_lips`;
+    0.2: a thin-lipped persona's dark upper lip is most of a 0.1 band's width beyond it, and dlib read
+    it as part of the opening: ``bench puppet`` at 256 px, 42 runs with the dark-skinned copy, widest
+    mouth slope 1.313 -> 1.225 (Bush/bbaf2n), worst r 0.915 -> 0.936, narrowest 0.929 -> 0.912; at 360
+    px 0.881-1.110 -> 0.876-1.107, r 0.921 -> 0.935);
     eyes: "driver" (default): the driver's eyeballs (whites, lash line, gaze) drawn inside the
     puppet's lids with the persona's iris colour (:func:`~facetex.puppet.eyes.eye_interior`);
     "persona": the eyes of the persona's texture only.
@@ -419,7 +427,7 @@ class CompositeParams:
     feather: float = 0.06
     erode: float = 0.03
     mouth: bool = True
-    lip_band: float = 0.10
+    lip_band: float = 0.20
     eyes: str = "driver"
 
 
@@ -533,8 +541,9 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
                                    gain=params.colour_gain, colour=params.colour, shrink=ks,
                                    lids=_scaled(lid_weights(p68 - [x0, y0], rg.shape), params.lid_colour)
                                    if params.lid_colour > 0 else None,
-                                   keep=eye_weights(p68 - [x0, y0], rg.shape, grow=params.eye_grow)
-                                   if params.eye_colour else None, keep_chroma=False,
+                                   keep=eye_weights(p68 - [x0, y0], rg.shape) if params.eye_colour else None,
+                                   keep_dark=eye_weights(p68 - [x0, y0], rg.shape, grow=params.eye_grow)
+                                   if params.eye_colour and params.eye_grow > 0 else None, keep_chroma=False,
                                    **(lip_regions(p68 - [x0, y0], None if pp68 is None else pp68 - [x0, y0],
                                                   rg.shape, open_lips=params.open_lips) if params.lip_colour else {}),
                                    lip_ceiling=params.lip_ceiling)

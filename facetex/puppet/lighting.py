@@ -181,7 +181,8 @@ LIP_SPREAD_PERCENTILE = 90.0
 
 def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 / 3, 1.2), colour: str = "driver",
                          light_limits=(0.5, 2.0), shrink: int = 1, lips=None, lids=None, keep=None,
-                         lip_parts=(), lip_ceiling: float | None = None, keep_chroma: bool = True) -> np.ndarray:
+                         lip_parts=(), lip_ceiling: float | None = None, keep_chroma: bool = True,
+                         keep_dark=None) -> np.ndarray:
     """``src`` (H, W, 3) sRGB with the low-frequency colour of ``ref`` (the same size, aligned),
     measured on skin pixels only (bool ``src_skin``, ``ref_skin``), the detail of ``src`` kept.
 
@@ -207,7 +208,11 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     :func:`~facetex.puppet.eyes.eye_weights`: iris and whites are not skin; with the skin's field and the bounded
     lightness gain a dark persona's brown irises turned grey on a pale driver); ``keep_chroma``
     False: only its lightness is kept, its a*, b* take the transfer (the frame's white balance: kept
-    whole, a pale persona's eyeballs were blue-grey patches in an orange frame). ``lids`` (colour
+    whole, a pale persona's eyeballs were blue-grey patches in an orange frame). ``keep_dark``
+    (colour "driver"): weight (H, W) in [0, 1] or None, applied before ``keep``: where it is 1
+    ``src``'s lightness is kept where it is darker than the transfer's, never where lighter (the
+    lids' rims round the eyeballs: a dark persona's lash lines stay dark on a pale driver, a pale
+    persona's lid highlights do not stay pale on a dark one). ``lids`` (colour
     "driver"): the same as ``lips`` for the skin round the eyes (:func:`~facetex.puppet.eyes.lid_weights`): a dark
     persona's lids, darker than her skin, kept that difference on a pale driver as dark rings.
     ``lip_parts``: more regions like ``lips``, applied after it in order (the upper and lower
@@ -286,6 +291,8 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     if ceiling is not None:
         wl, top = ceiling
         out[..., 0] -= wl * np.maximum(out[..., 0] - top, 0.0)
+    if keep_dark is not None:
+        out[..., 0] += np.asarray(keep_dark, np.float32) * np.minimum(a[..., 0] - out[..., 0], 0.0)
     if keep is not None:
         k = np.asarray(keep, np.float32)[..., None]
         n = 3 if keep_chroma else 1

@@ -25,7 +25,8 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
                    closed: float = 0.02, soft: float = 0.3,
                    lip_key: tuple[float, float] | None = (4.0, 12.0),
                    cavity: float | None = 25.0, grow: float = 0.015,
-                   edge: float = 0.025, lip_shade: float | None = 0.3) -> tuple[np.ndarray, np.ndarray]:
+                   edge: float = 0.025, lip_shade: float | None = 0.3,
+                   cavity_shading: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """The driver's mouth interior moved into the puppet's mouth: (image (H, W, 3), alpha (H, W)).
 
     ``driver_lips``, ``puppet_lips`` (8, 2): iBUG inner-lip points 60-67 in ``frame`` px (driver)
@@ -80,7 +81,11 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     slopes 0.887-1.112 (mean 0.986), r >= 0.929 at 0.3; 0.833-1.083 (0.953), 0.919 at 0.45; 0.898-1.119
     (0.987), 0.937 with the dark ring; at 0.45 with the lips' tone over the ramp's first half only,
     0.815-1.086. At 256 px and 0.45: 0.889-1.237, r 0.907 (0.933-1.229, 0.920 with the ring; 0.841-1.229,
-    0.894 at 0.6 with a first version of the lift's taper)."""
+    0.894 at 0.6 with a first version of the lift's taper). ``cavity_shading``: the cavity is the
+    driver's interior itself, scaled (linear light, per channel) so that its mean over the opening
+    is the cavity's colour, instead of that colour flat: a tongue or inner lip keyed out as lip is a
+    tongue in shadow, not a flat brown slot (at 360 px the slot's straight edges were drawn round
+    wide-open mouths)."""
     f = np.asarray(frame, np.float32)
     h, w = _shape2(f.shape if shape is None else shape)
     dp = np.asarray(driver_lips, np.float64)
@@ -113,6 +118,7 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
         return none
     lin = _linear(warped)
     lab = cv2.cvtColor(lin, cv2.COLOR_LRGB2Lab)  # _lab(warped), its linear light kept for the key
+    keyed = None  # how far the key took each pixel out as lip
     if lip_key is not None:
         # the driver's lips: just above its upper and below its lower inner-lip curve, middle 60 %
         us = du0 + np.linspace(0.2, 0.8, 9) * (du1 - du0)
@@ -135,6 +141,7 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
         inside = (alpha[y0:y1, x0:x1] > 0).astype(np.float32)
         k = cv2.GaussianBlur(k * inside, (0, 0), 1.0) / np.maximum(cv2.GaussianBlur(inside, (0, 0), 1.0), 1e-6)
         alpha[y0:y1, x0:x1] *= np.clip(k, 0.0, 1.0)
+        keyed = 1.0 - np.clip(k, 0.0, 1.0)
     if cavity is None:
         img = np.zeros((h, w, 3), np.float32)
         img[y0:y1, x0:x1] = warped
@@ -151,6 +158,13 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     dark = warped[inner & (lum <= np.percentile(lum[inner], cavity))] if inner.sum() >= 8 else None
     colour = dark.mean(axis=0) if dark is not None and len(dark) else 0.35 * lip.mean(axis=(0, 1)) \
         if lip_key is not None else np.zeros(3, np.float32)
+    opening = ramp > 0
+    if cavity_shading and keyed is not None and dark is not None and len(dark) and opening.sum() >= 8:
+        # where the key took the interior out as lip, its own shading at the cavity's darkness (elsewhere
+        # under the soft edge the flat colour: teeth there had drawn a light rim read as the opening)
+        scale = _linear(np.asarray(colour, np.float32)) / np.maximum(lin[opening].mean(axis=0), 1e-4)
+        flat = np.broadcast_to(np.asarray(colour, np.float32), lin.shape)
+        colour = flat + keyed[..., None] * (linear_to_srgb(lin * scale.astype(np.float32)) - flat)
     if lip_shade is not None and lip_key is not None:
         # the lips' shaded inner surface at the contour, the cavity's shadow from the ramp's end in
         shade = linear_to_srgb(np.median(lip_lin[0], axis=0) * np.float32(lip_shade))

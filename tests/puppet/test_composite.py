@@ -580,6 +580,28 @@ def test_mouth_interior_keeps_the_teeth_of_a_dim_frame():
         assert mouth_interior(dim, d, p, cavity=None)[1][upper].sum() > 0.85 * normal
 
 
+def test_mouth_interior_shades_a_keyed_out_tongue_instead_of_a_flat_slot():
+    """The lower half of the driver's opening a tongue of the lips' colour, lighter towards its
+    middle (keyed out as lip): with ``cavity_shading`` the puppet's opening there keeps the tongue's
+    shading, darker than the lips; without, one flat colour."""
+    frame, d, p = _mouths()
+    inner = np.zeros(frame.shape[:2], np.uint8)
+    cv2.fillPoly(inner, [np.round(d).astype(np.int32)], 1)
+    yy, xx = np.mgrid[0:120, 0:160]
+    tongue = (inner > 0) & (yy >= 35)  # no black cavity: the darkest interior is the tongue's sides
+    light = np.clip(1.0 - np.abs(xx - 60) / 30.0, 0.0, 1.0)[..., None]  # lighter in the middle
+    frame[tongue] = (np.float32([0.45, 0.18, 0.18]) + light * np.float32([0.3, 0.12, 0.12]))[tongue]
+    shaded, alpha = mouth_interior(frame, d, p, lip_shade=None)
+    flat, alpha_flat = mouth_interior(frame, d, p, lip_shade=None, cavity_shading=False)
+    np.testing.assert_array_equal(alpha, alpha_flat)  # colour only, not cover
+    _, drawn = mouth_interior(frame, d, p, cavity=None)  # the interior itself, the lips keyed out
+    deep = (alpha > 0.95) & (drawn < 0.02)  # the opening where only the cavity shows: the tongue
+    assert deep.sum() > 20
+    lum = np.float32([0.299, 0.587, 0.114])
+    assert (shaded[deep] @ lum).std() > 0.005 > 0.001 > (flat[deep] @ lum).std()
+    assert (shaded[deep] @ lum).max() < 0.75 * float(np.float32([0.75, 0.3, 0.3]) @ lum)
+
+
 def test_mouth_interior_cavity_fills_the_whole_opening_under_the_soft_edge():
     frame, d, p = _mouths()
     img, alpha = mouth_interior(frame, d, p, lip_shade=None)  # the cavity's colour alone (shade: above)
@@ -1132,7 +1154,7 @@ def test_composite_face_lifts_the_inner_lips_only_with_a_lip_band(monkeypatch):
     composite_face(frame, puppet, coverage, n, puppet_points68=p68, **kw)
     assert len(calls) == 1
     img_shape, fr_shape, d68, band, relative = calls[0]
-    assert band == CompositeParams().lip_band == 0.1 and img_shape == fr_shape and not relative
+    assert band == CompositeParams().lip_band == 0.2 and img_shape == fr_shape and not relative
     assert np.allclose(p68 - d68, p68[0] - d68[0])  # the same points, shifted into the face's box
     calls.clear()
     composite_face(frame, puppet, coverage, n, puppet_points68=p68, params=CompositeParams(colour="persona"), **kw)
@@ -1152,3 +1174,34 @@ def test_lift_inner_lips_relative_takes_the_drivers_band_relative_to_each_faces_
     lab = _lab(lift_inner_lips(puppet, frame, p, p, relative=True))
     assert abs(np.median(lab[core][:, 0]) - 50.0) < 2.5
     np.testing.assert_allclose(np.median(lab[core][:, 1:], axis=0), [20.0, 10.0], atol=2.5)  # the puppet's lips' chroma
+
+
+@pytest.mark.parametrize("driver_l", [35.0, 80.0])
+def test_keep_dark_keeps_only_the_darker_lightness(driver_l):
+    """A persona (skin L 70) with a dark rim (L 30) round one eye and a pale one (L 90) round the
+    other, on a dark (L 35) or a pale (L 80) driver: where ``keep_dark`` is 1 the lightness is the
+    smaller of the persona's and the plain transfer's, its a*, b* the transfer's; where it is 0 the
+    plain transfer, unchanged. On the pale driver the dark rim stays darker than the transfer makes
+    it; on the dark one the pale rim takes the transfer (it is not kept pale)."""
+    h, w = 40, 80
+    band = np.zeros((h, w), bool)
+    band[15:25, 10:30] = band[15:25, 50:70] = True
+    src_lab = np.broadcast_to(np.float32([70.0, 12.0, 18.0]), (h, w, 3)).copy()
+    src_lab[15:25, 10:30, 0] = 30.0
+    src_lab[15:25, 50:70, 0] = 90.0
+    ref_lab = np.broadcast_to(np.float32([driver_l, 14.0, 22.0]), (h, w, 3)).copy()
+    src, ref = _rgb(src_lab), _rgb(np.ascontiguousarray(ref_lab))
+    plain = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf))
+    out = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf, keep_dark=band.astype(np.float32)))
+    a = _lab(src)
+    np.testing.assert_allclose(out[~band], plain[~band], atol=1e-3)
+    # (the sRGB round trip of a light, saturated Lab colour moves L* by up to ~0.5)
+    np.testing.assert_allclose(out[band][:, 0], np.minimum(a[band][:, 0], plain[band][:, 0]), atol=0.8)
+    dark = band.copy()
+    dark[:, 40:] = False  # (the pale rim's plain transfer on the pale driver is out of gamut: its chroma clipped)
+    np.testing.assert_allclose(out[dark][:, 1:], plain[dark][:, 1:], atol=0.8)
+    if driver_l > 70:
+        assert out[18, 15, 0] < plain[18, 15, 0] - 1.0  # the dark rim kept dark
+    else:
+        assert out[18, 55, 0] == pytest.approx(plain[18, 55, 0], abs=0.3)  # the pale rim not kept pale
+        assert out[18, 55, 0] < a[18, 55, 0] - 10
