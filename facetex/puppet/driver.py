@@ -408,9 +408,10 @@ def fit_landmarks(frame, box, *, face_px: float = 200.0, points68=None) -> np.nd
     fitted again on the frame brightened by one gain in linear light (an exposure change: the
     colours' ratios kept) that brings that median there (:func:`exposure_gain`; not for a gain below
     :data:`MIN_EXPOSURE_GAIN`): 0.85 / 1.00, 0.57 / 1.18 and 0.91 (r 0.84-1.00; the dark-lipped
-    bbaf2n copy, whose slightly open mouth shows a pale slit between dark lips, stays under-read). Only the mouth: brightening the whole fit (a gamma, measured in an
-    earlier version) read the dim copy's eyes more shut; a per-channel gain to a light skin colour
-    did as well on the mouth except on the dark-lipped bbaf2n copy (0.54).
+    bbaf2n copy, whose slightly open mouth shows a pale slit between dark lips, stays under-read).
+    Only the mouth: brightening the whole fit (a gamma, measured in an earlier version) read the dim
+    copy's eyes more shut; a per-channel gain to a light skin colour did as well on the mouth except
+    on the dark-lipped bbaf2n copy (0.54).
     ``points68``: the landmarks already found in ``box`` at 1x (returned as they are when no
     upscale is needed and the face is not dark)."""
     import cv2
