@@ -75,13 +75,13 @@ def _frame_measures(image: np.ndarray, *, descriptor: bool = True):
     from ..puppet.driver import _mouth_exposed
 
     k = max(1.0, MEASURE_SIDE / max(image.shape[:2]))
-    big = cv2.resize(image, None, fx=k, fy=k, interpolation=cv2.INTER_CUBIC) if k > 1 else image
-    faces = detect_faces(np.clip(big, 0, 1), upsample=0)
+    big = np.clip(cv2.resize(image, None, fx=k, fy=k, interpolation=cv2.INTER_CUBIC) if k > 1 else image, 0, 1)
+    faces = detect_faces(big, upsample=0)
     if not faces:
         return None, None
     # a dark frame's mouth is read at a normalised exposure, as the tracker reads it: read plainly,
     # a dim copy of GRID lbax4n opened 0.53 as far as the clip itself
-    p = _mouth_exposed(np.clip(big, 0, 1), faces[0].box, faces[0].points68)
+    p = _mouth_exposed(big, faces[0].box, faces[0].points68)
     return (p + 0.5) / k - 0.5, (face_descriptor(image, (p + 0.5) / k - 0.5) if descriptor else None)
 
 

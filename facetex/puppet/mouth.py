@@ -81,11 +81,12 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     slopes 0.887-1.112 (mean 0.986), r >= 0.929 at 0.3; 0.833-1.083 (0.953), 0.919 at 0.45; 0.898-1.119
     (0.987), 0.937 with the dark ring; at 0.45 with the lips' tone over the ramp's first half only,
     0.815-1.086. At 256 px and 0.45: 0.889-1.237, r 0.907 (0.933-1.229, 0.920 with the ring; 0.841-1.229,
-    0.894 at 0.6 with a first version of the lift's taper). ``cavity_shading``: the cavity is the
-    driver's interior itself, scaled (linear light, per channel) so that its mean over the opening
-    is the cavity's colour, instead of that colour flat: a tongue or inner lip keyed out as lip is a
-    tongue in shadow, not a flat brown slot (at 360 px the slot's straight edges were drawn round
-    wide-open mouths)."""
+    0.894 at 0.6 with a first version of the lift's taper). ``cavity_shading`` (with ``lip_key``):
+    where the key took the interior out as lip, the cavity is the driver's interior itself, scaled
+    (linear light, per channel) so that its mean over the opening is the cavity's colour, instead of
+    that colour flat: a tongue or inner lip keyed out as lip is a tongue in shadow, not a flat brown
+    slot with straight edges (wide-open mouths at 360 px); elsewhere under the soft edge the flat
+    colour stays (teeth there had drawn a light rim that dlib read as part of the opening)."""
     f = np.asarray(frame, np.float32)
     h, w = _shape2(f.shape if shape is None else shape)
     dp = np.asarray(driver_lips, np.float64)
