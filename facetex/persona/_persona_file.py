@@ -132,6 +132,14 @@ def _stack_members(header: dict, n: int, size=(0, 0)) -> tuple[dict, dict]:
     out = {f"texture_static_{k}": (np.float32, (m,)) for k, m in enumerate(static)}
     if meta.get("glasses") is True:  # each photo's eyeglasses score (-1: none), made with the stacks
         out["texture_glasses_scores"] = (np.float64, (n,))
+    if meta.get("gaze") is True:  # each photo's gaze asymmetry (< -1: none), made with the stacks
+        out["texture_gaze"] = (np.float64, (n,))
+    energy = meta.get("band_energy")
+    if energy is not None:  # each photo's band energy per (level, region): (levels, regions)
+        if not (isinstance(energy, list) and len(energy) == 2 and energy[0] == len(static)
+                and all(isinstance(v, int) and not isinstance(v, bool) and 0 < v <= 32 for v in energy)):
+            raise ValueError("texture_stacks.band_energy")
+        out["texture_band_energy"] = (np.float64, (energy[0], energy[1], n))
     if header["version"] >= 4:
         aligned = meta.get("aligned")
         rng = aligned.get("conf_range") if isinstance(aligned, dict) else None

@@ -68,6 +68,10 @@ __all__ = [
 ]
 
 
+#: a photo without a gaze score as a .persona stores it (scores lie in [-1, 1])
+NO_GAZE = -9.0
+
+
 class _Prepared(_PhotoQuality):
     """Target-independent data of a persona for :func:`synthesize_texture` (see module doc).
 
@@ -113,6 +117,7 @@ class _Prepared(_PhotoQuality):
         self._aligned_q: np.ndarray | None = None  # the same, unpacked (computed here)
         self._aligned_lsb: np.ndarray | None = None  # their images' 9th bits (computed or stored)
         self._gaze = np.full(n, np.nan)  # each aligned photo's gaze asymmetry (made with the stacks)
+        self._gaze_stored = False  # read from the file (version-4 stacks saved since stop 46)
         # each photo's eyeglasses bridge score (made with the stacks from the photos, stored with them:
         # a load then need not unpack every photo for it, ~0.4 s of a 519-photo puppet's start)
         self._glasses: np.ndarray | None = None
@@ -138,6 +143,8 @@ class _Prepared(_PhotoQuality):
             self._aligned_lsb = np.empty((n, _lsb_bytes(self.shape)), np.uint8)
             self._glasses = np.full(n, np.nan)
 
+        gaze_stored = packed is not None and self._gaze_stored
+
         def chunk(i0: int, i1: int):
             # one photo at a time through alignment, pyramid, segment gather and the static sums:
             # its rows (~1 MB) stay in cache (a whole chunk's full-frame rows, ~30 MB, did not)
@@ -154,7 +161,8 @@ class _Prepared(_PhotoQuality):
                     q = packed.photo(i, work["q"])
                 # stored or computed, the stacks are made from the same quantized aligned photo
                 ic = _dequantize_aligned(q, self._aligned_lsb[i], luts, work)
-                self._gaze[i] = gaze_asymmetry(ic[..., :3], self.points68)
+                if not gaze_stored:
+                    self._gaze[i] = gaze_asymmetry(ic[..., :3], self.points68)
                 for k, row in enumerate(_photo_rows_rgbc(ic, self.levels, tp, work)):
                     if sums is not None:  # the same sequential float64 sum as rows.sum(axis=0) over the chunk
                         sums[k] += row
@@ -180,6 +188,9 @@ class _Prepared(_PhotoQuality):
         """What a .persona file stores of the stacks (:func:`stored_stacks`): the photos aligned to
         the neutral frame with their confidences, 8-bit and packed (the stacks are rebuilt from them
         at load); computed now when the stacks came from a version-3 file."""
+        # stacks read from a version-3 file (float16) are not those a load rebuilds: what is made from
+        # them (the gaze, the band energy) is then left to the load
+        rebuilt_alike = self._packed is not None or self._aligned_q is not None
         if self._packed is None:
             if self._aligned_q is None:  # stacks read from a version-3 file: align the photos again
                 self._aligned_q, self._aligned_lsb = self._aligned_quantized()
@@ -193,6 +204,14 @@ class _Prepared(_PhotoQuality):
         # NaN (no score: eyes off the photo) stored as -1: scores are >= 0, stored arrays finite
         arrays["texture_glasses_scores"] = np.where(np.isfinite(scores), scores, -1.0)
         meta["glasses"] = True
+        if not rebuilt_alike:
+            return {"meta": meta, "arrays": arrays}
+        # and what a load would compute from every photo's rebuilt stacks (~0.45 s of CPU of a
+        # 519-photo puppet's start): the gaze (NaN, no score, stored as -9) and the band energy
+        arrays["texture_gaze"] = np.where(np.isfinite(self._gaze), self._gaze, NO_GAZE)
+        meta["gaze"] = True
+        arrays["texture_band_energy"] = np.asarray(self.band_energy(), np.float64)
+        meta["band_energy"] = list(arrays["texture_band_energy"].shape[:2])
         return {"meta": meta, "arrays": arrays}
 
     def _aligned_photo(self, i: int, m: np.ndarray, conf: np.ndarray, out: np.ndarray,
@@ -235,6 +254,13 @@ class _Prepared(_PhotoQuality):
             g = arrays.get("texture_glasses_scores") if stored["meta"].get("glasses") else None
             if g is not None and g.shape == (self.n,):
                 self._glasses = np.where(g >= 0, g, np.nan).astype(np.float64)
+            gaze = arrays.get("texture_gaze") if stored["meta"].get("gaze") else None
+            if gaze is not None and gaze.shape == (self.n,):
+                self._gaze = np.where(gaze >= -1, gaze, np.nan).astype(np.float64)
+                self._gaze_stored = True
+            energy = arrays.get("texture_band_energy")
+            if energy is not None and energy.shape == (self.levels, len(self.regions), self.n):
+                self._stage["band_energy"] = np.asarray(energy, np.float64)
             from ._stack_cache import read_stack_cache, write_stack_cache
 
             try:

@@ -347,6 +347,9 @@ TEXTURE_BATCH = 32
 FIRST_BATCH = 8
 #: frames rendered ahead of the one being written
 IN_FLIGHT = 4
+_END = object()
+#: ... and when a forked child renders every other frame (its frames come a batch at a time)
+FORKED_IN_FLIGHT = 16
 
 
 def _check_mode(mode: str) -> None:
@@ -356,7 +359,8 @@ def _check_mode(mode: str) -> None:
 
 def render_frames(session: PuppetSession, *, size: int | None = None, mode: str = "composite",
                   side_by_side: bool = False, texture: str | None = None, max_frames: int | None = None,
-                  keep: bool = False, progress: Callable | None = None, uint8_frame: bool = False) -> Iterator[dict]:
+                  keep: bool = False, progress: Callable | None = None, uint8_frame: bool = False,
+                  fork: bool | None = None) -> Iterator[dict]:
     """Yield per frame {"index", "driver" (panel), "puppet" (panel), "frame" (output), "alpha",
     "lost"} (with ``keep`` also "grid" and "texture", the frame's mesh and texture): the second
     pass over the driver video. Lost frames show the driver's panel (a plain panel in face
@@ -364,7 +368,9 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
     render_s; mesh and texture overlap rendering). ``uint8_frame``: "frame" is the output frame
     as uint8 (what :func:`facetex.io.write_video` encodes; made panel by panel, without a float
     copy of the frame). Output frames over :data:`MAX_FRAME_PIXELS` are refused (BadInputError);
-    large panels are rendered one at a time with fewer frames ahead (the same frames)."""
+    large panels are rendered one at a time with fewer frames ahead (the same frames).
+    ``fork``: render every other frame in a forked child process (:mod:`facetex.puppet._forked`;
+    the same frames); None: when it can (Linux, the main thread, 2+ CPUs, small panels, 16+ frames)."""
     from concurrent.futures import ThreadPoolExecutor
 
     from ..io import iter_video_frames
@@ -376,9 +382,21 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
                                      path=session.track.path)
     # frames ahead of the one yielded: at most IN_FLIGHT, and at most IN_FLIGHT_BYTES of panels
     # (a 4096 x 2304 panel's record is 0.26 GB as float32); large panels render on one thread
-    in_flight = min(IN_FLIGHT, IN_FLIGHT_BYTES // (W * H * (12 + 12 + 4)))  # 0: one frame at a time
+    by_bytes = IN_FLIGHT_BYTES // (W * H * (12 + 12 + 4))
+    in_flight = min(IN_FLIGHT, by_bytes)  # 0: one frame at a time
     workers = 1 if W * H > ONE_RENDER_PIXELS else 2
     n = session.track.n_frames if max_frames is None else min(session.track.n_frames, max(0, int(max_frames)))
+    if fork is None:
+        from .._parallel import available_cpus
+        from ._forked import fork_available
+
+        fork = (workers == 2 and by_bytes >= FORKED_IN_FLIGHT and n >= 2 * FIRST_BATCH and available_cpus() >= 2
+                and fork_available())
+    if fork:
+        # one render thread here: two contend for the GIL (75 frames at 256 px: 2.16 s -> 2.05 s); the
+        # child's frames come in bursts (a batch's textures first): a longer queue
+        workers = 1
+        in_flight = max(in_flight, min(FORKED_IN_FLIGHT, by_bytes))
     tm = session.timings
     for key in ("mesh_s", "texture_s", "render_s"):
         tm.setdefault(key, 0.0)
@@ -389,39 +407,77 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
         with lock:
             tm[key] += dt
 
-    def meshes_and_textures(i0: int, i1: int) -> list:
-        frames = range(i0, i1)
+    def meshes_and_textures(frames: list, add=add_time) -> list:
         t0 = time.perf_counter()
         verts = [pup.grid(i) for i in frames]
         t1 = time.perf_counter()
         tex = pup.textures(frames, texture)
-        add_time("mesh_s", t1 - t0)
-        add_time("texture_s", time.perf_counter() - t1)
+        add("mesh_s", t1 - t0)
+        add("texture_s", time.perf_counter() - t1)
         return list(zip(verts, tex))
 
-    def render_one(i: int, grid, tex, drv):
+    def render_one(i: int, grid, tex, drv, add=add_time):
         t0 = time.perf_counter()
         out = pup.render(i, grid, tex, drv, scale, mode)
-        add_time("render_s", time.perf_counter() - t0)
+        add("render_s", time.perf_counter() - t0)
         return out
 
-    # batches of frames whose meshes and textures are computed together (a short first batch:
-    # rendering starts early); frames are rendered on a 2-thread pool, each batch's textures
-    # computed there ahead of its frames (OpenCV and numpy release the GIL); frames come out in
-    # order, each the same as rendered alone
-    starts = [0] + list(range(min(FIRST_BATCH, n), n, TEXTURE_BATCH)) if n else []
-    bounds = list(zip(starts, starts[1:] + [n]))
+    def panel(frame):
+        return cv2.resize(frame, (W, H), interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
+
+    def driver_frames():
+        return iter_video_frames(session.track.path, max_frames=n, max_side=DRIVER_MAX_SIDE)
+
+    def batches(frames: list) -> list:
+        """Frames whose meshes and textures are computed together (a short first batch: rendering
+        starts early)."""
+        starts = [0] + list(range(min(FIRST_BATCH, len(frames)), len(frames), TEXTURE_BATCH)) if frames else []
+        return [frames[a:b] for a, b in zip(starts, starts[1:] + [len(frames)])]
+
+    # the odd frames go to the forked child: it computes their meshes and textures, decodes the
+    # driver itself and sends each frame's record back (its panels, with ``keep`` its mesh and texture)
+    theirs = list(range(1, n, 2)) if fork else []
+    own = list(range(0, n, 2)) if fork else list(range(n))
+
+    def child_frames():
+        times = dict.fromkeys(("mesh_s", "texture_s", "render_s"), 0.0)
+
+        def add(key, dt):
+            times[key] += dt
+
+        frames, at, frame = driver_frames(), -1, None
+        for fr in batches(theirs):
+            for i, (grid, tex) in zip(fr, meshes_and_textures(fr, add)):
+                while at < i and frame is not _END:
+                    frame, at = next(frames, _END), at + 1
+                if frame is _END:  # a video shorter than its header said: the parent stops there too
+                    return times
+                out = {"grid": grid, "texture": tex} if keep else {}
+                if session.track.found[i]:
+                    out["puppet"], out["alpha"] = render_one(i, grid, tex, panel(frame), add)
+                yield i, out
+        return times
+
+    # frames are rendered on a 2-thread pool, each batch's textures computed there ahead of its
+    # frames (OpenCV and numpy release the GIL); frames come out in order, each the same as rendered alone
+    groups = batches(own)
+    where = {i: (b, p) for b, fr in enumerate(groups) for p, i in enumerate(fr)}
+    child = None
+    if theirs:
+        from ._forked import ForkedResults
+
+        child = ForkedResults(child_frames, theirs)  # before this process's threads start
     pool = ThreadPoolExecutor(workers, thread_name_prefix="facetex-puppet-frame")
     try:
-        ahead = {b: pool.submit(meshes_and_textures, *bounds[b]) for b in range(min(2, len(bounds)))}
+        ahead = {b: pool.submit(meshes_and_textures, groups[b]) for b in range(min(2, len(groups)))}
         pending: deque = deque()
         batch, b = [], -1
 
         def finished(rec_fut):
             rec, fut = rec_fut
             if fut is not None:
-                img, alpha = fut.result()
-                rec.update(puppet=img, alpha=alpha)
+                res = fut.result()
+                rec.update(res if isinstance(res, dict) else {"puppet": res[0], "alpha": res[1]})
             drv, img = rec["driver"], rec["puppet"]
             if uint8_frame:  # the same values as to_uint8 of the float frame
                 from ..io import to_uint8
@@ -437,34 +493,42 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
                 progress(n=1, stage="render", lost=session.track.n_lost)
             return rec
 
-        for i, frame in enumerate(iter_video_frames(session.track.path, max_frames=n, max_side=DRIVER_MAX_SIDE)):
+        for i, frame in enumerate(driver_frames()):
             if i >= n:
                 break
-            drv = cv2.resize(frame, (W, H), interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
-            if b + 1 < len(bounds) and i == bounds[b + 1][0]:
-                b += 1
-                batch = ahead.pop(b).result()
-                if b + 2 < len(bounds):
-                    ahead[b + 2] = pool.submit(meshes_and_textures, *bounds[b + 2])
-            grid, tex = batch[i - bounds[b][0]]
+            drv = panel(frame)
             lost = not bool(session.track.found[i])
             rec = {"index": i, "driver": drv, "lost": lost}
-            if keep:
-                rec.update(grid=grid, texture=tex)
             fut = None
             if lost:  # no puppet where the driver's face is not seen whole
                 rec["puppet"] = drv.copy() if mode == "composite" else np.broadcast_to(
                     np.asarray(pup.params.plain, np.float32), drv.shape).copy()
                 rec["alpha"] = np.zeros((H, W), np.float32)
-            else:
-                fut = pool.submit(render_one, i, grid, tex, drv)
+            if i in where:
+                if where[i][0] != b:
+                    b = where[i][0]
+                    batch = ahead.pop(b).result()
+                    if b + 2 < len(groups):
+                        ahead[b + 2] = pool.submit(meshes_and_textures, groups[b + 2])
+                grid, tex = batch[where[i][1]]
+                if keep:
+                    rec.update(grid=grid, texture=tex)
+                if not lost:
+                    fut = pool.submit(render_one, i, grid, tex, drv)
+            else:  # the child's
+                fut = child.future(i)
             pending.append((rec, fut))
             while pending and (len(pending) > in_flight or pending[0][1] is None or pending[0][1].done()):
                 yield finished(pending.popleft())
         while pending:
             yield finished(pending.popleft())
+        if child is not None:
+            for key, dt in child.result().items():
+                add_time(key, dt)
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+        if child is not None:
+            child.close()
 
 
 def puppeteer(driver, persona, output, *, driver_photos=None, side_by_side: bool = False, size: int | None = None,

@@ -1,0 +1,135 @@
+"""A forked child process whose results the parent takes as futures: the puppet's second pass
+renders part of its frames there.
+
+Why a process: a frame's mesh and composite are many small numpy and OpenCV calls that hold the
+GIL. Two render threads ran no faster than one (75 frames of a 256 px clip, mesh and composite:
+1.07 s on one thread, 1.41 s on two); a child forked after the setup shares the persona's texture
+stacks copy-on-write, so it starts at once (~10 ms) and the second core renders beside the first
+(the same 75 frames: 1.84 s -> 1.05 s split between the two, every frame the same bits).
+
+Linux only (``fork``; other systems keep the threads), and only from the main thread of a process
+that may have children: a fork copies no other thread, and a lock another thread held at that moment
+(inside OpenCV, say, in a server rendering two clips at once) would stay held in the child.
+"""
+
+from __future__ import annotations
+
+import pickle
+import sys
+import threading
+import warnings
+from concurrent.futures import Future
+from typing import Callable, Iterable, Iterator
+
+__all__ = ["fork_available", "ForkedResults"]
+
+
+def fork_available() -> bool:
+    """Whether a child can be forked safely here: Linux, the main thread, not a daemonic process."""
+    import multiprocessing as mp
+
+    return (sys.platform.startswith("linux") and "fork" in mp.get_all_start_methods()
+            and threading.current_thread() is threading.main_thread() and not mp.current_process().daemon)
+
+
+def _portable_error(e: BaseException) -> BaseException:
+    """``e`` if it survives pickling, else a RuntimeError with its text (a facetex error keeps its
+    class, message and file)."""
+    from ..errors import FacetexError
+
+    if isinstance(e, FacetexError):
+        try:
+            return pickle.loads(pickle.dumps((type(e), e.message, e.path)))
+        except Exception:  # noqa: BLE001 - any failure: the plain text instead
+            return RuntimeError(str(e))
+    try:
+        return pickle.loads(pickle.dumps(e))
+    except Exception:  # noqa: BLE001
+        return RuntimeError(f"{type(e).__name__}: {e}")
+
+
+def _child_main(produce: Callable[[], Iterator], conn) -> None:
+    try:
+        gen = produce()
+        while True:
+            try:
+                key, value = next(gen)
+            except StopIteration as stop:
+                conn.send(("end", None, stop.value))
+                break
+            conn.send(("item", key, value))
+    except BaseException as e:  # noqa: BLE001 - handed to the parent, which raises it
+        err = _portable_error(e)
+        conn.send(("error", None, err))
+    finally:
+        conn.close()
+
+
+class ForkedResults:
+    """Run the generator function ``produce`` (yielding (key, value), returning a final value) in a
+    forked child; :meth:`future` is the future of the value of ``key`` (one of ``keys``),
+    :meth:`result` the final value. A child's error, or its death, fails every pending future
+    with that error. :meth:`close` stops the child (when it has not ended) and reaps it."""
+
+    def __init__(self, produce: Callable[[], Iterator], keys: Iterable):
+        import multiprocessing as mp
+
+        ctx = mp.get_context("fork")
+        self._futures = {k: Future() for k in keys}
+        self._end: Future = Future()
+        for f in (*self._futures.values(), self._end):
+            f.set_running_or_notify_cancel()
+        recv, send = ctx.Pipe(duplex=False)
+        for stream in (sys.stdout, sys.stderr):  # else the child flushes a copy of what is buffered
+            try:
+                stream.flush()
+            except (AttributeError, OSError, ValueError):
+                pass
+        with warnings.catch_warnings():  # Python 3.12+ warns of forking a threaded process (see above)
+            warnings.simplefilter("ignore", DeprecationWarning)
+            self._proc = ctx.Process(target=_child_main, args=(produce, send), daemon=True,
+                                     name="facetex-puppet-render")
+            self._proc.start()
+        send.close()
+        self._conn = recv
+        self._reader = threading.Thread(target=self._read, name="facetex-puppet-render-reader", daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        err: BaseException | None = None
+        try:
+            while True:
+                kind, key, value = self._conn.recv()
+                if kind == "item":
+                    self._futures[key].set_result(value)
+                elif kind == "end":
+                    self._end.set_result(value)
+                    return
+                else:
+                    err = value
+                    break
+        except (EOFError, OSError):
+            err = RuntimeError(f"the render process {self._proc.pid} ended unexpectedly "
+                               f"(exit code {self._proc.exitcode}): re-run the command")
+        except BaseException as e:  # noqa: BLE001 - an unreadable message
+            err = e
+        if isinstance(err, tuple):  # a facetex error: (class, message, path)
+            cls, message, path = err
+            err = cls(message, path=path)
+        for f in (*self._futures.values(), self._end):
+            if not f.done():
+                f.set_exception(err)
+
+    def future(self, key) -> Future:
+        return self._futures[key]
+
+    def result(self):
+        """The final value ``produce`` returned (waits for the child's end)."""
+        return self._end.result()
+
+    def close(self) -> None:
+        if self._proc.is_alive() and not self._end.done():
+            self._proc.terminate()
+        self._proc.join()
+        self._reader.join()
+        self._conn.close()

@@ -1,0 +1,86 @@
+"""The forked child whose results the puppet's second pass takes as futures."""
+
+import os
+import sys
+
+import pytest
+
+from facetex.errors import BadInputError
+from facetex.puppet._forked import ForkedResults, fork_available
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fork: Linux only")
+
+
+def test_values_arrive_by_key_and_the_final_value_at_the_end():
+    parent = os.getpid()
+
+    def produce():
+        for k in (3, 1, 2):
+            yield k, (k * k, os.getpid())
+        return {"done": True}
+
+    child = ForkedResults(produce, [1, 2, 3])
+    try:
+        got = {k: child.future(k).result(timeout=30) for k in (1, 2, 3)}
+        assert {k: v[0] for k, v in got.items()} == {1: 1, 2: 4, 3: 9}
+        assert all(v[1] != parent for v in got.values())  # computed in another process
+        assert child.result() == {"done": True}
+    finally:
+        child.close()
+
+
+def test_a_childs_facetex_error_keeps_its_class_message_and_file():
+    def produce():
+        yield 0, "first"
+        raise BadInputError("no face in this frame", path="/tmp/clip.mp4")
+
+    child = ForkedResults(produce, [0, 1])
+    try:
+        assert child.future(0).result(timeout=30) == "first"
+        with pytest.raises(BadInputError) as e:
+            child.future(1).result(timeout=30)
+        assert e.value.path == "/tmp/clip.mp4" and "no face in this frame" in str(e.value)
+        with pytest.raises(BadInputError):
+            child.result()
+    finally:
+        child.close()
+
+
+def test_a_child_that_dies_fails_the_pending_futures():
+    def produce():
+        yield 0, 1
+        os._exit(3)  # killed, say: no message
+
+    child = ForkedResults(produce, [0, 1])
+    try:
+        assert child.future(0).result(timeout=30) == 1
+        with pytest.raises(RuntimeError, match="ended unexpectedly"):
+            child.future(1).result(timeout=30)
+    finally:
+        child.close()
+
+
+def test_close_stops_a_child_that_has_not_finished():
+    import time
+
+    def produce():
+        yield 0, 0
+        time.sleep(60)
+        yield 1, 1
+
+    child = ForkedResults(produce, [0, 1])
+    t = time.perf_counter()
+    assert child.future(0).result(timeout=30) == 0
+    child.close()
+    assert time.perf_counter() - t < 20 and not child._proc.is_alive()
+
+
+def test_fork_is_only_offered_on_the_main_thread():
+    import threading
+
+    seen = []
+    th = threading.Thread(target=lambda: seen.append(fork_available()))
+    th.start()
+    th.join()
+    assert seen == [False]
+    assert fork_available() is True  # pytest runs tests on the main thread, on Linux
