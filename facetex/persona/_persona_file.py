@@ -4,6 +4,7 @@ ranges and the memory they need."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import struct
 import zipfile
@@ -66,6 +67,10 @@ _HEADER_SCHEMA = {
 }
 
 
+#: digests of the header members that passed the schema check (the check is a function of them)
+_CHECKED_HEADERS: set[bytes] = set()
+
+
 def _read_header(path: Path) -> tuple[dict, PersonaParams, list[str]]:
     """Parse and validate only the JSON header member (no array is decompressed)."""
     from ..io import check_input_file
@@ -101,8 +106,13 @@ def _read_header(path: Path) -> tuple[dict, PersonaParams, list[str]]:
         raise BadPersonaError(
             f"persona format version {version!r} is not supported (this facetex reads up to "
             f"{PERSONA_VERSION}): upgrade facetex or rebuild the persona", path=path)
-    check_shape(header, _HEADER_SCHEMA, path=path, what="persona header", lead="corrupt persona header",
-                error=BadPersonaError, advice="rebuild it with `facetex persona build`")
+    # a header is checked once a process: `facetex puppet` reads it three times (a fail-fast check,
+    # the canonical frame, the load), and the schema check of a 519-photo header takes ~0.1 s
+    digest = hashlib.sha256(raw.tobytes()).digest()
+    if digest not in _CHECKED_HEADERS:
+        check_shape(header, _HEADER_SCHEMA, path=path, what="persona header", lead="corrupt persona header",
+                    error=BadPersonaError, advice="rebuild it with `facetex persona build`")
+        _CHECKED_HEADERS.add(digest)
     try:
         p = header["parameters"]
         params = PersonaParams(**{**p, "size": tuple(int(v) for v in p["size"])})

@@ -425,8 +425,8 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
     def panel(frame):
         return cv2.resize(frame, (W, H), interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
 
-    def driver_frames():
-        return iter_video_frames(session.track.path, max_frames=n, max_side=DRIVER_MAX_SIDE)
+    def driver_frames(skip=None):
+        return iter_video_frames(session.track.path, max_frames=n, max_side=DRIVER_MAX_SIDE, skip=skip)
 
     def batches(frames: list) -> list:
         """Frames whose meshes and textures are computed together (a short first batch: rendering
@@ -445,7 +445,8 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
         def add(key, dt):
             times[key] += dt
 
-        frames, at, frame = driver_frames(), -1, None
+        mine = {i for i in theirs if session.track.found[i]}  # the frames whose panels it renders
+        frames, at, frame = driver_frames(skip=lambda i: i not in mine), -1, None
         for fr in batches(theirs):
             for i, (grid, tex) in zip(fr, meshes_and_textures(fr, add)):
                 while at < i and frame is not _END:

@@ -585,6 +585,28 @@ def test_bad_depth_refused(persona, tmp_path):
     assert e.value.path == str(path) and "corrupt persona header" in str(e.value)
 
 
+def test_a_header_is_schema_checked_once_a_process(persona, tmp_path, monkeypatch):
+    """The schema check (~0.1 s of a 519-photo header) runs on a header's first read only; a
+    different (bad) header is still checked and refused."""
+    import facetex.persona._persona_file as pf
+
+    good = persona.save(tmp_path / "good.persona")
+    pf._CHECKED_HEADERS.clear()
+    calls = []
+    real = pf.check_shape
+    monkeypatch.setattr(pf, "check_shape", lambda *a, **k: (calls.append(1), real(*a, **k))[1])
+    for _ in range(3):
+        assert read_persona_header(good)["n_photos"] == 12
+    assert len(calls) == 1
+    head, arrays = _saved_parts(persona, tmp_path / "parts.persona")
+    bad = _npz(tmp_path / "bad.persona", {**head, "depth_photos": -1}, arrays)
+    with pytest.raises(BadPersonaError, match="corrupt persona header"):
+        read_persona_header(bad)
+    with pytest.raises(BadPersonaError, match="corrupt persona header"):
+        read_persona_header(bad)
+    assert len(calls) == 3
+
+
 def test_header_reader_does_not_read_arrays(persona, tmp_path):
     good = persona.save(tmp_path / "good.persona")
     h = read_persona_header(good)
