@@ -48,7 +48,7 @@ def _portable_error(e: BaseException) -> BaseException:
         return RuntimeError(f"{type(e).__name__}: {e}")
 
 
-def _child_main(produce: Callable[[], Iterator], conn) -> None:
+def _child_main(produce: Callable[[], Iterator], conn, credit) -> None:
     try:
         gen = produce()
         while True:
@@ -57,6 +57,8 @@ def _child_main(produce: Callable[[], Iterator], conn) -> None:
             except StopIteration as stop:
                 conn.send(("end", None, stop.value))
                 break
+            if credit is not None:  # at most ``ahead`` values not yet taken by the parent
+                credit.acquire()
             conn.send(("item", key, value))
     except BaseException as e:  # noqa: BLE001 - handed to the parent, which raises it
         err = _portable_error(e)
@@ -68,13 +70,16 @@ def _child_main(produce: Callable[[], Iterator], conn) -> None:
 class ForkedResults:
     """Run the generator function ``produce`` (yielding (key, value), returning a final value) in a
     forked child; :meth:`future` is the future of the value of ``key`` (one of ``keys``),
-    :meth:`result` the final value. A child's error, or its death, fails every pending future
-    with that error. :meth:`close` stops the child (when it has not ended) and reaps it."""
+    :meth:`result` the final value. ``ahead``: the child waits while this many values are sent and
+    not yet :meth:`taken` (a long video's frames do not pile up when the parent is the slower).
+    A child's error, or its death, fails every pending future with that error. :meth:`close`
+    stops the child (when it has not ended) and reaps it."""
 
-    def __init__(self, produce: Callable[[], Iterator], keys: Iterable):
+    def __init__(self, produce: Callable[[], Iterator], keys: Iterable, *, ahead: int | None = None):
         import multiprocessing as mp
 
         ctx = mp.get_context("fork")
+        self._credit = None if ahead is None else ctx.Semaphore(max(1, int(ahead)))
         self._futures = {k: Future() for k in keys}
         self._end: Future = Future()
         for f in (*self._futures.values(), self._end):
@@ -87,7 +92,7 @@ class ForkedResults:
                 pass
         with warnings.catch_warnings():  # Python 3.12+ warns of forking a threaded process (see above)
             warnings.simplefilter("ignore", DeprecationWarning)
-            self._proc = ctx.Process(target=_child_main, args=(produce, send), daemon=True,
+            self._proc = ctx.Process(target=_child_main, args=(produce, send, self._credit), daemon=True,
                                      name="facetex-puppet-render")
             self._proc.start()
         send.close()
@@ -122,6 +127,11 @@ class ForkedResults:
 
     def future(self, key) -> Future:
         return self._futures[key]
+
+    def taken(self) -> None:
+        """One value received has been used: the child may send one more (with ``ahead``)."""
+        if self._credit is not None:
+            self._credit.release()
 
     def result(self):
         """The final value ``produce`` returned (waits for the child's end)."""

@@ -347,9 +347,9 @@ TEXTURE_BATCH = 32
 FIRST_BATCH = 8
 #: frames rendered ahead of the one being written
 IN_FLIGHT = 4
-_END = object()
 #: ... and when a forked child renders every other frame (its frames come a batch at a time)
 FORKED_IN_FLIGHT = 16
+_END = object()  # the end of the driver video (the child's reader)
 
 
 def _check_mode(mode: str) -> None:
@@ -370,7 +370,8 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
     copy of the frame). Output frames over :data:`MAX_FRAME_PIXELS` are refused (BadInputError);
     large panels are rendered one at a time with fewer frames ahead (the same frames).
     ``fork``: render every other frame in a forked child process (:mod:`facetex.puppet._forked`;
-    the same frames); None: when it can (Linux, the main thread, 2+ CPUs, small panels, 16+ frames)."""
+    the same frames within float rounding: its textures are blended in other batches); None: when
+    it can (Linux, the main thread, 2+ CPUs, panels up to ~0.4 MP, 16+ frames)."""
     from concurrent.futures import ThreadPoolExecutor
 
     from ..io import iter_video_frames
@@ -467,7 +468,7 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
     if theirs:
         from ._forked import ForkedResults
 
-        child = ForkedResults(child_frames, theirs)  # before this process's threads start
+        child = ForkedResults(child_frames, theirs, ahead=in_flight)  # before this process's threads start
     pool = ThreadPoolExecutor(workers, thread_name_prefix="facetex-puppet-frame")
     try:
         ahead = {b: pool.submit(meshes_and_textures, groups[b]) for b in range(min(2, len(groups)))}
@@ -478,7 +479,11 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
             rec, fut = rec_fut
             if fut is not None:
                 res = fut.result()
-                rec.update(res if isinstance(res, dict) else {"puppet": res[0], "alpha": res[1]})
+                if isinstance(res, dict):  # the child's
+                    rec.update(res)
+                    child.taken()
+                else:
+                    rec.update(puppet=res[0], alpha=res[1])
             drv, img = rec["driver"], rec["puppet"]
             if uint8_frame:  # the same values as to_uint8 of the float frame
                 from ..io import to_uint8

@@ -84,3 +84,26 @@ def test_fork_is_only_offered_on_the_main_thread():
     th.join()
     assert seen == [False]
     assert fork_available() is True  # pytest runs tests on the main thread, on Linux
+
+
+def test_the_child_waits_while_ahead_values_are_not_taken():
+    import time
+
+    def produce():
+        for k in range(6):
+            yield k, time.perf_counter()
+
+    child = ForkedResults(produce, range(6), ahead=2)
+    try:
+        assert child.future(1).result(timeout=30) > 0
+        time.sleep(0.5)
+        assert not child.future(2).done()  # two sent, none taken: the child waits
+        child.taken()
+        assert child.future(2).result(timeout=30) > 0  # sent after the credit
+        time.sleep(0.3)
+        assert not child.future(3).done()
+        for _ in range(4):
+            child.taken()
+        assert [child.future(k).result(timeout=30) > 0 for k in range(6)] == [True] * 6
+    finally:
+        child.close()

@@ -301,6 +301,13 @@ def test_render_frames_in_a_forked_child_are_the_same_frames(session, monkeypatc
         for key in ("puppet", "alpha", "texture", "driver"):
             np.testing.assert_allclose(a[key], b[key], atol=1e-5)
         np.testing.assert_array_equal(a["grid"], b["grid"])
+    kw = dict(size=96, mode="face", side_by_side=True, uint8_frame=True, max_frames=9)
+    ref = list(pp.render_frames(session, fork=False, **kw))
+    forked = list(pp.render_frames(session, fork=True, **kw))
+    assert len(ref) == len(forked) == 9
+    for a, b in zip(ref, forked):
+        assert a["frame"].dtype == np.uint8 and a["frame"].shape == b["frame"].shape
+        assert np.abs(a["frame"].astype(int) - b["frame"]).max() <= 1
     pup = session.puppeteer
     render = pup.render
 
