@@ -156,13 +156,22 @@ def _small_page_arrays(shapes: list[tuple[int, int]]) -> list[np.ndarray]:
     huge pages are off. Why: numpy asks for huge pages for large arrays, and the kernel then
     compacts memory at the first touch (defrag "madvise"): the ~470 MB of a 519-photo persona's
     stacks cost 0.7-1.3 s of system time to fault in with huge pages, 0.2-0.5 s with 4 kB pages
-    (the blends read them as fast). The arrays keep the map alive (their base); pickled, they are
-    copied like any array."""
+    (the blends read them as fast). Where huge pages are only used on request (the usual
+    "madvise" mode), the map's pages are made at once (``MAP_POPULATE``): one call instead of a
+    fault per page, ~0.2 s less system time for those 470 MB. The arrays keep the map alive
+    (their base); pickled, they are copied like any array."""
     import mmap
 
     sizes = [-(-int(np.prod(s)) * 4 // 64) * 64 for s in shapes]  # 64-byte aligned starts
     total = max(sum(sizes), 1)
-    mem = mmap.mmap(-1, total)
+    mem = None
+    if hasattr(mmap, "MAP_POPULATE") and not _huge_pages_always():
+        try:
+            mem = mmap.mmap(-1, total, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS | mmap.MAP_POPULATE)
+        except OSError:
+            mem = None
+    if mem is None:
+        mem = mmap.mmap(-1, total)
     if hasattr(mmap, "MADV_NOHUGEPAGE"):
         try:
             mem.madvise(mmap.MADV_NOHUGEPAGE)
@@ -173,6 +182,16 @@ def _small_page_arrays(shapes: list[tuple[int, int]]) -> list[np.ndarray]:
         arrays.append(np.frombuffer(mem, np.float32, int(np.prod(s)), off).reshape(s))
         off += size
     return arrays
+
+
+def _huge_pages_always() -> bool:
+    """Whether the kernel backs every anonymous map with transparent huge pages (a populated map
+    would then be made of them before it could be told not to)."""
+    try:
+        with open("/sys/kernel/mm/transparent_hugepage/enabled") as f:
+            return "[always]" in f.read()
+    except OSError:
+        return False
 
 
 def _csr(weights: np.ndarray):
