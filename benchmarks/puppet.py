@@ -155,7 +155,10 @@ def main(argv=None):
     from facetex.persona import read_persona_header
 
     head = read_persona_header(args.persona)
-    stored = "stored texture stacks" if head.get("texture_stacks") else "NO stored texture stacks (computed at start)"
+    stacks = head.get("texture_stacks") or {}
+    stored = "stored texture stacks" if stacks else "NO stored texture stacks (computed at start)"
+    if stacks and not (stacks.get("gaze") and stacks.get("band_energy")):
+        stored += " without the photos' gaze and band energy (computed at start: rebuild it for a faster start)"
     print(f"persona: {args.persona} ({len(persona)} photos, format {head['version']}, {stored}); driver "
           f"{args.driver} ({len(s.motion)} frames); load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     print(f"{'step (1 core)':50s} {'median ms':>10s} {'p90 ms':>8s}  target")

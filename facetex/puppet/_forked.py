@@ -14,6 +14,7 @@ that may have children: a fork copies no other thread, and a lock another thread
 
 from __future__ import annotations
 
+import os
 import pickle
 import sys
 import threading
@@ -48,7 +49,10 @@ def _portable_error(e: BaseException) -> BaseException:
         return RuntimeError(f"{type(e).__name__}: {e}")
 
 
-def _child_main(produce: Callable[[], Iterator], conn, credit) -> None:
+def _child_main(produce: Callable[[], Iterator], conn, credit, parent: int) -> None:
+    from .._parallel import die_with
+
+    die_with(parent)  # a parent killed outright (SIGKILL) leaves no child waiting for credit
     try:
         gen = produce()
         while True:
@@ -92,7 +96,7 @@ class ForkedResults:
                 pass
         with warnings.catch_warnings():  # Python 3.12+ warns of forking a threaded process (see above)
             warnings.simplefilter("ignore", DeprecationWarning)
-            self._proc = ctx.Process(target=_child_main, args=(produce, send, self._credit), daemon=True,
+            self._proc = ctx.Process(target=_child_main, args=(produce, send, self._credit, os.getpid()), daemon=True,
                                      name="facetex-puppet-render")
             self._proc.start()
         send.close()

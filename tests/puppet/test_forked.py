@@ -107,3 +107,43 @@ def test_the_child_waits_while_ahead_values_are_not_taken():
         assert [child.future(k).result(timeout=30) > 0 for k in range(6)] == [True] * 6
     finally:
         child.close()
+
+
+def test_a_child_waiting_for_credit_ends_with_its_killed_parent(tmp_path):
+    """A parent killed outright (SIGKILL, no cleanup) must not leave its child waiting forever."""
+    import signal
+    import subprocess
+    import textwrap
+    import time
+
+    script = tmp_path / "parent.py"
+    script.write_text(textwrap.dedent('''
+        import os, sys, time
+        from facetex.puppet._forked import ForkedResults
+        def produce():
+            for k in range(5):
+                yield k, k
+        child = ForkedResults(produce, range(5), ahead=1)
+        child.future(0).result(timeout=30)
+        print(child._proc.pid, flush=True)
+        time.sleep(60)
+    '''))
+    parent = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    try:
+        pid = int(parent.stdout.readline())
+        os.kill(parent.pid, signal.SIGKILL)
+        parent.wait(timeout=30)
+        deadline = time.time() + 20
+        while time.time() < deadline and os.path.exists(f"/proc/{pid}") and "Z" not in _state(pid):
+            time.sleep(0.1)
+        assert not os.path.exists(f"/proc/{pid}") or "Z" in _state(pid)
+    finally:
+        parent.kill()
+
+
+def _state(pid: int) -> str:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return "Z"
