@@ -82,3 +82,31 @@ def _dequantize_aligned(q: np.ndarray, lsb: np.ndarray, luts: tuple, work: dict 
 def _stored_key(tp: TextureParams) -> list:
     """JSON form of what stored stacks depend on (compared with a .persona's header)."""
     return json.loads(json.dumps([STACKS_VERSION, *tp.stack_key()]))
+
+
+#: a photo without a gaze score as a .persona stores it (scores lie in [-1, 1])
+NO_GAZE = -9.0
+
+
+def store_photo_scores(arrays: dict, meta: dict, gaze: np.ndarray, band_energy: np.ndarray) -> None:
+    """Add the photos' gaze scores (n,) and band energies (levels, regions, n), made from the same
+    stacks a load rebuilds, to a .persona's stored ``arrays`` and ``meta``: a load then does not
+    compute them (~0.45 s of CPU of a 519-photo persona)."""
+    arrays["texture_gaze"] = np.where(np.isfinite(gaze), gaze, NO_GAZE)
+    meta["gaze"] = True
+    arrays["texture_band_energy"] = np.asarray(band_energy, np.float64)
+    meta["band_energy"] = list(arrays["texture_band_energy"].shape[:2])
+
+
+def stored_photo_scores(stored: dict, energy_shape: tuple) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(gaze (n,) float64 with NaN for none, band energy of ``energy_shape``) as a .persona stored
+    them (:func:`store_photo_scores`); None for what it does not hold or holds in another shape."""
+    arrays, meta = stored["arrays"], stored["meta"]
+    gaze = arrays.get("texture_gaze") if meta.get("gaze") else None
+    if gaze is not None and gaze.shape == energy_shape[-1:]:
+        gaze = np.where(gaze >= -1, gaze, np.nan).astype(np.float64)
+    else:
+        gaze = None
+    energy = arrays.get("texture_band_energy")
+    energy = np.asarray(energy, np.float64) if energy is not None and energy.shape == tuple(energy_shape) else None
+    return gaze, energy

@@ -32,6 +32,8 @@ from ._stack_parts import (
     _unpremultiply,
 )
 from ._stack_store import (
+    store_photo_scores,
+    stored_photo_scores,
     STACKS_VERSION,
     _aligned_lut,
     _conf_range,
@@ -66,10 +68,6 @@ __all__ = [
     "stored_stacks",
     "STACKS_VERSION",
 ]
-
-
-#: a photo without a gaze score as a .persona stores it (scores lie in [-1, 1])
-NO_GAZE = -9.0
 
 
 class _Prepared(_PhotoQuality):
@@ -204,14 +202,8 @@ class _Prepared(_PhotoQuality):
         # NaN (no score: eyes off the photo) stored as -1: scores are >= 0, stored arrays finite
         arrays["texture_glasses_scores"] = np.where(np.isfinite(scores), scores, -1.0)
         meta["glasses"] = True
-        if not rebuilt_alike:
-            return {"meta": meta, "arrays": arrays}
-        # and what a load would compute from every photo's rebuilt stacks (~0.45 s of CPU of a
-        # 519-photo puppet's start): the gaze (NaN, no score, stored as -9) and the band energy
-        arrays["texture_gaze"] = np.where(np.isfinite(self._gaze), self._gaze, NO_GAZE)
-        meta["gaze"] = True
-        arrays["texture_band_energy"] = np.asarray(self.band_energy(), np.float64)
-        meta["band_energy"] = list(arrays["texture_band_energy"].shape[:2])
+        if rebuilt_alike:  # what a load would compute from every photo's rebuilt stacks
+            store_photo_scores(arrays, meta, self._gaze, self.band_energy())
         return {"meta": meta, "arrays": arrays}
 
     def _aligned_photo(self, i: int, m: np.ndarray, conf: np.ndarray, out: np.ndarray,
@@ -254,13 +246,11 @@ class _Prepared(_PhotoQuality):
             g = arrays.get("texture_glasses_scores") if stored["meta"].get("glasses") else None
             if g is not None and g.shape == (self.n,):
                 self._glasses = np.where(g >= 0, g, np.nan).astype(np.float64)
-            gaze = arrays.get("texture_gaze") if stored["meta"].get("gaze") else None
-            if gaze is not None and gaze.shape == (self.n,):
-                self._gaze = np.where(gaze >= -1, gaze, np.nan).astype(np.float64)
-                self._gaze_stored = True
-            energy = arrays.get("texture_band_energy")
-            if energy is not None and energy.shape == (self.levels, len(self.regions), self.n):
-                self._stage["band_energy"] = np.asarray(energy, np.float64)
+            gaze, energy = stored_photo_scores(stored, (self.levels, len(self.regions), self.n))
+            if gaze is not None:
+                self._gaze, self._gaze_stored = gaze, True
+            if energy is not None:
+                self._stage["band_energy"] = energy
             from ._stack_cache import read_stack_cache, write_stack_cache
 
             try:
