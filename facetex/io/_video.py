@@ -62,12 +62,10 @@ def video_info(path) -> dict:
 
 
 def iter_video_frames(path, *, max_frames: int | None = None, uint8: bool = False,
-                      max_side: int | None = None, skip: Callable[[int], bool] | None = None
-                      ) -> Iterator[np.ndarray | None]:
+                      max_side: int | None = None) -> Iterator[np.ndarray]:
     """Yield frames as float32 RGB (H, W, 3) in [0, 1] (``uint8``: as decoded, uint8 RGB).
     ``max_side``: frames with a longer side above it are scaled down to it as they are
-    converted (area averaging; an 8K frame is never held at full size in RGB). ``skip(i)``
-    true: frame i (from 0) is decoded but not converted, and None is yielded for it.
+    converted (area averaging; an 8K frame is never held at full size in RGB).
 
     A damaged file that still decodes some frames yields those, then warns
     (UserWarning) and stops; one that decodes none raises BadVideoError."""
@@ -99,9 +97,6 @@ def iter_video_frames(path, *, max_frames: int | None = None, uint8: bool = Fals
                     if max_frames is not None and n >= max_frames:
                         return
                     n += 1
-                    if skip is not None and skip(n - 1):
-                        yield None
-                        continue
                     if max_side is not None and max(frame.width, frame.height) > max_side:
                         f = max_side / max(frame.width, frame.height)
                         frame = frame.reformat(width=max(2, round(frame.width * f)),

@@ -49,12 +49,13 @@ def _portable_error(e: BaseException) -> BaseException:
         return RuntimeError(f"{type(e).__name__}: {e}")
 
 
-def _child_main(produce: Callable[[], Iterator], conn, credit, parent: int) -> None:
+def _child_main(produce: Callable[[Callable], Iterator], conn, inbox, parents_end, credit, parent: int) -> None:
     from .._parallel import die_with
 
     die_with(parent)  # a parent killed outright (SIGKILL) leaves no child waiting for credit
+    parents_end.close()  # the parent's end of the inbox: the child sees its end when the parent closes it
     try:
-        gen = produce()
+        gen = produce(inbox.recv)
         while True:
             try:
                 key, value = next(gen)
@@ -72,15 +73,17 @@ def _child_main(produce: Callable[[], Iterator], conn, credit, parent: int) -> N
 
 
 class ForkedResults:
-    """Run the generator function ``produce`` (yielding (key, value), returning a final value) in a
-    forked child; :meth:`future` is the future of the value of ``key`` (one of ``keys``),
-    :meth:`result` the final value. ``ahead``: the child waits while this many values are sent and
-    not yet :meth:`taken` (a long video's frames do not pile up when the parent is the slower).
-    A child's error, or its death, fails every pending future with that error. :meth:`close`
-    stops the child (when it has not ended) and reaps it."""
+    """Run the generator function ``produce(receive)`` (yielding (key, value), returning a final
+    value) in a forked child; ``receive()`` there returns the next object the parent :meth:`send`s
+    (EOFError once the parent has closed). :meth:`future` is the future of the value of ``key``
+    (one of ``keys``), :meth:`result` the final value. ``ahead``: the child waits while this many
+    values are sent and not yet :meth:`taken` (a long video's frames do not pile up when the parent
+    is the slower). A child's error, or its death, fails every pending future with that error.
+    :meth:`close` stops the child (when it has not ended) and reaps it."""
 
-    def __init__(self, produce: Callable[[], Iterator], keys: Iterable, *, ahead: int | None = None):
+    def __init__(self, produce: Callable[[Callable], Iterator], keys: Iterable, *, ahead: int | None = None):
         import multiprocessing as mp
+        import queue
 
         ctx = mp.get_context("fork")
         self._credit = None if ahead is None else ctx.Semaphore(max(1, int(ahead)))
@@ -89,6 +92,7 @@ class ForkedResults:
         for f in (*self._futures.values(), self._end):
             f.set_running_or_notify_cancel()
         recv, send = ctx.Pipe(duplex=False)
+        inbox, outbox = ctx.Pipe(duplex=False)
         for stream in (sys.stdout, sys.stderr):  # else the child flushes a copy of what is buffered
             try:
                 stream.flush()
@@ -96,13 +100,35 @@ class ForkedResults:
                 pass
         with warnings.catch_warnings():  # Python 3.12+ warns of forking a threaded process (see above)
             warnings.simplefilter("ignore", DeprecationWarning)
-            self._proc = ctx.Process(target=_child_main, args=(produce, send, self._credit, os.getpid()), daemon=True,
-                                     name="facetex-puppet-render")
+            self._proc = ctx.Process(target=_child_main, args=(produce, send, inbox, outbox, self._credit, os.getpid()),
+                                     daemon=True, name="facetex-puppet-render")
             self._proc.start()
         send.close()
+        inbox.close()
         self._conn = recv
         self._reader = threading.Thread(target=self._read, name="facetex-puppet-render-reader", daemon=True)
         self._reader.start()
+        # the parent's objects go out on a thread: a full pipe (the child busy) never blocks the caller
+        self._outbox, self._queue = outbox, queue.SimpleQueue()
+        self._sender = threading.Thread(target=self._send_all, name="facetex-puppet-render-sender", daemon=True)
+        self._sender.start()
+
+    def _send_all(self) -> None:
+        try:
+            while (obj := self._queue.get()) is not _CLOSE:
+                self._outbox.send(obj)
+        except (OSError, ValueError):  # the child has ended: its futures say why
+            pass
+        finally:
+            self._outbox.close()
+
+    def send(self, obj) -> None:
+        """Hand ``obj`` to the child's ``receive()`` (in order; never blocks)."""
+        self._queue.put(obj)
+
+    def done_sending(self) -> None:
+        """No more :meth:`send`: the child's ``receive()`` raises EOFError after the last object."""
+        self._queue.put(_CLOSE)
 
     def _read(self) -> None:
         err: BaseException | None = None
@@ -145,5 +171,10 @@ class ForkedResults:
         if self._proc.is_alive() and not self._end.done():
             self._proc.terminate()
         self._proc.join()
+        self._queue.put(_CLOSE)
+        self._sender.join()
         self._reader.join()
         self._conn.close()
+
+
+_CLOSE = object()  # the sender thread's stop

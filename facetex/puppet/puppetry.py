@@ -306,7 +306,6 @@ FIRST_BATCH = 8
 IN_FLIGHT = 4
 #: ... and when a forked child renders every other frame (its frames come a batch at a time)
 FORKED_IN_FLIGHT = 16
-_END = object()  # the end of the driver video (the child's reader)
 
 
 def _check_mode(mode: str) -> None:
@@ -383,8 +382,6 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
     def panel(frame):
         return cv2.resize(frame, (W, H), interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
 
-    def driver_frames(skip=None):
-        return iter_video_frames(session.track.path, max_frames=n, max_side=DRIVER_MAX_SIDE, skip=skip)
 
     def batches(frames: list) -> list:
         """Frames whose meshes and textures are computed together (a short first batch: rendering
@@ -392,28 +389,28 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
         starts = [0] + list(range(min(FIRST_BATCH, len(frames)), len(frames), TEXTURE_BATCH)) if frames else []
         return [frames[a:b] for a, b in zip(starts, starts[1:] + [len(frames)])]
 
-    # the odd frames go to the forked child: it computes their meshes and textures, decodes the
-    # driver itself and sends each frame's record back (its panels, with ``keep`` its mesh and texture)
+    # the odd frames go to the forked child: it computes their meshes and textures, receives their
+    # driver panels and sends each frame's record back (its panels, with ``keep`` its mesh and texture)
     theirs = list(range(1, n, 2)) if fork else []
     own = list(range(0, n, 2)) if fork else list(range(n))
 
-    def child_frames():
+    def child_frames(receive):
         times = dict.fromkeys(("mesh_s", "texture_s", "render_s"), 0.0)
 
         def add(key, dt):
             times[key] += dt
 
-        mine = {i for i in theirs if session.track.found[i]}  # the frames whose panels it renders
-        frames, at, frame = driver_frames(skip=lambda i: i not in mine), -1, None
         for fr in batches(theirs):
             for i, (grid, tex) in zip(fr, meshes_and_textures(fr, add)):
-                while at < i and frame is not _END:
-                    frame, at = next(frames, _END), at + 1
-                if frame is _END:  # a video shorter than its header said: the parent stops there too
-                    return times
                 out = {"grid": grid, "texture": tex} if keep else {}
                 if session.track.found[i]:
-                    out["puppet"], out["alpha"] = render_one(i, grid, tex, panel(frame), add)
+                    try:
+                        j, drv = receive()
+                    except EOFError:  # the parent ended early (a video shorter than its header said)
+                        return times
+                    if j != i:
+                        raise RuntimeError(f"render child: frame {j} received for frame {i}")
+                    out["puppet"], out["alpha"] = render_one(i, grid, tex, drv, add)
                 yield i, out
         return times
 
@@ -456,7 +453,7 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
                 progress(n=1, stage="render", lost=session.track.n_lost)
             return rec
 
-        for i, frame in enumerate(driver_frames()):
+        for i, frame in enumerate(iter_video_frames(session.track.path, max_frames=n, max_side=DRIVER_MAX_SIDE)):
             if i >= n:
                 break
             drv = panel(frame)
@@ -480,9 +477,13 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
                     fut = pool.submit(render_one, i, grid, tex, drv)
             else:  # the child's
                 fut = child.future(i)
+                if not lost:
+                    child.send((i, drv))
             pending.append((rec, fut))
             while pending and (len(pending) > in_flight or pending[0][1] is None or pending[0][1].done()):
                 yield finished(pending.popleft())
+        if child is not None:
+            child.done_sending()
         while pending:
             yield finished(pending.popleft())
         if child is not None:

@@ -408,17 +408,6 @@ def test_uint8_frames_are_the_decoded_values(clip):
     assert all(np.array_equal(u.astype(np.float32) / 255.0, f) for u, f in zip(u8, f32))
 
 
-def test_skipped_frames_are_none_and_the_others_unchanged(clip):
-    every = list(fio.iter_video_frames(clip))
-    some = list(fio.iter_video_frames(clip, skip=lambda i: i % 3 != 1))
-    assert len(some) == len(every) == 10
-    for i, (a, b) in enumerate(zip(every, some)):
-        if i % 3 != 1:
-            assert b is None
-        else:
-            np.testing.assert_array_equal(a, b)
-
-
 def test_odd_size_is_padded(tmp_path):
     frames = [np.full((47, 63, 3), 0.5, np.float32)] * 3
     frames = [f.copy() for f in frames]

@@ -14,7 +14,7 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fo
 def test_values_arrive_by_key_and_the_final_value_at_the_end():
     parent = os.getpid()
 
-    def produce():
+    def produce(receive):
         for k in (3, 1, 2):
             yield k, (k * k, os.getpid())
         return {"done": True}
@@ -30,7 +30,7 @@ def test_values_arrive_by_key_and_the_final_value_at_the_end():
 
 
 def test_a_childs_facetex_error_keeps_its_class_message_and_file():
-    def produce():
+    def produce(receive):
         yield 0, "first"
         raise BadInputError("no face in this frame", path="/tmp/clip.mp4")
 
@@ -47,7 +47,7 @@ def test_a_childs_facetex_error_keeps_its_class_message_and_file():
 
 
 def test_a_child_that_dies_fails_the_pending_futures():
-    def produce():
+    def produce(receive):
         yield 0, 1
         os._exit(3)  # killed, say: no message
 
@@ -63,7 +63,7 @@ def test_a_child_that_dies_fails_the_pending_futures():
 def test_close_stops_a_child_that_has_not_finished():
     import time
 
-    def produce():
+    def produce(receive):
         yield 0, 0
         time.sleep(60)
         yield 1, 1
@@ -89,7 +89,7 @@ def test_fork_is_only_offered_on_the_main_thread():
 def test_the_child_waits_while_ahead_values_are_not_taken():
     import time
 
-    def produce():
+    def produce(receive):
         for k in range(6):
             yield k, time.perf_counter()
 
@@ -120,7 +120,7 @@ def test_a_child_waiting_for_credit_ends_with_its_killed_parent(tmp_path):
     script.write_text(textwrap.dedent('''
         import os, sys, time
         from facetex.puppet._forked import ForkedResults
-        def produce():
+        def produce(receive):
             for k in range(5):
                 yield k, k
         child = ForkedResults(produce, range(5), ahead=1)
@@ -147,3 +147,27 @@ def _state(pid: int) -> str:
             return f.read().rsplit(")", 1)[1].split()[0]
     except OSError:
         return "Z"
+
+
+def test_the_parent_sends_objects_the_child_receives_in_order_until_done():
+    import numpy as np
+
+    def produce(receive):
+        n = 0
+        while True:
+            try:
+                k, a = receive()
+            except EOFError:
+                return n
+            n += 1
+            yield k, float(a.sum())
+
+    child = ForkedResults(produce, range(3))
+    try:
+        for k in range(3):
+            child.send((k, np.full((300, 400, 3), k, np.float32)))  # larger than a pipe's buffer
+        child.done_sending()
+        assert [child.future(k).result(timeout=30) for k in range(3)] == [0.0, 360000.0, 720000.0]
+        assert child.result() == 3
+    finally:
+        child.close()
