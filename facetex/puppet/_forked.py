@@ -5,7 +5,8 @@ Why a process: a frame's mesh and composite are many small numpy and OpenCV call
 GIL. Two render threads ran no faster than one (75 frames of a 256 px clip, mesh and composite:
 1.07 s on one thread, 1.41 s on two); a child forked after the setup shares the persona's texture
 stacks copy-on-write, so it starts at once (~10 ms) and the second core renders beside the first
-(the same 75 frames: 1.84 s -> 1.05 s split between the two, every frame the same bits).
+(the same 75 frames: 1.84 s -> 1.05 s split between the two, every frame the same bits; whole
+frames differ by < 1e-5, their textures being blended in other batches).
 
 Linux only (``fork``; other systems keep the threads), and only from the main thread of a process
 that may have children: a fork copies no other thread, and a lock another thread held at that moment
@@ -34,8 +35,9 @@ def fork_available() -> bool:
 
 
 def _portable_error(e: BaseException) -> BaseException:
-    """``e`` if it survives pickling, else a RuntimeError with its text (a facetex error keeps its
-    class, message and file)."""
+    """What the parent can rebuild of ``e``: a facetex error as (class, message, file) (its pickle
+    would lose the file), another error itself if it survives pickling, else a RuntimeError with
+    its text."""
     from ..errors import FacetexError
 
     if isinstance(e, FacetexError):
@@ -144,6 +146,7 @@ class ForkedResults:
                     err = value
                     break
         except (EOFError, OSError):
+            self._proc.join(timeout=1.0)  # for its exit code
             err = RuntimeError(f"the render process {self._proc.pid} ended unexpectedly "
                                f"(exit code {self._proc.exitcode}): re-run the command")
         except BaseException as e:  # noqa: BLE001 - an unreadable message
