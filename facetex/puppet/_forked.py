@@ -80,7 +80,7 @@ class ForkedResults:
     (EOFError once the parent has closed). :meth:`future` is the future of the value of ``key``
     (one of ``keys``), :meth:`result` the final value. ``ahead``: the child waits while this many
     values are sent and not yet :meth:`taken` (a long video's frames do not pile up when the parent
-    is the slower). A child's error, or its death, fails every pending future with that error.
+    is the slower; a taken value is let go). A child's error, or its death, fails every pending future with that error.
     :meth:`close` stops the child (when it has not ended) and reaps it."""
 
     def __init__(self, produce: Callable[[Callable], Iterator], keys: Iterable, *, ahead: int | None = None):
@@ -138,7 +138,9 @@ class ForkedResults:
             while True:
                 kind, key, value = self._conn.recv()
                 if kind == "item":
-                    self._futures[key].set_result(value)
+                    f = self._futures.get(key)
+                    if f is not None:  # else let go before it came
+                        f.set_result(value)
                 elif kind == "end":
                     self._end.set_result(value)
                     return
@@ -154,15 +156,17 @@ class ForkedResults:
         if isinstance(err, tuple):  # a facetex error: (class, message, path)
             cls, message, path = err
             err = cls(message, path=path)
-        for f in (*self._futures.values(), self._end):
+        for f in (*list(self._futures.values()), self._end):
             if not f.done():
                 f.set_exception(err)
 
     def future(self, key) -> Future:
         return self._futures[key]
 
-    def taken(self) -> None:
-        """One value received has been used: the child may send one more (with ``ahead``)."""
+    def taken(self, key) -> None:
+        """The value of ``key`` has been used: it is let go here (a long video's frames are not
+        all kept), and the child may send one more (with ``ahead``)."""
+        self._futures.pop(key, None)
         if self._credit is not None:
             self._credit.release()
 

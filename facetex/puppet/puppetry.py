@@ -435,7 +435,7 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
                 res = fut.result()
                 if isinstance(res, dict):  # the child's
                     rec.update(res)
-                    child.taken()
+                    child.taken(rec["index"])
                 else:
                     rec.update(puppet=res[0], alpha=res[1])
             drv, img = rec["driver"], rec["puppet"]

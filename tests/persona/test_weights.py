@@ -71,6 +71,23 @@ def test_mouth_similarities_hand_computed():
         fit_expression_model(F, neighbours=(2, 3))
 
 
+def test_similarities_of_many_targets_are_computed_in_blocks_with_the_same_values(monkeypatch):
+    """A long clip's targets are measured a block at a time (memory), bit for bit as all at once."""
+    import facetex.persona.weights as w
+
+    rng = np.random.default_rng(3)
+    F = M[None] + rng.normal(0, 1.5, (12, 49, 2))
+    model = fit_expression_model(F, neighbours=2)
+    targets = M[None] + rng.normal(0, 1.5, (10, 49, 2))
+    monkeypatch.setattr(w, "DISTANCE_BLOCK", 10**6)
+    whole = model.evaluate(targets), model.sigmas(targets)
+    monkeypatch.setattr(w, "DISTANCE_BLOCK", 3)  # blocks 3 + 3 + 3 + 1
+    blocks = model.evaluate(targets), model.sigmas(targets)
+    for a, b in zip((whole[0][1], whole[0][2], whole[1]), (blocks[0][1], blocks[0][2], blocks[1])):
+        np.testing.assert_array_equal(a, b)
+    assert whole[0][2].shape == (10, 3, 12)
+
+
 def test_region_masks_partition_and_feather():
     m = region_masks(P68, (240, 192))
     assert m.shape == (3, 240, 192) and m.min() >= 0
