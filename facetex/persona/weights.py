@@ -198,7 +198,8 @@ DISTANCE_BLOCK = 64
 
 def _squared_distances(c: np.ndarray, photos: np.ndarray) -> np.ndarray:
     """(B, n) squared distances of (B, D) target coordinates to (n, D) photo coordinates, in blocks
-    of :data:`DISTANCE_BLOCK` targets (the same values as all at once)."""
+    of :data:`DISTANCE_BLOCK` targets: the same values as all at once (scipy's ``cdist`` sums the
+    coordinates in another order, so its weights would differ in the last bits)."""
     out = np.empty((len(c), len(photos)))
     for i in range(0, len(c), DISTANCE_BLOCK):
         out[i:i + DISTANCE_BLOCK] = ((c[i:i + DISTANCE_BLOCK, None, :] - photos[None]) ** 2).sum(-1)

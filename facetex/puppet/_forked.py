@@ -41,10 +41,12 @@ def _portable_error(e: BaseException) -> BaseException:
     from ..errors import FacetexError
 
     if isinstance(e, FacetexError):
+        parts = (type(e), e.message, e.path)
         try:
-            return pickle.loads(pickle.dumps((type(e), e.message, e.path)))
+            pickle.dumps(parts)  # a class defined where the parent cannot import it
         except Exception:  # noqa: BLE001 - any failure: the plain text instead
             return RuntimeError(str(e))
+        return parts
     try:
         return pickle.loads(pickle.dumps(e))
     except Exception:  # noqa: BLE001

@@ -382,7 +382,6 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
     def panel(frame):
         return cv2.resize(frame, (W, H), interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
 
-
     def batches(frames: list) -> list:
         """Frames whose meshes and textures are computed together (a short first batch: rendering
         starts early)."""
@@ -414,8 +413,9 @@ def render_frames(session: PuppetSession, *, size: int | None = None, mode: str 
                 yield i, out
         return times
 
-    # frames are rendered on a 2-thread pool, each batch's textures computed there ahead of its
-    # frames (OpenCV and numpy release the GIL); frames come out in order, each the same as rendered alone
+    # this process's frames are rendered on a pool of ``workers`` threads, each batch's textures
+    # computed there ahead of its frames (OpenCV and numpy release the GIL); frames come out in
+    # order, each the same as rendered alone
     groups = batches(own)
     where = {i: (b, p) for b, fr in enumerate(groups) for p, i in enumerate(fr)}
     child = None
