@@ -14,6 +14,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..io import LUMA_BT601
 from .masks import disc
 
 __all__ = ["glasses_bridge_score", "glasses_weights", "rim_response", "rim_template", "rim_scores", "rims_present",
@@ -25,7 +26,7 @@ def luminance_and_points(image, points68) -> tuple[np.ndarray, np.ndarray | None
     points as float64 (68, 2) or None when they are not 68 finite points): what the per-photo
     eye-region scores (bridge, gaze) start from."""
     img = np.asarray(image)
-    lum = img[..., :3].astype(np.float32) @ np.float32([0.299, 0.587, 0.114])
+    lum = img[..., :3].astype(np.float32) @ LUMA_BT601
     if img.dtype == np.uint8:
         lum /= 255.0
     p = np.asarray(points68, np.float64)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BadInputError
+from ..io import LUMA_BT601
 from .filters import masked_lowpass
 
 __all__ = ["MarkParams", "detect_marks", "marks_mask", "match_marks", "REF_FACE_WIDTH"]
@@ -39,7 +40,7 @@ class MarkParams:
 def _luma(image) -> np.ndarray:
     a = np.asarray(image, np.float32)
     if a.ndim == 3:
-        a = a[..., :3] @ np.array([0.299, 0.587, 0.114], np.float32)
+        a = a[..., :3] @ LUMA_BT601
     return a
 
 

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ..io import LUMA_BT601
 from .masks import disc, face_width
 from .skin import _BROWS, SkinParams, _dilate, _fill_small_holes, _p68, _poly, _rgb01, _sample_regions, _shape, beard_mask, face_region_mask, feature_mask, skin_colour_distance
 
@@ -70,7 +71,7 @@ def structure_tensor(lum: np.ndarray, sigma: float, rho: float) -> tuple[np.ndar
 
 
 def _luma01(img: np.ndarray) -> np.ndarray:
-    return (img @ np.array([0.299, 0.587, 0.114], np.float32)).astype(np.float32)
+    return (img @ LUMA_BT601).astype(np.float32)
 
 
 def hair_strand_mask(image, points68, region, reference, params: SkinParams = SkinParams(), *,

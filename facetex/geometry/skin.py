@@ -52,6 +52,7 @@ import cv2
 import numpy as np
 
 from ..errors import BadInputError
+from ..io import LUMA_BT601
 from .masks import disc, face_outline, face_width
 
 __all__ = [
@@ -295,7 +296,7 @@ def beard_mask(image, points68, region, light, params: SkinParams = SkinParams()
     p = _p68(points68)
     img = _rgb01(image)
     fw = face_width(p)
-    lum = img @ np.array([0.299, 0.587, 0.114], np.float32)
+    lum = img @ LUMA_BT601
     hp = lum - cv2.GaussianBlur(lum, (0, 0), 0.006 * fw)
     energy = cv2.GaussianBlur(hp * hp, (0, 0), 0.03 * fw)
     ref = float(np.median(energy[region])) if region.any() else float(np.median(energy))

@@ -6,6 +6,11 @@ import numpy as np
 
 from ..errors import BadImageError
 
+#: ITU-R BT.601 luma weights of (R, G, B), float32: ``img @ LUMA_BT601`` is the gray level every
+#: module that reads brightness from sRGB pixels uses (Rec. 709 linear-light luminance is
+#: ``facetex.puppet._pixels``' own)
+LUMA_BT601 = np.array([0.299, 0.587, 0.114], np.float32)
+
 
 def to_float32(img: np.ndarray) -> np.ndarray:
     """uint8 / uint16 / float image -> float32 in [0, 1] (integers scaled by their max)."""

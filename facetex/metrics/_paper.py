@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 
 from ..errors import BadInputError
-from ..io import ImageLike, image_args
+from ..io import LUMA_BT601, ImageLike, image_args
 
 WORKING_SIZE = 1000  # px, long edge at which the paper measures E and S
 #: ``facetex metrics`` reads larger images reduced on load to this many pixels (2000 x 2000):
@@ -142,7 +142,7 @@ def _luminance(image: np.ndarray) -> np.ndarray:
     image = np.asarray(image, dtype=np.float32)
     if image.ndim == 2:
         return image
-    return image[..., :3] @ np.array([0.299, 0.587, 0.114], dtype=np.float32)  # ITU-R BT.601 luma
+    return image[..., :3] @ LUMA_BT601
 
 
 def skin_patches(image, points68, *, gray: bool = True) -> dict[str, np.ndarray]:

@@ -346,6 +346,7 @@ def exposure_gain(image, box) -> float:
     """The linear-light gain (>= 1) that brings the median sRGB luma of the middle 60 % of a face
     ``box`` (x0, y0, x1, y1) in ``image`` (uint8 or float RGB) up to :data:`EXPOSED_FACE_LUMA` (1 for
     a lighter face)."""
+    from ..io import LUMA_BT601
     from .lighting import srgb_to_linear
 
     a = np.asarray(image)
@@ -359,7 +360,7 @@ def exposure_gain(image, box) -> float:
     sub = a[y0:y1, x0:x1, :3].reshape(-1, 3).astype(np.float32)
     if a.dtype == np.uint8:
         sub /= 255.0
-    luma = float(np.median(sub @ np.float32([0.299, 0.587, 0.114])))
+    luma = float(np.median(sub @ LUMA_BT601))
     return max(1.0, float(srgb_to_linear(EXPOSED_FACE_LUMA)) / max(float(srgb_to_linear(luma)), 1e-4))
 
 

@@ -45,6 +45,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import BadInputError
+from ..io import LUMA_BT601
 
 __all__ = ["AverageShape", "reconstruct_average_shape", "generic_depth_px", "normals_from_depth",
            "integrate_normals", "checked_depth", "validate_shape", "ShapeValidation", "linear_luma",
@@ -53,7 +54,6 @@ __all__ = ["AverageShape", "reconstruct_average_shape", "generic_depth_px", "nor
 #: Grazing normals are clipped to this |n_z| before integration (gradients bounded by ~10).
 MIN_NZ = 0.1
 #: Rec. 601 luma weights for the gray intensity matrix.
-_LUMA = np.array([0.299, 0.587, 0.114], dtype=np.float32)
 
 
 @dataclass(frozen=True, eq=False)
@@ -161,7 +161,7 @@ def linear_luma(images) -> np.ndarray:
     """(N, H, W) linear-light luminance of (N, H, W, 3) sRGB images in [0, 1] (or of (N, H, W) gray)."""
     imgs = np.asarray(images, dtype=np.float32)
     if imgs.ndim == 4 and imgs.shape[-1] == 3:
-        imgs = imgs @ _LUMA
+        imgs = imgs @ LUMA_BT601
     elif imgs.ndim != 3:
         raise BadInputError(f"images must be (N, H, W, 3) or (N, H, W), got shape {imgs.shape}")
     return np.where(imgs <= 0.04045, imgs / 12.92, ((np.clip(imgs, 0, None) + 0.055) / 1.055) ** 2.4)

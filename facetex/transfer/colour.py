@@ -26,6 +26,7 @@ import numpy as np
 
 from ..errors import BadInputError
 from ..geometry.filters import masked_lowpass
+from ..io import LUMA_BT601
 
 __all__ = ["keep_content_shading", "eye_distance", "SHADING_SIGMA", "COLOUR_SIGMA"]
 
@@ -34,7 +35,6 @@ SHADING_SIGMA = 0.15
 #: σ of its low-pass of the chroma change (colour cast): half of the measure's 0.1 — a change
 #: kept at σ leaves at most ~8 % of itself in the measure's blur; the chroma is invisible to S
 COLOUR_SIGMA = 0.05
-_LUMA = np.array([0.299, 0.587, 0.114], np.float32)
 
 
 def eye_distance(points68) -> float:
@@ -56,7 +56,7 @@ def keep_content_shading(output, content, skin, sigma: float, colour_sigma: floa
         raise BadInputError(f"output {out.shape} and content {con.shape} must be the same (H, W, 3) shape")
     m = np.clip(np.asarray(skin, np.float32), 0.0, 1.0)
     d = out - con
-    y = d @ _LUMA
+    y = d @ LUMA_BT601
     low = masked_lowpass(d - y[..., None], m, sigma if colour_sigma is None else colour_sigma)
     low += masked_lowpass(y, m, sigma)[..., None]
     return np.clip(out - m[..., None] * low, 0.0, 1.0)

@@ -44,6 +44,7 @@ import cv2
 import numpy as np
 
 from ..errors import BadInputError
+from ..io import LUMA_BT601
 
 __all__ = ["DetailParams", "band_stack", "band_energy", "transfer_skin_detail", "style_band_energies",
            "fill_from_source", "REF_FACE_WIDTH"]
@@ -90,7 +91,7 @@ def _gauss(img: np.ndarray, sigma: float) -> np.ndarray:
 
 
 def _luma(img: np.ndarray) -> np.ndarray:
-    return img @ np.array([0.299, 0.587, 0.114], np.float32) if img.ndim == 3 else img
+    return img @ LUMA_BT601 if img.ndim == 3 else img
 
 
 def band_stack(image: np.ndarray, sigmas) -> tuple[list[np.ndarray], np.ndarray]:
