@@ -66,7 +66,18 @@ class TextureParams:
     (GRID lrwp9a), gone at kappa 2; leave-out mouth SSIM over static (5 folds) +0.001-0.002 on all
     six LFW collections (Bush +0.036 -> +0.037, Blair +0.043 -> +0.045, Williams +0.047 -> +0.047,
     Chavez +0.041 -> +0.043, Koizumi +0.024 -> +0.026, Arroyo +0.029 -> +0.030; kappa 1 and 4
-    alike; the face region too cost face SSIM 0.0015 on Koizumi)."""
+    alike; the face region too cost face SSIM 0.0015 on Koizumi).
+    mouth_mix: ((region, share), ...): the mouth region's weights are this mix of the regions'
+    similarities, each normalised over the photos (:func:`facetex.persona.weights.mix_similarities`;
+    used when the mouth and every source are weight regions; () = the mouth's own). The 36 lip
+    coordinates alone miss what else shapes the mouth's surroundings (cheeks raised in a smile, the
+    pose the frontalization leaves) and are noisy on small faces: a photo close in the whole face or
+    in the eyes now shares in the mouth. Leave-out mouth SSIM gain over static (5 folds), the mouth's
+    own weights -> this mix: Bush +0.0370 -> +0.0406, Blair +0.0450 -> +0.0531, Williams +0.0472 ->
+    +0.0543, Chavez +0.0428 -> +0.0463, Koizumi +0.0256 -> +0.0294, Arroyo +0.0300 -> +0.0357 (the
+    paired differences +0.0035-0.0081, 2-3 standard errors each; eyes unchanged, whole face
+    +0.0007-0.0022). Other shares (mouth 0.2-0.5, face 0.3-0.5, eyes 0-0.33) within 0.002 of this; what else
+    was tried is in :mod:`facetex.persona.weights`."""
 
     sigma: float = 10.0
     alpha: float | None = None
@@ -91,6 +102,14 @@ class TextureParams:
     restore: tuple = (("face", 3),)
     restore_gain: float = 3.0
     robust: tuple = (("mouth", 2.0),)
+    mouth_mix: tuple = (("mouth", 0.4), ("face", 0.4), ("eyes", 0.2))
+
+    def region_mix(self) -> tuple:
+        """The weight mix in effect, (("mouth", ((source, share), ...)),) or () (:attr:`mouth_mix`)."""
+        names = {"mouth", *(src for src, _ in self.mouth_mix)}
+        if not self.mouth_mix or not names <= set(self.regions):
+            return ()
+        return (("mouth", tuple((src, float(share)) for src, share in self.mouth_mix)),)
 
     def detail_of(self, region: str) -> tuple[float, int]:
         """(power, levels) of ``region``'s detail weights (:attr:`detail`; (1, 0): none)."""

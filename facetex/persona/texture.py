@@ -119,9 +119,11 @@ def expression_model(persona: Persona, params: TextureParams | None = None):
     from .weights import fit_expression_model
 
     tp = params or TextureParams()
-    key = ("expression", tp.neighbours, tuple(tp.regions))
+    mix = tp.region_mix()
+    key = ("expression", tp.neighbours, tuple(tp.regions), mix)
     if key not in persona._cache:
-        persona._cache[key] = fit_expression_model(persona.fiducials, neighbours=tp.neighbours, regions=tp.regions)
+        persona._cache[key] = fit_expression_model(persona.fiducials, neighbours=tp.neighbours, regions=tp.regions,
+                                                   mix=mix)
     return persona._cache[key]
 
 

@@ -41,6 +41,9 @@ average. What we do instead (measured with ``facetex bench persona``, leave-out 
    term) normalised over the photos, so a smile does not have to wait for the eyes to match.
    Outside the face (grown by 0.3 IOD, :func:`face_support`: hair, background, neck) the
    texture is the expression-independent average.
+6. The mouth's weights mix the regions' (:func:`mix_similarities`, ``TextureParams.mouth_mix``:
+   mouth 0.4, face 0.4, eyes 0.2, each normalised): leave-out mouth SSIM +0.004-0.008 on all six
+   collections (figures in :class:`facetex.persona.TextureParams`).
 
 Tried and dropped (measured worse): truncating each region to its principal components by
 the broken-stick rule (the "noise" dimensions carry lip and lid shape: -0.004 to -0.013
@@ -63,6 +66,18 @@ Nor did more photos: each fold's persona built with every photo's mirror image t
 fiducials mirrored) scored ours 0.8056 against 0.8058 on Koizumi (its static average 0.004 worse).
 Blending via the neutral frame is not the loss either: each photo warped straight to the target in
 one resampling scores the same (0.8047 vs 0.8049 single-scale, open mouths included).
+With the mix, on Koizumi (+0.0294) and Arroyo (+0.0357), none of these moved it by more than 0.001:
+``max_photos`` 16 / 64, K 2 / 5, weights spread over an appearance graph of the collection's mouths
+(high-pass correlation, 3 or 8 neighbours: -0.004 to +0.0007). Before it (the mouth's own weights,
+Koizumi): a 7-number mouth descriptor (inner and outer opening, width, corner lift, lip
+thicknesses; z-scored) -0.010 to -0.016; MediaPipe's lip contours on the frontal photos -0.005 to
+-0.013; the weights squared -0.007 (to the 4th: -0.025; square root -0.003); each photo reweighted
+by its agreement with the blend's own mouth (fiducials only) -0.0003 to -0.017; the top photos
+flowed onto the blend's mouth per target (the paper's dense step at the target) -0.004 to 0; a
+stronger collection flow (alpha 0.08 / 0.02: -0.001 / -0.012; at 0.3 the flow is < 0.32 px) and
+none (+0.0002). An oracle shows the room: the 4 photos whose mouths best match the held-out
+photo's, blended, +0.059 (chosen on its high-pass structure alone, lighting left out: +0.051); the
+fiducials' ranking correlates 0.39 with it.
 """
 
 from __future__ import annotations
@@ -81,6 +96,7 @@ __all__ = [
     "RIGID49",
     "ExpressionModel",
     "fit_expression_model",
+    "mix_similarities",
     "normalised_fiducials",
     "region_masks",
     "global_similarity",
@@ -147,6 +163,8 @@ class ExpressionModel:
 
     mean_fiducials: np.ndarray
     regions: tuple[_Region, ...]
+    #: ((region, ((source region, share), ...)), ...): :func:`mix_similarities`
+    mix: tuple = ()
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -175,7 +193,8 @@ class ExpressionModel:
             d2 = _squared_distances(c, r.coords)
             sig.append(adaptive_sigma(np.sqrt(d2), r.k, floor=1e-3 * r.kth))
             out.append(np.exp(-d2 / (2.0 * sig[-1][:, None] ** 2)))
-        return coords, np.stack(sig, axis=1), np.stack(out, axis=1)
+        S = mix_similarities(np.stack(out, axis=1), self.names, self.mix)
+        return coords, np.stack(sig, axis=1), S
 
     def sigmas(self, targets) -> np.ndarray:
         """(B, R) adaptive sigmas (IOD units) of (B, 49, 2) targets."""
@@ -227,10 +246,32 @@ def _region_coords(z: np.ndarray, index: np.ndarray, centre: bool) -> np.ndarray
     return x.reshape(x.shape[:-2] + (-1,))
 
 
-def fit_expression_model(fiducials, *, neighbours=3, regions=("mouth", "eyes", "face")) -> ExpressionModel:
+def mix_similarities(S, names, mix) -> np.ndarray:
+    """(..., R, n) regional similarities with each region of ``mix`` ((region, ((source, share),
+    ...)), ...) replaced by the shares' sum of its sources' similarities, each normalised over the
+    photos, times the region's own total (its balance with Eq. 3's uniform term kept). Regions not
+    in ``names`` are an error."""
+    S = np.asarray(S, np.float64)
+    if not mix:
+        return S
+    names = list(names)
+    out = S.copy()
+    norm = S / np.maximum(S.sum(axis=-1, keepdims=True), 1e-300)
+    for region, sources in mix:
+        for name in (region, *(src for src, _ in sources)):
+            if name not in names:
+                raise BadInputError(f"weight mix names region {name!r}, not one of the regions {tuple(names)}")
+        j = names.index(region)
+        mixed = sum(float(share) * norm[..., names.index(src), :] for src, share in sources)
+        out[..., j, :] = mixed * S[..., j, :].sum(axis=-1, keepdims=True)
+    return out
+
+
+def fit_expression_model(fiducials, *, neighbours=3, regions=("mouth", "eyes", "face"), mix=()) -> ExpressionModel:
     """The regional expression model of a collection's (n, 49, 2) pose-corrected fiducials
     (module docstring). ``neighbours``: K of the adaptive sigma, one number or one per region
-    (a number in (0, 1) is a fraction of the collection)."""
+    (a number in (0, 1) is a fraction of the collection); ``mix``: regions whose weights mix
+    other regions' (:func:`mix_similarities`), checked here."""
     from scipy.spatial.distance import cdist
 
     f = np.asarray(fiducials, np.float64)
@@ -255,7 +296,13 @@ def fit_expression_model(fiducials, *, neighbours=3, regions=("mouth", "eyes", "
         np.fill_diagonal(d, np.inf)
         kth = float(max(np.median(np.partition(d, k - 1, axis=1)[:, k - 1]), 1e-6))
         out.append(_Region(name, REGIONS[name], centre, coords, kth, k))
-    return ExpressionModel(M, tuple(out))
+    mix = tuple((region, tuple((src, float(share)) for src, share in sources)) for region, sources in mix)
+    for region, sources in mix:
+        shares = [share for _, share in sources]
+        if not sources or min(shares) < 0 or not math.isclose(sum(shares), 1.0, abs_tol=1e-6):
+            raise BadInputError(f"the weight mix of {region!r} needs non-negative shares summing to 1, got {sources!r}")
+    mix_similarities(np.ones((len(out), 1)), regions, mix)  # names checked
+    return ExpressionModel(M, tuple(out), mix)
 
 
 def region_masks(points68, shape, regions=("mouth", "eyes", "face"), *, feather_iod: float = 0.12) -> np.ndarray:

@@ -15,6 +15,7 @@ from facetex.persona.weights import (
     face_support,
     fit_expression_model,
     iod49,
+    mix_similarities,
     normalised_fiducials,
     region_masks,
 )
@@ -86,6 +87,47 @@ def test_similarities_of_many_targets_are_computed_in_blocks_with_the_same_value
     for a, b in zip((whole[0][1], whole[0][2], whole[1]), (blocks[0][1], blocks[0][2], blocks[1])):
         np.testing.assert_array_equal(a, b)
     assert whole[0][2].shape == (10, 3, 12)
+
+
+def test_mix_similarities_hand_computed():
+    S = np.array([[1.0, 1.0, 2.0],  # mouth: total 4
+                  [3.0, 0.0, 1.0],  # eyes: normalised (0.75, 0, 0.25)
+                  [0.0, 2.0, 2.0]])  # face: normalised (0, 0.5, 0.5)
+    mix = (("mouth", (("mouth", 0.5), ("face", 0.25), ("eyes", 0.25))),)
+    out = mix_similarities(S, ("mouth", "eyes", "face"), mix)
+    # 0.5 (0.25, 0.25, 0.5) + 0.25 (0, 0.5, 0.5) + 0.25 (0.75, 0, 0.25), times the mouth's total 4
+    np.testing.assert_allclose(out[0], 4 * np.array([0.3125, 0.25, 0.4375]))
+    np.testing.assert_array_equal(out[1:], S[1:])  # the other regions as they were
+    np.testing.assert_allclose(out[0].sum(), S[0].sum())  # Eq. 3's balance with the uniform term kept
+    # batched (B, R, n) as one at a time; no mix: unchanged
+    np.testing.assert_allclose(mix_similarities(np.stack([S, 2 * S]), ("mouth", "eyes", "face"), mix)[1], 2 * out)
+    np.testing.assert_array_equal(mix_similarities(S, ("mouth", "eyes", "face"), ()), S)
+    with pytest.raises(BadInputError, match="nose"):
+        mix_similarities(S, ("mouth", "eyes", "face"), (("mouth", (("nose", 1.0),)),))
+
+
+def test_expression_model_mixes_the_mouth_and_checks_the_shares():
+    rng = np.random.default_rng(5)
+    F = M[None] + rng.normal(0, 1.5, (9, 49, 2))
+    t = M + rng.normal(0, 1.5, (49, 2))
+    plain = fit_expression_model(F, neighbours=2).similarities(t)
+    mixed = fit_expression_model(F, neighbours=2, mix=(("mouth", (("mouth", 0.4), ("face", 0.6))),)).similarities(t)
+    want = (0.4 * plain[0] / plain[0].sum() + 0.6 * plain[2] / plain[2].sum()) * plain[0].sum()
+    np.testing.assert_allclose(mixed[0], want, rtol=1e-12)
+    np.testing.assert_array_equal(mixed[1:], plain[1:])
+    for bad in ((("mouth", (("mouth", 0.4), ("face", 0.4))),),  # shares sum to 0.8
+                (("mouth", (("mouth", 1.5), ("face", -0.5))),),  # a negative share
+                (("mouth", (("teeth", 1.0),)),)):  # not a region
+        with pytest.raises(BadInputError):
+            fit_expression_model(F, neighbours=2, mix=bad)
+
+
+def test_texture_params_mix_the_mouth_only_when_its_sources_are_regions():
+    from facetex.persona import TextureParams
+
+    assert TextureParams().region_mix() == (("mouth", (("mouth", 0.4), ("face", 0.4), ("eyes", 0.2))),)
+    assert TextureParams(mouth_mix=()).region_mix() == ()
+    assert TextureParams(regions=("mouth", "face")).region_mix() == ()  # the eyes are no weight region
 
 
 def test_region_masks_partition_and_feather():
