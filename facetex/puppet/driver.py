@@ -364,12 +364,14 @@ def exposure_gain(image, box) -> float:
     return max(1.0, float(srgb_to_linear(EXPOSED_FACE_LUMA)) / max(float(srgb_to_linear(luma)), 1e-4))
 
 
-def _landmarks_exposed(image, box) -> np.ndarray:
+def _landmarks_exposed(image, box, exposure: bool = True) -> np.ndarray:
     """dlib's 68 landmarks in ``box``, the mouth's (48-67) fitted again at a normalised exposure on a
-    dark face (:func:`exposure_gain`; one gain in linear light, as a camera's exposure)."""
+    dark face (:func:`exposure_gain`; one gain in linear light, as a camera's exposure) unless
+    ``exposure`` is False."""
     from ..landmarks import landmarks_in_box
 
-    return _mouth_exposed(image, box, landmarks_in_box(image, box))
+    p = landmarks_in_box(image, box)
+    return _mouth_exposed(image, box, p) if exposure else p
 
 
 def _mouth_exposed(image, box, p) -> np.ndarray:
@@ -388,7 +390,7 @@ def _mouth_exposed(image, box, p) -> np.ndarray:
     return p
 
 
-def fit_landmarks(frame, box, *, face_px: float = 200.0, points68=None) -> np.ndarray:
+def fit_landmarks(frame, box, *, face_px: float = 200.0, points68=None, exposure: bool = True) -> np.ndarray:
     """dlib's 68 landmarks (frame px) in a face ``box`` (x0, y0, x1, y1), fitted on a bicubic
     upscale of the box's neighbourhood when the box is narrower than ``face_px``; on a dark face
     the mouth's at a normalised exposure.
@@ -414,26 +416,28 @@ def fit_landmarks(frame, box, *, face_px: float = 200.0, points68=None) -> np.nd
     copy's eyes more shut; a per-channel gain to a light skin colour did as well on the mouth except
     on the dark-lipped bbaf2n copy (0.54).
     ``points68``: the landmarks already found in ``box`` at 1x (returned as they are when no
-    upscale is needed and the face is not dark)."""
+    upscale is needed and the face is not dark). ``exposure=False``: no mouth refit (a fit whose
+    points only place the next fit's box)."""
     import cv2
 
     b = np.asarray(box, np.float64)
     k = min(4.0, float(face_px) / max(b[2] - b[0], 1.0))
     if k <= 1.0:
         if points68 is not None:
-            return _mouth_exposed(frame, b, np.asarray(points68, np.float64))
-        return _landmarks_exposed(frame, b)
+            p = np.asarray(points68, np.float64)
+            return _mouth_exposed(frame, b, p) if exposure else p
+        return _landmarks_exposed(frame, b, exposure)
     h, w = frame.shape[:2]
     pad = 0.5 * (b[2] - b[0])
     x0, y0 = max(0, int(b[0] - pad)), max(0, int(b[1] - pad))
     x1, y1 = min(w, int(math.ceil(b[2] + pad))), min(h, int(math.ceil(b[3] + pad)))
     if x1 - x0 < 2 or y1 - y0 < 2:
-        return _landmarks_exposed(frame, b)
+        return _landmarks_exposed(frame, b, exposure)
     # the bicubic overshoot is clipped by landmarks_in_box's conversion to uint8
     crop = cv2.resize(np.ascontiguousarray(frame[y0:y1, x0:x1]), None, fx=k, fy=k, interpolation=cv2.INTER_CUBIC)
     shift = np.array([x0, y0], np.float64)
     up = (b.reshape(2, 2) - shift + 0.5) * k - 0.5
-    return (_landmarks_exposed(crop, up.ravel()) + 0.5) / k - 0.5 + shift
+    return (_landmarks_exposed(crop, up.ravel(), exposure) + 0.5) / k - 0.5 + shift
 
 
 def _box_of(points68: np.ndarray, ref_box, ref_points: np.ndarray):
@@ -456,9 +460,11 @@ def _track_frame(frame, prev, params: DriverParams, detect: bool):
     from ..landmarks import detect_faces, face_mesh468
 
     def carried(anchor):
-        p = fit_landmarks(frame, _box_of(prev[0], *anchor), face_px=params.landmark_face_px)
-        for _ in range(params.landmark_refits):
-            p = fit_landmarks(frame, _box_of(p, *anchor), face_px=params.landmark_face_px)
+        # on a dark face only the last fit refits the mouth: the earlier ones only place its box
+        refits = params.landmark_refits
+        p = fit_landmarks(frame, _box_of(prev[0], *anchor), face_px=params.landmark_face_px, exposure=refits == 0)
+        for i in range(refits):
+            p = fit_landmarks(frame, _box_of(p, *anchor), face_px=params.landmark_face_px, exposure=i == refits - 1)
         return p
 
     cands = []  # (points68, anchor)

@@ -579,3 +579,29 @@ def test_fit_landmarks_reads_a_dark_faces_mouth_at_a_normalised_exposure(monkeyp
         exposed.append(np.linalg.norm(p[48:] - ref[48:], axis=1).mean())
         plain.append(np.linalg.norm(q[48:] - ref[48:], axis=1).mean())
     assert np.mean(exposed) < 0.5 * np.mean(plain) and max(exposed) < 0.5
+
+
+def test_a_carried_box_refits_a_dark_mouth_once(monkeypatch):
+    """Between detections the landmarks are fitted 1 + landmark_refits times; on a dark face only
+    the last fit refits the mouth at a normalised exposure (the earlier fits only place its box), and
+    exposure=False gives the plain fit."""
+    import facetex.puppet.driver as drv
+    from facetex._resources import sample_path
+    from facetex.io import read_image
+    from facetex.landmarks import detect_faces
+
+    img = read_image(sample_path("frl_004_smiling.jpg"))
+    dark = img * np.float32(0.25)
+    face = detect_faces(img)[0]
+    calls = []
+    real = drv._mouth_exposed
+    monkeypatch.setattr(drv, "_mouth_exposed", lambda *a: calls.append(1) or real(*a))
+    plain = fit_landmarks(dark, face.box, exposure=False)
+    assert not calls
+    assert np.abs(fit_landmarks(dark, face.box) - plain)[48:].max() > 0  # the refit moves the mouth
+    assert len(calls) == 1
+    for refits in (0, 1, 2):
+        calls.clear()
+        params = drv.DriverParams(landmark_refits=refits)
+        out = drv._track_frame(dark, (face.points68, (face.box, face.points68)), params, detect=False)
+        assert out is not None and len(calls) == 1, refits
