@@ -72,7 +72,7 @@ def _frame_measures(image: np.ndarray, *, descriptor: bool = True):
 
     from ..landmarks import detect_faces
     from ..nets.dlib_resnet import face_descriptor
-    from ..puppet.driver import _mouth_exposed
+    from .._landmark_fit import _mouth_exposed
 
     k = max(1.0, MEASURE_SIDE / max(image.shape[:2]))
     big = np.clip(cv2.resize(image, None, fx=k, fy=k, interpolation=cv2.INTER_CUBIC) if k > 1 else image, 0, 1)

@@ -22,7 +22,7 @@ from ._atomic import (
     temp_tag,
     write_files,
 )
-from ._convert import LUMA_BT601, check_float_pixels, to_float32, to_uint8
+from ._convert import LUMA_BT601, check_float_pixels, linear_to_srgb, srgb_to_linear, to_float32, to_uint8
 from ._files import (
     as_path,
     check_input_dir,
@@ -52,7 +52,8 @@ from ._video import (
 from ._write import encode_image, encode_json, write_image, write_json
 
 __all__ = [  # in the order of the reference page
-    "ImageLike", "as_image", "image_args", "to_float32", "check_float_pixels", "to_uint8", "LUMA_BT601", "as_path",
+    "ImageLike", "as_image", "image_args", "to_float32", "check_float_pixels", "to_uint8", "LUMA_BT601", "srgb_to_linear",
+    "linear_to_srgb", "as_path",
     "check_input_file", "read_regular", "check_input_dir", "MAX_IMAGE_PIXELS", "DETECT_MAX_PIXELS",
     "IMAGE_MEMORY_BUDGET", "read_image", "read_image_reduced", "read_image_uint8", "IMAGE_EXTENSIONS",
     "VIDEO_EXTENSIONS", "committed_outputs", "check_output_path", "check_outputs", "temp_tag", "write_files",

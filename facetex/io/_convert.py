@@ -12,6 +12,18 @@ from ..errors import BadImageError
 LUMA_BT601 = np.array([0.299, 0.587, 0.114], np.float32)
 
 
+def srgb_to_linear(x):
+    """sRGB-encoded [0, 1] -> linear light (IEC 61966-2-1)."""
+    x = np.asarray(x, np.float32)
+    return np.where(x <= 0.04045, x / 12.92, ((np.maximum(x, 0.04045) + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def linear_to_srgb(x):
+    """Linear light -> sRGB-encoded [0, 1] (clipped)."""
+    x = np.clip(np.asarray(x, np.float32), 0, 1)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.maximum(x, 0.0031308) ** (1 / 2.4) - 0.055).astype(np.float32)
+
+
 def to_float32(img: np.ndarray) -> np.ndarray:
     """uint8 / uint16 / float image -> float32 in [0, 1] (integers scaled by their max)."""
     img = np.asarray(img)

@@ -53,6 +53,8 @@ _HEADER_SCHEMA = {
                 "min_photos": {"type": "integer", "minimum": 1},
                 "flow_method": {"enum": ["variational", "dis", "dis_fast", "farneback"]},
                 "shape_photos": {"type": "integer", "minimum": 1},
+                "landmark_face_px": {"type": "number", "minimum": 0, "maximum": 4096},
+                "landmark_refits": {"type": "integer", "minimum": 0, "maximum": 8},
             },
         },
         "source": {"type": "string"},
@@ -115,7 +117,9 @@ def _read_header(path: Path) -> tuple[dict, PersonaParams, list[str]]:
         _CHECKED_HEADERS.add(digest)
     try:
         p = header["parameters"]
-        params = PersonaParams(**{**p, "size": tuple(int(v) for v in p["size"])})
+        # a file written before landmark_face_px was built from dlib's points as they are (0)
+        params = PersonaParams(**{"landmark_face_px": 0.0, "landmark_refits": 0, **p,
+                                  "size": tuple(int(v) for v in p["size"])})
         photos = [ph["file"] for ph in header["photos"]]
         _stack_members(header, len(photos), params.size)  # checks the stacks' description
     except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as e:

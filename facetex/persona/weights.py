@@ -78,6 +78,11 @@ stronger collection flow (alpha 0.08 / 0.02: -0.001 / -0.012; at 0.3 the flow is
 none (+0.0002). An oracle shows the room: the 4 photos whose mouths best match the held-out
 photo's, blended, +0.059 (chosen on its high-pass structure alone, lighting left out: +0.051); the
 fiducials' ranking correlates 0.39 with it.
+What did move it: less noisy fiducials. The photos' landmarks fitted on a 2x upscale of the face and
+refitted once, as the driver's tracker fits a frame's (:class:`facetex.persona.PersonaParams`
+``landmark_face_px``, ``landmark_refits``): Koizumi +0.0294 -> +0.0334, Arroyo +0.0357 -> +0.0363
+(upscaled to 300 px, refitted twice, or the fits at 200, 300 and 400 px averaged: +0.035 on Koizumi).
+Then dropped: the jaw's points (iBUG 4-12 or 6-10) added to the mouth's distance, -0.003 on Koizumi.
 """
 
 from __future__ import annotations

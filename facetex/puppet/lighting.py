@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from ..errors import BadInputError
+from ..io import linear_to_srgb, srgb_to_linear  # re-exported: the lighting works in linear light
 from ._pixels import _pixels, _shape2, _shift
 
 __all__ = [
@@ -25,18 +26,6 @@ __all__ = [
 
 
 # ----------------------------------------------------------------------------- lighting
-def srgb_to_linear(x):
-    """sRGB-encoded [0, 1] -> linear light (IEC 61966-2-1)."""
-    x = np.asarray(x, np.float32)
-    return np.where(x <= 0.04045, x / 12.92, ((np.maximum(x, 0.04045) + 0.055) / 1.055) ** 2.4).astype(np.float32)
-
-
-def linear_to_srgb(x):
-    """Linear light -> sRGB-encoded [0, 1] (clipped)."""
-    x = np.clip(np.asarray(x, np.float32), 0, 1)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.maximum(x, 0.0031308) ** (1 / 2.4) - 0.055).astype(np.float32)
-
-
 def sh_basis(normals) -> np.ndarray:
     """First-order spherical-harmonics basis [1, n_x, n_y, n_z] (..., 4) of unit normals (..., 3)
     (the constant factors of Y_00 and Y_1m are folded into the lighting coefficients)."""

@@ -13,7 +13,6 @@ from facetex.puppet.driver import (
     DriverParams,
     GridInterpolator,
     fill_lost,
-    fit_landmarks,
     generalized_procrustes,
     mouth_opening,
     similarity_procrustes,
@@ -94,36 +93,6 @@ def test_mouth_opening_hand_computed():
     for u, l in zip((61, 62, 63), (67, 66, 65)):
         p[u], p[l] = [50, 100], [50, 110]
     assert mouth_opening(p) == pytest.approx(0.1)
-
-
-def test_fit_landmarks_on_a_small_face_is_closer_to_the_large_face_fit():
-    """A ~90 px face: fitted on a 2x upscale, dlib's landmarks land nearer to those fitted on the
-    same photo at 400 px than when fitted on the small frame's own pixels."""
-    from facetex._resources import sample_path
-    from facetex.io import read_image
-    from facetex.landmarks import detect_faces, landmarks_in_box
-
-    native, fitted = [], []
-    for name in ("frl_003_neutral", "frl_004_smiling", "frl_005_neutral", "frl_008_neutral"):
-        img = read_image(sample_path(f"{name}.jpg"))
-        big = detect_faces(img)[0]
-        s = 90.0 / (big.box[2] - big.box[0])
-        small = cv2.resize(img, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
-        face = detect_faces(small, upsample=1)[0]
-        ref = (big.points68 + 0.5) * s - 0.5
-        native.append(np.linalg.norm(landmarks_in_box(small, face.box) - ref, axis=1).mean())
-        p = fit_landmarks(small, face.box, face_px=200.0)
-        assert p.shape == (68, 2)
-        fitted.append(np.linalg.norm(p - ref, axis=1).mean())
-    assert np.mean(fitted) < 0.85 * np.mean(native) and max(fitted) < 0.8
-    # a face already larger than face_px: the detector's own landmarks, untouched but for the mouth's
-    # refit at a normalised exposure (this photo's face is darker than EXPOSED_FACE_LUMA)
-    q = fit_landmarks(img, big.box, face_px=100.0, points68=big.points68)
-    np.testing.assert_array_equal(q[:48], big.points68[:48])
-    assert np.abs(q[48:] - big.points68[48:]).max() <= 2.0
-    # a box at the frame's edge: the upscaled neighbourhood is clipped, the points stay in frame px
-    edge = fit_landmarks(small[:, int(face.box[0]) - 2 :], np.subtract(face.box, [face.box[0] - 2, 0] * 2))
-    assert np.isfinite(edge).all() and abs(edge[:, 0].min() - (p[:, 0].min() - face.box[0] + 2)) < 3
 
 
 def test_grid_interpolator_is_linear():
@@ -532,59 +501,11 @@ def test_lid_fields_close_the_lids_and_hold_the_rest():
         assert np.abs(at(p[still])).max() < 0.3
 
 
-def test_exposure_gain_by_hand():
-    """A grey face box of sRGB 0.2: the linear-light gain to luma 0.55 is
-    ((0.605 / 1.055) ** 2.4) / ((0.255 / 1.055) ** 2.4) = 0.26328 / 0.033105 = 7.953; only the box's
-    middle 60 % counts; a lighter face gets none."""
-    from facetex.puppet.driver import exposure_gain
-
-    img = np.full((100, 100, 3), 0.2, np.float32)
-    assert exposure_gain(img, (0, 0, 100, 100)) == pytest.approx(7.953, rel=1e-3)
-    assert exposure_gain((img * 255).round().astype(np.uint8), (0, 0, 100, 100)) == pytest.approx(7.953, rel=2e-2)
-    img[:, :18] = img[:, 82:] = 1.0  # a bright border outside the middle 60 %
-    assert exposure_gain(img, (0, 0, 100, 100)) == pytest.approx(7.953, rel=1e-3)
-    assert exposure_gain(np.full((100, 100, 3), 0.6, np.float32), (0, 0, 100, 100)) == 1.0
-    assert exposure_gain(img, (10, 10, 12, 12)) == 1.0  # too small a box to measure
-
-
-def test_fit_landmarks_reads_a_dark_faces_mouth_at_a_normalised_exposure(monkeypatch):
-    """A face darkened by an exposure change (x 0.08 in linear light): its mouth points, refitted on
-    the frame brought back to a normal exposure, land nearer to the bright frame's than the plain
-    fit's; every other point is the plain fit's."""
-    import facetex.puppet.driver as drv
-    from facetex._resources import sample_path
-    from facetex.io import read_image
-    from facetex.landmarks import detect_faces
-
-    def lin(x):
-        return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
-
-    def srgb(x):
-        return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.clip(x, 0, None), 1 / 2.4) - 0.055)
-
-    exposed, plain = [], []
-    for name in ("frl_004_smiling", "frl_005_smiling", "frl_003_neutral"):
-        img = read_image(sample_path(f"{name}.jpg"))
-        big = detect_faces(img)[0]
-        s = 100.0 / (big.box[2] - big.box[0])
-        small = cv2.resize(img, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
-        box = detect_faces(small, upsample=1)[0].box
-        dark = (np.round(srgb(lin(small) * 0.08) * 255) / 255).astype(np.float32)
-        ref = fit_landmarks(small, box)
-        p = fit_landmarks(dark, box)
-        with monkeypatch.context() as m:
-            m.setattr(drv, "MIN_EXPOSURE_GAIN", np.inf)
-            q = fit_landmarks(dark, box)
-        np.testing.assert_array_equal(p[:48], q[:48])
-        exposed.append(np.linalg.norm(p[48:] - ref[48:], axis=1).mean())
-        plain.append(np.linalg.norm(q[48:] - ref[48:], axis=1).mean())
-    assert np.mean(exposed) < 0.5 * np.mean(plain) and max(exposed) < 0.5
-
-
 def test_a_carried_box_refits_a_dark_mouth_once(monkeypatch):
     """Between detections the landmarks are fitted 1 + landmark_refits times; on a dark face only
     the last fit refits the mouth at a normalised exposure (the earlier fits only place its box), and
     exposure=False gives the plain fit."""
+    import facetex._landmark_fit as fit
     import facetex.puppet.driver as drv
     from facetex._resources import sample_path
     from facetex.io import read_image
@@ -594,11 +515,11 @@ def test_a_carried_box_refits_a_dark_mouth_once(monkeypatch):
     dark = img * np.float32(0.25)
     face = detect_faces(img)[0]
     calls = []
-    real = drv._mouth_exposed
-    monkeypatch.setattr(drv, "_mouth_exposed", lambda *a: calls.append(1) or real(*a))
-    plain = fit_landmarks(dark, face.box, exposure=False)
+    real = fit._mouth_exposed
+    monkeypatch.setattr(fit, "_mouth_exposed", lambda *a: calls.append(1) or real(*a))
+    plain = fit.fit_landmarks(dark, face.box, exposure=False)
     assert not calls
-    assert np.abs(fit_landmarks(dark, face.box) - plain)[48:].max() > 0  # the refit moves the mouth
+    assert np.abs(fit.fit_landmarks(dark, face.box) - plain)[48:].max() > 0  # the refit moves the mouth
     assert len(calls) == 1
     for refits in (0, 1, 2):
         calls.clear()

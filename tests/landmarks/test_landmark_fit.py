@@ -1,0 +1,116 @@
+"""dlib's landmarks fitted for expression (facetex._landmark_fit): upscaled small faces, a dark face's
+mouth at a normalised exposure; the persona's photos read as the driver's frames."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from facetex._landmark_fit import exposure_gain, fit_landmarks
+
+
+def test_fit_landmarks_on_a_small_face_is_closer_to_the_large_face_fit():
+    """A ~90 px face: fitted on a 2x upscale, dlib's landmarks land nearer to those fitted on the
+    same photo at 400 px than when fitted on the small frame's own pixels."""
+    from facetex._resources import sample_path
+    from facetex.io import read_image
+    from facetex.landmarks import detect_faces, landmarks_in_box
+
+    native, fitted = [], []
+    for name in ("frl_003_neutral", "frl_004_smiling", "frl_005_neutral", "frl_008_neutral"):
+        img = read_image(sample_path(f"{name}.jpg"))
+        big = detect_faces(img)[0]
+        s = 90.0 / (big.box[2] - big.box[0])
+        small = cv2.resize(img, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
+        face = detect_faces(small, upsample=1)[0]
+        ref = (big.points68 + 0.5) * s - 0.5
+        native.append(np.linalg.norm(landmarks_in_box(small, face.box) - ref, axis=1).mean())
+        p = fit_landmarks(small, face.box, face_px=200.0)
+        assert p.shape == (68, 2)
+        fitted.append(np.linalg.norm(p - ref, axis=1).mean())
+    assert np.mean(fitted) < 0.85 * np.mean(native) and max(fitted) < 0.8
+    # a face already larger than face_px: the detector's own landmarks, untouched but for the mouth's
+    # refit at a normalised exposure (this photo's face is darker than EXPOSED_FACE_LUMA)
+    q = fit_landmarks(img, big.box, face_px=100.0, points68=big.points68)
+    np.testing.assert_array_equal(q[:48], big.points68[:48])
+    assert np.abs(q[48:] - big.points68[48:]).max() <= 2.0
+    # a box at the frame's edge: the upscaled neighbourhood is clipped, the points stay in frame px
+    edge = fit_landmarks(small[:, int(face.box[0]) - 2 :], np.subtract(face.box, [face.box[0] - 2, 0] * 2))
+    assert np.isfinite(edge).all() and abs(edge[:, 0].min() - (p[:, 0].min() - face.box[0] + 2)) < 3
+
+
+def test_exposure_gain_by_hand():
+    """A grey face box of sRGB 0.2: the linear-light gain to luma 0.55 is
+    ((0.605 / 1.055) ** 2.4) / ((0.255 / 1.055) ** 2.4) = 0.26328 / 0.033105 = 7.953; only the box's
+    middle 60 % counts; a lighter face gets none."""
+    img = np.full((100, 100, 3), 0.2, np.float32)
+    assert exposure_gain(img, (0, 0, 100, 100)) == pytest.approx(7.953, rel=1e-3)
+    assert exposure_gain((img * 255).round().astype(np.uint8), (0, 0, 100, 100)) == pytest.approx(7.953, rel=2e-2)
+    img[:, :18] = img[:, 82:] = 1.0  # a bright border outside the middle 60 %
+    assert exposure_gain(img, (0, 0, 100, 100)) == pytest.approx(7.953, rel=1e-3)
+    assert exposure_gain(np.full((100, 100, 3), 0.6, np.float32), (0, 0, 100, 100)) == 1.0
+    assert exposure_gain(img, (10, 10, 12, 12)) == 1.0  # too small a box to measure
+
+
+def test_fit_landmarks_reads_a_dark_faces_mouth_at_a_normalised_exposure(monkeypatch):
+    """A face darkened by an exposure change (x 0.08 in linear light): its mouth points, refitted on
+    the frame brought back to a normal exposure, land nearer to the bright frame's than the plain
+    fit's; every other point is the plain fit's."""
+    import facetex._landmark_fit as fit
+    from facetex._resources import sample_path
+    from facetex.io import read_image
+    from facetex.landmarks import detect_faces
+
+    def lin(x):
+        return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+
+    def srgb(x):
+        return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.clip(x, 0, None), 1 / 2.4) - 0.055)
+
+    exposed, plain = [], []
+    for name in ("frl_004_smiling", "frl_005_smiling", "frl_003_neutral"):
+        img = read_image(sample_path(f"{name}.jpg"))
+        big = detect_faces(img)[0]
+        s = 100.0 / (big.box[2] - big.box[0])
+        small = cv2.resize(img, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
+        box = detect_faces(small, upsample=1)[0].box
+        dark = (np.round(srgb(lin(small) * 0.08) * 255) / 255).astype(np.float32)
+        ref = fit_landmarks(small, box)
+        p = fit_landmarks(dark, box)
+        with monkeypatch.context() as m:
+            m.setattr(fit, "MIN_EXPOSURE_GAIN", np.inf)
+            q = fit_landmarks(dark, box)
+        np.testing.assert_array_equal(p[:48], q[:48])
+        exposed.append(np.linalg.norm(p[48:] - ref[48:], axis=1).mean())
+        plain.append(np.linalg.norm(q[48:] - ref[48:], axis=1).mean())
+    assert np.mean(exposed) < 0.5 * np.mean(plain) and max(exposed) < 0.5
+
+
+def test_refine_landmarks_refits_in_the_carried_box_and_exposes_the_mouth_once(monkeypatch):
+    """refits 0 is the detection fit itself; each refit fits again in the box the points carry (a
+    different box, so other points); a dark face's mouth is refitted at a normalised exposure once,
+    on the last fit (not with exposure=False: then only the mouth differs)."""
+    import facetex._landmark_fit as fit
+    from facetex._resources import sample_path
+    from facetex.io import read_image
+    from facetex.landmarks import detect_faces
+
+    img = read_image(sample_path("frl_004_smiling.jpg"))
+    small = cv2.resize(img, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA) * np.float32(0.3)
+    face = detect_faces(small, upsample=1)[0]
+    assert fit.exposure_gain(small, face.box) >= fit.MIN_EXPOSURE_GAIN  # dark enough to refit
+    calls = []
+    real = fit._mouth_exposed
+    monkeypatch.setattr(fit, "_mouth_exposed", lambda *a: calls.append(1) or real(*a))
+    p0 = fit.refine_landmarks(small, face.box, face.points68, refits=0)
+    np.testing.assert_array_equal(p0, fit.fit_landmarks(small, face.box, points68=face.points68))
+    calls.clear()
+    p1 = fit.refine_landmarks(small, face.box, face.points68, refits=2)
+    assert len(calls) == 1 and p1.shape == (68, 2) and np.isfinite(p1).all()
+    calls.clear()
+    plain = fit.refine_landmarks(small, face.box, face.points68, refits=2, exposure=False)
+    assert not calls and np.abs(plain - p1)[48:].max() > 0 and np.array_equal(plain[:48], p1[:48])
+    assert 0 < np.abs(p1 - p0).max() < 5.0
+    box = fit.carried_box(p0 + [3.0, -2.0], face.box, p0)  # points moved: the box moves with them
+    np.testing.assert_allclose(np.subtract(box, face.box), [3, -2, 3, -2], atol=1e-9)
