@@ -82,7 +82,11 @@ What did move it: less noisy fiducials. The photos' landmarks fitted on a 2x ups
 refitted once, as the driver's tracker fits a frame's (:class:`facetex.persona.PersonaParams`
 ``landmark_face_px``, ``landmark_refits``): Koizumi +0.0294 -> +0.0334, Arroyo +0.0357 -> +0.0363
 (upscaled to 300 px, refitted twice, or the fits at 200, 300 and 400 px averaged: +0.035 on Koizumi).
-Then dropped: the jaw's points (iBUG 4-12 or 6-10) added to the mouth's distance, -0.003 on Koizumi.
+Then dropped (Koizumi): the jaw's points (iBUG 4-12 or 6-10) added to the mouth's distance, -0.003;
+each aligned photo's lighting taken out before the blend (its coefficients on the collection's 4
+appearance components fitted outside the mouth, subtracted at 0.5 / 1: -0.0035 / -0.013); Eq. 3's
+beta 10 / 5 / 2 (0 / -0.001 / -0.017; beta 2 raises the eyes' gain by 0.012: the eyes' and the
+mouth's bands want different breadths); tau 1e-3 (+0.0003).
 """
 
 from __future__ import annotations
