@@ -84,8 +84,11 @@ def process_photo(path, params: PersonaParams = PersonaParams()) -> dict:
     # that cost 0.005 leave-out mouth SSIM
     points = faces[0].points68
     if params.landmark_face_px:
-        points = refine_landmarks(img, faces[0].box, points, face_px=params.landmark_face_px,
-                                  refits=params.landmark_refits, exposure=False)
+        try:
+            points = refine_landmarks(img, faces[0].box, points, face_px=params.landmark_face_px,
+                                      refits=params.landmark_refits, exposure=False)
+        except FacetexError:  # a box the refit cannot use: the detector's own points
+            points = faces[0].points68
     try:
         fr = frontalize(img, points, size=params.size)
     except FacetexError as e:

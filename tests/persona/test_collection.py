@@ -775,3 +775,26 @@ def test_a_small_photos_landmarks_are_read_as_the_drivers(tmp_path):
         fitted.append(np.linalg.norm(a - ref, axis=1).mean())
         plain.append(np.linalg.norm(b - ref, axis=1).mean())
     assert len(fitted) == 6 and np.mean(fitted) < 0.9 * np.mean(plain), (fitted, plain)
+
+
+def test_a_refit_that_fails_falls_back_to_the_detectors_points(tmp_path, monkeypatch):
+    """A photo whose landmark refit raises keeps dlib's own points (as landmark_face_px 0), not a
+    failed build."""
+    import dataclasses
+
+    import facetex._landmark_fit as fit
+    from facetex.errors import BadInputError
+    from facetex.persona.build import process_photo
+
+    f = tmp_path / "p.png"
+    write_image(f, cv2.resize(read_image(sample_path("frl_004_smiling.jpg")), (240, 240), interpolation=cv2.INTER_AREA))
+    plain = process_photo(f, dataclasses.replace(PARAMS, landmark_face_px=0.0))
+    refined = process_photo(f, PARAMS)
+
+    def broken(*a, **k):
+        raise BadInputError("a face box must be 4 finite numbers")
+
+    monkeypatch.setattr(fit, "refine_landmarks", broken)
+    r = process_photo(f, PARAMS)
+    assert "reason" not in r and np.array_equal(r["points68"], plain["points68"])
+    assert not np.array_equal(refined["points68"], plain["points68"])
