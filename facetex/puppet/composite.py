@@ -65,7 +65,7 @@ from ._pixels import _LUMA, _mix, _shape2
 from .detail import match_grain, match_sharpness
 from .lighting import (COLOURS, _lab, _linear, fit_sh_lighting, linear_to_srgb, relight, srgb_to_linear,
                        transfer_skin_colour)
-from .eyes import eye_interior, eye_weights, lid_weights
+from .eyes import brow_weights, eye_interior, eye_weights, lid_weights
 from .mouth import lift_inner_lips, mouth_interior
 
 __all__ = [
@@ -376,6 +376,12 @@ class CompositeParams:
     :func:`~facetex.puppet.lighting.transfer_skin_colour`): with the lips' colour where the puppet's
     lips are (:func:`lip_regions`), teeth of a smiling persona's texture at its inner lips still
     drew a light line along the opening (the lips' highlights are scaled to it, not clipped);
+    brow_gain: in the brows (:func:`~facetex.puppet.eyes.brow_weights`) the lightness detail
+    darker than the persona's skin takes the skins' lightness ratio up to this (0: off; ``brows``
+    of :func:`~facetex.puppet.lighting.transfer_skin_colour`): with the 1.2 bound Williams' brows on
+    the pale GRID sbwe5n speaker were nearly gone (brow-to-forehead contrast 4.9-8.7 L* against the
+    driver's own 8-10), 7.2-12 with 2 (an absolute keep of her brows' lightness, as for the lid rims,
+    drew blocky dark-brown patches);
     lid_colour: the lids round the eyes take the driver's lid lightness at this strength
     (:func:`lid_weights`, 0: off, the default): a dark persona's dark lids looked like shadow rings
     on pale drivers, and at 1 Williams' eye openness rose (0.83-0.90 -> 0.84-0.95 of the driver's)
@@ -419,6 +425,7 @@ class CompositeParams:
     lid_colour: float = 0.0
     eye_colour: bool = True
     eye_grow: float = 0.04
+    brow_gain: float = 2.0
     occlusion: bool = True
     sharpen: float = 2.5
     grain: float = 1.0
@@ -544,6 +551,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
                                    keep=eye_weights(p68 - [x0, y0], rg.shape) if params.eye_colour else None,
                                    keep_dark=eye_weights(p68 - [x0, y0], rg.shape, grow=params.eye_grow)
                                    if params.eye_colour and params.eye_grow > 0 else None, keep_chroma=False,
+                                   brows=brow_weights((p68 if pp68 is None else pp68) - [x0, y0], rg.shape)
+                                   if params.brow_gain > 0 else None, brow_gain=params.brow_gain,
                                    **(lip_regions(p68 - [x0, y0], None if pp68 is None else pp68 - [x0, y0],
                                                   rg.shape, open_lips=params.open_lips) if params.lip_colour else {}),
                                    lip_ceiling=params.lip_ceiling)

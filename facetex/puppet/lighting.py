@@ -171,7 +171,7 @@ LIP_SPREAD_PERCENTILE = 90.0
 def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 / 3, 1.2), colour: str = "driver",
                          light_limits=(0.5, 2.0), shrink: int = 1, lips=None, lids=None, keep=None,
                          lip_parts=(), lip_ceiling: float | None = None, keep_chroma: bool = True,
-                         keep_dark=None) -> np.ndarray:
+                         keep_dark=None, brows=None, brow_gain: float = 2.0) -> np.ndarray:
     """``src`` (H, W, 3) sRGB with the low-frequency colour of ``ref`` (the same size, aligned),
     measured on skin pixels only (bool ``src_skin``, ``ref_skin``), the detail of ``src`` kept.
 
@@ -201,7 +201,12 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     (colour "driver"): weight (H, W) in [0, 1] or None, applied before ``keep``: where it is 1
     ``src``'s lightness is kept where it is darker than the transfer's, never where lighter (the
     lids' rims round the eyeballs: a dark persona's lash lines stay dark on a pale driver, a pale
-    persona's lid highlights do not stay pale on a dark one). ``lids`` (colour
+    persona's lid highlights do not stay pale on a dark one). ``brows`` (colour "driver"): weight
+    (H, W) in [0, 1] or None: there the lightness detail darker than ``src``'s skin field takes the
+    skins' lightness ratio clipped to ``brow_gain`` instead of ``gain``'s upper bound (brows are
+    hair: a dark persona's brows, darker than her skin by less than a pale driver's are than his,
+    came out faint; only where that ratio is above the bound, i.e. a darker persona on a paler
+    driver). ``lids`` (colour
     "driver"): the same as ``lips`` for the skin round the eyes (:func:`~facetex.puppet.eyes.lid_weights`): a dark
     persona's lids, darker than her skin, kept that difference on a pale driver as dark rings.
     ``lip_parts``: more regions like ``lips``, applied after it in order (the upper and lower
@@ -282,6 +287,11 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
         out[..., 0] -= wl * np.maximum(out[..., 0] - top, 0.0)
     if keep_dark is not None:
         out[..., 0] += np.asarray(keep_dark, np.float32) * np.minimum(a[..., 0] - out[..., 0], 0.0)
+    if brows is not None:
+        gb = float(np.clip(cb[0] / max(float(ca[0]), 1.0), gain[0], max(brow_gain, gain[1])))
+        if gb > g[0]:
+            dark = np.minimum(a[..., 0] - full(sa[..., 0]), 0.0)
+            out[..., 0] += np.asarray(brows, np.float32) * (gb - g[0]) * dark
     if keep is not None:
         k = np.asarray(keep, np.float32)[..., None]
         n = 3 if keep_chroma else 1

@@ -1205,3 +1205,28 @@ def test_keep_dark_keeps_only_the_darker_lightness(driver_l):
     else:
         assert out[18, 55, 0] == pytest.approx(plain[18, 55, 0], abs=0.3)  # the pale rim not kept pale
         assert out[18, 55, 0] < a[18, 55, 0] - 10
+
+
+def test_brow_gain_by_hand():
+    """A dark persona (skin L 40) with a dark brow (L 30) and a light patch (L 50) in its brow
+    region, on a pale driver (L 75): the skin's lightness gain is 75 / 40 = 1.875, clipped to 1.2
+    (brow 75 - 1.2 x 10 = 63); in the brows' weight 1 the darker-than-skin detail takes the gain up
+    to ``brow_gain`` 2 (75 - 1.875 x 10 = 56.25), the lighter stays the skin's (75 + 1.2 x 10 = 87).
+    On a darker driver (gain below 1.2) nothing changes."""
+    h, w = 40, 80
+    band = np.zeros((h, w), bool)
+    band[15:25, 10:30] = band[15:25, 50:70] = True
+    src_lab = np.broadcast_to(np.float32([40.0, 12.0, 18.0]), (h, w, 3)).copy()
+    src_lab[15:25, 10:30, 0] = 30.0
+    src_lab[15:25, 50:70, 0] = 50.0
+    src = _rgb(src_lab)
+    for driver_l, brow, light in ((75.0, 56.25, 87.0), (44.0, 44.0 - 1.1 * 10, 44.0 + 1.1 * 10)):
+        ref = _rgb(np.ascontiguousarray(np.broadcast_to(np.float32([driver_l, 14.0, 22.0]), (h, w, 3))))
+        plain = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf))
+        out = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf, brows=band.astype(np.float32),
+                                        brow_gain=2.0))
+        np.testing.assert_allclose(out[~band], plain[~band], atol=1e-3)
+        assert np.median(out[15:25, 10:30, 0]) == pytest.approx(brow, abs=0.8)
+        assert np.median(out[15:25, 50:70, 0]) == pytest.approx(light, abs=0.8)
+        np.testing.assert_allclose(out[15:25, 50:70], plain[15:25, 50:70], atol=1e-3)
+    np.testing.assert_allclose(out, plain, atol=1e-3)  # the darker driver: as without brows
