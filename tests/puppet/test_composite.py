@@ -1176,6 +1176,22 @@ def test_lift_inner_lips_relative_takes_the_drivers_band_relative_to_each_faces_
     np.testing.assert_allclose(np.median(lab[core][:, 1:], axis=0), [20.0, 10.0], atol=2.5)  # the puppet's lips' chroma
 
 
+def _two_band_skin(skin_l: float, left_l: float, right_l: float) -> tuple[np.ndarray, np.ndarray]:
+    """(bool (40, 80) two bands, sRGB skin of L* ``skin_l`` with the left band at ``left_l`` and the
+    right at ``right_l``; a*, b* 12, 18)."""
+    band = np.zeros((40, 80), bool)
+    band[15:25, 10:30] = band[15:25, 50:70] = True
+    lab = np.broadcast_to(np.float32([skin_l, 12.0, 18.0]), (40, 80, 3)).copy()
+    lab[15:25, 10:30, 0] = left_l
+    lab[15:25, 50:70, 0] = right_l
+    return band, _rgb(lab)
+
+
+def _flat_skin(lightness: float, shape) -> np.ndarray:
+    """A driver's flat skin (L* ``lightness``, a*, b* 14, 22) in sRGB."""
+    return _rgb(np.ascontiguousarray(np.broadcast_to(np.float32([lightness, 14.0, 22.0]), tuple(shape) + (3,))))
+
+
 @pytest.mark.parametrize("driver_l", [35.0, 80.0])
 def test_keep_dark_keeps_only_the_darker_lightness(driver_l):
     """A persona (skin L 70) with a dark rim (L 30) round one eye and a pale one (L 90) round the
@@ -1183,14 +1199,8 @@ def test_keep_dark_keeps_only_the_darker_lightness(driver_l):
     smaller of the persona's and the plain transfer's, its a*, b* the transfer's; where it is 0 the
     plain transfer, unchanged. On the pale driver the dark rim stays darker than the transfer makes
     it; on the dark one the pale rim takes the transfer (it is not kept pale)."""
-    h, w = 40, 80
-    band = np.zeros((h, w), bool)
-    band[15:25, 10:30] = band[15:25, 50:70] = True
-    src_lab = np.broadcast_to(np.float32([70.0, 12.0, 18.0]), (h, w, 3)).copy()
-    src_lab[15:25, 10:30, 0] = 30.0
-    src_lab[15:25, 50:70, 0] = 90.0
-    ref_lab = np.broadcast_to(np.float32([driver_l, 14.0, 22.0]), (h, w, 3)).copy()
-    src, ref = _rgb(src_lab), _rgb(np.ascontiguousarray(ref_lab))
+    band, src = _two_band_skin(70.0, 30.0, 90.0)
+    ref = _flat_skin(driver_l, band.shape)
     plain = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf))
     out = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf, keep_dark=band.astype(np.float32)))
     a = _lab(src)
@@ -1213,15 +1223,9 @@ def test_brow_gain_by_hand():
     (brow 75 - 1.2 x 10 = 63); in the brows' weight 1 the darker-than-skin detail takes the gain up
     to ``brow_gain`` 2 (75 - 1.875 x 10 = 56.25), the lighter stays the skin's (75 + 1.2 x 10 = 87).
     On a darker driver (gain below 1.2) nothing changes."""
-    h, w = 40, 80
-    band = np.zeros((h, w), bool)
-    band[15:25, 10:30] = band[15:25, 50:70] = True
-    src_lab = np.broadcast_to(np.float32([40.0, 12.0, 18.0]), (h, w, 3)).copy()
-    src_lab[15:25, 10:30, 0] = 30.0
-    src_lab[15:25, 50:70, 0] = 50.0
-    src = _rgb(src_lab)
+    band, src = _two_band_skin(40.0, 30.0, 50.0)
     for driver_l, brow, light in ((75.0, 56.25, 87.0), (44.0, 44.0 - 1.1 * 10, 44.0 + 1.1 * 10)):
-        ref = _rgb(np.ascontiguousarray(np.broadcast_to(np.float32([driver_l, 14.0, 22.0]), (h, w, 3))))
+        ref = _flat_skin(driver_l, band.shape)
         plain = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf))
         out = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf, brows=band.astype(np.float32),
                                         brow_gain=2.0))
