@@ -61,12 +61,12 @@ import numpy as np
 
 from ..errors import BadInputError
 from ..geometry.masks import disc, feature_mask, inner_feather, nose_mask, polygon_mask
-from ._pixels import _LUMA, _mix, _shape2
+from ._pixels import _LUMA, _mix
 from .detail import match_grain, match_sharpness
 from .lighting import (COLOURS, _lab, _linear, fit_sh_lighting, linear_to_srgb, relight, srgb_to_linear,
                        transfer_skin_colour)
 from .eyes import brow_weights, eye_interior, eye_weights, lid_weights
-from .mouth import lift_inner_lips, mouth_interior
+from .mouth import lift_inner_lips, lip_regions, lip_weights, mouth_interior  # noqa: F401 (lip_weights re-exported)
 
 __all__ = [
     "FACE_OVAL",
@@ -88,84 +88,6 @@ FACE_OVAL = (10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365
              148, 176, 149, 150, 136, 172, 58, 132, 93, 234, 127, 162, 21, 54, 103, 67, 109)
 #: iBUG-68 inner-lip contour, in order (left corner, upper lip, right corner, lower lip).
 INNER_LIPS = (60, 61, 62, 63, 64, 65, 66, 67)
-
-
-def lip_weights(points68, shape, *, feather: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
-    """(weight (H, W) float32, bool (H, W)) of the lips at iBUG landmarks ``points68``: the outer
-    lip polygon 48-59 feathered by ``feather`` x the eye-corner distance (Gaussian sigma), and the
-    lip pixels themselves (outer polygon minus inner 60-67, a pixel in from both edges) where
-    their colour is measured (:func:`~facetex.puppet.lighting.transfer_skin_colour`)."""
-    p = np.asarray(points68, np.float64)
-    h, w = _shape2(shape)
-    outer = polygon_mask(p[48:60], (h, w))
-    inner = polygon_mask(p[60:68], (h, w))
-    ring = ((outer > 0.5) & ~(inner > 0.5)).astype(np.uint8)
-    ring = cv2.erode(ring, np.ones((3, 3), np.uint8)) > 0
-    sig = max(0.75, feather * float(np.linalg.norm(p[36] - p[45])))
-    return np.clip(cv2.GaussianBlur(outer.astype(np.float32), (0, 0), sig), 0, 1), ring
-
-
-def open_lip_weights(points68, shape, *, feather: float = 0.02, band: float = 0.1,
-                     corner: float = 0.15) -> list:
-    """The upper and the lower lip as two regions of
-    :func:`~facetex.puppet.lighting.transfer_skin_colour`: [(weight (H, W), pixels (H, W) bool)] x 2,
-    each weight scaled by how open the mouth is (1 - :func:`~facetex.puppet.mouth.mouth_closure`;
-    [] for closed lips). One median colour for both lips let an open mouth's dark inner-lip
-    seam and the driver's teeth pull the lips' colour apart from the driver's, and dlib then
-    read part of the upper lip as the opening (Arroyo's persona on GRID lbax4n: mouth-opening
-    slope 0.71; 0.83 with each lip its own colour). Fading with openness keeps closed lips one
-    colour: an earlier per-lip split without the fade broke Chavez's closed lips. The colour is
-    measured on each lip's outer part: the inner-lip points pulled ``band`` of the way towards
-    the outer lip contour (0.1: Arroyo/bbaf2n's mouth r 0.83 -> 0.86 over the whole lip, 0.88 at 0.2
-    and 0.4, but Bush/sbwe5n's slope 1.10 -> 1.19, 1.32 at 0.2, 1.37 at 0.4, Arroyo/lbax4n
-    0.83, 0.80, 0.75: the inner band carries some of the driver's look of the opening). The
-    weights fall to 0 over ``corner`` x the mouth width at each corner."""
-    from .mouth import mouth_closure
-
-    p = np.asarray(points68, np.float64)
-    h, w = _shape2(shape)
-    o = 1.0 - mouth_closure(p[60:68])
-    if o <= 0:
-        return []
-    sig = max(0.75, feather * float(np.linalg.norm(p[36] - p[45])))
-    # the colour is measured on each lip's outer part only: the inner-lip points of the driver
-    # (dlib) and the puppet's (mesh) opening differ, and the inner band of either image can hold
-    # the dark interior, which darkened the upper lip of Arroyo's persona on GRID bbaf2n
-    q = p.copy()
-    for inner, outer in ((61, 50), (62, 51), (63, 52), (65, 56), (66, 57), (67, 58)):
-        q[inner] = p[inner] + band * (p[outer] - p[inner])
-    # tapered to 0 at the mouth corners, where the two lips' thin wedges meet the corner's
-    # shadow: each lip's own colour offset there drew dark red ticks (Arroyo/bbaf2n, 8x crops);
-    # the lips' common colour (lip_weights) stays
-    axis = p[54] - p[48]
-    t = (((np.arange(w) - p[48, 0]) * axis[0])[None, :] + ((np.arange(h) - p[48, 1]) * axis[1])[:, None]) \
-        / max(float(axis @ axis), 1e-9)
-    taper = np.clip(np.minimum(t, 1.0 - t) / corner, 0.0, 1.0).astype(np.float32) if corner > 0 else 1.0
-    parts = []
-    for upper in (True, False):
-        idx = [*range(48, 55), 64, 63, 62, 61, 60] if upper else [*range(54, 60), 48, 60, 67, 66, 65, 64]
-        m = polygon_mask(p[idx], (h, w))
-        ring = cv2.erode((polygon_mask(q[idx], (h, w)) > 0.5).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-        parts.append((o * taper * np.clip(cv2.GaussianBlur(m.astype(np.float32), (0, 0), sig), 0, 1), ring))
-    return parts
-
-
-def lip_regions(driver68, puppet68, shape, *, open_lips: bool = True) -> dict:
-    """``lips`` and ``lip_parts`` of :func:`~facetex.puppet.lighting.transfer_skin_colour` for a
-    puppet with landmarks ``puppet68`` in a frame with the driver's ``driver68`` (both (68, 2) px
-    of an image of ``shape``): the lips' colour where the *puppet's* lips are (:func:`lip_weights`,
-    :func:`open_lip_weights` with ``open_lips``), measured on each face's own lip pixels
-    (``puppet68`` None: the driver's lips for both). Placed at the driver's lips, a fuller-lipped
-    persona's lip edge outside them took the skin's mapping and its lighter lips turned white
-    (Serena Williams' persona on GRID lbax4n: a white rim round the opening)."""
-    dw = lip_weights(driver68, shape)
-    dparts = open_lip_weights(driver68, shape) if open_lips else []
-    if puppet68 is None:
-        return {"lips": dw, "lip_parts": dparts}
-    pw = lip_weights(puppet68, shape)
-    pparts = open_lip_weights(puppet68, shape) if open_lips else []
-    parts = [(p[0], d[1], p[1]) for d, p in zip(dparts, pparts)] if dparts and pparts else []
-    return {"lips": (pw[0], dw[1], pw[1]), "lip_parts": parts}
 
 
 def _scaled(weights: tuple, strength: float) -> tuple:

@@ -210,7 +210,7 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     "driver"): the same as ``lips`` for the skin round the eyes (:func:`~facetex.puppet.eyes.lid_weights`): a dark
     persona's lids, darker than her skin, kept that difference on a pale driver as dark rings.
     ``lip_parts``: more regions like ``lips``, applied after it in order (the upper and lower
-    lip of an open mouth, :func:`~facetex.puppet.composite.open_lip_weights`). ``lip_ceiling``
+    lip of an open mouth, :func:`~facetex.puppet.mouth.open_lip_weights`). ``lip_ceiling``
     (with ``lips``): the lips' lightness at most ``ref``'s lip median + this (L*, 0..100): a
     persona whose photos smile has teeth at its texture's inner lips, lighter than any lip, and
     the kept detail drew them as a white rim on the puppet's lips. Above the lips' median their

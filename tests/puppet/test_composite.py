@@ -13,14 +13,12 @@ from facetex.puppet.composite import (
     CompositeParams,
     boundary_color_step,
     composite_face,
-    lip_regions,
-    lip_weights,
     match_sharpness,
-    open_lip_weights,
     occlusion_mask,
     poisson_blend,
     skin_pixels,
 )
+from facetex.puppet.mouth import lip_regions, lip_weights, open_lip_weights
 from facetex.puppet.lighting import (
     fit_sh_lighting,
     linear_to_srgb,
