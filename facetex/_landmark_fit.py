@@ -19,7 +19,7 @@ from .io import LUMA_BT601, linear_to_srgb, srgb_to_linear
 from .landmarks import landmarks_in_box
 
 __all__ = ["EXPOSED_FACE_LUMA", "MIN_EXPOSURE_GAIN", "exposure_gain", "fit_landmarks", "carried_box",
-           "refine_landmarks"]
+           "refit_in_carried_boxes", "refine_landmarks"]
 
 #: A face whose box's middle has a median sRGB luma below this gets its mouth landmarks refitted at
 #: the exposure that brings it there (:func:`fit_landmarks`), when that takes a gain of at least
@@ -128,15 +128,25 @@ def carried_box(points68: np.ndarray, ref_box, ref_points: np.ndarray):
     return (c[0] - half[0], c[1] - half[1], c[0] + half[0], c[1] + half[1])
 
 
+def refit_in_carried_boxes(image, points68, box, ref_points, *, times: int, face_px: float = 200.0,
+                           exposure: bool = True) -> np.ndarray:
+    """``points68`` fitted again ``times`` times with :func:`fit_landmarks`, each time in the detector
+    ``box`` (found with ``ref_points``) carried by the last fit's points (:func:`carried_box`); on a
+    dark face only the last fit refits the mouth at a normalised exposure (unless ``exposure`` is
+    False): the earlier fits only place the next box."""
+    p = np.asarray(points68, np.float64)
+    for i in range(times):
+        p = fit_landmarks(image, carried_box(p, box, ref_points), face_px=face_px,
+                          exposure=exposure and i == times - 1)
+    return p
+
+
 def refine_landmarks(image, box, points68, *, face_px: float = 200.0, refits: int = 1,
                      exposure: bool = True) -> np.ndarray:
     """(68, 2) landmarks of the face dlib found in ``box`` with ``points68``, read as the driver's
     tracker reads a frame's: fitted with :func:`fit_landmarks` (upscaled below ``face_px``), then
-    ``refits`` times again in the detector box carried by the last fit's points
-    (:func:`carried_box`); on a dark face the last fit refits the mouth at a normalised exposure
-    (unless ``exposure`` is False; the earlier fits only place the next box)."""
+    ``refits`` times again in the box the points carry (:func:`refit_in_carried_boxes`); on a dark
+    face the last fit refits the mouth at a normalised exposure unless ``exposure`` is False."""
     p0 = np.asarray(points68, np.float64)
     p = fit_landmarks(image, box, face_px=face_px, points68=p0, exposure=exposure and refits == 0)
-    for i in range(refits):
-        p = fit_landmarks(image, carried_box(p, box, p0), face_px=face_px, exposure=exposure and i == refits - 1)
-    return p
+    return refit_in_carried_boxes(image, p, box, p0, times=refits, face_px=face_px, exposure=exposure)

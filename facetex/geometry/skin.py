@@ -59,6 +59,7 @@ __all__ = [
     "FACE_OVAL_468",
     "SkinParams",
     "feature_mask",
+    "brow_mask",
     "face_region_mask",
     "skin_colour_distance",
     "beard_mask",
@@ -160,6 +161,17 @@ def protected_mask(points68, shape) -> np.ndarray:
     return m.astype(bool)
 
 
+def brow_mask(points68, shape, params: SkinParams = SkinParams()) -> np.ndarray:
+    """bool (H, W): both brows, each a line through its five points (17-21, 22-26)
+    ``params.brow_width`` x the face width wide, grown by ``params.brow_margin`` x it."""
+    p, (h, w) = _p68(points68), _shape(shape)
+    fw = face_width(p)
+    out = np.zeros((h, w), np.uint8)
+    for brow in _BROWS:
+        _poly(out, p[list(brow)], closed=False, thickness=int(round(params.brow_width * fw)))
+    return _dilate(out, params.brow_margin * fw).astype(bool)
+
+
 def feature_mask(points68, shape, params: SkinParams = SkinParams()) -> np.ndarray:
     """bool (H, W): eyes, brows, lips and nostrils grown by their margins (never skin)."""
     p, (h, w) = _p68(points68), _shape(shape)
@@ -169,10 +181,7 @@ def feature_mask(points68, shape, params: SkinParams = SkinParams()) -> np.ndarr
         e = np.zeros_like(out)
         _poly(e, p[list(eye)])
         out |= _dilate(e, params.eye_margin * fw)
-    for brow in _BROWS:
-        b = np.zeros_like(out)
-        _poly(b, p[list(brow)], closed=False, thickness=int(round(params.brow_width * fw)))
-        out |= _dilate(b, params.brow_margin * fw)
+    out |= brow_mask(p, (h, w), params).view(np.uint8)
     lips = np.zeros_like(out)
     _poly(lips, p[list(_LIPS)])
     out |= _dilate(lips, params.lip_margin * fw)

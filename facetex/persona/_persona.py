@@ -38,8 +38,8 @@ class PersonaParams:
     landmark_face_px, landmark_refits: a photo's landmarks are fitted as the driver's tracker fits a
     frame's (:func:`facetex._landmark_fit.refine_landmarks`: upscaled when the face box is narrower
     than landmark_face_px, fitted again landmark_refits times in the box the points carry; not the
-    tracker's dark-face mouth refit at a normalised exposure; landmark_face_px 0: dlib's points at the photo's size, as
-    files written before it were built). Leave-out mouth SSIM over static (5 folds), dlib's points ->
+    tracker's dark-face mouth refit at a normalised exposure; landmark_face_px 0: dlib's points at
+    the photo's size, as files written before it were built). Leave-out mouth SSIM over static (5 folds), dlib's points ->
     these: Bush +0.0406 -> +0.0431, Blair +0.0531 -> +0.0522, Williams +0.0543 -> +0.0554, Chavez
     +0.0463 -> +0.0495, Koizumi +0.0294 -> +0.0334, Arroyo +0.0357 -> +0.0363; with the dark-face mouth
     refit too, Williams +0.0508 (dropped).

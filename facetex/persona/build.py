@@ -87,8 +87,8 @@ def process_photo(path, params: PersonaParams = PersonaParams()) -> dict:
         try:
             points = refine_landmarks(img, faces[0].box, points, face_px=params.landmark_face_px,
                                       refits=params.landmark_refits, exposure=False)
-        except FacetexError:  # a box the refit cannot use: the detector's own points
-            points = faces[0].points68
+        except FacetexError:  # a box the refit cannot use: the detector's own points stay
+            pass
     try:
         fr = frontalize(img, points, size=params.size)
     except FacetexError as e:

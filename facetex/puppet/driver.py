@@ -51,7 +51,8 @@ from typing import Callable
 
 import numpy as np
 
-from .._landmark_fit import EXPOSED_FACE_LUMA, MIN_EXPOSURE_GAIN, carried_box, exposure_gain, fit_landmarks  # noqa: F401
+from .._landmark_fit import (EXPOSED_FACE_LUMA, MIN_EXPOSURE_GAIN, carried_box, exposure_gain,  # noqa: F401
+                             fit_landmarks, refit_in_carried_boxes)
 from ..errors import FacetexError, NoFaceError
 from ._rows import scatter_rows
 
@@ -346,12 +347,8 @@ def _track_frame(frame, prev, params: DriverParams, detect: bool):
     from ..landmarks import detect_faces, face_mesh468
 
     def carried(anchor):
-        # on a dark face only the last fit refits the mouth: the earlier ones only place its box
-        refits = params.landmark_refits
-        p = fit_landmarks(frame, carried_box(prev[0], *anchor), face_px=params.landmark_face_px, exposure=refits == 0)
-        for i in range(refits):
-            p = fit_landmarks(frame, carried_box(p, *anchor), face_px=params.landmark_face_px, exposure=i == refits - 1)
-        return p
+        return refit_in_carried_boxes(frame, prev[0], *anchor, times=1 + params.landmark_refits,
+                                      face_px=params.landmark_face_px)
 
     cands = []  # (points68, anchor)
     if prev is not None and not detect:

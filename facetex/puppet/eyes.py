@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import BadInputError
 from ..geometry.masks import disc, polygon_mask
-from ..geometry.skin import _sample_regions
+from ..geometry.skin import _sample_regions, brow_mask
 from ._contours import EYE, _contour_frame, _open_fade, sample_between
 from ._pixels import _LUMA, _shape2
 from .lighting import _lab, _linear, _rgb
@@ -159,24 +159,12 @@ def lid_weights(points68, shape, *, margin: float = 0.045, feather: float = 0.01
 
 
 def brow_weights(points68, shape, *, feather: float = 0.03) -> np.ndarray:
-    """Weight (H, W) float32 in [0, 1] of both brows at iBUG landmarks ``points68``: each brow's
-    five points (17-21, 22-26) drawn as a line as :func:`facetex.geometry.skin.feature_mask` draws it
-    (its width and margin), feathered by ``feather`` x the eye-corner distance."""
-    from ..geometry.masks import face_width
-    from ..geometry.skin import _BROWS, SkinParams
-
+    """Weight (H, W) float32 in [0, 1] of both brows at iBUG landmarks ``points68``: the brows of
+    :func:`facetex.geometry.skin.brow_mask` (as the skin model leaves them out), feathered by
+    ``feather`` x the eye-corner distance."""
     p = np.asarray(points68, np.float64)
-    h, w = _shape2(shape)
-    sp, fw = SkinParams(), face_width(p)
-    m = np.zeros((h, w), np.uint8)
-    for brow in _BROWS:
-        cv2.polylines(m, [np.round(p[list(brow)] * 16).astype(np.int32)], False, 1,
-                      max(1, int(round(sp.brow_width * fw))), cv2.LINE_8, 4)
-    r = int(round(sp.brow_margin * fw))
-    if r >= 1:
-        m = cv2.dilate(m, disc(r))
     sig = max(0.5, feather * float(np.linalg.norm(p[36] - p[45])))
-    return np.clip(cv2.GaussianBlur(m.astype(np.float32), (0, 0), sig), 0, 1)
+    return np.clip(cv2.GaussianBlur(brow_mask(p, shape).astype(np.float32), (0, 0), sig), 0, 1)
 
 
 def eye_weights(points68, shape, *, feather: float = 0.015, grow: float = 0.0) -> np.ndarray:

@@ -248,7 +248,8 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     # lightness detail scales with the skin's lightness (L* ~ Y^(1/3), albedo x shading): a dark
     # persona's iris, lids and pores keep their contrast on a pale driver; chroma detail is kept.
     # out = R + (g, 1, 1) (src - S) = (g, 1, 1) src + field
-    g = np.float32([np.clip(cb[0] / max(float(ca[0]), 1.0), *gain), 1.0, 1.0])
+    ratio = float(cb[0]) / max(float(ca[0]), 1.0)
+    g = np.float32([np.clip(ratio, *gain), 1.0, 1.0])
     field = np.empty(sa.shape, np.float32)
     for c in range(3):
         field[..., c] = sb[..., c] - g[c] * sa[..., c]
@@ -288,7 +289,7 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     if keep_dark is not None:
         out[..., 0] += np.asarray(keep_dark, np.float32) * np.minimum(a[..., 0] - out[..., 0], 0.0)
     if brows is not None:
-        gb = float(np.clip(cb[0] / max(float(ca[0]), 1.0), gain[0], max(brow_gain, gain[1])))
+        gb = float(np.clip(ratio, gain[0], max(brow_gain, gain[1])))
         if gb > g[0]:
             dark = np.minimum(a[..., 0] - full(sa[..., 0]), 0.0)
             out[..., 0] += np.asarray(brows, np.float32) * (gb - g[0]) * dark
