@@ -263,8 +263,9 @@ class JobQueue:
                     if job_id in self._reserved or job_id in self._pins or (
                             job_id in self._jobs and self._jobs[job_id].state not in FINISHED):
                         continue
-                    self._jobs.pop(job_id, None)
                 self._remove(folder)
+                with self._cond:  # forgotten once its folder is gone: a job that is no longer listed has no folder
+                    self._jobs.pop(job_id, None)
                 removed.append(job_id)
         return removed
 
