@@ -175,12 +175,11 @@ def sequence_weights(persona: Persona, fiducials, params: TextureParams | None =
         raise BadInputError("sequence weights are the regional weights: use TextureParams(weights='regional')")
     f = np.asarray(fiducials, np.float64)
     f = np.stack([_fiducials49(x) for x in f.reshape((-1,) + f.shape[-2:])])
-    W = cut_region_weights(target_weights(persona, f, tp), tp)  # (N, R, n)
+    coords, sigmas, S = expression_model(persona, tp).evaluate(f)  # the distances once
+    W = cut_region_weights(S, tp)  # (N, R, n)
     if sigma_frames <= 0:
         return W
-    model = expression_model(persona, tp)
-    return temporal_weights(W, model.coordinates(f), model.sigmas(f), sigma_frames=sigma_frames,
-                            range_scale=range_scale)
+    return temporal_weights(W, coords, sigmas, sigma_frames=sigma_frames, range_scale=range_scale)
 
 
 def cut_region_weights(similarities, params: TextureParams) -> np.ndarray:

@@ -8,6 +8,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import BadInputError
+
 from .driver import (
     _MOUTH_FIDUCIALS,
     DriverParams,
@@ -26,6 +28,8 @@ __all__ = [
     "LipFields",
     "BrowFields",
     "brow_heights",
+    "mouth_lift",
+    "lips_at_lift",
     "LidFields",
     "eye_openness",
     "unfold_columns",
@@ -202,6 +206,37 @@ def brow_heights(points68) -> np.ndarray:
     n = np.stack([e[..., 1], -e[..., 0]], axis=-1) / iod  # unit normal pointing up (y down)
     d = p[..., 17:27, :] - ((a + b) / 2)[..., None, :]
     return (d * n[..., None, :]).sum(axis=-1) / iod
+
+
+def mouth_lift(points68) -> np.ndarray:
+    """Height (...,) of the mouth corners (48, 54) above the middle of the inner lips (62, 66), over
+    the eye-centre distance, for (..., 68, 2) landmarks (image y down): > 0 corners up (a smile)."""
+    p = np.asarray(points68, np.float64)
+    iod = np.linalg.norm(p[..., 36:42, :].mean(axis=-2) - p[..., 42:48, :].mean(axis=-2), axis=-1)
+    mid = (p[..., 62, 1] + p[..., 66, 1]) / 2
+    return (mid - (p[..., 48, 1] + p[..., 54, 1]) / 2) / np.maximum(iod, 1e-9)
+
+
+def lips_at_lift(points68, lift: float, *, spread: tuple[float, float] = (10.0, 90.0)) -> np.ndarray:
+    """(68, 2) motion of the lip landmarks (48-67; the rest 0) that takes a collection's mean
+    landmarks to its lips at mouth-corner lift ``lift`` (:func:`mouth_lift`, clamped to the
+    ``spread`` percentiles of its photos' lifts): per lip coordinate, the least-squares line of the
+    photos' (n, 68, 2) ``points68`` on their lifts, from the mean lift to ``lift``. The line carries
+    the collection's own mouth with the smile (a smile also widens it; r 0.55-0.94 between lift and
+    width on the LFW collections), and the clamp keeps it within the mouths it has shown."""
+    p = np.asarray(points68, np.float64)
+    if p.ndim != 3 or p.shape[1:] != (68, 2) or len(p) < 3:
+        raise BadInputError(f"need (n >= 3, 68, 2) landmarks for the lips' lift line, got {p.shape}")
+    lifts = mouth_lift(p)
+    lo, hi = np.percentile(lifts, spread)
+    dl = lifts - lifts.mean()
+    move = np.zeros((68, 2))
+    if float(dl @ dl) <= 1e-12:
+        return move
+    lips = p[:, 48:68] - p[:, 48:68].mean(axis=0)
+    slope = np.einsum("n,nij->ij", dl, lips) / float(dl @ dl)
+    move[48:68] = slope * (float(np.clip(lift, lo, hi)) - lifts.mean())
+    return move
 
 
 def unfold_columns(grid: np.ndarray, mask: np.ndarray, min_spacing: float = 0.1) -> np.ndarray:

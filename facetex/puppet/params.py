@@ -32,7 +32,10 @@ class PuppetParams:
     driver's frame; supersample / supersample_composite: rasterization samples per pixel and
     axis in face / composite mode (anti-aliased silhouette; in composite mode the feathered
     driver outline is the edge, and the texture is low-passed to the pixel spacing either way);
-    mouth_rest: the puppet's mean lip gap set to the driver's (:mod:`facetex.puppet.puppetry` doc); lip_sync: the
+    mouth_rest: the puppet's mean lip gap set to the driver's (:mod:`facetex.puppet.puppetry` doc); smile_rest:
+    the puppet's mean mouth is the persona's at the driver's mean mouth-corner lift where that is lower
+    than the persona's mean, within the lifts its photos show (:meth:`Puppeteer._smile_rest_motion`: a collection that mostly smiles smiled on a
+    neutral driver); lip_sync: the
     puppet's lip and jaw landmarks follow the driver's (:meth:`Puppeteer.grid`); eye_rest: eyes
     narrower than the driver's are opened to the driver's mean lid gap (scaled), lid_sync: the
     puppet's eyelids follow the driver's (blinks; :meth:`Puppeteer.grid`); close_mouth: the
@@ -65,6 +68,7 @@ class PuppetParams:
     supersample: int = 2
     supersample_composite: int = 1
     mouth_rest: bool = True
+    smile_rest: bool = True
     lip_sync: bool = True
     brow_rest: bool = True
     brow_sync: bool = True

@@ -102,7 +102,7 @@ def landmark_field(persona, kind: str, step: int):
 
 def _landmark_fields_used(params: PuppetParams) -> tuple[str, ...]:
     """The kinds of :func:`landmark_field` a puppet with ``params`` moves its grid by."""
-    return tuple(k for k, on in (("lips", params.mouth_rest or params.lip_sync),
+    return tuple(k for k, on in (("lips", params.mouth_rest or params.lip_sync or params.smile_rest),
                                  ("brows", params.brow_rest or params.brow_sync),
                                  ("lids", params.eye_rest or params.lid_sync)) if on)
 
@@ -166,13 +166,16 @@ class Puppeteer:
         # grid's creases would print as shading artifacts, and low-frequency lighting hardly changes
         self.rest_normals = grid_normals(self.puppet_grid)[pmask]
         self.mean68 = persona.points68.mean(axis=0)  # the texture's frame (its 49 points: the mean fiducials)
-        self.lip_fields = None
-        if self.motion.fiducials68 is not None and (params.mouth_rest or params.lip_sync):
+        self.lip_fields = self.smile_move = self.rest_move = None
+        if self.motion.fiducials68 is not None and (params.mouth_rest or params.lip_sync or params.smile_rest):
             from .motion import _iod49
 
             self.lip_fields = landmark_field(persona, "lips", st)
             self.lip_scale = _iod49(persona.mean_fiducials) / max(motion.iod, 1e-9)
-        self.rest_move = self._rest_motion() if params.mouth_rest and self.lip_fields is not None else None
+            if params.smile_rest:
+                self.smile_move = self._smile_rest_motion()
+            if params.mouth_rest or params.smile_rest:
+                self.rest_move = self._rest_motion()
         self.brow_fields = self.brow_rest = None
         if self.motion.fiducials68 is not None and (params.brow_rest or params.brow_sync):
             from .motion import _iod49
@@ -198,23 +201,43 @@ class Puppeteer:
 
         return average_face(self.persona, "d", params=self.params.texture_params())
 
-    def _rest_motion(self) -> np.ndarray:
-        """(68, 2) constant motion of the puppet's lip landmarks that makes its mean inner-lip gap
-        the driver's mean gap (scaled by the ratio of eye distances)."""
+    def _smile_rest_motion(self) -> np.ndarray:
+        """(68, 2) constant motion of the puppet's lip landmarks from the persona's mean mouth to its
+        mouth at the driver's mean mouth-corner lift where that is lower than the persona's mean
+        (:func:`facetex.puppet.motion.lips_at_lift`); none where it is higher.
+        Why: a collection's mean mouth is its habitual expression, and photos smile: Serena Williams'
+        LFW photos (mean lift +0.06 eye distances, median +0.09; GRID speakers -0.035 to +0.038), and
+        her puppet kept that smile on a driver's neutral, talking mouth. Only downwards: a mean mouth
+        whose corners sit lower than a driver's is the persona's own (Bush -0.033); raised to the
+        driver's it smiled on a neutral driver (GRID sbwe5n: mouth-opening slope 1.16 -> 1.25)."""
+        from .motion import lips_at_lift, mouth_lift
+
         m = self.motion
-        P = self.mean68
+        p = self.persona.points68
+        lift = min(float(mouth_lift(m.fiducials68[m.found]).mean()), float(mouth_lift(p).mean()))
+        return lips_at_lift(p, lift)
+
+    def _rest_motion(self) -> np.ndarray:
+        """(68, 2) constant motion of the puppet's lip landmarks: the smile rest
+        (:meth:`_smile_rest_motion`, ``smile_rest``), then (``mouth_rest``) the motion that makes
+        its mean inner-lip gap the driver's mean gap (scaled by the ratio of eye distances)."""
+        m = self.motion
+        smile = np.zeros((68, 2)) if self.smile_move is None else self.smile_move
+        if not self.params.mouth_rest:
+            return smile.copy()
+        P = self.mean68 + smile
         D = m.fiducials68[m.found].mean(axis=0)
         k = self.lip_scale
-        move = np.zeros((68, 2))
+        gap = np.zeros((68, 2))
         for up, lo in ((61, 67), (62, 66), (63, 65)):
             change = k * (D[lo] - D[up]) - (P[lo] - P[up])  # > 0: open the puppet's lips
-            move[up] -= change / 2
-            move[lo] += change / 2
-        upper, lower = move[[61, 62, 63]].mean(axis=0), move[[65, 66, 67]].mean(axis=0)
-        move[[49, 50, 51, 52, 53]] = upper
-        move[[55, 56, 57, 58, 59, 7, 8, 9]] = lower
-        move[[5, 6, 10, 11]] = lower / 2
-        return move
+            gap[up] -= change / 2
+            gap[lo] += change / 2
+        upper, lower = gap[[61, 62, 63]].mean(axis=0), gap[[65, 66, 67]].mean(axis=0)
+        gap[[49, 50, 51, 52, 53]] = upper
+        gap[[55, 56, 57, 58, 59, 7, 8, 9]] = lower
+        gap[[5, 6, 10, 11]] = lower / 2
+        return smile + gap
 
     def _brow_rest_motion(self) -> np.ndarray:
         """(68, 2) constant motion of the puppet's brows (17-26) that gives each of its mean brows
@@ -260,13 +283,15 @@ class Puppeteer:
 
     def target(self, i: int) -> np.ndarray:
         """F^T (49, 2) of frame i for the texture weights: :func:`target_fiducials` with the
-        eyelids' rest motion (:meth:`_eye_rest_motion`), so the eye region's photos are chosen
-        with the eyes as open as the mesh shows them."""
-        f = target_fiducials(self.persona, self.motion, i)
-        if self.eye_move is not None:
-            from ..landmarks import POINTS49_INDEX
+        eyelids' and the smile's rest motions (:meth:`_eye_rest_motion`, :meth:`_smile_rest_motion`),
+        so the photos are chosen with the eyes as open and the mouth corners as high as the mesh
+        shows them."""
+        from ..landmarks import POINTS49_INDEX
 
-            f = f + self.eye_move[POINTS49_INDEX]
+        f = target_fiducials(self.persona, self.motion, i)
+        for move in (self.eye_move, self.smile_move):
+            if move is not None:
+                f = f + move[POINTS49_INDEX]
         return f
 
     def _sample_grid(self, grid: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -45,7 +45,12 @@ Per driver video (see :mod:`facetex.puppet.driver` for the motion):
 Beyond the paper, the puppet's lips start closed when the driver's are: the persona's average
 texture often has parted lips (its photos talk and smile), so a constant lip motion sets the
 puppet's mean lip gap to the driver's mean gap (scaled by the eye distances); the per-frame
-motion then opens and closes it like the driver's.
+motion then opens and closes it like the driver's. Its corners likewise start where the driver's
+do when the persona's mean mouth smiles more (``smile_rest``): a persona whose photos mostly smile
+(Serena Williams: mouth-corner lift +0.06 eye distances on average, GRID speakers -0.035 to +0.038)
+smiled on a neutral driver, so the rest mouth is the persona's own at the driver's mean corner lift
+(its photos' lips regressed on their lift, :func:`facetex.puppet.motion.lips_at_lift`, within the
+lifts they show), and the texture's weights see that mouth too.
 
 Eyes likewise (``eye_rest``, ``lid_sync``): the eyelid landmarks follow the driver's
 (:class:`facetex.puppet.motion.LidFields`; the deformation transfer's smoothing all but removed a

@@ -486,6 +486,99 @@ def test_brow_rest_gives_the_puppets_mean_brows_the_drivers_tilt_and_height():
     assert np.all(moved[:17] == pup[:17]) and np.all(moved[27:] == pup[27:])
 
 
+def _smiling(g, lift_px):
+    """Landmarks ``g`` with the mouth corners (and the outer corners' neighbours) raised by ``lift_px``
+    and the mouth widened by half of it on each side: a smile."""
+    p = g.copy()
+    for corner, side in ((48, -1), (54, 1), (60, -1), (64, 1)):
+        p[corner] += [side * lift_px / 2, -lift_px]
+    for near in (49, 53, 59, 55):
+        p[near, 1] -= lift_px / 2
+    return p
+
+
+def test_mouth_lift_hand_computed():
+    from facetex.puppet.motion import mouth_lift
+
+    p = np.zeros((68, 2))
+    p[36:42] = [0.0, 0.0]
+    p[42:48] = [10.0, 0.0]  # eye centres 10 apart
+    p[62], p[66] = [5.0, 20.0], [5.0, 22.0]  # inner-lip middle at y 21
+    p[48], p[54] = [0.0, 20.0], [10.0, 19.0]  # corners at mean y 19.5: 1.5 above
+    assert mouth_lift(p) == pytest.approx(0.15)
+    p[48, 1] = p[54, 1] = 23.0  # corners down
+    assert mouth_lift(np.stack([p, p])) == pytest.approx([-0.2, -0.2])
+
+
+def test_lips_at_lift_follows_the_collections_smile_line_within_its_range():
+    """A collection whose mouths are the same face at smiles 0..4 px: the lips at a lift are that
+    photo's lips; beyond the photos' lifts the clamp holds them at the 10th / 90th percentile's."""
+    from facetex.errors import BadInputError
+    from facetex.geometry._generic_face import load_generic_face
+    from facetex.puppet.motion import lips_at_lift, mouth_lift
+
+    g = load_generic_face().points68[:, :2]
+    g = (g - g.mean(axis=0)) / np.linalg.norm(g[36] - g[45]) * 60.0 + 100.0
+    photos = np.stack([_smiling(g, s) for s in np.linspace(0.0, 4.0, 41)])
+    lifts = mouth_lift(photos)
+    mean = photos.mean(axis=0)
+    target = 10  # the photo smiling 1 px
+    move = lips_at_lift(photos, float(lifts[target]))
+    np.testing.assert_allclose((mean + move)[48:68], photos[target, 48:68], atol=1e-6)
+    assert np.all(move[:48] == 0)
+    assert mouth_lift(mean + move) == pytest.approx(lifts[target], abs=1e-9)
+    # a driver who frowns: the persona's least-smiling photos (its 10th percentile), not beyond
+    low = lips_at_lift(photos, float(lifts.min()) - 1.0)
+    assert mouth_lift(mean + low) == pytest.approx(np.percentile(lifts, 10), abs=1e-9)
+    # all photos alike: nothing to learn, no motion
+    assert np.all(lips_at_lift(np.stack([g] * 5), 0.3) == 0)
+    with pytest.raises(BadInputError, match="68, 2"):
+        lips_at_lift(g, 0.0)
+
+
+def test_smile_rest_lowers_a_smiling_personas_corners_to_the_drivers_and_keeps_the_gap_rest(monkeypatch):
+    """A persona whose photos mostly smile, a driver who does not: the puppet's rest mouth is the
+    persona's at the driver's lift (within its photos' range; never raised to a broader smile); the
+    mouth rest then sets the lip gap to the driver's as before; the texture's target fiducials carry
+    the same corners."""
+    from types import SimpleNamespace
+
+    from facetex.geometry._generic_face import load_generic_face
+    from facetex.landmarks import POINTS49_INDEX
+    from facetex.puppet.motion import mouth_lift
+    from facetex.puppet.puppetry import Puppeteer
+
+    g = load_generic_face().points68[:, :2]
+    g = (g - g.mean(axis=0)) / np.linalg.norm(g[36] - g[45]) * 60.0 + 100.0
+    photos = np.stack([_smiling(g, s) for s in np.r_[np.linspace(0.0, 1.0, 5), np.full(15, 4.0)]])
+    drv = _smiling(g, 0.5)
+    drv[66, 1] += 3.0  # the driver's lips part 3 px at rest
+    motion = SimpleNamespace(fiducials68=np.stack([drv, drv]), found=np.array([True, True]))
+    pup = photos.mean(axis=0)
+    stub = SimpleNamespace(motion=motion, mean68=pup, persona=SimpleNamespace(points68=photos), lip_scale=1.0,
+                           params=SimpleNamespace(mouth_rest=False))
+    stub.smile_move = Puppeteer._smile_rest_motion(stub)
+    assert mouth_lift(pup) > mouth_lift(drv) + 0.02
+    assert mouth_lift(pup + stub.smile_move) == pytest.approx(mouth_lift(drv), abs=1e-6)
+    assert np.all(Puppeteer._rest_motion(stub) == stub.smile_move)  # smile rest alone
+    # only downwards: a driver who smiles more than the persona's mean leaves its mouth as it is
+    broad = SimpleNamespace(fiducials68=np.stack([_smiling(g, 5.0)] * 2), found=np.array([True, True]))
+    assert np.all(Puppeteer._smile_rest_motion(SimpleNamespace(**(vars(stub) | {"motion": broad}))) == 0)
+    stub.params = SimpleNamespace(mouth_rest=True)
+    rest = pup + Puppeteer._rest_motion(stub)
+    gap = lambda p: (p[[67, 66, 65], 1] - p[[61, 62, 63], 1]).mean()  # noqa: E731
+    assert gap(rest) == pytest.approx(gap(drv), abs=1e-6)
+    stub.smile_move = None  # without the smile rest: the gap rest as it was
+    rest0 = pup + Puppeteer._rest_motion(stub)
+    assert gap(rest0) == pytest.approx(gap(drv), abs=1e-6) and mouth_lift(rest0) == pytest.approx(mouth_lift(pup))
+    # the texture's target: the driver's expression offset (none here) plus the rest motions
+    stub.smile_move = Puppeteer._smile_rest_motion(stub)
+    stub.eye_move = None
+    monkeypatch.setattr("facetex.puppet.puppeteer.target_fiducials", lambda persona, m, i: pup[POINTS49_INDEX])
+    t = Puppeteer.target(stub, 0)
+    np.testing.assert_allclose(t, (pup + stub.smile_move)[POINTS49_INDEX])
+
+
 def test_puppet_lids_follow_the_drivers_and_narrow_eyes_open(driver_video, tiny_persona):
     """The puppet's eyelid gaps (its mesh, canonical px) follow the driver's scaled by the ratio of
     eye distances (slope ~1), and are at least the driver's mean gap (eye rest); without lid sync
