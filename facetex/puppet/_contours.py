@@ -128,7 +128,8 @@ def sample_between(frame: np.ndarray, driver: np.ndarray, puppet: np.ndarray, sh
                    layout=LIPS, inset: float = 1.0) -> Between | None:
     """The driver's ``frame`` pixels moved into the puppet's opening: every puppet pixel takes the
     driver's pixel at the same place between the corners (along the corner line) and between the
-    upper and lower curve (across it), both pulled towards the centre by ``inset``. ``driver``,
+    upper and lower curve (across it), both scaled about the centre by ``inset`` (along the corner
+    line at most 1: beyond the driver's corners lies its skin, not its lips). ``driver``,
     ``puppet``: the contours (frame px, output px of ``shape`` (h, w)). None when a contour is
     degenerate or the box is empty."""
     h, w = shape
@@ -151,7 +152,7 @@ def sample_between(frame: np.ndarray, driver: np.ndarray, puppet: np.ndarray, sh
     gap = np.maximum(b - a, 0.0)
     # depth inside (px): to the nearer curve across the opening, to the nearer corner along it
     depth = np.minimum(np.minimum(v - a, b - v), np.minimum(u - pu0, pu1 - u))
-    su = 0.5 + inset * ((uc - pu0) / (pu1 - pu0) - 0.5)
+    su = 0.5 + min(inset, 1.0) * ((uc - pu0) / (pu1 - pu0) - 0.5)
     sv = 0.5 + inset * (np.clip((v - a) / np.maximum(gap, 1e-6), 0.0, 1.0) - 0.5)
     ud = du0 + su * (du1 - du0)
     vd = up_d(ud) + sv * (lo_d(ud) - up_d(ud))

@@ -22,7 +22,7 @@ __all__ = ["mouth_interior", "interior_white_balance", "mouth_closure", "fill_mo
            "lip_weights", "open_lip_weights", "lip_regions"]
 
 
-def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float = 1.0,
+def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float = 1.3,
                    closed: float = 0.02, soft: float = 0.3,
                    lip_key: tuple[float, float] | None = (4.0, 12.0),
                    cavity: float | None = 25.0, grow: float = 0.015,
@@ -35,10 +35,16 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     (:func:`~facetex.puppet._contours.sample_between`), and every puppet pixel takes the driver's pixel at the same place between the corners (along
     the corner line) and between the upper and lower lip (across it): teeth, tongue and the dark
     cavity land where they are in the driver's mouth, whatever the two mouths' shapes. Both
-    coordinates are pulled towards the mouth's centre by ``inset`` (< 1: the edge samples the
-    driver's interior, not its lips; 1, the default: the lip key below removes the lips, and a
-    smaller inset shrank the teeth the output shows: mouth-opening slope on Arroyo's persona
-    driven by GRID lrwp9a 0.77 at 0.9, 0.84 at 1.0, 0.72 at 0.8). Alpha: 0 outside the puppet's inner lips, rising to 1 over
+    coordinates are scaled about the mouth's centre by ``inset`` (< 1: the edge samples the
+    driver's interior, not its lips; > 1, across the opening only: the driver's whole interior
+    lands inside the soft edge below and the edge samples the driver's lips, which the lip key
+    removes). 1.3, the default: at 1 the driver's upper teeth, just under its lip, fell in the soft
+    edge's ramp and showed as a faint grey band in a smaller-lipped persona's opening (Arroyo on GRID
+    lrwp9a, at 100 %); at 1.3 a thin lighter strip. ``facetex bench puppet --stress`` (60 runs,
+    256 px): mouth slopes 0.87-1.19 (mean 1.023) at 1, 0.90-1.20 (1.016) at 1.3, mouth r >= 0.919 /
+    0.917, Arroyo/lrwp9a 0.90 -> 0.98 (1.3 along the corner line too, which samples the driver's
+    skin beyond its corners: 0.89-1.19); a smaller inset shrank the teeth (earlier: Arroyo/lrwp9a
+    0.77 at 0.9, 0.72 at 0.8). Alpha: 0 outside the puppet's inner lips, rising to 1 over
     ``soft`` x the opening's widest gap inside them (the puppet's lips overlap the interior: no
     polygon edge; 0.3, as the eyes' (:func:`~facetex.puppet.eyes.eye_interior`): at 0.15 dlib read
     the widest, teeth-showing frames of Koizumi's persona on GRID bbaf2n as a quarter open, and

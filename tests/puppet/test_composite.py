@@ -485,6 +485,32 @@ def _mouths():
     return frame, d, p
 
 
+def test_sample_between_inset_scales_across_the_opening_but_not_beyond_the_corners():
+    """A frame that holds its own coordinates: at inset 1 the puppet's opening samples the driver's
+    between its inner lips; at 1.3 its upper and lower edges sample 15 % of the driver's gap beyond
+    them (the lips, keyed out later), while along the corner line it stays inside the corners."""
+    from facetex.puppet._contours import sample_between
+
+    _, d, p = _mouths()
+    yy, xx = np.mgrid[0:120, 0:160].astype(np.float32)
+    coords = np.stack([xx, yy, np.zeros_like(xx)], axis=-1)
+    col = 100  # the puppet's middle column (the driver's middle: x 60)
+    for inset in (1.0, 1.3):
+        s = sample_between(coords, d, p, (120, 160), inset=inset)
+        x0, y0, x1, y1 = s.box
+        w = s.warped
+        rows = np.flatnonzero(s.gap[:, col - x0] > 0)
+        top, bottom = w[rows[0], col - x0, 1], w[rows[-1], col - x0, 1]
+        gap = 54 - 28  # the driver's inner-lip gap in its middle column (y 28 .. 54)
+        if inset == 1.0:
+            assert top == pytest.approx(28, abs=1.5) and bottom == pytest.approx(54, abs=1.5)
+        else:
+            assert top == pytest.approx(28 - 0.15 * gap, abs=1.5)
+            assert bottom == pytest.approx(54 + 0.15 * gap, abs=1.5)
+        inside = s.depth > 0
+        assert w[..., 0][inside].min() >= 30 - 0.5 and w[..., 0][inside].max() <= 90 + 0.5  # the corners
+
+
 def test_mouth_interior_puts_teeth_and_cavity_where_they_are_in_the_drivers_mouth():
     frame, d, p = _mouths()
     img, alpha = mouth_interior(frame, d, p, cavity=None)
@@ -570,12 +596,14 @@ def test_mouth_interior_keeps_the_teeth_of_a_dim_frame():
     inner = np.zeros(frame.shape[:2], np.uint8)
     cv2.fillPoly(inner, [np.round(d).astype(np.int32)], 1)
     frame[(inner > 0) & (np.mgrid[0:120, 0:160][0] < 35)] = teeth
+    # inset 1: the driver's interior between its inner lips fills the puppet's opening, so its teeth
+    # land in the opening's top rows (at the default 1.3 they land lower, among the cavity's rows)
     upper = slice(0, 84)  # the upper part of the puppet's opening, where the teeth land
-    normal = mouth_interior(frame, d, p, cavity=None)[1][upper].sum()
+    normal = mouth_interior(frame, d, p, cavity=None, inset=1.0)[1][upper].sum()
     assert normal > 15
     for exposure in (0.25, 0.08):
         dim = linear_to_srgb(srgb_to_linear(frame) * exposure)
-        assert mouth_interior(dim, d, p, cavity=None)[1][upper].sum() > 0.85 * normal
+        assert mouth_interior(dim, d, p, cavity=None, inset=1.0)[1][upper].sum() > 0.85 * normal
 
 
 def test_mouth_interior_shades_a_keyed_out_tongue_instead_of_a_flat_slot():
