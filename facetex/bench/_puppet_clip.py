@@ -26,6 +26,7 @@ from .puppet_measures import (
     eye_aspect_ratio,
     eye_mask,
     face_skin_mask,
+    rest_lift_difference,
     sharpness_ratio,
     sheet_frames,
 )
@@ -277,6 +278,7 @@ def _evaluate_clip(clip: Path, persona, ref_desc, out: Path, *, size, max_frames
         "step_driver": float(np.nanmean(step_d)) if np.isfinite(step_d).any() else float("nan"),
         "step_ratio_paste": float(np.nanmean(paste_c) / np.nanmean(paste_d)) if paste_d else float("nan"),
         "tex_open": tex_open,
+        "rest_lift": rest_lift_difference(drv_pts, pup_pts, drv_open),
         "id_puppet": float(np.nanmean(d_pup)) if np.isfinite(d_pup).any() else float("nan"),
         "id_frac": float(np.mean(np.nan_to_num(d_pup[sampled], nan=9.0) < ID_THRESHOLD)) if sampled.size
         else 0.0,

@@ -38,6 +38,9 @@ shows there). Per run:
   pasted without colour/lighting transfer and Poisson blending ("pasted", every 5th frame);
 * **expression texture**: mean |texture − static average texture| (0-255) in the mouth region
   of the texture, on the frames where the driver's mouth is open (top quarter of the opening);
+* **closed-mouth lift Δ**: mouth-corner lift (eye distances) of the puppet minus the driver's, both
+  as dlib reads them, on the driver's most-closed third of frames
+  (:func:`rest_lift_difference`): > 0 the puppet smiles on a closed, neutral mouth;
 * **lost frames** and a **partial-face check** (the first clip slid half out of its frame; every
   frame with >= 10 % of the face box outside must be rejected, every whole face kept);
 * **flicker**: mean |frame-to-frame change| (0-255) of the composited face on still frames.
@@ -96,6 +99,7 @@ from .puppet_measures import (
     eye_mask,
     eye_openness_ratio,
     face_skin_mask,
+    rest_lift_difference,
     failed_targets,
     headroom,
     mouth_slope,
@@ -107,7 +111,8 @@ from .puppet_measures import (
 
 __all__ = ["register_bench", "run_bench_puppet", "mouth_slope", "shifted_clip", "eye_aspect_ratio",
            "eye_openness_ratio", "cheek_mask", "cheek_delta_e", "face_skin_mask", "eye_mask", "sharpness_ratio",
-           "blink_correlation", "run_score", "failed_targets", "worst_runs", "sheet_frames", "TARGETS"]
+           "blink_correlation", "rest_lift_difference", "run_score", "failed_targets", "worst_runs", "sheet_frames",
+           "TARGETS"]
 
 def _persona_file(puppet, out: Path, progress) -> str:
     """A .persona file for ``puppet``: itself, or the photo folder's persona built once and cached in ``out``."""

@@ -17,6 +17,7 @@ __all__ = [
     "eye_aspect_ratio",
     "eye_openness_ratio",
     "blink_correlation",
+    "rest_lift_difference",
     "cheek_mask",
     "cheek_delta_e",
     "face_skin_mask",
@@ -70,6 +71,7 @@ COLUMNS = (
     Column("step_ratio", "edge ΔE ratio", ".2f"),
     Column("step_ratio_paste", "edge ratio, pasted", ".2f"),
     Column("tex_open", "tex-static open (0-255)", ".1f"),
+    Column("rest_lift", "closed-mouth lift Δ", "+.3f"),
     Column("id_puppet", "id dist puppet", ".3f"),
     Column("id_frac", "id < 0.6", ".0%"),
     Column("id_driver", "id dist driver", ".3f"),
@@ -79,7 +81,8 @@ COLUMNS = (
 #: the direction in which a column's value is worse (for the "worst" row)
 WORSE = {"lost": "max", "mouth_r": "min", "cheek_de": "max", "eye_ratio": "min", "eye_r": "min", "sharp": "min",
          "eye_sharp": "min", "id_closer": "min", "score": "max", "mouth_detected": "min", "step_ratio": "max",
-         "id_puppet": "max", "id_frac": "min", "id_driver": "min", "flicker": "max", "fps": "min"}
+         "id_puppet": "max", "id_frac": "min", "id_driver": "min", "flicker": "max", "fps": "min",
+         "rest_lift": "max"}
 
 
 def _pearson(a, b) -> float:
@@ -124,6 +127,22 @@ def eye_openness_ratio(driver_ear, puppet_ear, *, open_level: float = EYE_OPEN) 
         return float("nan")
     # ratio of means over the open frames: robust to single-frame landmark noise
     return float(p[ok].mean() / max(d[ok].mean(), 1e-9))
+
+
+def rest_lift_difference(driver_points, puppet_points, driver_opening, *, closed: float = 33.0) -> float:
+    """Mean mouth-corner lift (:func:`facetex.puppet.motion.mouth_lift`) of the puppet minus the
+    driver's, (N, 68, 2) landmarks of each, over the frames where the driver's mouth is most closed
+    (``driver_opening`` (N,) at most its ``closed``-th percentile) and both faces were measured:
+    > 0 the puppet smiles where the driver does not (a persona's habitual smile); NaN if none."""
+    from ..puppet.motion import mouth_lift
+
+    d, p = np.asarray(driver_points, float), np.asarray(puppet_points, float)
+    o = np.asarray(driver_opening, float)
+    ok = np.isfinite(o) & np.isfinite(d).all(axis=(1, 2)) & np.isfinite(p).all(axis=(1, 2))
+    if not ok.any():
+        return float("nan")
+    shut = ok & (o <= np.percentile(o[ok], closed))
+    return float(np.mean(mouth_lift(p[shut]) - mouth_lift(d[shut])))
 
 
 def blink_correlation(driver_ear, puppet_ear, *, open_level: float = EYE_OPEN) -> float:

@@ -43,6 +43,24 @@ def test_eye_openness_ratio_ignores_the_drivers_blinks():
     assert np.isnan(bench.eye_openness_ratio(np.full(5, np.nan), pup[:5]))
 
 
+def test_rest_lift_difference_on_the_drivers_closed_frames():
+    """Eye centres 10 apart; the puppet's corners 1 px above the driver's (lift + 0.1) on the closed
+    frames, 3 px on the open ones (not counted); a frame without a puppet face is left out."""
+    base = np.zeros((68, 2))
+    base[36:42], base[42:48] = [0.0, 0.0], [10.0, 0.0]
+    base[62], base[66] = [5.0, 20.0], [5.0, 20.0]
+    base[48], base[54] = [0.0, 20.0], [10.0, 20.0]
+    drv = np.stack([base] * 6)
+    pup = drv.copy()
+    opening = np.array([0.0, 0.0, 0.0, 0.5, 0.5, 0.5])
+    pup[:3, [48, 54], 1] -= 1.0
+    pup[3:, [48, 54], 1] -= 3.0
+    assert bench.rest_lift_difference(drv, pup, opening, closed=40) == pytest.approx(0.1)
+    pup[0] = np.nan
+    assert bench.rest_lift_difference(drv, pup, opening, closed=40) == pytest.approx(0.1)
+    assert np.isnan(bench.rest_lift_difference(drv[:1], pup[:1], opening[:1]))
+
+
 def test_blink_correlation_only_when_the_driver_blinks():
     drv = np.full(20, 0.3) + 0.001 * np.arange(20)
     pup = drv.copy()
