@@ -94,8 +94,8 @@ same frontal image (photos and target, the weights only; two detectors' noise av
 (s.e. 0.0016), all the way -0.0026; a diagonal metric on the mouth coordinates learned across the
 other five collections (non-negative least squares of pairwise aligned-mouth SSIM, per-photo
 offsets): rank correlation with the true similarity 0.40 -> 0.42, but its 4 nearest photos matched
-worse (mean SSIM 0.719 against 0.717 Euclidean on Koizumi, lower on four of the six collections;
-the oracle's 0.795). Nor 10 folds instead of 5 (more photos per persona): Koizumi +0.0358, Arroyo
+no better (mean aligned-mouth SSIM 0.719 against 0.717 Euclidean on Koizumi, 0.002-0.011 lower on
+the other five collections; the oracle's 0.795). Nor 10 folds instead of 5 (more photos per persona): Koizumi +0.0358, Arroyo
 +0.0362.
 """
 
