@@ -9,7 +9,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import BadInputError
-
 from .driver import (
     _MOUTH_FIDUCIALS,
     DriverParams,
