@@ -45,6 +45,8 @@ __all__ = [
     "detect_faces",
     "detect_face",
     "landmarks_in_box",
+    "eye_centres",
+    "eye_distance",
     "face_mesh468",
     "MESH_INPUT_SIZE",
     "MESH_MIN_SCORE",
@@ -81,6 +83,21 @@ def points66(p68: np.ndarray) -> np.ndarray:
 def points49(p68: np.ndarray) -> np.ndarray:
     """The 49 Tom Hanks / SDM points (68 without jaw 0-16 and 60, 64) of (68, 2) points."""
     return _check68(p68)[POINTS49_INDEX]
+
+
+def eye_centres(points68) -> tuple[np.ndarray, np.ndarray]:
+    """The centres (..., 2) of the two eyes (iBUG 36-41, then 42-47: image left first) of
+    (..., 68, 2) landmarks."""
+    p = np.asarray(points68, np.float64)
+    return p[..., 36:42, :].mean(axis=-2), p[..., 42:48, :].mean(axis=-2)
+
+
+def eye_distance(points68):
+    """Distance between the eye centres (:func:`eye_centres`) of (68, 2) landmarks (a float), or
+    of each face of a (..., 68, 2) stack (an array): the unit of a face's size."""
+    a, b = eye_centres(points68)
+    d = np.linalg.norm(b - a, axis=-1)
+    return float(d) if d.ndim == 0 else d
 
 
 def _check68(p68) -> np.ndarray:

@@ -34,6 +34,7 @@ import numpy as np
 
 from .._methods import PERSONA_ORDER
 from ..errors import BadInputError
+from ..landmarks import eye_distance
 from ._common import Column, check_out_dir, csv_table, markdown_table, versions, write_grid, write_text
 from ._zoom import crop_padded
 
@@ -110,7 +111,7 @@ def zoom_boxes(points68: np.ndarray) -> dict:
     """{region: (x, y, w, h)} crop boxes at a face's 68 landmarks (canonical frame): mouth, eyes,
     brow (glabella and forehead), chin, boundary (the left cheek's edge)."""
     p = np.asarray(points68, np.float64)
-    iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
+    iod = eye_distance(p)
     centres = {
         "mouth": (p[48] + p[54]) / 2,
         "eyes": (p[36:48].mean(0)),
@@ -165,7 +166,7 @@ def teeth_score(image_u8: np.ndarray, points68: np.ndarray) -> float:
     times whether the lips are apart (inner-lip gap > 0.12 IOD): a broad smile with teeth scores
     high. Used to pick the smiles of the teeth sheet."""
     p = np.asarray(points68, np.float64)
-    iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
+    iod = eye_distance(p)
     if np.linalg.norm(p[66] - p[62]) < 0.12 * iod:
         return 0.0
     m = np.zeros(image_u8.shape[:2], np.uint8)

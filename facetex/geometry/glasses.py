@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from ..io import LUMA_BT601
+from ..landmarks import eye_distance
 from .masks import disc
 
 __all__ = ["glasses_bridge_score", "glasses_weights", "rim_response", "rim_template", "rim_scores", "rims_present",
@@ -43,7 +44,7 @@ def glasses_bridge_score(image, points68) -> float:
     if p is None:
         return float("nan")
     left, right = p[39], p[42]
-    iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
+    iod = eye_distance(p)
     y_line = (left[1] + right[1]) / 2
     dx = right[0] - left[0]
     x0, x1 = int(round(left[0] + 0.2 * dx)), int(round(right[0] - 0.2 * dx))

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..errors import BadInputError
 from ..io import LUMA_BT601, ImageLike, image_args
+from ..landmarks import eye_centres
 
 WORKING_SIZE = 1000  # px, long edge at which the paper measures E and S
 #: ``facetex metrics`` reads larger images reduced on load to this many pixels (2000 x 2000):
@@ -117,7 +118,7 @@ def skin_patch_frames(points68, image_shape) -> dict[str, np.ndarray]:
     p = _as_points(points68, "points68")
     if p.shape[0] != 68:
         raise BadInputError(f"need 68 landmarks, got {p.shape[0]}")
-    left_eye, right_eye = p[36:42].mean(0), p[42:48].mean(0)
+    left_eye, right_eye = eye_centres(p)
     ex = right_eye - left_eye
     d = float(np.hypot(*ex))
     ex /= d

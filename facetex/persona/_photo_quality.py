@@ -11,6 +11,7 @@ import numpy as np
 from ..geometry.gaze import gaze_weights
 from ..geometry.glasses import glasses_bridge_score
 from ..geometry.masks import disc
+from ..landmarks import eye_distance
 from .params import GLASSES_LEVELS
 
 
@@ -35,7 +36,7 @@ class _PhotoQuality:
             from ..geometry.masks import polygon_mask
 
             p = self.points68
-            iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
+            iod = eye_distance(p)
             H, W = self.shape
             m = np.maximum(polygon_mask(p[36:42], (H, W)), polygon_mask(p[42:48], (H, W))) > 0.5
             r = max(1, int(round(0.1 * iod)))

@@ -109,6 +109,7 @@ import numpy as np
 
 from ..errors import BadInputError
 from ..geometry.masks import disc
+from ..landmarks import eye_distance
 
 __all__ = [
     "REGIONS",
@@ -333,7 +334,7 @@ def region_masks(points68, shape, regions=("mouth", "eyes", "face"), *, feather_
     if p.shape != (68, 2):
         raise BadInputError(f"region masks need (68, 2) landmarks, got {p.shape}")
     H, W = int(shape[0]), int(shape[1])
-    iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
+    iod = eye_distance(p)
     sig = max(feather_iod * iod, 0.5)
 
     def blob(pts: np.ndarray, grow: float) -> np.ndarray:
@@ -369,7 +370,7 @@ def face_support(points68, shape, *, grow_iod: float = 0.3, feather_iod: float =
 
     p = np.asarray(points68, np.float64)
     H, W = int(shape[0]), int(shape[1])
-    iod = float(np.linalg.norm(p[36:42].mean(0) - p[42:48].mean(0)))
+    iod = eye_distance(p)
     m = np.zeros((H, W), np.uint8)
     cv2.fillPoly(m, [np.round(face_outline(p)).astype(np.int32)], 1)
     r = int(round(grow_iod * iod))

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import BadInputError
+from ..landmarks import eye_centres, eye_distance
 from .driver import (
     _MOUTH_FIDUCIALS,
     DriverParams,
@@ -183,7 +184,7 @@ class BrowFields:
         p = np.asarray(mean68, np.float64)
         self.shape = grid_xy.shape[:2]
         g = np.asarray(grid_xy, np.float64).reshape(-1, 2)
-        iod = float(np.linalg.norm(np.subtract(*_eye_centres(p))))
+        iod = eye_distance(p)
         still = np.delete(p, list(BROWS), axis=0)
         top = p[list(BROWS)] - [0.0, forehead * iod]
         ctrl = np.concatenate([p[list(BROWS)], still, top])
@@ -195,16 +196,11 @@ class BrowFields:
         return (self.op @ r).reshape(self.shape + (2,))
 
 
-def _eye_centres(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The centres (..., 2) of both eyes (iBUG 36-41, 42-47) of (..., 68, 2) landmarks."""
-    return p[..., 36:42, :].mean(axis=-2), p[..., 42:48, :].mean(axis=-2)
-
-
 def brow_heights(points68) -> np.ndarray:
     """Heights (..., 10) of the brow points 17-26 above the line through the eye centres, over the
     eye-centre distance (positive: above), for (..., 68, 2) landmarks (image y down)."""
     p = np.asarray(points68, np.float64)
-    a, b = _eye_centres(p)
+    a, b = eye_centres(p)
     e = b - a
     iod = np.maximum(np.linalg.norm(e, axis=-1, keepdims=True), 1e-9)
     n = np.stack([e[..., 1], -e[..., 0]], axis=-1) / iod  # unit normal pointing up (y down)
@@ -216,7 +212,7 @@ def mouth_lift(points68) -> np.ndarray:
     """Height (...,) of the mouth corners (48, 54) above the middle of the inner lips (62, 66), over
     the eye-centre distance, for (..., 68, 2) landmarks (image y down): > 0 corners up (a smile)."""
     p = np.asarray(points68, np.float64)
-    a, b = _eye_centres(p)
+    a, b = eye_centres(p)
     iod = np.linalg.norm(a - b, axis=-1)
     mid = (p[..., 62, 1] + p[..., 66, 1]) / 2
     return (mid - (p[..., 48, 1] + p[..., 54, 1]) / 2) / np.maximum(iod, 1e-9)

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..errors import BadInputError
 from ..geometry.glasses import rim_mask, rims_present
+from ..landmarks import eye_centres
 from .composite import FACE_OVAL, INNER_LIPS, composite_face
 from .correspondence import DriverCollection, collection_correspondence, landmark_correspondence, puppet_average_shape
 from .deform import DeformationTransfer
@@ -250,11 +251,12 @@ class Puppeteer:
         P, D = self.mean68, m.fiducials68[m.found].mean(axis=0)
 
         def along(F):  # brow points' positions along the eye line, over the eye distance
-            a, b = F[36:42].mean(axis=0), F[42:48].mean(axis=0)
+            a, b = eye_centres(F)
             e = b - a
             return (F[17:27] - (a + b) / 2) @ e / float(e @ e)
 
-        e = P[42:48].mean(axis=0) - P[36:42].mean(axis=0)
+        left, right = eye_centres(P)
+        e = right - left
         up = np.array([e[1], -e[0]])  # eye-distance long, upwards
         xp, xd, hp, hd = along(P), along(D), brow_heights(P), brow_heights(D)
         move = np.zeros((68, 2))

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import landmarks
 from ..errors import BadInputError
 from ..geometry.filters import masked_lowpass
 from ..io import LUMA_BT601
@@ -42,7 +43,7 @@ def eye_distance(points68) -> float:
     p = np.asarray(points68, np.float64)
     if p.shape != (68, 2):
         raise BadInputError(f"need 68 landmarks (68, 2), got shape {p.shape}")
-    return float(np.linalg.norm(p[42:48].mean(0) - p[36:42].mean(0)))
+    return landmarks.eye_distance(p)
 
 
 def keep_content_shading(output, content, skin, sigma: float, colour_sigma: float | None = None) -> np.ndarray:

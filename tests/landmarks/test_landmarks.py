@@ -212,3 +212,19 @@ def test_frontal_detector_cached_file_detects_the_same(tmp_path, monkeypatch):
     assert boxes(_frontal_face_detector()) == want and saved[0].stat().st_size > 1000  # built and saved again
     monkeypatch.setenv("FACETEX_CACHE", str(saved[0]))  # a file, not a folder: nothing saved, still works
     assert boxes(_frontal_face_detector()) == want
+
+
+def test_eye_centres_and_distance_by_hand():
+    """Eye points 36-41 around (1, 2), 42-47 around (4, 6): centres (1, 2) and (4, 6), distance 5;
+    a stack of faces (the second twice the size) gives one distance per face."""
+    from facetex.landmarks import eye_centres, eye_distance
+
+    p = np.zeros((68, 2))
+    ring = np.array([[-1, 0], [1, 0], [0, 1], [0, -1], [2, 2], [-2, -2]], float)
+    p[36:42] = ring + [1, 2]
+    p[42:48] = ring + [4, 6]
+    a, b = eye_centres(p)
+    np.testing.assert_allclose(a, [1, 2])
+    np.testing.assert_allclose(b, [4, 6])
+    assert eye_distance(p) == pytest.approx(5.0) and isinstance(eye_distance(p), float)
+    np.testing.assert_allclose(eye_distance(np.stack([p, 2 * p])), [5.0, 10.0])
