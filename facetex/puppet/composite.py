@@ -473,7 +473,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
                                    keep=eye_weights(p68 - [x0, y0], rg.shape) if params.eye_colour else None,
                                    keep_dark=eye_weights(p68 - [x0, y0], rg.shape, grow=params.eye_grow)
                                    if params.eye_colour and params.eye_grow > 0 else None, keep_chroma=False,
-                                   brows=brow_weights((p68 if pp68 is None else pp68) - [x0, y0], rg.shape)
+                                   # drawn only on a pair whose skins' ratio lets the brow gain apply
+                                   brows=(lambda: brow_weights((p68 if pp68 is None else pp68) - [x0, y0], rg.shape))
                                    if params.brow_gain > 0 else None, brow_gain=params.brow_gain,
                                    **(lip_regions(p68 - [x0, y0], None if pp68 is None else pp68 - [x0, y0],
                                                   rg.shape, open_lips=params.open_lips) if params.lip_colour else {}),

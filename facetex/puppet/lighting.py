@@ -202,7 +202,7 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     ``src``'s lightness is kept where it is darker than the transfer's, never where lighter (the
     lids' rims round the eyeballs: a dark persona's lash lines stay dark on a pale driver, a pale
     persona's lid highlights do not stay pale on a dark one). ``brows`` (colour "driver"): weight
-    (H, W) in [0, 1] or None: there the lightness detail darker than ``src``'s skin field takes the
+    (H, W) in [0, 1], a function returning it (drawn only when used) or None: there the lightness detail darker than ``src``'s skin field takes the
     skins' lightness ratio clipped to ``brow_gain`` instead of ``gain``'s upper bound (brows are
     hair: a dark persona's brows, darker than her skin by less than a pale driver's are than his,
     came out faint; only where that ratio is above the bound, i.e. a darker persona on a paler
@@ -292,7 +292,7 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
         gb = float(np.clip(ratio, gain[0], max(brow_gain, gain[1])))
         if gb > g[0]:
             dark = np.minimum(a[..., 0] - full(sa[..., 0]), 0.0)
-            out[..., 0] += np.asarray(brows, np.float32) * (gb - g[0]) * dark
+            out[..., 0] += np.asarray(brows() if callable(brows) else brows, np.float32) * (gb - g[0]) * dark
     if keep is not None:
         k = np.asarray(keep, np.float32)[..., None]
         n = 3 if keep_chroma else 1

@@ -1259,4 +1259,9 @@ def test_brow_gain_by_hand():
         assert np.median(out[15:25, 10:30, 0]) == pytest.approx(brow, abs=0.8)
         assert np.median(out[15:25, 50:70, 0]) == pytest.approx(light, abs=0.8)
         np.testing.assert_allclose(out[15:25, 50:70], plain[15:25, 50:70], atol=1e-3)
+        drawn = []  # the weights as a function: the same result, drawn only when the gain applies
+        lazy = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf, brow_gain=2.0,
+                                         brows=lambda: drawn.append(1) or band.astype(np.float32)))
+        np.testing.assert_array_equal(lazy, out)
+        assert len(drawn) == (driver_l == 75.0)
     np.testing.assert_allclose(out, plain, atol=1e-3)  # the darker driver: as without brows
