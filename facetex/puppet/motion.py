@@ -218,13 +218,15 @@ def mouth_lift(points68) -> np.ndarray:
     return (mid - (p[..., 48, 1] + p[..., 54, 1]) / 2) / np.maximum(iod, 1e-9)
 
 
-def lips_at_lift(points68, lift: float, *, spread: tuple[float, float] = (10.0, 90.0)) -> np.ndarray:
+def lips_at_lift(points68, lift: float, *, spread: tuple[float, float] = (10.0, 90.0),
+                 lower_only: bool = False) -> np.ndarray:
     """(68, 2) motion of the lip landmarks (48-67; the rest 0) that takes a collection's mean
     landmarks to its lips at mouth-corner lift ``lift`` (:func:`mouth_lift`, clamped to the
     ``spread`` percentiles of its photos' lifts): per lip coordinate, the least-squares line of the
     photos' (n, 68, 2) ``points68`` on their lifts, from the mean lift to ``lift``. The line carries
     the collection's own mouth with the smile (a smile also widens it; r 0.55-0.94 between lift and
-    width on the LFW collections), and the clamp keeps it within the mouths it has shown."""
+    width on the LFW collections), and the clamp keeps it within the mouths it has shown.
+    ``lower_only``: no motion for a ``lift`` above the photos' mean (the lips only come down)."""
     p = np.asarray(points68, np.float64)
     if p.ndim != 3 or p.shape[1:] != (68, 2) or len(p) < 3:
         raise BadInputError(f"need (n >= 3, 68, 2) landmarks for the lips' lift line, got {p.shape}")
@@ -236,6 +238,8 @@ def lips_at_lift(points68, lift: float, *, spread: tuple[float, float] = (10.0, 
         return move
     lips = p[:, 48:68] - p[:, 48:68].mean(axis=0)
     slope = np.einsum("n,nij->ij", dl, lips) / float(dl @ dl)
+    if lower_only:
+        lift = min(float(lift), float(lifts.mean()))
     move[48:68] = slope * (float(np.clip(lift, lo, hi)) - lifts.mean())
     return move
 

@@ -214,9 +214,7 @@ class Puppeteer:
         from .motion import lips_at_lift, mouth_lift
 
         m = self.motion
-        p = self.persona.points68
-        lift = min(float(mouth_lift(m.fiducials68[m.found]).mean()), float(mouth_lift(p).mean()))
-        return lips_at_lift(p, lift)
+        return lips_at_lift(self.persona.points68, float(mouth_lift(m.fiducials68[m.found]).mean()), lower_only=True)
 
     def _rest_motion(self) -> np.ndarray:
         """(68, 2) constant motion of the puppet's lip landmarks: the smile rest

@@ -530,6 +530,9 @@ def test_lips_at_lift_follows_the_collections_smile_line_within_its_range():
     # a driver who frowns: the persona's least-smiling photos (its 10th percentile), not beyond
     low = lips_at_lift(photos, float(lifts.min()) - 1.0)
     assert mouth_lift(mean + low) == pytest.approx(np.percentile(lifts, 10), abs=1e-9)
+    # lower_only: a lift above the photos' mean moves nothing, one below it moves as before
+    assert np.all(lips_at_lift(photos, float(lifts[30]), lower_only=True) == 0)
+    np.testing.assert_array_equal(lips_at_lift(photos, float(lifts[target]), lower_only=True), move)
     # all photos alike: nothing to learn, no motion
     assert np.all(lips_at_lift(np.stack([g] * 5), 0.3) == 0)
     with pytest.raises(BadInputError, match="68, 2"):
