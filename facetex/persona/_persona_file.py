@@ -55,6 +55,7 @@ _HEADER_SCHEMA = {
                 "shape_photos": {"type": "integer", "minimum": 1},
                 "landmark_face_px": {"type": "number", "minimum": 0, "maximum": 4096},
                 "landmark_refits": {"type": "integer", "minimum": 0, "maximum": 8},
+                "landmark_mirror": {"type": "boolean"},
             },
         },
         "source": {"type": "string"},
@@ -118,7 +119,8 @@ def _read_header(path: Path) -> tuple[dict, PersonaParams, list[str]]:
     try:
         p = header["parameters"]
         # a file written before landmark_face_px was built from dlib's points as they are (0)
-        params = PersonaParams(**{"landmark_face_px": 0.0, "landmark_refits": 0, **p,
+        # (and before landmark_mirror without the mirror fit)
+        params = PersonaParams(**{"landmark_face_px": 0.0, "landmark_refits": 0, "landmark_mirror": False, **p,
                                   "size": tuple(int(v) for v in p["size"])})
         photos = [ph["file"] for ph in header["photos"]]
         _stack_members(header, len(photos), params.size)  # checks the stacks' description

@@ -86,7 +86,8 @@ def process_photo(path, params: PersonaParams = PersonaParams()) -> dict:
     if params.landmark_face_px:
         try:
             points = refine_landmarks(img, faces[0].box, points, face_px=params.landmark_face_px,
-                                      refits=params.landmark_refits, exposure=False)
+                                      refits=params.landmark_refits, exposure=False,
+                                      mirror=params.landmark_mirror)
         except FacetexError:  # a box the refit cannot use: the detector's own points stay
             pass
     try:

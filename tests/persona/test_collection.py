@@ -345,11 +345,13 @@ def test_version1_file_loads_without_depth(persona, tmp_path):
     head["parameters"].pop("shape_photos")  # v1 parameters did not have it
     head["parameters"].pop("landmark_face_px")  # nor these: dlib's points were used as they were
     head["parameters"].pop("landmark_refits")
+    head["parameters"].pop("landmark_mirror")
     v1 = _npz(tmp_path / "v1.persona", head, {k: getattr(persona, k) for k in _BASE})
     q = load_persona(v1)
     assert q.depth is None and q.depth_photos == 0 and len(q) == len(persona)
-    assert (q.params.landmark_face_px, q.params.landmark_refits) == (0, 0)
-    assert (persona.params.landmark_face_px, persona.params.landmark_refits) == (200, 1)
+    assert (q.params.landmark_face_px, q.params.landmark_refits, q.params.landmark_mirror) == (0, 0, False)
+    assert (persona.params.landmark_face_px, persona.params.landmark_refits, persona.params.landmark_mirror) == (
+        200, 1, True)
     assert np.array_equal(q.flows, persona.flows)
     h = read_persona_header(v1)
     assert h["version"] == 1 and h["n_photos"] == 12 and h["size"] == SIZE

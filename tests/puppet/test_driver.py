@@ -523,6 +523,33 @@ def test_a_carried_box_refits_a_dark_mouth_once(monkeypatch):
     assert len(calls) == 1
     for refits in (0, 1, 2):
         calls.clear()
-        params = drv.DriverParams(landmark_refits=refits)
+        params = drv.DriverParams(landmark_refits=refits, landmark_mirror=False)
         out = drv._track_frame(dark, (face.points68, (face.box, face.points68)), params, detect=False)
         assert out is not None and len(calls) == 1, refits
+        calls.clear()  # with the mirror fit averaged in: its mouth too, once
+        params = drv.DriverParams(landmark_refits=refits, landmark_mirror=True)
+        assert drv._track_frame(dark, (face.points68, (face.box, face.points68)), params, detect=False) is not None
+        assert len(calls) == 2, refits
+
+
+def test_the_tracker_averages_only_the_last_fit_with_its_mirror_when_asked(monkeypatch):
+    """landmark_mirror: between detections only the last of the 1 + landmark_refits fits is averaged
+    with the mirror image's fit (the earlier ones place its box), and a detection's fit is too; off,
+    none is."""
+    import facetex._landmark_fit as fit
+    import facetex.puppet.driver as drv
+    from facetex._resources import sample_path
+    from facetex.io import read_image
+    from facetex.landmarks import detect_faces
+
+    img = read_image(sample_path("frl_004_smiling.jpg"))
+    face = detect_faces(img)[0]
+    calls = []
+    real = fit.mirror_averaged
+    monkeypatch.setattr(fit, "mirror_averaged", lambda *a, **k: calls.append(1) or real(*a, **k))
+    for mirror, detect, refits, n in ((True, False, 0, 1), (True, False, 2, 1), (True, True, 1, 1),
+                                      (False, False, 1, 0), (False, True, 1, 0)):
+        calls.clear()
+        params = drv.DriverParams(landmark_refits=refits, landmark_mirror=mirror)
+        out = drv._track_frame(img, (face.points68, (face.box, face.points68)), params, detect=detect)
+        assert out is not None and len(calls) == n, (mirror, detect, refits)
