@@ -63,12 +63,9 @@ def mirror_averaged(image, box, points68, exposure: bool = True) -> np.ndarray:
 
     dlib's regressor is not mirror-symmetric: a face and its mirror image give points ~0.5 px apart
     on an LFW face at 2x (1.3 % of the eye distance). The mean is the same for both (a flip
-    commutes with it) and halves the variance of the fit's own errors. Measured for the persona
-    photos (``PersonaParams.landmark_mirror``): leave-out SSIM over static, 5 folds, per target paired,
-    Blair +0.0032 +- 0.0009 face, +0.0023 +- 0.0009 mouth, +0.0038 +- 0.0017 eyes; Koizumi +0.0042 /
-    +0.0001 / +0.0084; Arroyo +0.0022 / +0.0016 / +0.0032; Williams and Chavez within their standard
-    errors. A fuller ensemble (the box also shifted 5 % of its width four ways, ten fits) scored
-    within 0.0015 of this."""
+    commutes with it) and averages out part of the fit's own scatter. The driver's tracker mirrors
+    its last fit this way (``DriverParams.landmark_mirror``); the persona's photos repeat their whole
+    refinement on the mirror image (:func:`refine_landmarks`)."""
     from .geometry._generic_face import FLIP68
 
     a = np.asarray(image)
@@ -177,10 +174,24 @@ def refine_landmarks(image, box, points68, *, face_px: float = 200.0, refits: in
     """(68, 2) landmarks of the face dlib found in ``box`` with ``points68``, read as the driver's
     tracker reads a frame's: fitted with :func:`fit_landmarks` (upscaled below ``face_px``), then
     ``refits`` times again in the box the points carry (:func:`refit_in_carried_boxes`); on a dark
-    face the last fit refits the mouth at a normalised exposure unless ``exposure`` is False, and is
-    averaged with the mirror image's fit with ``mirror`` (:func:`mirror_averaged`)."""
+    face the last fit refits the mouth at a normalised exposure unless ``exposure`` is False.
+    ``mirror``: the whole refinement repeated on the mirror image (its box and points mirrored), the
+    two results averaged (left and right swapped back: :data:`facetex.geometry.FLIP68`); each side's
+    box carried by its own fits, the average scatters less than with only the last fit mirrored
+    (:func:`mirror_averaged`, the tracker's): leave-out mouth SSIM over static, 5 folds, Williams
+    +0.0559 against +0.0541, Chavez +0.0506 against +0.0487, Koizumi's face +0.0149 against +0.0124."""
     p0 = np.asarray(points68, np.float64)
-    last = refits == 0
-    p = fit_landmarks(image, box, face_px=face_px, points68=p0, exposure=exposure and last, mirror=mirror and last)
-    return refit_in_carried_boxes(image, p, box, p0, times=refits, face_px=face_px, exposure=exposure,
-                                  mirror=mirror)
+    if mirror:
+        from .geometry._generic_face import FLIP68
+
+        a = np.asarray(image)
+        w = a.shape[1]
+        b = np.asarray(box, np.float64).ravel()
+        q0 = p0[FLIP68].copy()
+        q0[:, 0] = w - 1 - q0[:, 0]
+        q = refine_landmarks(np.ascontiguousarray(a[:, ::-1]), (w - 1 - b[2], b[1], w - 1 - b[0], b[3]), q0,
+                             face_px=face_px, refits=refits, exposure=exposure)[FLIP68]
+        q[:, 0] = w - 1 - q[:, 0]
+        return (refine_landmarks(a, b, p0, face_px=face_px, refits=refits, exposure=exposure) + q) / 2
+    p = fit_landmarks(image, box, face_px=face_px, points68=p0, exposure=exposure and refits == 0)
+    return refit_in_carried_boxes(image, p, box, p0, times=refits, face_px=face_px, exposure=exposure)

@@ -42,11 +42,12 @@ class PersonaParams:
     the photo's size, as files written before it were built). Leave-out mouth SSIM over static (5 folds), dlib's points ->
     these: Bush +0.0406 -> +0.0431, Blair +0.0531 -> +0.0522, Williams +0.0543 -> +0.0554, Chavez
     +0.0463 -> +0.0495, Koizumi +0.0294 -> +0.0334, Arroyo +0.0357 -> +0.0363; with the dark-face mouth
-    refit too, Williams +0.0508 (dropped). landmark_mirror: the last fit averaged with the mirror
-    image's (:func:`facetex._landmark_fit.mirror_averaged`; only with landmark_face_px > 0; files
-    written before it: False): leave-out mouth SSIM over static Koizumi +0.0335, Arroyo +0.0379,
-    Blair +0.0545, Williams +0.0559, Chavez +0.0506 (face +0.000-0.004, no collection worse by more
-    than its standard error).
+    refit too, Williams +0.0508 (dropped). landmark_mirror: the fit repeated on the mirror image and
+    the two averaged (:func:`facetex._landmark_fit.refine_landmarks`; only with landmark_face_px > 0;
+    files written before it: False): leave-out SSIM over static, 5 folds, paired per target, mouth
+    Koizumi +0.0334 -> +0.0335, Arroyo +0.0363 -> +0.0379, Blair +0.0522 -> +0.0545, Williams
+    +0.0554 -> +0.0559, Chavez +0.0495 -> +0.0506; face +0.0042 +- 0.0023, +0.0022 +- 0.0012, +0.0032
+    +- 0.0009, +0.0006, +0.0004 (eyes +0.008, +0.003, +0.004, -0.001, -0.003, within 1 s.e.).
     """
 
     size: tuple[int, int] = (192, 240)

@@ -145,3 +145,30 @@ def test_mirror_averaged_fit_commutes_with_a_flip_and_keeps_the_points_near_the_
     q = fit_landmarks(img, box, face_px=300.0, exposure=False)
     assert 0.05 < np.linalg.norm(m - q, axis=1).mean() < 1.5
 
+
+
+def test_refine_landmarks_with_mirror_is_the_same_on_a_mirrored_photo():
+    """``refine_landmarks(mirror=True)`` averages the refinement of the photo and of its mirror
+    image: given the mirrored photo (box and points mirrored) it returns the mirrored result, and it
+    differs from the plain refinement by a fraction of a pixel or two."""
+    from facetex._landmark_fit import refine_landmarks
+    from facetex._resources import sample_path
+    from facetex.geometry._generic_face import FLIP68
+    from facetex.io import read_image
+    from facetex.landmarks import detect_faces
+
+    img = read_image(sample_path("frl_005_neutral.jpg"))
+    s = 100.0 / (detect_faces(img)[0].box[2] - detect_faces(img)[0].box[0])
+    img = cv2.resize(img, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
+    face = detect_faces(img, upsample=1)[0]
+    w = img.shape[1]
+    b = face.box
+    fb = (w - 1 - b[2], b[1], w - 1 - b[0], b[3])
+    fp = face.points68[FLIP68].copy()
+    fp[:, 0] = w - 1 - fp[:, 0]
+    m = refine_landmarks(img, b, face.points68, exposure=False, mirror=True)
+    fm = refine_landmarks(np.ascontiguousarray(img[:, ::-1]), fb, fp, exposure=False, mirror=True)[FLIP68]
+    fm[:, 0] = w - 1 - fm[:, 0]
+    np.testing.assert_allclose(fm, m, atol=1e-6)
+    plain = refine_landmarks(img, b, face.points68, exposure=False)
+    assert 0.05 < np.linalg.norm(m - plain, axis=1).mean() < 1.5
