@@ -82,10 +82,11 @@ What did move it: less noisy fiducials. The photos' landmarks fitted on a 2x ups
 refitted once, as the driver's tracker fits a frame's (:class:`facetex.persona.PersonaParams`
 ``landmark_face_px``, ``landmark_refits``): Koizumi +0.0294 -> +0.0334, Arroyo +0.0357 -> +0.0363
 (upscaled to 300 px, refitted twice, or the fits at 200, 300 and 400 px averaged: +0.035 on Koizumi).
-The last fit averaged with the mirror image's (``landmark_mirror``, :func:`facetex._landmark_fit.mirror_averaged`):
-mouth +0.0001 / +0.0016 on Koizumi / Arroyo, +0.0023 on Blair (face +0.002-0.004 on the three); with
-the box also shifted four ways (ten fits averaged) +0.0348 / +0.0375 on Koizumi / Arroyo: dlib's own
-scatter is averaged away, its bias and the 68 points' coarseness stay.
+The fit repeated on the mirror image and the two averaged (``landmark_mirror``,
+:func:`facetex._landmark_fit.refine_landmarks`): mouth +0.0001 / +0.0016 on Koizumi / Arroyo, +0.0023
+on Blair (face +0.002-0.004 on the three); the last fit alone mirrored, -0.001 to -0.002 on Williams
+and Chavez; with the box also shifted four ways (ten fits averaged) +0.0348 / +0.0375 on Koizumi /
+Arroyo: dlib's own scatter is averaged away, its bias and the 68 points' coarseness stay.
 Then dropped (Koizumi): the jaw's points (iBUG 4-12 or 6-10) added to the mouth's distance, -0.003;
 each aligned photo's lighting taken out before the blend (its coefficients on the collection's 4
 appearance components fitted outside the mouth, subtracted at 0.5 / 1: -0.0035 / -0.013); Eq. 3's
