@@ -66,17 +66,29 @@ def mirror_averaged(image, box, points68, exposure: bool = True) -> np.ndarray:
     commutes with it) and averages out part of the fit's own scatter. The driver's tracker mirrors
     its last fit this way (``DriverParams.landmark_mirror``); the persona's photos repeat their whole
     refinement on the mirror image (:func:`refine_landmarks`)."""
-    from .geometry._generic_face import FLIP68
+    flipped, fbox = _mirrored(image, box)
+    q = landmarks_in_box(flipped, fbox)
+    if exposure:
+        q = _mouth_exposed(flipped, fbox, q)
+    return (np.asarray(points68, np.float64) + _mirror_points(q, flipped.shape[1])) / 2
 
+
+def _mirrored(image, box) -> tuple[np.ndarray, tuple]:
+    """The mirror image (contiguous) of ``image`` and ``box`` (x0, y0, x1, y1) mirrored with it."""
     a = np.asarray(image)
     w = a.shape[1]
     b = np.asarray(box, np.float64).ravel()
-    q = landmarks_in_box(np.ascontiguousarray(a[:, ::-1]), (w - 1 - b[2], b[1], w - 1 - b[0], b[3]))
-    if exposure:
-        q = _mouth_exposed(np.ascontiguousarray(a[:, ::-1]), (w - 1 - b[2], b[1], w - 1 - b[0], b[3]), q)
-    q = np.asarray(q, np.float64)[FLIP68]
-    q[:, 0] = w - 1 - q[:, 0]
-    return (np.asarray(points68, np.float64) + q) / 2
+    return np.ascontiguousarray(a[:, ::-1]), (w - 1 - b[2], b[1], w - 1 - b[0], b[3])
+
+
+def _mirror_points(points68, width: int) -> np.ndarray:
+    """(68, 2) landmarks of an image ``width`` px wide as they are in its mirror image (x -> width - 1
+    - x, left and right points swapped: :data:`facetex.geometry.FLIP68`); its own inverse."""
+    from .geometry._generic_face import FLIP68
+
+    q = np.asarray(points68, np.float64)[FLIP68]
+    q[:, 0] = width - 1 - q[:, 0]
+    return q
 
 
 def _mouth_exposed(image, box, p) -> np.ndarray:
@@ -182,16 +194,10 @@ def refine_landmarks(image, box, points68, *, face_px: float = 200.0, refits: in
     +0.0559 against +0.0541, Chavez +0.0506 against +0.0487, Koizumi's face +0.0149 against +0.0124."""
     p0 = np.asarray(points68, np.float64)
     if mirror:
-        from .geometry._generic_face import FLIP68
-
-        a = np.asarray(image)
-        w = a.shape[1]
-        b = np.asarray(box, np.float64).ravel()
-        q0 = p0[FLIP68].copy()
-        q0[:, 0] = w - 1 - q0[:, 0]
-        q = refine_landmarks(np.ascontiguousarray(a[:, ::-1]), (w - 1 - b[2], b[1], w - 1 - b[0], b[3]), q0,
-                             face_px=face_px, refits=refits, exposure=exposure)[FLIP68]
-        q[:, 0] = w - 1 - q[:, 0]
-        return (refine_landmarks(a, b, p0, face_px=face_px, refits=refits, exposure=exposure) + q) / 2
+        flipped, fbox = _mirrored(image, box)
+        w = flipped.shape[1]
+        q = refine_landmarks(flipped, fbox, _mirror_points(p0, w), face_px=face_px, refits=refits, exposure=exposure)
+        p = refine_landmarks(image, box, p0, face_px=face_px, refits=refits, exposure=exposure)
+        return (p + _mirror_points(q, w)) / 2
     p = fit_landmarks(image, box, face_px=face_px, points68=p0, exposure=exposure and refits == 0)
     return refit_in_carried_boxes(image, p, box, p0, times=refits, face_px=face_px, exposure=exposure)

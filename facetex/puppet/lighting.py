@@ -202,11 +202,11 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     ``src``'s lightness is kept where it is darker than the transfer's, never where lighter (the
     lids' rims round the eyeballs: a dark persona's lash lines stay dark on a pale driver, a pale
     persona's lid highlights do not stay pale on a dark one). ``brows`` (colour "driver"): weight
-    (H, W) in [0, 1], a function returning it (drawn only when used) or None: there the lightness detail darker than ``src``'s skin field takes the
-    skins' lightness ratio clipped to ``brow_gain`` instead of ``gain``'s upper bound (brows are
-    hair: a dark persona's brows, darker than her skin by less than a pale driver's are than his,
-    came out faint; only where that ratio is above the bound, i.e. a darker persona on a paler
-    driver). ``lids`` (colour
+    (H, W) in [0, 1], a function returning it (drawn only when used) or None: there the lightness
+    detail darker than ``src``'s skin field takes the skins' lightness ratio clipped to
+    ``brow_gain`` instead of ``gain``'s upper bound (brows are hair: a dark persona's brows, darker
+    than her skin by less than a pale driver's are than his, came out faint; only where that ratio
+    is above the bound, i.e. a darker persona on a paler driver). ``lids`` (colour
     "driver"): the same as ``lips`` for the skin round the eyes (:func:`~facetex.puppet.eyes.lid_weights`): a dark
     persona's lids, darker than her skin, kept that difference on a pale driver as dark rings.
     ``lip_parts``: more regions like ``lips``, applied after it in order (the upper and lower

@@ -212,8 +212,7 @@ def mouth_lift(points68) -> np.ndarray:
     """Height (...,) of the mouth corners (48, 54) above the middle of the inner lips (62, 66), over
     the eye-centre distance, for (..., 68, 2) landmarks (image y down): > 0 corners up (a smile)."""
     p = np.asarray(points68, np.float64)
-    a, b = eye_centres(p)
-    iod = np.linalg.norm(a - b, axis=-1)
+    iod = eye_distance(p)
     mid = (p[..., 62, 1] + p[..., 66, 1]) / 2
     return (mid - (p[..., 48, 1] + p[..., 54, 1]) / 2) / np.maximum(iod, 1e-9)
 
