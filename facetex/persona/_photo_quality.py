@@ -93,3 +93,22 @@ class _PhotoQuality:
             P = self._persona_ref
             self._glasses = np.array([glasses_bridge_score(im, p) for im, p in zip(P.images, P.points68)], np.float64)
         return self._glasses
+
+    def band_energy(self) -> np.ndarray:
+        """(levels, R, n) each photo's mean band energy |band|^2 (RGB summed, confidence-weighted)
+        per pyramid level and weight region (its mask-weighted pixels), from the stacks, once."""
+        if "band_energy" not in self._stage:
+            R = len(self.regions)
+            num = np.zeros((self.levels, R, self.n))
+            den = np.zeros((self.levels, R, self.n))
+            for k, segs in enumerate(self.segments):
+                for seg in segs:
+                    for i0 in range(0, self.n, self.CHUNK):  # a chunk of photos at a time (memory)
+                        rows = seg.stack[i0:i0 + self.CHUNK].reshape(-1, len(seg.pixels), 4)
+                        c = rows[..., 3]
+                        e = (rows[..., 0] ** 2 + rows[..., 1] ** 2 + rows[..., 2] ** 2) / np.maximum(c, 1e-6)
+                        for mj, j in zip(seg.masks[:, ::4], seg.regions):  # (band c)^2 / c = |band|^2 c
+                            num[k, j, i0:i0 + len(rows)] += e @ mj
+                            den[k, j, i0:i0 + len(rows)] += c @ mj
+            self._stage["band_energy"] = num / np.maximum(den, 1e-12)
+        return self._stage["band_energy"]

@@ -84,6 +84,19 @@ def _stored_key(tp: TextureParams) -> list:
     return json.loads(json.dumps([STACKS_VERSION, *tp.stack_key()]))
 
 
+def warn_stale_stacks(stored: dict | None, tp: TextureParams) -> None:
+    """Warn (naming the file) when a .persona's stored stacks were made with another stack key than
+    the default parameters' ``tp`` asks for: they are then recomputed at every load."""
+    key = _stored_key(tp)
+    if stored is None or stored["meta"].get("key") == key or key != _stored_key(TextureParams()):
+        return
+    import warnings
+
+    warnings.warn(f"{stored.get('path') or 'persona'}: its texture stacks were made with other settings (an "
+                  "earlier facetex): recomputed at every load (seconds for hundreds of photos); save the persona "
+                  "again (facetex.persona.load_persona(path).save(path)) to store them", stacklevel=3)
+
+
 #: a photo without a gaze score as a .persona stores it (scores lie in [-1, 1])
 NO_GAZE = -9.0
 

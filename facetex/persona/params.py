@@ -67,6 +67,14 @@ class TextureParams:
     six LFW collections (Bush +0.036 -> +0.037, Blair +0.043 -> +0.045, Williams +0.047 -> +0.047,
     Chavez +0.041 -> +0.043, Koizumi +0.024 -> +0.026, Arroyo +0.029 -> +0.030; kappa 1 and 4
     alike; the face region too cost face SSIM 0.0015 on Koizumi).
+    occlusion: kappa of the occluders' factors (:mod:`facetex.persona._occlusion`; 0: off): each
+    photo's confidence falls where its fine structure departs from its 8 nearest expressions' by
+    more than kappa times the collection's median departure there (outside the lips, eyes and
+    brows), judged once when the stacks are made and stored with them. Two of Williams' 52 photos
+    with a hand over the mouth drew the fingers as streaks across the puppet's cheek on every
+    frame of a talking driver (face mode; fainter in the composite), hair over a temple as light
+    strands; with kappa 2.5 both are gone at 100 % (the robust product on the rest of the face
+    took them only in part, at ~7 ms a frame). LEAVEOUT
     mouth_mix: ((region, share), ...): the mouth region's weights are this mix of the regions'
     similarities, each normalised over the photos (:func:`facetex.persona.weights.mix_similarities`;
     used when the mouth and every source are weight regions; () = the mouth's own). The 36 lip
@@ -102,6 +110,7 @@ class TextureParams:
     restore: tuple = (("face", 3),)
     restore_gain: float = 3.0
     robust: tuple = (("mouth", 2.0),)
+    occlusion: float = 2.5
     mouth_mix: tuple = (("mouth", 0.4), ("face", 0.4), ("eyes", 0.2))
 
     def region_mix(self) -> tuple:
@@ -132,8 +141,10 @@ class TextureParams:
 
     def stack_key(self) -> tuple:
         """The fields the precomputed stacks depend on (the weights do not)."""
-        return (self.alpha_, self.min_level_side, self.laplacian_blur, self.laplacian_floor, tuple(self.regions),
-                self.use_visibility, self.visibility_floor, self.mirror_weight, self.face_support)
+        key = (self.alpha_, self.min_level_side, self.laplacian_blur, self.laplacian_floor, tuple(self.regions),
+               self.use_visibility, self.visibility_floor, self.mirror_weight, self.face_support)
+        # stacks made without the occluders' factors keep the key they were stored with
+        return key + (("occlusion", float(self.occlusion)),) if self.occlusion > 0 else key
 
 
 WEIGHTS = ("regional", "global")

@@ -16,6 +16,7 @@ from .._parallel import available_cpus
 from ..errors import BadInputError, BadPersonaError
 from ..geometry.gaze import gaze_asymmetry
 from ..geometry.glasses import glasses_bridge_score
+from ._occlusion import occlude_aligned
 from ._packed import Packed
 from ._photo_quality import _PhotoQuality
 from ._stack_parts import (
@@ -42,6 +43,7 @@ from ._stack_store import (
     _lsb_lut,
     _quantize_aligned,
     _stored_key,
+    warn_stale_stacks,
 )
 from .align import (
     compose_map_flow,
@@ -142,19 +144,32 @@ class _Prepared(_PhotoQuality):
             self._glasses = np.full(n, np.nan)
 
         gaze_stored = packed is not None and self._gaze_stored
+        # with the occluders' factors every photo is aligned first (they judge each photo against
+        # the others), then the rows are made from the aligned codes as from a file's
+        occluded = packed is None and tp.occlusion > 0
+        pool = ThreadPoolExecutor(max(1, min(len(self._bounds), available_cpus())))
+
+        def align(i0: int, i1: int):
+            maps, conf = self._align_maps(i0, i1, None if built is None else built[i0:i1])
+            P = self._persona_ref
+            for i in range(i0, i1):
+                self._aligned_photo(i, maps[i - i0], conf[i - i0], self._aligned_q[i], self._aligned_lsb[i])
+                self._glasses[i] = glasses_bridge_score(P.images[i], P.points68[i])
+
+        if occluded:
+            list(pool.map(lambda b: align(*b), self._bounds))
+            self._occlude(luts)
 
         def chunk(i0: int, i1: int):
             # one photo at a time through alignment, pyramid, segment gather and the static sums:
             # its rows (~1 MB) stay in cache (a whole chunk's full-frame rows, ~30 MB, did not)
             work = {"q": np.empty(self.shape + (4,), np.uint8)}
-            if packed is None:
-                align, conf = self._align_maps(i0, i1, None if built is None else built[i0:i1])
+            if packed is None and not occluded:
+                align(i0, i1)
             sums = [np.zeros(h * w * 4, np.float64) for h, w in self.level_shapes] if static is None else None
             for i in range(i0, i1):
                 if packed is None:
-                    q = self._aligned_photo(i, align[i - i0], conf[i - i0], self._aligned_q[i], self._aligned_lsb[i])[0]
-                    P = self._persona_ref
-                    self._glasses[i] = glasses_bridge_score(P.images[i], P.points68[i])
+                    q = self._aligned_q[i]
                 else:
                     q = packed.photo(i, work["q"])
                 # stored or computed, the stacks are made from the same quantized aligned photo
@@ -171,9 +186,8 @@ class _Prepared(_PhotoQuality):
 
         # photos are independent: chunks run on a thread pool (OpenCV, zlib and numpy release the
         # GIL); results do not depend on the thread count (partial sums are added in order)
-        bounds = self._bounds
-        with ThreadPoolExecutor(max(1, min(len(bounds), available_cpus()))) as pool:
-            results = list(pool.map(lambda b: chunk(*b), bounds))
+        with pool:
+            results = list(pool.map(lambda b: chunk(*b), self._bounds))
         if static is not None:  # stored with the aligned photos (adding every photo's rows cost ~15 % of a load)
             self.static = [np.array(x, np.float32) for x in static]
             return
@@ -181,6 +195,12 @@ class _Prepared(_PhotoQuality):
             for k in range(self.levels):
                 self.static[k] += sums[k]
         self.static = [(x / max(n, 1)).astype(np.float32) for x in self.static]  # uniform weights
+
+    def _occlude(self, luts: tuple) -> None:
+        """The aligned photos' confidences times their occluders' factors (:func:`occlude_aligned`)."""
+        P, tp = self._persona_ref, self.tp
+        self._stage["occlusion"] = occlude_aligned(self._aligned_q, self._aligned_lsb, luts, P.fiducials, self.points68,
+                                                   _conf_range(tp), tp.occlusion)
 
     def stored(self) -> dict:
         """What a .persona file stores of the stacks (:func:`stored_stacks`): the photos aligned to
@@ -192,6 +212,8 @@ class _Prepared(_PhotoQuality):
         if self._packed is None:
             if self._aligned_q is None:  # stacks read from a version-3 file: align the photos again
                 self._aligned_q, self._aligned_lsb = self._aligned_quantized()
+                if self.tp.occlusion > 0:
+                    self._occlude((_aligned_lut(self.tp), _lsb_lut()))
             self._packed = Packed.pack(self._aligned_q, workers=available_cpus())
             self._aligned_q = None  # packed: ~1/3 of the memory
         lo, hi = _conf_range(self.tp)
@@ -486,25 +508,6 @@ class _Prepared(_PhotoQuality):
             self._restore_detail(bands, fine, mats)
         return np.stack([collapse_pyramid([b[j] for b in bands]) for j in range(B)])
 
-    def band_energy(self) -> np.ndarray:
-        """(levels, R, n) each photo's mean band energy |band|^2 (RGB summed, confidence-weighted)
-        per pyramid level and weight region (its mask-weighted pixels), from the stacks, once."""
-        if "band_energy" not in self._stage:
-            R = len(self.regions)
-            num = np.zeros((self.levels, R, self.n))
-            den = np.zeros((self.levels, R, self.n))
-            for k, segs in enumerate(self.segments):
-                for seg in segs:
-                    for i0 in range(0, self.n, self.CHUNK):  # a chunk of photos at a time (memory)
-                        rows = seg.stack[i0:i0 + self.CHUNK].reshape(-1, len(seg.pixels), 4)
-                        c = rows[..., 3]
-                        e = (rows[..., 0] ** 2 + rows[..., 1] ** 2 + rows[..., 2] ** 2) / np.maximum(c, 1e-6)
-                        for mj, j in zip(seg.masks[:, ::4], seg.regions):  # (band c)^2 / c = |band|^2 c
-                            num[k, j, i0:i0 + len(rows)] += e @ mj
-                            den[k, j, i0:i0 + len(rows)] += c @ mj
-            self._stage["band_energy"] = num / np.maximum(den, 1e-12)
-        return self._stage["band_energy"]
-
     def _restore_detail(self, bands: list[np.ndarray], fine: list, mats: list) -> None:
         """Detail restoration (``tp.restore``; in place on the (B, h, w, 3) ``bands``, finest first;
         ``fine``: per region (levels, weights) of the detail weights, ``mats`` the other levels').
@@ -584,6 +587,7 @@ def prepare_persona(persona: Persona, params: TextureParams | None = None, *, pr
     key = ("prepared", tp.stack_key())
     if key not in persona._cache:
         stored = persona.texture_stacks
+        warn_stale_stacks(stored, tp)
         persona._cache[key] = _Prepared(persona, tp, progress, stored, cache)
         if stored is not None and stored["meta"].get("key") == _stored_key(tp):
             persona.texture_stacks = None  # now held by the cache (exported from there by save)

@@ -102,6 +102,12 @@ offsets): rank correlation with the true similarity 0.40 -> 0.42, but its 4 near
 no better (mean aligned-mouth SSIM 0.719 against 0.717 Euclidean on Koizumi, 0.002-0.011 lower on
 the other five collections; the oracle's 0.795). Nor 10 folds instead of 5 (more photos per persona): Koizumi +0.0358, Arroyo
 +0.0362.
+Nor a stronger lip detector: MediaPipe's attention mesh (``face_landmark_with_attention``, its lips
+refined by their own sub-model; it ships in mediapipe 0.10.14's wheel, which needs numpy < 2, and uses
+custom TFLite ops, so it was run in a separate environment on the frontal photos): the mouth's
+distance on its 40 or 80 lip points, on dlib's 18 and its 40, or dlib's points moved onto its
+contours, Koizumi -0.0010 to +0.0003, Arroyo -0.0007 to +0.0004 (s.e. 0.001-0.002); its whole mesh, or
+the points below the nose, -0.0016 to -0.0031.
 """
 
 from __future__ import annotations

@@ -410,7 +410,8 @@ def test_stale_texture_stacks_are_recomputed(persona, tmp_path, monkeypatch):
     monkeypatch.setattr(T, "STACKS_VERSION", T.STACKS_VERSION + 1)  # a later facetex computes them otherwise
     q = load_persona(path)
     q.texture_stacks["arrays"]["texture_aligned"].blob[:] = 0  # would fail if they were used
-    assert np.array_equal(_texture(q), _texture(persona))
+    with pytest.warns(UserWarning, match="s.persona: its texture stacks were made with other settings"):
+        assert np.array_equal(_texture(q), _texture(persona))
 
 
 def _v3_file(persona, path, change=None):
@@ -749,6 +750,61 @@ def test_robust_mouth_blend_ignores_one_photo_with_a_patch_over_the_mouth(person
     err_robust = np.abs(robust - clean_r)[mouth].mean()
     assert err_plain > 0.01
     assert err_robust < 0.7 * err_plain  # measured 0.018 vs 0.031 at this 96 x 120 texture
+
+
+def test_a_hand_over_one_photos_cheek_leaves_the_blend(persona):
+    """Stripes (fingers) over one of 12 photos' cheek: that photo's confidence falls there, and the
+    blend of all 12 at equal weights moves far less from the blend without it than with the
+    occluders' factors off (the coarsest, lighting levels stay every photo's average)."""
+    import copy
+    import dataclasses
+
+    import facetex.persona.texture as tx
+    from facetex.geometry.masks import polygon_mask
+
+    p = copy.deepcopy(persona)
+    p._cache.clear()
+    p.texture_stacks = None
+    Hc, Wc = p.images.shape[1:3]
+    q = p.points68[3]
+    cheek = polygon_mask(np.array([q[2], q[31], q[48], q[5]]), (Hc, Wc)) > 0.5
+    images = np.array(p.images)
+    stripes = ((np.arange(Wc) // 2) % 2 == 0)[None].repeat(Hc, 0)
+    images[3][cheek & stripes] = 235
+    images[3][cheek & ~stripes] = 60
+    p.images = images
+    tp = TextureParams()
+    off = dataclasses.replace(tp, occlusion=0.0)
+    S = np.ones_like(tx.target_weights(p, p.fiducials[[5]], tp))
+    gone = S.copy()
+    gone[..., 3] = 0.0
+    prep = tx.prepare_persona(p, tp)
+    f = prep._stage["occlusion"]
+    mean_cheek = polygon_mask(np.array([p.points68.mean(0)[k] for k in (2, 31, 48, 5)]), (Hc, Wc)) > 0.5
+    assert np.median(f[3][mean_cheek]) < 0.3
+    assert np.median(np.delete(f, 3, axis=0)[:, mean_cheek]) > 0.9
+    err = {}
+    for name, params in (("on", tp), ("off", off)):
+        with_it = tx.prepare_persona(p, params).blend_many(S)[0]
+        without = tx.prepare_persona(p, params).blend_many(gone)[0]
+        err[name] = np.abs(with_it - without)[mean_cheek].mean()
+    assert err["off"] > 0.01
+    assert err["on"] < 0.5 * err["off"]
+
+
+def test_stacks_stored_with_other_settings_are_recomputed_with_a_warning(persona, tmp_path):
+    """A file whose stored stacks were made with another stack key (an earlier facetex: no
+    occluders' factors) still loads; the stacks are recomputed, with a warning naming the file."""
+    import facetex.persona.texture as tx
+
+    path = persona.save(tmp_path / "old.persona")
+    fresh = load_persona(path)
+    want = tx.prepare_persona(fresh).blend_many(np.ones((1, 3, len(fresh))))[0]
+    old = load_persona(path)
+    old.texture_stacks["meta"]["key"] = old.texture_stacks["meta"]["key"][:-1]  # the key before the factors
+    with pytest.warns(UserWarning, match="old.persona: its texture stacks were made with other settings"):
+        got = tx.prepare_persona(old).blend_many(np.ones((1, 3, len(old))))[0]
+    np.testing.assert_allclose(got, want, atol=1e-6)
 
 
 def test_a_small_photos_landmarks_are_read_as_the_drivers(tmp_path):
