@@ -72,9 +72,13 @@ class TextureParams:
     more than kappa times the collection's median departure there (outside the lips, eyes and
     brows), judged once when the stacks are made and stored with them. Two of Williams' 52 photos
     with a hand over the mouth drew the fingers as streaks across the puppet's cheek on every
-    frame of a talking driver (face mode; fainter in the composite), hair over a temple as light
-    strands; with kappa 2.5 both are gone at 100 % (the robust product on the rest of the face
-    took them only in part, at ~7 ms a frame). LEAVEOUT
+    frame of a talking driver (face mode; fainter in the composite); with kappa 2.5 they are gone
+    at 100 % (the robust product on the rest of the face, iterated 3 times, took them only in
+    part and cost a 32-frame batch's blend 8.6 -> 15-32 ms a frame; judging each photo against
+    the whole collection's rank-4 appearance flagged rare expressions and lighting, not only
+    occluders). Leave-out gain over static (5 folds), paired per target, off -> on: whole face
+    +0.0002 (Koizumi) to +0.0031 (Chavez; Bush +0.0019, Blair +0.0014, Arroyo +0.0019, Williams
+    +0.0009), eyes +0.0006 to +0.0024, mouth -0.0010 (Williams) to +0.0006 (s.e. 0.0001-0.0006).
     mouth_mix: ((region, share), ...): the mouth region's weights are this mix of the regions'
     similarities, each normalised over the photos (:func:`facetex.persona.weights.mix_similarities`;
     used when the mouth and every source are weight regions; () = the mouth's own). The 36 lip
