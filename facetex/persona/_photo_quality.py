@@ -1,6 +1,7 @@
 """Each persona photo's quality weights, computed once from the texture stacks: the detail of its
 eyes (open, sharp eyes with visible whites and iris), its gaze (photos looking sideways count
-less) and how unlikely it shows eyeglasses. Mixed into :class:`facetex.persona.stacks._Prepared`,
+less), how unlikely it shows eyeglasses, and its band energy per level and region (what the detail
+restoration gives back). Mixed into :class:`facetex.persona.stacks._Prepared`,
 whose stacks, shapes and per-photo scores they read."""
 
 from __future__ import annotations

@@ -147,7 +147,6 @@ class _Prepared(_PhotoQuality):
         # with the occluders' factors every photo is aligned first (they judge each photo against
         # the others), then the rows are made from the aligned codes as from a file's
         occluded = packed is None and tp.occlusion > 0
-        pool = ThreadPoolExecutor(max(1, min(len(self._bounds), available_cpus())))
 
         def align(i0: int, i1: int):
             maps, conf = self._align_maps(i0, i1, None if built is None else built[i0:i1])
@@ -155,10 +154,6 @@ class _Prepared(_PhotoQuality):
             for i in range(i0, i1):
                 self._aligned_photo(i, maps[i - i0], conf[i - i0], self._aligned_q[i], self._aligned_lsb[i])
                 self._glasses[i] = glasses_bridge_score(P.images[i], P.points68[i])
-
-        if occluded:
-            list(pool.map(lambda b: align(*b), self._bounds))
-            self._occlude(luts)
 
         def chunk(i0: int, i1: int):
             # one photo at a time through alignment, pyramid, segment gather and the static sums:
@@ -186,7 +181,10 @@ class _Prepared(_PhotoQuality):
 
         # photos are independent: chunks run on a thread pool (OpenCV, zlib and numpy release the
         # GIL); results do not depend on the thread count (partial sums are added in order)
-        with pool:
+        with ThreadPoolExecutor(max(1, min(len(self._bounds), available_cpus()))) as pool:
+            if occluded:
+                list(pool.map(lambda b: align(*b), self._bounds))
+                self._occlude(luts)
             results = list(pool.map(lambda b: chunk(*b), self._bounds))
         if static is not None:  # stored with the aligned photos (adding every photo's rows cost ~15 % of a load)
             self.static = [np.array(x, np.float32) for x in static]
