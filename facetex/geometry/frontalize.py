@@ -72,6 +72,10 @@ VISIBILITY_BLUR_PX = 1.5
 FILL_FEATHER_PX = 3.0
 #: Scale (px at a 192 px wide frame) of the local brightness match of the mirrored side.
 FILL_GAIN_PX = 12.0
+#: Scale (px at a 192 px wide frame) of the normalised convolution that fills the face's pixels
+#: neither side saw, and the share of determined pixels around one at which it fills it wholly.
+HOLE_FILL_PX = 4.0
+HOLE_SUPPORT = 0.3
 #: Off-photo samples blend from the replicated border into a smooth continuation over this many
 #: (sampled-photo) pixels.
 OUTSIDE_RAMP_PX = 3.0
@@ -407,13 +411,13 @@ def frontalize(
         np.float32
     )
 
-    out = symmetry_fill_image(sampled, vis) if symmetry_fill else sampled
+    out = symmetry_fill_image(sampled, vis, surf.on_mesh) if symmetry_fill else sampled
     pts = _pose_corrected_points(p, pose, frame)
     mp.setflags(write=False)
     return Frontalized(np.clip(out, 0.0, 1.0, dtype=np.float32), vis, pts, pose, mp, np.array(surf.on_mesh))
 
 
-def symmetry_fill_image(image: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+def symmetry_fill_image(image: np.ndarray, visibility: np.ndarray, region: np.ndarray | None = None) -> np.ndarray:
     """Soft symmetry fill (Hassner et al. Sec. 3.3), without the seam.
 
     I' = (v I + (1 - v) v_m g I_m) / (v + (1 - v) v_m) with I_m, v_m the left-right mirrors of
@@ -422,7 +426,12 @@ def symmetry_fill_image(image: np.ndarray, visibility: np.ndarray) -> np.ndarray
     own side fades out before its occluded edge (where the sampling smears), and the mirrored
     side is gain-matched by g = local mean of I / local mean of I_m over the pixels both sides
     saw (normalised convolution, :data:`FILL_GAIN_PX`; the two cheeks are lit differently), so
-    the fill has the own side's brightness and colour."""
+    the fill has the own side's brightness and colour. Pixels of ``region`` (bool (H, W), the
+    generic face, grown by :data:`HOLE_FILL_PX`) that neither side saw (v + (1 - v) v_m < 1e-3: a narrow band at the cheek's edge
+    of a turned face, where the mirrored cheek's edge is hidden too) would keep the photo's raw
+    sample there, its silhouette's background and ear: they take the normalised convolution of the
+    determined pixels around them (:data:`HOLE_FILL_PX`), wholly where those are at least
+    :data:`HOLE_SUPPORT` of the neighbourhood (a wide area nobody saw keeps its samples)."""
     img = np.asarray(image, np.float32)
     vis = np.asarray(visibility, np.float32)
     H, W = vis.shape
@@ -450,7 +459,19 @@ def symmetry_fill_image(image: np.ndarray, visibility: np.ndarray) -> np.ndarray
     inv = 1.0 / np.maximum(den, np.float32(1e-3))
     a = np.where(low, np.float32(1.0), v * inv)[..., None]
     b = np.where(low, np.float32(0.0), wm * inv)[..., None]
-    return (a * img + b * gain * mir).astype(np.float32)
+    out = (a * img + b * gain * mir).astype(np.float32)
+    if region is None:
+        region = np.ones((H, W), bool)
+    else:  # the mesh's own edge too: its last columns at a turned cheek are samples of the silhouette
+        region = cv2.dilate(np.asarray(region, np.uint8), disc(max(1, int(round(HOLE_FILL_PX * k))))) > 0
+    holes = low & region
+    if holes.any():  # Normalised convolution of the determined pixels, by hand (cv2 has no masked blur)
+        wt = (~low).astype(np.float32)  # every determined pixel alike: each is a normalised fill
+        n = cv2.GaussianBlur(wt, (0, 0), HOLE_FILL_PX * k)
+        nc = cv2.GaussianBlur(out * wt[..., None], (0, 0), HOLE_FILL_PX * k) / np.maximum(n, 1e-6)[..., None]
+        t = (holes * np.clip(n / HOLE_SUPPORT, 0.0, 1.0)).astype(np.float32)[..., None]
+        out = (1.0 - t) * out + t * nc
+    return out.astype(np.float32)
 
 
 def fill_confidence(visibility, points68=None, *, mirror_weight: float = 0.1, feather: float = 2.0,

@@ -238,6 +238,26 @@ def test_symmetry_fill_matches_brightness_without_a_seam():
     np.testing.assert_allclose(row[:80], 0.3, atol=1e-5)  # the seen side, far from the edge, untouched
 
 
+def test_symmetry_fill_closes_narrow_bands_neither_side_saw():
+    """A 6 px band at a turned cheek's edge that neither side saw keeps the photo's raw sample (its
+    silhouette: bright background, 1.0); it takes its surroundings' fill (0.4) instead. A wide area
+    nobody saw (the top rows: hair, background) keeps its raw sample; outside ``region`` nothing
+    changes."""
+    H, W = 240, 192
+    img = np.full((H, W, 3), 0.4, np.float32)
+    vis = np.ones((H, W), np.float32)
+    vis[:, 20:26] = 0
+    vis[:, W - 26:W - 20] = 0  # the mirrored band: hidden too
+    img[:, 20:26] = 1.0
+    vis[:40] = 0
+    img[:40] = 0.9
+    out = symmetry_fill_image(img, vis)
+    np.testing.assert_allclose(out[80:200, 20:26], 0.4, atol=0.02)
+    np.testing.assert_allclose(out[:10], 0.9, atol=1e-5)  # far from anything seen: as sampled
+    kept = symmetry_fill_image(img, vis, np.zeros((H, W), bool))
+    np.testing.assert_allclose(kept[80:200, 20:26], 1.0, atol=1e-5)
+
+
 def test_outputs_shapes_dtypes_and_map(faces):
     img, pts = faces["frl_004_neutral.jpg"]
     fr = frontalize(img, pts, size=(200, 250), symmetry_fill=False)
