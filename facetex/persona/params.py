@@ -140,8 +140,9 @@ class TextureParams:
 
     @classmethod
     def paper(cls, **kw) -> "TextureParams":
-        """The paper's Eq. 3 weights: global, sigma 10, alpha 1."""
-        return cls(**{"weights": "global", "alpha": 1.0, **kw})
+        """The paper's Eq. 3 weights: global, sigma 10, alpha 1 (and none of our occluders' factors,
+        which the paper does not have: its stacks are made from the photos as they are)."""
+        return cls(**{"weights": "global", "alpha": 1.0, "occlusion": 0.0, **kw})
 
     def stack_key(self) -> tuple:
         """The fields the precomputed stacks depend on (the weights do not)."""

@@ -81,3 +81,15 @@ def test_the_judged_region_leaves_out_the_lips_eyes_and_brows():
     assert j[mouth[1], mouth[0]] < 0.05 and j[eye[1], eye[0]] < 0.05
     assert j[cheek[1], cheek[0]] > 0.9
     assert j[5, 5] < 0.05  # off the face
+
+
+def test_the_papers_settings_make_their_stacks_from_the_photos_as_they_are():
+    from facetex.persona import TextureParams
+    from facetex.puppet import PuppetParams
+
+    assert TextureParams().occlusion == 2.5
+    assert TextureParams.paper().occlusion == 0.0
+    assert PuppetParams(weights="global").texture_params().occlusion == 0.0
+    assert PuppetParams().texture_params().occlusion == 2.5
+    # without the factors the stack key is the one files stored before them
+    assert not any(isinstance(k, tuple) and k[0] == "occlusion" for k in TextureParams.paper().stack_key())
