@@ -427,11 +427,12 @@ def symmetry_fill_image(image: np.ndarray, visibility: np.ndarray, region: np.nd
     side is gain-matched by g = local mean of I / local mean of I_m over the pixels both sides
     saw (normalised convolution, :data:`FILL_GAIN_PX`; the two cheeks are lit differently), so
     the fill has the own side's brightness and colour. Pixels of ``region`` (bool (H, W), the
-    generic face, grown by :data:`HOLE_FILL_PX`) that neither side saw (v + (1 - v) v_m < 1e-3: a narrow band at the cheek's edge
-    of a turned face, where the mirrored cheek's edge is hidden too) would keep the photo's raw
-    sample there, its silhouette's background and ear: they take the normalised convolution of the
-    determined pixels around them (:data:`HOLE_FILL_PX`), wholly where those are at least
-    :data:`HOLE_SUPPORT` of the neighbourhood (a wide area nobody saw keeps its samples)."""
+    generic face, grown by :data:`HOLE_FILL_PX`) that neither side saw (v + (1 - v) v_m < 1e-3: a
+    narrow band at the cheek's edge of a turned face, where the mirrored cheek's edge is hidden
+    too) would keep the photo's raw sample there, its silhouette's background and ear: they take
+    the normalised convolution of the determined pixels around them (:data:`HOLE_FILL_PX`), wholly
+    where those are at least :data:`HOLE_SUPPORT` of the neighbourhood (a wide area nobody saw
+    keeps its samples)."""
     img = np.asarray(image, np.float32)
     vis = np.asarray(visibility, np.float32)
     H, W = vis.shape
