@@ -141,8 +141,8 @@ class Persona:
         """Write the persona atomically as one ``.persona`` file (npz zip + JSON header).
 
         ``texture_stacks``: also store what the texture synthesis's precomputed stacks are rebuilt
-        from (~60 kB per photo; computed now if needed): puppetry and texture synthesis then start
-        without aligning every photo again."""
+        from (~60 kB per photo; computed now if needed, or if the file's were made with other
+        settings): puppetry and texture synthesis then start without aligning every photo again."""
         from ..io import atomic_path, check_output_path
 
         path = check_output_path(path, overwrite=overwrite)
@@ -154,8 +154,12 @@ class Persona:
             arrays["depth"] = np.asarray(self.depth, np.float32)
         stacks = None
         if texture_stacks:
+            from ._stack_store import _stored_key
+            from .params import TextureParams
             from .stacks import stored_stacks
 
+            if self.texture_stacks and self.texture_stacks["meta"].get("key") != _stored_key(TextureParams()):
+                self.texture_stacks = None  # made with other settings (an earlier facetex): made again now
             stacks = self.texture_stacks if _packed_stacks(self.texture_stacks) else stored_stacks(self)
             arrays.update(sorted(stacks["arrays"].items()))  # one member order, computed or as read
         members = {}

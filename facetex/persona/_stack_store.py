@@ -94,8 +94,8 @@ def warn_stale_stacks(stored: dict | None, tp: TextureParams) -> None:
 
     warnings.warn(f"{stored.get('path') or 'persona'}: its texture stacks were made with other settings (an "
                   "earlier facetex): recomputed at every load (seconds for hundreds of photos); rebuild it with "
-                  "`facetex persona build`, or save it again (facetex.persona.load_persona(path).save(path)), to "
-                  "store them", stacklevel=3)
+                  "`facetex persona build`, or save it again (facetex.persona.load_persona(path).save(path, "
+                  "overwrite=True)), to store them", stacklevel=3)
 
 
 #: a photo without a gaze score as a .persona stores it (scores lie in [-1, 1])

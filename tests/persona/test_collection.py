@@ -799,12 +799,25 @@ def test_stacks_stored_with_other_settings_are_recomputed_with_a_warning(persona
 
     path = persona.save(tmp_path / "old.persona")
     fresh = load_persona(path)
+    fresh_key = fresh.texture_stacks["meta"]["key"]
     want = tx.prepare_persona(fresh).blend_many(np.ones((1, 3, len(fresh))))[0]
     old = load_persona(path)
     old.texture_stacks["meta"]["key"] = old.texture_stacks["meta"]["key"][:-1]  # the key before the factors
     with pytest.warns(UserWarning, match="old.persona: its texture stacks were made with other settings"):
         got = tx.prepare_persona(old).blend_many(np.ones((1, 3, len(old))))[0]
     np.testing.assert_allclose(got, want, atol=1e-6)
+    # saved again, the file stores the stacks the load wants: no warning, the same blend
+    stale = load_persona(path)
+    stale.texture_stacks["meta"]["key"] = stale.texture_stacks["meta"]["key"][:-1]
+    stale.save(path, overwrite=True)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        again = load_persona(path)
+        assert again.texture_stacks["meta"]["key"] == fresh_key
+        np.testing.assert_allclose(tx.prepare_persona(again).blend_many(np.ones((1, 3, len(again))))[0], want,
+                                   atol=1e-6)
 
 
 def test_a_small_photos_landmarks_are_read_as_the_drivers(tmp_path):
