@@ -47,12 +47,12 @@ def exposure_gain(image, box) -> float:
     return max(1.0, float(srgb_to_linear(EXPOSED_FACE_LUMA)) / max(float(srgb_to_linear(luma)), 1e-4))
 
 
-def _landmarks_exposed(image, box, exposure: bool = True, mirror: bool = False) -> np.ndarray:
-    """dlib's 68 landmarks in ``box``, the mouth's (48-67) fitted again at a normalised exposure on a
-    dark face (:func:`exposure_gain`; one gain in linear light, as a camera's exposure) unless
-    ``exposure`` is False; averaged with the fit of the mirror image when ``mirror``
-    (:func:`mirror_averaged`)."""
-    p = landmarks_in_box(image, box)
+def _landmarks_exposed(image, box, exposure: bool = True, mirror: bool = False, points68=None) -> np.ndarray:
+    """dlib's 68 landmarks in ``box`` (or ``points68``, already fitted there), the mouth's (48-67)
+    fitted again at a normalised exposure on a dark face (:func:`exposure_gain`; one gain in linear
+    light, as a camera's exposure) unless ``exposure`` is False; averaged with the fit of the mirror
+    image when ``mirror`` (:func:`mirror_averaged`)."""
+    p = landmarks_in_box(image, box) if points68 is None else np.asarray(points68, np.float64)
     p = _mouth_exposed(image, box, p) if exposure else p
     return mirror_averaged(image, box, p, exposure) if mirror else p
 
@@ -139,11 +139,7 @@ def fit_landmarks(frame, box, *, face_px: float = 200.0, points68=None, exposure
     b = np.asarray(box, np.float64)
     k = min(4.0, float(face_px) / max(b[2] - b[0], 1.0))
     if k <= 1.0:
-        if points68 is not None:
-            p = np.asarray(points68, np.float64)
-            p = _mouth_exposed(frame, b, p) if exposure else p
-            return mirror_averaged(frame, b, p, exposure) if mirror else p
-        return _landmarks_exposed(frame, b, exposure, mirror)
+        return _landmarks_exposed(frame, b, exposure, mirror, points68)
     h, w = frame.shape[:2]
     pad = 0.5 * (b[2] - b[0])
     x0, y0 = max(0, int(b[0] - pad)), max(0, int(b[1] - pad))

@@ -154,11 +154,10 @@ class Persona:
             arrays["depth"] = np.asarray(self.depth, np.float32)
         stacks = None
         if texture_stacks:
-            from ._stack_store import _stored_key
-            from .params import TextureParams
+            from ._stack_store import stale_stacks
             from .stacks import stored_stacks
 
-            if self.texture_stacks and self.texture_stacks["meta"].get("key") != _stored_key(TextureParams()):
+            if stale_stacks(self.texture_stacks):
                 self.texture_stacks = None  # made with other settings (an earlier facetex): made again now
             stacks = self.texture_stacks if _packed_stacks(self.texture_stacks) else stored_stacks(self)
             arrays.update(sorted(stacks["arrays"].items()))  # one member order, computed or as read

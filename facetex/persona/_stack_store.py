@@ -84,11 +84,16 @@ def _stored_key(tp: TextureParams) -> list:
     return json.loads(json.dumps([STACKS_VERSION, *tp.stack_key()]))
 
 
+def stale_stacks(stored: dict | None) -> bool:
+    """Whether a .persona's stored stacks were made with another stack key than the default
+    parameters' (an earlier facetex): a load recomputes them, a save makes them again."""
+    return bool(stored) and stored["meta"].get("key") != _stored_key(TextureParams())
+
+
 def warn_stale_stacks(stored: dict | None, tp: TextureParams) -> None:
-    """Warn (naming the file) when a .persona's stored stacks were made with another stack key than
-    the default parameters' ``tp`` asks for: they are then recomputed at every load."""
-    key = _stored_key(tp)
-    if stored is None or stored["meta"].get("key") == key or key != _stored_key(TextureParams()):
+    """Warn (naming the file) when ``tp`` has the default stack key and the stored stacks are
+    :func:`stale_stacks`: they are then recomputed at every load."""
+    if _stored_key(tp) != _stored_key(TextureParams()) or not stale_stacks(stored):
         return
     import warnings
 

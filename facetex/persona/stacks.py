@@ -156,8 +156,8 @@ class _Prepared(_PhotoQuality):
                 self._glasses[i] = glasses_bridge_score(P.images[i], P.points68[i])
 
         def chunk(i0: int, i1: int):
-            # one photo at a time through alignment, pyramid, segment gather and the static sums:
-            # its rows (~1 MB) stay in cache (a whole chunk's full-frame rows, ~30 MB, did not)
+            # the chunk's photos aligned, then one photo at a time through pyramid, segment gather and
+            # the static sums: its rows (~1 MB) stay in cache (a whole chunk's full-frame rows, ~30 MB, did not)
             work = {"q": np.empty(self.shape + (4,), np.uint8)}
             if packed is None and not occluded:
                 align(i0, i1)
