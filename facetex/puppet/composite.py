@@ -252,6 +252,10 @@ LIGHTINGS = ("stats", "sh", "none")
 #: skin colour, occluders and the low-frequency colour field are worked out on the face's box
 #: shrunk to about this many px between the outer eye corners
 WORK_IOD = 16.0
+#: the lids' rims (``keep_dark`` of :func:`~facetex.puppet.lighting.transfer_skin_colour`) fade out
+#: over this x the eye-corner distance (Gaussian sigma) both ways: cut at the grown outline, their
+#: edge drew a polygon round a dark persona's eyes on a pale driver at 1080 px
+EYE_RIM_SPREAD = 0.02
 #: where the puppet's eyeballs come from: the driver's frame (with the persona's iris colour) or
 #: the persona's texture
 EYE_SOURCES = ("driver", "persona")
@@ -471,7 +475,7 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
                                    lids=_scaled(lid_weights(p68 - [x0, y0], rg.shape), params.lid_colour)
                                    if params.lid_colour > 0 else None,
                                    keep=eye_weights(p68 - [x0, y0], rg.shape) if params.eye_colour else None,
-                                   keep_dark=eye_weights(p68 - [x0, y0], rg.shape, grow=params.eye_grow)
+                                   keep_dark=eye_weights(p68 - [x0, y0], rg.shape, grow=params.eye_grow, spread=EYE_RIM_SPREAD)
                                    if params.eye_colour and params.eye_grow > 0 else None, keep_chroma=False,
                                    # drawn only on a pair whose skins' ratio lets the brow gain apply
                                    brows=(lambda: brow_weights((p68 if pp68 is None else pp68) - [x0, y0], rg.shape))

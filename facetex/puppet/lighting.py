@@ -198,10 +198,14 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     lightness gain a dark persona's brown irises turned grey on a pale driver); ``keep_chroma``
     False: only its lightness is kept, its a*, b* take the transfer (the frame's white balance: kept
     whole, a pale persona's eyeballs were blue-grey patches in an orange frame). ``keep_dark``
-    (colour "driver"): weight (H, W) in [0, 1] or None, applied before ``keep``: where it is 1
-    ``src``'s lightness is kept where it is darker than the transfer's, never where lighter (the
-    lids' rims round the eyeballs: a dark persona's lash lines stay dark on a pale driver, a pale
-    persona's lid highlights do not stay pale on a dark one). ``brows`` (colour "driver"): weight
+    (colour "driver"): weight (H, W) in [0, 1] or None, applied before ``keep`` (the lids' rims
+    round the eyeballs): where it is 1, on a darker persona than the driver (the skins' lightness
+    ratio above ``gain``'s upper bound) the lightness detail darker than ``src``'s skin field takes
+    that ratio clipped to ``brow_gain``, as the brows (a dark persona's lash lines stay dark on a
+    pale driver; keeping their lightness as it was drew her whole lids, darker than her skin, as
+    dark maroon almonds round a pale driver's eyes), otherwise ``src``'s lightness is kept where it
+    is darker than the transfer's, never where lighter (a pale persona's lid highlights do not stay
+    pale on a dark driver). ``brows`` (colour "driver"): weight
     (H, W) in [0, 1], a function returning it (drawn only when used) or None: there the lightness
     detail darker than ``src``'s skin field takes the skins' lightness ratio clipped to
     ``brow_gain`` instead of ``gain``'s upper bound (brows are hair: a dark persona's brows, darker
@@ -286,13 +290,16 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     if ceiling is not None:
         wl, top = ceiling
         out[..., 0] -= wl * np.maximum(out[..., 0] - top, 0.0)
+    # a darker persona on a paler driver: detail darker than the persona's skin (brows, lash lines,
+    # lid creases) takes the skins' lightness ratio, bounded by brow_gain, not the gain's bound
+    gb = float(np.clip(ratio, gain[0], max(brow_gain, gain[1])))
+    dark = np.minimum(a[..., 0] - full(sa[..., 0]), 0.0) if gb > g[0] and (keep_dark is not None or brows is not None) \
+        else None
     if keep_dark is not None:
-        out[..., 0] += np.asarray(keep_dark, np.float32) * np.minimum(a[..., 0] - out[..., 0], 0.0)
-    if brows is not None:
-        gb = float(np.clip(ratio, gain[0], max(brow_gain, gain[1])))
-        if gb > g[0]:
-            dark = np.minimum(a[..., 0] - full(sa[..., 0]), 0.0)
-            out[..., 0] += np.asarray(brows() if callable(brows) else brows, np.float32) * (gb - g[0]) * dark
+        kd = np.asarray(keep_dark, np.float32)
+        out[..., 0] += kd * ((gb - g[0]) * dark if dark is not None else np.minimum(a[..., 0] - out[..., 0], 0.0))
+    if brows is not None and dark is not None:
+        out[..., 0] += np.asarray(brows() if callable(brows) else brows, np.float32) * (gb - g[0]) * dark
     if keep is not None:
         k = np.asarray(keep, np.float32)[..., None]
         n = 3 if keep_chroma else 1

@@ -1061,6 +1061,13 @@ def test_grown_eye_weights_reach_past_the_lids_edges_and_keep_lightness_only():
     ring = cv2.dilate(eyes.astype(np.uint8), np.ones((13, 13), np.uint8)) > 0
     far = ~cv2.dilate(eyes.astype(np.uint8), np.ones((15, 15), np.uint8)).astype(bool)
     assert ew[ring & ~eyes].max() > 0.5 and ew[far].max() == 0.0
+    # spread 0.02 x 56 px (sigma 1.1 px) both ways: no cut where the grown weight ends on skin
+    soft = eye_weights(p, (h, w), grow=0.1, spread=0.02)
+    grown = ew > 0
+    rim = cv2.dilate(grown.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~grown
+    assert ew[rim].max() == 0.0 and 0.01 < soft[rim].min() and soft[rim].max() < 0.6
+    assert soft[far & ~cv2.dilate(grown.astype(np.uint8), np.ones((11, 11), np.uint8)).astype(bool)].max() < 1e-3
+    assert soft.sum() == pytest.approx(ew.sum(), rel=0.02)  # a blur, not a growth
     src_lab = np.where(eyes[..., None], np.float32([25.0, 8.0, 14.0]), np.float32([40.0, 14.0, 20.0]))
     ref_lab = np.broadcast_to(np.float32([75.0, 10.0, 16.0]), src_lab.shape)
     src, ref = _rgb(src_lab.astype(np.float32)), _rgb(np.ascontiguousarray(ref_lab))
@@ -1241,6 +1248,25 @@ def test_keep_dark_keeps_only_the_darker_lightness(driver_l):
     else:
         assert out[18, 55, 0] == pytest.approx(plain[18, 55, 0], abs=0.3)  # the pale rim not kept pale
         assert out[18, 55, 0] < a[18, 55, 0] - 10
+
+
+def test_keep_dark_on_a_darker_persona_takes_the_skins_ratio():
+    """A dark persona (skin L 40) with a dark lid rim (L 20) and a lighter patch (L 50) where
+    ``keep_dark`` is 1, on a pale driver (L 75): the skins' ratio 75 / 40 = 1.875 is above the
+    lightness gain's bound 1.2, so the rim's darker-than-skin detail takes it (75 - 1.875 x 20 =
+    37.5; kept as it was it would be L 20, a dark almond round a pale driver's eye; the plain
+    transfer 75 - 1.2 x 20 = 51), the lighter patch stays the plain transfer's (75 + 1.2 x 10 = 87);
+    with ``brow_gain`` 1.5 the rim takes 75 - 1.5 x 20 = 45."""
+    band, src = _two_band_skin(40.0, 20.0, 50.0)
+    ref = _flat_skin(75.0, band.shape)
+    plain = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf))
+    for brow_gain, rim in ((2.0, 37.5), (1.5, 45.0)):
+        out = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf, keep_dark=band.astype(np.float32),
+                                        brow_gain=brow_gain))
+        np.testing.assert_allclose(out[~band], plain[~band], atol=1e-3)
+        assert np.median(out[15:25, 10:30, 0]) == pytest.approx(rim, abs=0.8)
+        assert np.median(plain[15:25, 10:30, 0]) == pytest.approx(51.0, abs=0.8)
+        np.testing.assert_allclose(out[15:25, 50:70], plain[15:25, 50:70], atol=1e-3)
 
 
 def test_brow_gain_by_hand():
