@@ -289,7 +289,9 @@ class CompositeParams:
     lightness is kept (``keep_dark`` of :func:`~facetex.puppet.lighting.transfer_skin_colour`): kept
     as it was, a pale persona's lid rims and the whites below its irises stayed pale on a dark
     driver, as white rings and crescents round the eyes (Koizumi's and Bush's personas on GRID clips
-    with the skin darkened). Chosen by the cheek ΔE (CIELAB) to the
+    with the skin darkened); on a darker persona than the driver the rims' dark detail takes the
+    skins' lightness ratio instead (kept as it was, Williams' whole lids were dark maroon almonds
+    round a pale driver's eyes at 1080 px; ``bench puppet`` eye ratio min 0.845 -> 0.835). Chosen by the cheek ΔE (CIELAB) to the
     driver's own cheeks over 6 personas x 6 GRID clips (worst run, skin-only masks: mean shift 19,
     MKL 22 (and pink lips), per-channel histogram matching 27, smooth field at 0.4 / 0.25 / 0.15 /
     0.10 / 0.08 eye distances 19 / 16 / 12 / 7.8 / 6.2; 0.12 to 0.08 look alike at 100 %; with the
