@@ -47,6 +47,9 @@ def register(sub) -> None:
     p.add_argument("--occlusion", choices=("on", "off"), default="on",
                    help="composite mode: keep what lies over the driver's face in front of the puppet: a fringe, "
                         "a hand, the rims of its glasses (default on)")
+    p.add_argument("--persona-hair", choices=("on", "off"), default="on",
+                   help="composite mode: where the persona's own hair lies over its forehead or temples (in most "
+                        "of its photos), show the driver's frame instead (default on)")
     p.add_argument("--texture", choices=("ours", "static"), default="ours",
                    help="expression-dependent texture (default) or the static average texture")
     p.add_argument("--weights", choices=("regional", "global"), default="regional",
@@ -115,7 +118,8 @@ def _puppet_params(args):
                         weight_smoothing=args.weight_smoothing,
                         composite=CompositeParams(lighting=args.lighting, colour=args.colour, sharpen=args.sharpen,
                                                   grain=args.grain, nose_sharpen=args.nose_sharpen, eyes=args.eyes,
-                                                  occlusion=args.occlusion == "on"))
+                                                  occlusion=args.occlusion == "on",
+                                                  persona_hair=args.persona_hair == "on"))
 
 
 def _start_loading(args):
@@ -186,7 +190,7 @@ def _run(args, tracker, loading=None) -> int:
                 "weights": args.weights, "weight_smoothing": args.weight_smoothing,
                 "correspondence": args.correspondence, "lighting": args.lighting, "colour": args.colour,
                 "sharpen": args.sharpen, "grain": args.grain, "nose_sharpen": args.nose_sharpen, "eyes": args.eyes,
-                "occlusion": args.occlusion,
+                "occlusion": args.occlusion, "persona_hair": args.persona_hair,
                 "max_frames": args.max_frames,
                 "puppet_params": params},
         outputs=[out], result=report), overwrite=args.overwrite, inputs=inputs)

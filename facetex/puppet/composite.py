@@ -151,6 +151,20 @@ def occlusion_mask(region, skin, features, points68, *, min_size: float = 0.03, 
     return occ * region
 
 
+def persona_hair(image, points68, region) -> np.ndarray:
+    """float32 (H, W) in [0, 1]: the persona's own hair in its rendered face ``image`` (H, W, 3)
+    with its landmarks ``points68``: :func:`occlusion_mask` of the puppet's :func:`skin_pixels` in
+    the bool ``region`` above its lower lids (a fringe or hair over the temples in most of a
+    collection's photos is in its average texture; drawn into the driver's frame it took the
+    driver's skin colour as orange and blue smears round the brows; a beard below is the persona's)."""
+    p = np.asarray(points68, np.float64)
+    upper = np.zeros(np.shape(region), bool)
+    upper[:max(0, int(np.ceil(np.nanmax(p[36:48, 1]))))] = True
+    skin, feats = skin_pixels(image, p, region)
+    # next to the features too (apart 0): hair at the temples meets the brows' grown masks
+    return occlusion_mask(region & upper, skin, feats, p, apart=0.0)
+
+
 # ----------------------------------------------------------------------------- blending
 #: erosion (3 x 3 steps) of the mask inside which the source's gradients guide the blend: OpenCV's
 #: ``seamlessClone`` uses 3, and the pixels next to the border follow the destination's gradients
@@ -252,6 +266,8 @@ LIGHTINGS = ("stats", "sh", "none")
 #: skin colour, occluders and the low-frequency colour field are worked out on the face's box
 #: shrunk to about this many px between the outer eye corners
 WORK_IOD = 16.0
+#: the persona's own hair in its rendered face is found at about this many px between the eye corners
+HAIR_IOD = 40.0
 #: the lids' rims (``keep_dark`` of :func:`~facetex.puppet.lighting.transfer_skin_colour`) fade out
 #: over this x the eye-corner distance (Gaussian sigma) both ways: cut at the grown outline, their
 #: edge drew a polygon round a dark persona's eyes on a pale driver at 1080 px
@@ -277,7 +293,11 @@ class CompositeParams:
     the persona's and takes only the lighting ("persona"; no Poisson blending then, its membrane
     would bring the driver's tone back); colour_sigma: the scale below which the colour is the
     driver's, as a fraction of the eye-corner distance, and colour_gain: the bounds of the
-    lightness-detail gain (:func:`~facetex.puppet.lighting.transfer_skin_colour`); lip_colour: with colour "driver" the
+    lightness-detail gain (:func:`~facetex.puppet.lighting.transfer_skin_colour`); chroma_gain: the
+    bounds of the a*, b* detail's gain, the skins' chroma ratio, and highlight_knee: lightness detail
+    above the persona's skin compressed to this (L*) x tanh (both there): on 1000 px studio drivers
+    (FRL London) a dark persona's brow ridges were white bands and her lash lines blue-black, an East
+    Asian persona's brows teal, on pale drivers; lip_colour: with colour "driver" the
     lips take the driver's lips' colour (:func:`lip_weights`), not the skin's; eye_colour: the
     eyeballs keep the persona's lightness (:func:`eye_weights`; their a*, b* take the frame's
     white balance); eye_grow: out to this x the eye-corner distance beyond the lids' edges (their
@@ -347,6 +367,8 @@ class CompositeParams:
     colour: str = "driver"
     colour_sigma: float = 0.06
     colour_gain: tuple[float, float] = (2 / 3, 1.2)
+    chroma_gain: tuple[float, float] = (0.5, 1.0)
+    highlight_knee: float | None = 6.0
     lip_colour: bool = True
     open_lips: bool = True
     lip_ceiling: float | None = 6.0
@@ -355,6 +377,7 @@ class CompositeParams:
     eye_grow: float = 0.04
     brow_gain: float = 2.0
     occlusion: bool = True
+    persona_hair: bool = True
     sharpen: float = 2.5
     grain: float = 1.0
     nose_sharpen: float = 3.0
@@ -436,6 +459,15 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         occ = (cv2.resize(occ, (bw, bh), interpolation=cv2.INTER_LINEAR) if ks > 1 else occ) * rg
         if rims is not None:
             occ = np.maximum(occ, np.asarray(rims, np.float32)[box] * rg)
+    if params.persona_hair and pp68 is not None:  # the driver's frame shows where the persona's hair is
+        # (at ~HAIR_IOD px between the eye corners: at WORK_IOD the grown features cover the temples)
+        kh = max(1, int(iod // HAIR_IOD))
+        hs = (max(1, round(bw / kh)), max(1, round(bh / kh)))
+        hair = persona_hair(cv2.resize(pu, hs, interpolation=cv2.INTER_AREA) if kh > 1 else pu,
+                            (pp68 - [x0, y0] + 0.5) * [hs[0] / bw, hs[1] / bh] - 0.5,
+                            cv2.resize(rg.view(np.uint8), hs, interpolation=cv2.INTER_NEAREST) > 0 if kh > 1 else rg)
+        hair = (cv2.resize(hair, (bw, bh), interpolation=cv2.INTER_LINEAR) if kh > 1 else hair) * rg
+        occ = hair if occ is None else np.maximum(occ, hair)
     # the persona's average texture has no hair or cast shadows on its face (they average out):
     # its features are left out, the trimmed statistics do the rest
     pup_skin = rg_s & ~feats
@@ -474,6 +506,7 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     if params.lighting in ("sh", "stats"):
         out = transfer_skin_colour(out, fr, pup_skin, drv_skin, sigma=max(1.0, params.colour_sigma * iod),
                                    gain=params.colour_gain, colour=params.colour, shrink=ks,
+                                   chroma_gain=params.chroma_gain, highlight_knee=params.highlight_knee,
                                    lids=_scaled(lid_weights(p68 - [x0, y0], rg.shape), params.lid_colour)
                                    if params.lid_colour > 0 else None,
                                    keep=eye_weights(p68 - [x0, y0], rg.shape) if params.eye_colour else None,
@@ -529,7 +562,7 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     # gradient-domain seam needs
     feather = params.feather * (PERSONA_FEATHER if params.colour == "persona" else 1.0)
     alpha = inner_feather(rg, max(1.0, feather * iod))
-    if occ is not None:  # the driver's occluders stay in front of the puppet
+    if occ is not None:  # the driver's occluders stay in front of the puppet, the persona's hair out of it
         alpha = alpha * (1 - occ)
     res = frame.copy()
     res[box] = _mix(alpha, out, fr)

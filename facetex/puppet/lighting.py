@@ -171,7 +171,8 @@ LIP_SPREAD_PERCENTILE = 90.0
 def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 / 3, 1.2), colour: str = "driver",
                          light_limits=(0.5, 2.0), shrink: int = 1, lips=None, lids=None, keep=None,
                          lip_parts=(), lip_ceiling: float | None = None, keep_chroma: bool = True,
-                         keep_dark=None, brows=None, brow_gain: float = 2.0) -> np.ndarray:
+                         keep_dark=None, brows=None, brow_gain: float = 2.0, chroma_gain=(1.0, 1.0),
+                         highlight_knee: float | None = None) -> np.ndarray:
     """``src`` (H, W, 3) sRGB with the low-frequency colour of ``ref`` (the same size, aligned),
     measured on skin pixels only (bool ``src_skin``, ``ref_skin``), the detail of ``src`` kept.
 
@@ -181,6 +182,14 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     (a dark persona's iris and lids keep their contrast on a pale driver, a pale persona's pores
     do not turn coarse on a dark one); the persona's own shading and blotches below ~``sigma``
     become the driver's, so they cannot be amplified into bruises. ``colour="persona"``: only the
+    ``chroma_gain`` (colour "driver"): the a*, b* detail's gain is the ratio of the skins' median
+    chroma (sqrt(a*^2 + b*^2), driver over persona) clipped to these bounds (default (1, 1): 1):
+    a saturated persona's dark features (lash lines, brows, lid shadows), less saturated than her
+    skin, turned blue or teal on a pale, less saturated driver (their chroma offset from her skin
+    crossed neutral). ``highlight_knee`` (colour "driver", L*; None: off): lightness detail above
+    the persona's skin field, d > 0, is compressed to knee x tanh(d / knee) before its gain: a
+    persona's specular highlights (a shiny brow ridge or nose in her photos' light) were white
+    bands on a pale driver. ``colour="persona"``: only the
     lighting moves: linear-light R, G, B x (Y(R_L) / Y(r_L)) / (Y(S_L) / Y(s_L)), the driver's
     low-frequency luminance ratio over the persona's (Y(L*) the CIE luminance, the ratio clipped
     to ``light_limits``), the persona's chromaticity kept.
@@ -253,7 +262,8 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     # persona's iris, lids and pores keep their contrast on a pale driver; chroma detail is kept.
     # out = R + (g, 1, 1) (src - S) = (g, 1, 1) src + field
     ratio = float(cb[0]) / max(float(ca[0]), 1.0)
-    g = np.float32([np.clip(ratio, *gain), 1.0, 1.0])
+    chroma = float(np.hypot(cb[1], cb[2])) / max(float(np.hypot(ca[1], ca[2])), 1.0)
+    g = np.float32([np.clip(ratio, *gain), *[np.clip(chroma, *chroma_gain)] * 2])
     field = np.empty(sa.shape, np.float32)
     for c in range(3):
         field[..., c] = sb[..., c] - g[c] * sa[..., c]
@@ -262,6 +272,9 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     out = np.empty(a.shape, np.float32)
     for c in range(3):
         out[..., c] = g[c] * a[..., c] + field[..., c]
+    if highlight_knee is not None:
+        up = np.maximum(a[..., 0] - full(sa[..., 0]), 0.0)
+        out[..., 0] -= g[0] * (up - highlight_knee * np.tanh(up / highlight_knee))
     ref_lab = None
     ceiling = None
     g_light = g[0]  # the lips' gain for lightness detail above their median

@@ -273,6 +273,58 @@ def test_composite_keeps_the_drivers_fringe_in_front(driver_face):
 
 
 
+def _temple_hair(img, p, region):
+    """The image with dark-brown hair over its left temple (left of the brow's outer end, above the
+    lower lids) and the same colour as a beard below the mouth: (image, temple, beard)."""
+    from facetex.puppet.composite import persona_hair  # noqa: F401 - the function under test
+
+    yy, xx = np.mgrid[:region.shape[0], :region.shape[1]]
+    temple = region & (xx < p[17, 0] + 2) & (yy < p[36:42, 1].max())
+    beard = region & (yy > p[57, 1] + 3)
+    out = img.copy()
+    out[temple | beard] = (0.2, 0.13, 0.08)
+    return out, temple, beard
+
+
+def test_persona_hair_finds_hair_over_the_temples_not_a_beard_or_the_features(driver_face):
+    """A persona face with hair over one temple (as in most of a collection's photos) and a beard:
+    the temple is the persona's hair, the beard (below the lower lids) and the features are not;
+    the same face without them: only the model's own hair at his left temple's edge."""
+    from facetex.puppet.composite import persona_hair
+
+    img, p, _, region = driver_face
+    hairy, temple, beard = _temple_hair(img, p, region)
+    assert temple.sum() > 40 and beard.sum() > 40
+    h = persona_hair(hairy, p, region)
+    assert h.dtype == np.float32 and h.shape == region.shape
+    feats = skin_pixels(hairy, p, region)[1]  # (hair inside the brows' grown masks is not judged)
+    assert h[temple & ~feats].min() > 0.95 and h[temple].mean() > 0.75
+    assert h[beard].max() == 0.0 and h[~region].max() == 0.0
+    for i in (37, 44, 51, 57, 33, 19, 24):  # eyes, mouth, nose, brows
+        x, y = np.round(p[i]).astype(int)
+        assert h[y, x] == 0.0
+    clean = persona_hair(img, p, region)  # only the model's own hair, at the edge of his left temple
+    assert clean.sum() < 0.015 * region.sum()
+    assert np.nonzero(clean > 0.5)[1].max() < p[17, 0] + 2
+
+
+def test_composite_shows_the_driver_where_the_persona_has_hair(driver_face):
+    """The rendered puppet with hair over a temple on a driver without: the driver's frame shows
+    there (alpha ~0) with ``persona_hair``, the puppet's hair without it; the cheeks are the puppet's."""
+    img, p, oval, region = driver_face
+    puppet, temple, _ = _temple_hair(img * np.float32([0.8, 0.7, 0.65]), p, region)  # a darker persona
+    coverage = region.astype(np.float32)
+    kw = dict(driver_oval=oval, driver_points68=p, puppet_points68=p)
+    _, alpha = composite_face(img, puppet, coverage, None, params=CompositeParams(mouth=False, eyes="persona"), **kw)
+    off = composite_face(img, puppet, coverage, None, params=CompositeParams(mouth=False, eyes="persona",
+                                                                             persona_hair=False), **kw)[1]
+    inner = temple & (off > 0.9) & ~skin_pixels(puppet, p, region)[1]
+    assert inner.sum() > 20
+    assert alpha[inner].max() < 0.05
+    c = np.round(p[[2, 31, 41, 48]].mean(0)).astype(int)
+    assert alpha[c[1], c[0]] > 0.99 and off[c[1], c[0]] > 0.99
+
+
 def test_composite_keeps_the_drivers_glasses_rims_in_front(driver_face):
     img, p, oval, region = driver_face
     puppet = np.empty_like(img)
@@ -1267,6 +1319,33 @@ def test_keep_dark_on_a_darker_persona_takes_the_skins_ratio():
         assert np.median(out[15:25, 10:30, 0]) == pytest.approx(rim, abs=0.8)
         assert np.median(plain[15:25, 10:30, 0]) == pytest.approx(51.0, abs=0.8)
         np.testing.assert_allclose(out[15:25, 50:70], plain[15:25, 50:70], atol=1e-3)
+
+
+def test_chroma_gain_and_highlight_knee_by_hand():
+    """A saturated persona skin (L 50, a* 20, b* 30: chroma 36.1) with a dark, less saturated band
+    (L 30, a* 10, b* 15) and a highlight band (L 65, same a*, b* as the skin) on a driver of the same
+    lightness but chroma 14.4 (a* 8, b* 12): the chroma ratio 0.4 is clipped to ``chroma_gain``'s
+    0.5, so the dark band's a*, b* are (8, 12) + 0.5 x (-10, -15) = (3, 4.5), not (-2, -3) (blue,
+    the default gain 1); the highlight's +15 L* becomes 6 tanh(15 / 6) = +5.92 with
+    ``highlight_knee`` 6, the dark band's lightness (30: gain 1) unchanged."""
+    band = np.zeros((40, 80), bool)
+    band[15:25, 10:30] = band[15:25, 50:70] = True
+    lab = np.broadcast_to(np.float32([50.0, 20.0, 30.0]), (40, 80, 3)).copy()
+    lab[15:25, 10:30] = (30.0, 10.0, 15.0)
+    lab[15:25, 50:70, 0] = 65.0
+    src = _rgb(lab)
+    ref = _rgb(np.ascontiguousarray(np.broadcast_to(np.float32([50.0, 8.0, 12.0]), (40, 80, 3))))
+    plain = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf))
+    out = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf, chroma_gain=(0.5, 1.0), highlight_knee=6.0))
+    a = _lab(src)  # (the sRGB round trip moves the Lab values a little)
+    dark, light = (slice(15, 25), slice(10, 30)), (slice(15, 25), slice(50, 70))
+    np.testing.assert_allclose(np.median(plain[dark].reshape(-1, 3), 0), [30.0, -2.0, -3.0], atol=0.8)
+    np.testing.assert_allclose(np.median(out[dark].reshape(-1, 3), 0), [30.0, 3.0, 4.5], atol=0.8)
+    skin_l = float(np.median(a[~band][:, 0]))
+    knee = skin_l + 6 * np.tanh((float(np.median(a[light][..., 0])) - skin_l) / 6)
+    assert np.median(out[light][..., 0]) == pytest.approx(knee, abs=0.3)
+    assert np.median(plain[light][..., 0]) == pytest.approx(65.0, abs=0.8)
+    np.testing.assert_allclose(out[~band], _lab(ref)[~band], atol=0.8)  # the skin is the driver's
 
 
 def test_brow_gain_by_hand():

@@ -243,13 +243,15 @@ def test_cli_puppet(tmp_path, driver_video, tiny_persona, capsys):
     sh = tmp_path / "sh.mp4"  # composite with the spherical-harmonics lighting, the paper's global weights
     assert main(["puppet", "--driver", str(driver_video), "--puppet", str(persona_file), "-o", str(sh),
                  "--max-frames", "2", "--size", "96", "--lighting", "sh", "--weights", "global", "--grain", "0.5",
-                 "--nose-sharpen", "1", "--occlusion", "off"]) == 0
+                 "--nose-sharpen", "1", "--occlusion", "off", "--persona-hair", "off"]) == 0
     assert video_info(sh)["n_frames"] == 2
     side = json.loads((tmp_path / "sh.mp4.json").read_text())
     assert side["params"]["weights"] == "global" and side["params"]["puppet_params"]["weights"] == "global"
     assert side["params"]["grain"] == 0.5 and side["params"]["puppet_params"]["composite"]["grain"] == 0.5
     assert side["params"]["puppet_params"]["composite"]["nose_sharpen"] == 1.0
     assert side["params"]["occlusion"] == "off" and side["params"]["puppet_params"]["composite"]["occlusion"] is False
+    assert side["params"]["persona_hair"] == "off"
+    assert side["params"]["puppet_params"]["composite"]["persona_hair"] is False
     assert side["result"]["driver_glasses"] is False  # a bare face
     # existing output without --overwrite, and a video without faces: one-line errors, non-zero exit
     assert main(["puppet", "--driver", str(driver_video), "--puppet", str(persona_file), "-o", str(out)]) != 0
