@@ -504,13 +504,16 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         ratio = relight(np.ones_like(lum_p), nr, lp, ld) ** params.sh_strength
         out = linear_to_srgb(lin_p * ratio)
     if params.lighting in ("sh", "stats"):
+        # the puppet's eyeballs and lids are where it draws them: at the driver's landmarks they were
+        # the persona's pale lids kept as white crescents under a dark driver's eyes (FRL 042)
+        eyes68 = p68 if pp68 is None else pp68
         out = transfer_skin_colour(out, fr, pup_skin, drv_skin, sigma=max(1.0, params.colour_sigma * iod),
                                    gain=params.colour_gain, colour=params.colour, shrink=ks,
                                    chroma_gain=params.chroma_gain, highlight_knee=params.highlight_knee,
                                    lids=_scaled(lid_weights(p68 - [x0, y0], rg.shape), params.lid_colour)
                                    if params.lid_colour > 0 else None,
-                                   keep=eye_weights(p68 - [x0, y0], rg.shape) if params.eye_colour else None,
-                                   keep_dark=eye_weights(p68 - [x0, y0], rg.shape, grow=params.eye_grow, spread=EYE_RIM_SPREAD)
+                                   keep=eye_weights(eyes68 - [x0, y0], rg.shape) if params.eye_colour else None,
+                                   keep_dark=eye_weights(eyes68 - [x0, y0], rg.shape, grow=params.eye_grow, spread=EYE_RIM_SPREAD)
                                    if params.eye_colour and params.eye_grow > 0 else None, keep_chroma=False,
                                    # drawn only on a pair whose skins' ratio lets the brow gain apply
                                    brows=(lambda: brow_weights((p68 if pp68 is None else pp68) - [x0, y0], rg.shape))

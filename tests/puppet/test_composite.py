@@ -325,6 +325,34 @@ def test_composite_shows_the_driver_where_the_persona_has_hair(driver_face):
     assert alpha[c[1], c[0]] > 0.99 and off[c[1], c[0]] > 0.99
 
 
+def test_composite_keeps_the_puppets_eyeballs_where_the_puppet_draws_them(driver_face):
+    """A pale persona (flat skin, white eyeballs) drawn with its eyes 0.15 eye distances above the
+    driver's (its landmarks ``puppet_points68``) on a dark driver: the eyeballs keep their lightness
+    at the puppet's eyes; inside the driver's eye outlines below them the puppet's skin takes the
+    driver's tone (kept at the driver's landmarks it was a pale crescent under each eye)."""
+    from facetex.geometry.masks import polygon_mask
+
+    img, p, oval, region = driver_face
+    driver = img * np.float32(0.35)
+    iod = float(np.linalg.norm(p[36] - p[45]))
+    pp = p.copy()
+    pp[36:48, 1] -= 0.15 * iod
+    eyes = lambda q: np.maximum(polygon_mask(q[36:42], region.shape), polygon_mask(q[42:48], region.shape)) > 0.5
+    puppet = np.empty_like(img)
+    puppet[:] = (0.85, 0.7, 0.62)
+    puppet[eyes(pp)] = (0.95, 0.95, 0.95)
+    coverage = region.astype(np.float32)
+    out, _ = composite_face(driver, puppet, coverage, None, driver_oval=oval, driver_points68=p, puppet_points68=pp,
+                            params=CompositeParams(mouth=False, eyes="persona", sharpen=1.0, grain=0.0,
+                                                   nose_sharpen=1.0, persona_hair=False))
+    below = eyes(p) & ~(cv2.dilate(eyes(pp).view(np.uint8), np.ones((9, 9), np.uint8)) > 0)
+    core = cv2.erode(eyes(pp).view(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    assert below.sum() > 10 and core.sum() > 10
+    lo, pu = _lab(out), _lab(puppet)
+    assert np.median(lo[below][:, 0]) < np.median(pu[below][:, 0]) - 20  # the driver's dark tone
+    assert np.median(lo[core][:, 0]) > np.median(lo[below][:, 0]) + 25  # the eyeballs stay light
+
+
 def test_composite_keeps_the_drivers_glasses_rims_in_front(driver_face):
     img, p, oval, region = driver_face
     puppet = np.empty_like(img)
