@@ -311,7 +311,9 @@ class CompositeParams:
     driver, as white rings and crescents round the eyes (Koizumi's and Bush's personas on GRID clips
     with the skin darkened); on a darker persona than the driver the rims' dark detail takes the
     skins' lightness ratio instead (kept as it was, Williams' whole lids were dark maroon almonds
-    round a pale driver's eyes at 1080 px; ``bench puppet`` eye ratio min 0.845 -> 0.835). Chosen by the cheek ΔE (CIELAB) to the
+    round a pale driver's eyes at 1080 px; ``bench puppet`` eye ratio min 0.845 -> 0.835); both
+    where the puppet draws its eyes (at the driver's landmarks a pale persona's lid skin was kept as
+    white crescents under a dark 1000 px driver's eyes). Chosen by the cheek ΔE (CIELAB) to the
     driver's own cheeks over 6 personas x 6 GRID clips (worst run, skin-only masks: mean shift 19,
     MKL 22 (and pink lips), per-channel histogram matching 27, smooth field at 0.4 / 0.25 / 0.15 /
     0.10 / 0.08 eye distances 19 / 16 / 12 / 7.8 / 6.2; 0.12 to 0.08 look alike at 100 %; with the
@@ -513,7 +515,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
                                    lids=_scaled(lid_weights(p68 - [x0, y0], rg.shape), params.lid_colour)
                                    if params.lid_colour > 0 else None,
                                    keep=eye_weights(eyes68 - [x0, y0], rg.shape) if params.eye_colour else None,
-                                   keep_dark=eye_weights(eyes68 - [x0, y0], rg.shape, grow=params.eye_grow, spread=EYE_RIM_SPREAD)
+                                   keep_dark=eye_weights(eyes68 - [x0, y0], rg.shape, grow=params.eye_grow,
+                                                         spread=EYE_RIM_SPREAD)
                                    if params.eye_colour and params.eye_grow > 0 else None, keep_chroma=False,
                                    # drawn only on a pair whose skins' ratio lets the brow gain apply
                                    brows=(lambda: brow_weights((p68 if pp68 is None else pp68) - [x0, y0], rg.shape))

@@ -178,11 +178,11 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
 
     In CIELAB, with low-passes S, R of the two skins and their medians s, r
     (:func:`skin_low_pass`, Gaussian ``sigma`` px): ``colour="driver"``:
-    out = R + (g, 1, 1) (src − S), the lightness detail gain g = r_L / s_L clipped to ``gain``
+    out = R + (g, c, c) (src − S), the lightness detail gain g = r_L / s_L clipped to ``gain``
     (a dark persona's iris and lids keep their contrast on a pale driver, a pale persona's pores
     do not turn coarse on a dark one); the persona's own shading and blotches below ~``sigma``
-    become the driver's, so they cannot be amplified into bruises. ``colour="persona"``: only the
-    ``chroma_gain`` (colour "driver"): the a*, b* detail's gain is the ratio of the skins' median
+    become the driver's, so they cannot be amplified into bruises.
+    ``chroma_gain`` (colour "driver"): the a*, b* detail's gain c is the ratio of the skins' median
     chroma (sqrt(a*^2 + b*^2), driver over persona) clipped to these bounds (default (1, 1): 1):
     a saturated persona's dark features (lash lines, brows, lid shadows), less saturated than her
     skin, turned blue or teal on a pale, less saturated driver (their chroma offset from her skin
@@ -259,8 +259,8 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
             lin[..., c] *= r
         return linear_to_srgb(lin)
     # lightness detail scales with the skin's lightness (L* ~ Y^(1/3), albedo x shading): a dark
-    # persona's iris, lids and pores keep their contrast on a pale driver; chroma detail is kept.
-    # out = R + (g, 1, 1) (src - S) = (g, 1, 1) src + field
+    # persona's iris, lids and pores keep their contrast on a pale driver; chroma detail scales with
+    # the skins' chroma. out = R + (g_L, g_c, g_c) (src - S) = g src + field
     ratio = float(cb[0]) / max(float(ca[0]), 1.0)
     chroma = float(np.hypot(cb[1], cb[2])) / max(float(np.hypot(ca[1], ca[2])), 1.0)
     g = np.float32([np.clip(ratio, *gain), *[np.clip(chroma, *chroma_gain)] * 2])
