@@ -272,6 +272,10 @@ HAIR_IOD = 40.0
 #: over this x the eye-corner distance (Gaussian sigma) both ways: cut at the grown outline, their
 #: edge drew a polygon round a dark persona's eyes on a pale driver at 1080 px
 EYE_RIM_SPREAD = 0.02
+#: with the driver's eyeballs drawn in, the puppet's own keep their lightness only from this x the
+#: eye-corner distance inside its lids' edges: kept up to them, its grey eyeball's edge showed as a
+#: light outline round the inserted eyes (whose alpha rises from 0 there) on a dark 1000 px driver
+EYE_KEEP_INSET = 0.03
 #: where the puppet's eyeballs come from: the driver's frame (with the persona's iris colour) or
 #: the persona's texture
 EYE_SOURCES = ("driver", "persona")
@@ -514,7 +518,9 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
                                    chroma_gain=params.chroma_gain, highlight_knee=params.highlight_knee,
                                    lids=_scaled(lid_weights(p68 - [x0, y0], rg.shape), params.lid_colour)
                                    if params.lid_colour > 0 else None,
-                                   keep=eye_weights(eyes68 - [x0, y0], rg.shape) if params.eye_colour else None,
+                                   keep=eye_weights(eyes68 - [x0, y0], rg.shape,
+                                                    inset=EYE_KEEP_INSET if params.eyes == "driver" else 0.0)
+                                   if params.eye_colour else None,
                                    keep_dark=eye_weights(eyes68 - [x0, y0], rg.shape, grow=params.eye_grow,
                                                          spread=EYE_RIM_SPREAD)
                                    if params.eye_colour and params.eye_grow > 0 else None, keep_chroma=False,

@@ -167,12 +167,14 @@ def brow_weights(points68, shape, *, feather: float = 0.03) -> np.ndarray:
     return np.clip(cv2.GaussianBlur(brow_mask(p, shape).astype(np.float32), (0, 0), sig), 0, 1)
 
 
-def eye_weights(points68, shape, *, feather: float = 0.015, grow: float = 0.0, spread: float = 0.0) -> np.ndarray:
+def eye_weights(points68, shape, *, feather: float = 0.015, grow: float = 0.0, spread: float = 0.0,
+                inset: float = 0.0) -> np.ndarray:
     """Weight (H, W) float32 in [0, 1] of the eyeballs at iBUG landmarks ``points68``: both eye
     outlines (36-41, 42-47, the lids' edges), grown by ``grow`` x the eye-corner distance, then
     feathered by ``feather`` x that distance (Gaussian sigma) inwards: the lids' skin beyond them
     is not counted; ``spread`` > 0: then blurred by ``spread`` x that distance both ways (no edge
-    where a weight ends on skin)."""
+    where a weight ends on skin); ``inset`` > 0: the feather starts this x that distance inside the
+    outlines (0 on them)."""
     p = np.asarray(points68, np.float64)
     h, w = _shape2(shape)
     m = np.maximum(polygon_mask(p[36:42], (h, w)), polygon_mask(p[42:48], (h, w)))
@@ -181,6 +183,9 @@ def eye_weights(points68, shape, *, feather: float = 0.015, grow: float = 0.0, s
         r = max(1, int(round(grow * iod)))
         m = cv2.dilate((m > 0.5).astype(np.uint8), disc(r)).astype(np.float32)
     sig = max(0.5, feather * iod)
-    inner = cv2.erode((m > 0.5).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(np.float32)
+    inner = cv2.erode((m > 0.5).astype(np.uint8), np.ones((3, 3), np.uint8))
+    if inset > 0:
+        inner = cv2.erode(inner, disc(max(1, int(round(inset * iod)))))
+    inner = inner.astype(np.float32)
     w = np.clip(cv2.GaussianBlur(inner, (0, 0), sig), 0, 1) * (m > 0.5)
     return cv2.GaussianBlur(w, (0, 0), max(0.5, spread * iod)) if spread > 0 else w

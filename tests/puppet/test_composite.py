@@ -1123,6 +1123,23 @@ def test_eyeballs_keep_the_personas_colour_the_lids_take_the_drivers():
     assert np.median(grey[core][:, 0]) > 50  # without it: 75 + 1.2 x (25 - 40) = 57, a grey iris
 
 
+def test_eye_weights_inset_starts_the_feather_inside_the_lids():
+    """Eyes 40 x 20 px, eye-corner distance 100 px: inset 0.03 (3 px) makes the weights 0 on the
+    lids' edges (the plain inward feather is ~0.5 there) and leaves the eyeballs' middle at 1."""
+    from facetex.geometry.masks import polygon_mask
+    from facetex.puppet.composite import eye_weights
+
+    h, w = 80, 140
+    p = _face68(cx=70.0, cy=50.0)
+    p[36:42] = [(20, 30), (33, 20), (47, 20), (60, 30), (47, 40), (33, 40)]
+    p[42:48] = [(80, 30), (93, 20), (107, 20), (120, 30), (107, 40), (93, 40)]
+    eyes = np.maximum(polygon_mask(p[36:42], (h, w)), polygon_mask(p[42:48], (h, w))) > 0.5
+    edge = eyes & ~(cv2.erode(eyes.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+    plain, ins = eye_weights(p, (h, w)), eye_weights(p, (h, w), inset=0.03)
+    assert np.median(plain[edge]) > 0.3 and ins[edge].max() < 0.05
+    assert ins[30, 40] > 0.99 and plain[30, 40] > 0.99 and ins[~eyes].max() == 0.0
+
+
 def test_grown_eye_weights_reach_past_the_lids_edges_and_keep_lightness_only():
     """grow 0.1 x the eye distance (56 px: 6 px) keeps the eyeballs' weight at 1 on the lids'
     edges and ends 6 px beyond them; with keep_chroma False the kept eyeball keeps its lightness (25)
