@@ -837,7 +837,7 @@ def test_face_mode_lifts_the_inner_lips_relative_to_the_lips_and_white_balances_
 
 def test_open_eyes_show_the_drivers_eyeballs_only_inside_the_puppets_lids(session):
     """eyes="driver" (the default) changes the composite inside the puppet's eye contours and
-    nowhere else (against the persona's own eyes)."""
+    nowhere else (against the persona's own eyes), beyond float rounding."""
     from dataclasses import replace
 
     from facetex.geometry.masks import polygon_mask
@@ -864,4 +864,6 @@ def test_open_eyes_show_the_drivers_eyeballs_only_inside_the_puppets_lids(sessio
     for eye in (pts[36:42], pts[42:48]):
         c = eye.mean(axis=0)
         near |= polygon_mask(c + 1.6 * (eye - c), shape, samples=1) > 0
-    assert diff[~near].max() == 0.0
+    # (float32 rounding only: with the driver's eyeballs the persona's own keep their lightness from
+    # a little inside the lids, which moves the sharpening's statistics by ~1e-7)
+    assert diff[~near].max() < 1e-5
