@@ -1,9 +1,13 @@
-"""Per-channel pixel helpers of the compositing (numpy broadcasts over a length-3 inner axis and
-gathers (H, W, 3) pixels by a bool mask several times slower than the same arithmetic one channel
-at a time / np.take on flat indices)."""
+"""Pixel helpers of the compositing: the face's box at a working scale (:class:`_Shrunk`), and
+per-channel helpers (numpy broadcasts over a length-3 inner axis and gathers (H, W, 3) pixels by a
+bool mask several times slower than the same arithmetic one channel at a time / np.take on flat
+indices)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+import cv2
 import numpy as np
 
 _LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)  # linear-light luminance (Rec. 709)
@@ -39,3 +43,29 @@ def _shift(img: np.ndarray, by) -> np.ndarray:
     return out
 
 
+@dataclass(frozen=True)
+class _Shrunk:
+    """The face's box of ``full`` (w, h) px shrunk by the integer ``k`` to ``size`` (w, h): about a
+    given number of px between the eye corners (k = 1: as it is)."""
+
+    k: int
+    size: tuple[int, int]
+    full: tuple[int, int]
+
+    @classmethod
+    def of(cls, shape, iod: float, work_iod: float) -> "_Shrunk":
+        h, w = shape
+        k = max(1, int(iod // work_iod))
+        return cls(k, (max(1, round(w / k)), max(1, round(h / k))), (w, h))
+
+    def image(self, x):
+        """``x`` (area average, float32) at the shrunk size."""
+        return cv2.resize(np.asarray(x, np.float32), self.size, interpolation=cv2.INTER_AREA) if self.k > 1 else x
+
+    def points(self, p):
+        """Points ``p`` (box px) in the shrunk box's px (pixel centres kept)."""
+        return (p + 0.5) * [self.size[0] / self.full[0], self.size[1] / self.full[1]] - 0.5
+
+    def back(self, x):
+        """``x`` at the shrunk size brought back to the box's (bilinear)."""
+        return cv2.resize(x, self.full, interpolation=cv2.INTER_LINEAR) if self.k > 1 else x

@@ -61,7 +61,7 @@ import numpy as np
 
 from ..errors import BadInputError
 from ..geometry.masks import disc, feature_mask, inner_feather, nose_mask, polygon_mask
-from ._pixels import _LUMA, _mix
+from ._pixels import _LUMA, _mix, _Shrunk
 from .detail import match_grain, match_sharpness
 from .lighting import (COLOURS, _lab, _linear, fit_sh_lighting, linear_to_srgb, relight, srgb_to_linear,
                        transfer_skin_colour)
@@ -342,7 +342,8 @@ class CompositeParams:
     and Bush/sbwe5n's mouth slope came into range (1.32 -> 1.20), but Chavez's deep-set eyes read
     less open (pwij3p 0.83 -> 0.79, at 0.5 0.80) and Koizumi/id2 came out 80 % closer to the
     persona (100 %); occlusion: keep the driver's occluders in front (:func:`occlusion_mask`; its glasses' rims
-    when ``composite_face`` is given them); sharpen: the
+    when ``composite_face`` is given them); persona_hair: the driver's frame shows where the
+    persona's own hair lies over its forehead or temples (:func:`persona_hair`); sharpen: the
     puppet's fine detail is raised towards the driver's frame's, at most by this gain (1: off;
     :func:`match_sharpness`); grain: then the frame's own grain is added where the puppet is still
     smoother, at most at this strength (0: off; :func:`~facetex.puppet.detail.match_grain`);
@@ -447,32 +448,24 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     # skin-only colour of both faces (the driver's fringe, stubble, shadows and the persona's
     # darker brows and lids must not set the colour), and what lies over the driver's face
     # (on the box shrunk to ~WORK_IOD px between the eye corners: both are low-frequency)
-    ks = max(1, int(iod // WORK_IOD))
     bh, bw = rg.shape
-    small = (max(1, round(bw / ks)), max(1, round(bh / ks)))
-
-    def shrunk(x):
-        return cv2.resize(np.asarray(x, np.float32), small, interpolation=cv2.INTER_AREA) if ks > 1 else x
-
-    p_s = (p68 - [x0, y0] + 0.5) * [small[0] / bw, small[1] / bh] - 0.5
-    rg_s = rg if ks == 1 else shrunk(rg) > 0.5
-    fr_s = shrunk(fr)
+    sh = _Shrunk.of(rg.shape, iod, WORK_IOD)
+    p_s = sh.points(p68 - [x0, y0])
+    rg_s = rg if sh.k == 1 else sh.image(rg) > 0.5
+    fr_s = sh.image(fr)
     drv_skin, feats = skin_pixels(fr_s, p_s, rg_s)
     skin_s = rg_s & ~feats if (rg_s & ~feats).sum() >= 16 else rg_s
     occ = None
     if params.occlusion:
-        occ = occlusion_mask(rg_s, drv_skin, feats, p_s)
-        occ = (cv2.resize(occ, (bw, bh), interpolation=cv2.INTER_LINEAR) if ks > 1 else occ) * rg
+        occ = sh.back(occlusion_mask(rg_s, drv_skin, feats, p_s)) * rg
         if rims is not None:
             occ = np.maximum(occ, np.asarray(rims, np.float32)[box] * rg)
     if params.persona_hair and pp68 is not None:  # the driver's frame shows where the persona's hair is
         # (at ~HAIR_IOD px between the eye corners: at WORK_IOD the grown features cover the temples)
-        kh = max(1, int(iod // HAIR_IOD))
-        hs = (max(1, round(bw / kh)), max(1, round(bh / kh)))
-        hair = persona_hair(cv2.resize(pu, hs, interpolation=cv2.INTER_AREA) if kh > 1 else pu,
-                            (pp68 - [x0, y0] + 0.5) * [hs[0] / bw, hs[1] / bh] - 0.5,
-                            cv2.resize(rg.view(np.uint8), hs, interpolation=cv2.INTER_NEAREST) > 0 if kh > 1 else rg)
-        hair = (cv2.resize(hair, (bw, bh), interpolation=cv2.INTER_LINEAR) if kh > 1 else hair) * rg
+        hs = _Shrunk.of(rg.shape, iod, HAIR_IOD)
+        hair = hs.back(persona_hair(hs.image(pu), hs.points(pp68 - [x0, y0]),
+                                    cv2.resize(rg.view(np.uint8), hs.size, interpolation=cv2.INTER_NEAREST) > 0
+                                    if hs.k > 1 else rg)) * rg
         occ = hair if occ is None else np.maximum(occ, hair)
     # the persona's average texture has no hair or cast shadows on its face (they average out):
     # its features are left out, the trimmed statistics do the rest
@@ -510,22 +503,22 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         ratio = relight(np.ones_like(lum_p), nr, lp, ld) ** params.sh_strength
         out = linear_to_srgb(lin_p * ratio)
     if params.lighting in ("sh", "stats"):
-        # the puppet's eyeballs and lids are where it draws them: at the driver's landmarks they were
-        # the persona's pale lids kept as white crescents under a dark driver's eyes (FRL 042)
-        eyes68 = p68 if pp68 is None else pp68
+        # the puppet's eyeballs, lids and brows are where it draws them: at the driver's landmarks the
+        # persona's pale lids were kept as white crescents under a dark driver's eyes (FRL 042)
+        drawn68 = p68 if pp68 is None else pp68
         out = transfer_skin_colour(out, fr, pup_skin, drv_skin, sigma=max(1.0, params.colour_sigma * iod),
-                                   gain=params.colour_gain, colour=params.colour, shrink=ks,
+                                   gain=params.colour_gain, colour=params.colour, shrink=sh.k,
                                    chroma_gain=params.chroma_gain, highlight_knee=params.highlight_knee,
                                    lids=_scaled(lid_weights(p68 - [x0, y0], rg.shape), params.lid_colour)
                                    if params.lid_colour > 0 else None,
-                                   keep=eye_weights(eyes68 - [x0, y0], rg.shape,
+                                   keep=eye_weights(drawn68 - [x0, y0], rg.shape,
                                                     inset=EYE_KEEP_INSET if params.eyes == "driver" else 0.0)
                                    if params.eye_colour else None,
-                                   keep_dark=eye_weights(eyes68 - [x0, y0], rg.shape, grow=params.eye_grow,
+                                   keep_dark=eye_weights(drawn68 - [x0, y0], rg.shape, grow=params.eye_grow,
                                                          spread=EYE_RIM_SPREAD)
                                    if params.eye_colour and params.eye_grow > 0 else None, keep_chroma=False,
                                    # drawn only on a pair whose skins' ratio lets the brow gain apply
-                                   brows=(lambda: brow_weights((p68 if pp68 is None else pp68) - [x0, y0], rg.shape))
+                                   brows=(lambda: brow_weights(drawn68 - [x0, y0], rg.shape))
                                    if params.brow_gain > 0 else None, brow_gain=params.brow_gain,
                                    **(lip_regions(p68 - [x0, y0], None if pp68 is None else pp68 - [x0, y0],
                                                   rg.shape, open_lips=params.open_lips) if params.lip_colour else {}),
@@ -538,7 +531,7 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         # at the outline would set a far higher target)
         skin_full = rg & ~feature_mask(p68 - [x0, y0], rg.shape)
         colour_skin = cv2.resize(drv_skin.astype(np.uint8), (bw, bh), interpolation=cv2.INTER_NEAREST) > 0 \
-            if ks > 1 else drv_skin
+            if sh.k > 1 else drv_skin
         if (skin_full & colour_skin).sum() >= 64:
             skin_full = skin_full & colour_skin
         if params.sharpen > 1:

@@ -272,8 +272,14 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     out = np.empty(a.shape, np.float32)
     for c in range(3):
         out[..., c] = g[c] * a[..., c] + field[..., c]
+    # a darker persona on a paler driver: detail darker than the persona's skin (brows, lash lines,
+    # lid creases) takes the skins' lightness ratio, bounded by brow_gain, not the gain's bound
+    gb = float(np.clip(ratio, gain[0], max(brow_gain, gain[1])))
+    ratio_dark = gb > g[0] and (keep_dark is not None or brows is not None)
+    # the lightness detail over the persona's skin field (the knee's and the dark detail's)
+    detail = a[..., 0] - full(sa[..., 0]) if highlight_knee is not None or ratio_dark else None
     if highlight_knee is not None:
-        up = np.maximum(a[..., 0] - full(sa[..., 0]), 0.0)
+        up = np.maximum(detail, 0.0)
         out[..., 0] -= g[0] * (up - highlight_knee * np.tanh(up / highlight_knee))
     ref_lab = None
     ceiling = None
@@ -303,11 +309,7 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     if ceiling is not None:
         wl, top = ceiling
         out[..., 0] -= wl * np.maximum(out[..., 0] - top, 0.0)
-    # a darker persona on a paler driver: detail darker than the persona's skin (brows, lash lines,
-    # lid creases) takes the skins' lightness ratio, bounded by brow_gain, not the gain's bound
-    gb = float(np.clip(ratio, gain[0], max(brow_gain, gain[1])))
-    dark = np.minimum(a[..., 0] - full(sa[..., 0]), 0.0) if gb > g[0] and (keep_dark is not None or brows is not None) \
-        else None
+    dark = np.minimum(detail, 0.0) if ratio_dark else None
     if keep_dark is not None:
         kd = np.asarray(keep_dark, np.float32)
         out[..., 0] += kd * ((gb - g[0]) * dark if dark is not None else np.minimum(a[..., 0] - out[..., 0], 0.0))

@@ -276,8 +276,6 @@ def test_composite_keeps_the_drivers_fringe_in_front(driver_face):
 def _temple_hair(img, p, region):
     """The image with dark-brown hair over its left temple (left of the brow's outer end, above the
     lower lids) and the same colour as a beard below the mouth: (image, temple, beard)."""
-    from facetex.puppet.composite import persona_hair  # noqa: F401 - the function under test
-
     yy, xx = np.mgrid[:region.shape[0], :region.shape[1]]
     temple = region & (xx < p[17, 0] + 2) & (yy < p[36:42, 1].max())
     beard = region & (yy > p[57, 1] + 3)
