@@ -43,6 +43,7 @@ from ._read import (
     read_image_uint8,
 )
 from ._video import (
+    display_turns,
     iter_video_frames,
     read_video,
     transcode_audio,
@@ -58,5 +59,5 @@ __all__ = [  # in the order of the reference page
     "IMAGE_MEMORY_BUDGET", "read_image", "read_image_reduced", "read_image_uint8", "IMAGE_EXTENSIONS",
     "VIDEO_EXTENSIONS", "committed_outputs", "check_output_path", "check_outputs", "temp_tag", "write_files",
     "atomic_path", "encode_image", "write_image", "encode_json", "write_json", "read_npy_header",
-    "npz_members", "video_info", "iter_video_frames", "read_video", "transcode_audio", "write_video",
+    "npz_members", "video_info", "display_turns", "iter_video_frames", "read_video", "transcode_audio", "write_video",
 ]

@@ -38,10 +38,32 @@ def _video_stream(container, path: Path):
     return container.streams.video[0]
 
 
-def video_info(path) -> dict:
-    """fps, n_frames, width, height, has_audio, duration (s) of a video file.
+def display_turns(rotation) -> int:
+    """Quarter turns counter-clockwise (0-3) that show a decoded frame upright, from its display
+    matrix's rotation in degrees (``av.VideoFrame.rotation``: FFmpeg's ``av_display_rotation_get``,
+    counter-clockwise; a phone's portrait clip is stored landscape with -90, shown turned a quarter
+    clockwise, as FFmpeg's own autorotation does). Angles between quarters are rounded to the nearest."""
+    return int(round(float(rotation or 0) / 90.0)) % 4
 
-    n_frames comes from the container header, or from counting packets (no decoding)."""
+
+def _first_frame_turns(c, s) -> int:
+    """The first decodable frame's :func:`display_turns` (0 when none decodes: the readers report that)."""
+    try:
+        for frame in c.decode(s):
+            return display_turns(frame.rotation)
+    except _AV_ERRORS:
+        pass
+    return 0
+
+
+def video_info(path) -> dict:
+    """fps, n_frames, width, height, has_audio, duration (s) and rotation of a video file.
+
+    n_frames comes from the container header, or from counting packets (no decoding). width and
+    height are those of the frames as shown (and as :func:`iter_video_frames` yields them):
+    swapped for a clip whose display matrix turns it a quarter (a phone's portrait video);
+    ``rotation`` is that turn in degrees counter-clockwise (0, 90, 180 or 270), read from the
+    first frame."""
     path = Path(path)
     with _open_input(path) as c:
         s = _video_stream(c, path)
@@ -56,15 +78,20 @@ def video_info(path) -> dict:
             duration = c.duration / av.time_base
         else:
             duration = n / fps if fps else 0.0
-        return dict(fps=fps, n_frames=int(n), width=s.codec_context.width,
-                    height=s.codec_context.height, has_audio=bool(c.streams.audio),
-                    duration=duration)
+        w, h = s.codec_context.width, s.codec_context.height
+        with _open_input(path) as c2:  # decoding a frame here would move the packet count's demuxer
+            turns = _first_frame_turns(c2, c2.streams.video[0])
+        if turns % 2:
+            w, h = h, w
+        return dict(fps=fps, n_frames=int(n), width=w, height=h, has_audio=bool(c.streams.audio),
+                    duration=duration, rotation=90 * turns)
 
 
 def iter_video_frames(path, *, max_frames: int | None = None, uint8: bool = False,
                       max_side: int | None = None) -> Iterator[np.ndarray]:
-    """Yield frames as float32 RGB (H, W, 3) in [0, 1] (``uint8``: as decoded, uint8 RGB).
-    ``max_side``: frames with a longer side above it are scaled down to it as they are
+    """Yield frames as float32 RGB (H, W, 3) in [0, 1] (``uint8``: as decoded, uint8 RGB), upright:
+    turned as their display matrix says (:func:`display_turns`; a phone's portrait clip is stored
+    landscape and would show every face on its side). ``max_side``: frames with a longer side above it are scaled down to it as they are
     converted (area averaging; an 8K frame is never held at full size in RGB).
 
     A damaged file that still decodes some frames yields those, then warns
@@ -103,6 +130,9 @@ def iter_video_frames(path, *, max_frames: int | None = None, uint8: bool = Fals
                                                height=max(2, round(frame.height * f)), format="rgb24",
                                                interpolation="AREA")
                     rgb = frame.to_ndarray(format="rgb24")
+                    turns = display_turns(frame.rotation)
+                    if turns:
+                        rgb = np.ascontiguousarray(np.rot90(rgb, turns))
                     yield rgb if uint8 else rgb.astype(np.float32) / 255.0
             if not error or threads == "SLICE":
                 break

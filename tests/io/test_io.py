@@ -401,6 +401,40 @@ def test_video_roundtrip(clip):
     assert len(fio.read_video(clip, max_frames=3)[0]) == 3
 
 
+def _stored_turned(path, frames, rotation):
+    """A clip as a phone writes one: each frame stored turned by -rotation degrees, with a display
+    matrix that turns it back by ``rotation`` (counter-clockwise) to show it."""
+    k = -(rotation // 90)
+    with av.open(str(path), "w") as c:
+        s = c.add_stream("libx264", rate=25)
+        h, w = np.rot90(frames[0], k).shape[:2]
+        s.width, s.height, s.pix_fmt = w, h, "yuv420p"
+        s.set_display_rotation(rotation)
+        for f in frames:
+            c.mux(s.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(np.rot90(f, k)), format="rgb24")))
+        c.mux(s.encode(None))
+    return path
+
+
+@pytest.mark.parametrize("rotation", [-90, 90, 180])
+def test_frames_come_upright_as_their_display_matrix_says(tmp_path, rotation):
+    """A phone's portrait clip is stored landscape with a display rotation (-90 on iPhones): read as
+    stored, every face was on its side and the puppet found none. Frames and video_info are as shown."""
+    up = [(f * 255).astype(np.uint8) for f in _pattern(4, 48, 64)]
+    up = [np.ascontiguousarray(np.pad(f, ((0, 0), (0, 16), (0, 0)))) for f in up]  # 48 x 80: a turn shows
+    path = _stored_turned(tmp_path / "p.mp4", up, rotation)
+    with av.open(str(path)) as c:  # stored turned (the test's premise)
+        assert next(c.decode(video=0)).to_ndarray(format="rgb24").shape[:2] == ((80, 48) if rotation % 180 else (48, 80))
+    back = list(fio.iter_video_frames(path, uint8=True))
+    assert len(back) == 4 and all(b.shape == (48, 80, 3) and b.flags.c_contiguous for b in back)
+    err = np.mean([np.abs(b.astype(float) - u).mean() for b, u in zip(back, up)])
+    wrong = np.mean([np.abs(b.astype(float) - u[::-1, ::-1]).mean() for b, u in zip(back, up)])
+    assert err < 6 and wrong > 5 * err, (err, wrong)
+    info = fio.video_info(path)
+    assert (info["width"], info["height"], info["rotation"], info["n_frames"]) == (80, 48, rotation % 360, 4)
+    assert fio.display_turns(-90) == 3 and fio.display_turns(89.0) == 1 and fio.display_turns(None) == 0
+
+
 def test_uint8_frames_are_the_decoded_values(clip):
     u8 = list(fio.iter_video_frames(clip, max_frames=4, uint8=True))
     f32 = list(fio.iter_video_frames(clip, max_frames=4))

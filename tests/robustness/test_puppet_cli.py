@@ -120,3 +120,34 @@ def test_face_leaving_the_frame_is_reported_lost(capsys, sliding, outdir, person
     assert sum(report["lost_causes"].values()) == 3
     assert any("lost in 3 of 7 frames" in l and path.name in l for l in run.lines), run.lines
     assert sorted(p.name for p in outdir.iterdir()) == ["o.mp4", "o.mp4.json"]
+
+
+def test_phone_portrait_driver_is_read_upright(capsys, tmp_path, outdir, persona_file):
+    """A phone's portrait clip: frames stored landscape with a display rotation of -90 degrees. Read as
+    stored, the face lay on its side and the puppet found none in any frame."""
+    import json
+
+    import av
+
+    from _robust import FACE
+
+    from facetex.io import read_image_uint8, video_info
+
+    face = read_image_uint8(FACE)
+    h, w = face.shape[:2]
+    face = np.ascontiguousarray(face[: h // 2 * 2, w // 10: w // 10 + w * 4 // 5 // 2 * 2])  # taller than wide
+    stored = np.ascontiguousarray(np.rot90(face, 1))  # turned +90: shown by turning it -90 (ccw)
+    path = tmp_path / "portrait.mp4"
+    with av.open(str(path), "w") as c:
+        s = c.add_stream("libx264", rate=10)
+        s.width, s.height, s.pix_fmt = stored.shape[1], stored.shape[0], "yuv420p"
+        s.set_display_rotation(-90)
+        for _ in range(4):
+            c.mux(s.encode(av.VideoFrame.from_ndarray(stored, format="rgb24")))
+        c.mux(s.encode(None))
+    run = run_cli(capsys, "puppet", "--driver", path, "--puppet", persona_file, "-o", outdir / "o.mp4",
+                  "--size", "96", "--json")
+    assert run.code == 0, run.err
+    assert json.loads(run.out)["lost_indices"] == []
+    out = video_info(outdir / "o.mp4")
+    assert out["width"] < out["height"] and out["rotation"] == 0  # upright: portrait, as shown
