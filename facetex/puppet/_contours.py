@@ -15,6 +15,11 @@ from ..geometry.masks import smoothstep
 #: contour 60-67 and of an eye contour 36-41 or 42-47, indices into the contour's points
 LIPS = (4, (0, 1, 2, 3, 4), (0, 7, 6, 5, 4), ((1, 7), (2, 6), (3, 5)))
 EYE = (3, (0, 1, 2, 3), (0, 5, 4, 3), ((1, 5), (2, 4)))
+#: a lip as its own two-curve band between the outer corners 48 and 54: the upper lip's points
+#: 48-54 then 64-60 (:data:`UPPER_LIP`), the lower's 48, 60, 67-64, 54-59 (:data:`LOWER_LIP`)
+LIP_BAND = (6, (0, 1, 2, 3, 4, 5, 6), (0, 11, 10, 9, 8, 7, 6), ((2, 10), (3, 9), (4, 8)))
+UPPER_LIP = (48, 49, 50, 51, 52, 53, 54, 64, 63, 62, 61, 60)
+LOWER_LIP = (48, 60, 67, 66, 65, 64, 54, 55, 56, 57, 58, 59)
 
 
 def _contour_frame(points: np.ndarray, layout=LIPS) -> tuple[np.ndarray, np.ndarray, float, float]:

@@ -618,6 +618,33 @@ def test_mouth_interior_alpha_is_soft_and_smooth_under_the_puppets_lips():
     assert second.max() <= 1.0
 
 
+def test_mouth_interior_ramp_stays_a_few_pixels_wide_on_a_large_mouth():
+    """The soft edge is 0.3 x the widest gap up to ``soft_px`` (4) px, then 4 px, never below 0.12 x
+    the gap: on a 1000 px driver's smile (gap ~50 px) 0.3 drew a 15 px dark band between the teeth
+    and the lower lip. The puppet's gap here is ~21 px: 0.3 x 21 = 6.3 px -> 4 px; a mouth with
+    a gap under 13 px is unchanged."""
+    from facetex.puppet._contours import sample_between
+
+    frame, d, p = _mouths()
+    s = sample_between(frame, d, p, frame.shape[:2], inset=1.3)  # mouth_interior's default inset
+    gmax = float(s.gap.max())
+    assert 18 < gmax < 24
+    _, wide = mouth_interior(frame, d, p, cavity=None, lip_key=None, soft_px=None)
+    _, capped = mouth_interior(frame, d, p, cavity=None, lip_key=None)
+    x0, y0, x1, y1 = s.box
+    np.testing.assert_allclose(wide[y0:y1, x0:x1], s.edge(0.3), atol=1e-6)
+    np.testing.assert_allclose(capped[y0:y1, x0:x1], s.edge(4.0 / gmax), atol=1e-6)  # a 4 px ramp
+    # narrower: the middle column's shortfall under the upper lip, sum(1 - alpha), ~(6.2 - 4) / 2 less
+    top = slice(0, 90)
+    assert (1 - wide[top, 100]).sum() - (1 - capped[top, 100]).sum() > 0.5
+    np.testing.assert_array_equal(mouth_interior(frame, d, p, cavity=None, soft_px=0.0)[1],
+                                  mouth_interior(frame, d, p, cavity=None, soft=0.12, soft_px=None)[1])
+    c = p.mean(axis=0)
+    small = c + 0.5 * (p - c)  # gap ~10 px: 0.3 x 10 < 4
+    np.testing.assert_array_equal(mouth_interior(frame, d, small, cavity=None)[1],
+                                  mouth_interior(frame, d, small, cavity=None, soft_px=None)[1])
+
+
 def test_mouth_interior_keys_out_the_drivers_lip_colour():
     frame, d, p = _mouths()
     lipped = frame.copy()

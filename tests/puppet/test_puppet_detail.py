@@ -1,10 +1,13 @@
-"""facetex.puppet.detail: the frame's grain on a puppet that its own bounded sharpening left smoother."""
+"""facetex.puppet.detail: the frame's grain on a puppet that its own bounded sharpening left smoother,
+and the driver's lip lines on the puppet's lips."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
-from facetex.puppet.detail import GRAIN_CLIP, match_grain
+from facetex.puppet.detail import GRAIN_CLIP, match_grain, match_lip_detail
+from facetex.geometry.masks import polygon_mask
 
 
 def _checker(h=40, w=48) -> np.ndarray:
@@ -59,3 +62,72 @@ def test_match_grain_clips_the_frames_strong_lines_and_stays_on_the_skin():
     assert np.abs(out[30, 5:35] - 0.6).max() < 0.2 * 0.5  # far below its 0.5 depth
     np.testing.assert_array_equal(out[:, 45:], src[:, 45:])
     assert np.std(out[5:25, 5:35] - src[5:25, 5:35]) > 0.01  # grain where the skin is
+
+
+def _lips68(cx, cy, width=80.0, thick=12.0, gap=10.0):
+    """(68, 2) points whose lips 48-67 are a mouth ``width`` px wide at (cx, cy): each lip ``thick``
+    px, the inner lips ``gap`` px apart in the middle (the rest of the face far away)."""
+    p = np.zeros((68, 2))
+    p[:48] = (cx, cy - 3 * width)
+    t = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    hw, hh = width / 2, gap / 2 + thick
+    p[48:60] = np.c_[cx - hw * np.cos(t), cy - hh * np.sin(t)]  # 48 left corner, 51 top, 57 bottom
+    ui = np.array([-0.35, -0.2, 0.0, 0.2, 0.35]) * width
+    p[60:65] = np.c_[cx + ui, cy - gap / 2 * np.array([0.3, 1, 1, 1, 0.3])]
+    p[65:68] = np.c_[cx + ui[3:0:-1], np.full(3, cy + gap / 2)]
+    return p
+
+
+def _lined_lips(p, shape, stripes=True):
+    """Skin 0.75; lips 0.5 with vertical lines 0.5 +- 0.05 every 6 px (when ``stripes``)."""
+    h, w = shape
+    lips = (polygon_mask(p[48:60], shape) > 0.5) & ~(polygon_mask(p[60:68], shape) > 0.5)
+    xx = np.mgrid[0:h, 0:w][1]
+    lines = 0.05 * np.sign(np.sin(2 * np.pi * (xx - p[48, 0]) / 6.0)) if stripes else 0.0
+    img = np.where(lips, 0.5 + lines, 0.75).astype(np.float32)
+    return np.repeat(img[..., None], 3, axis=2), lips
+
+
+def test_match_lip_detail_moves_the_drivers_lip_lines_onto_the_puppets_lips():
+    """The puppet's flat lips sit 20 px right and 8 px lower than the driver's lined lips: its lips
+    get the driver's lines where they are on the driver's lips (the band's correlation with the
+    driver's lines moved by (20, 8) > 0.8 in the lips' middle), nothing outside its lips, and
+    less of it on the lips' edges."""
+    shape = (120, 200)
+    d = _lips68(80, 60)
+    p = d.copy()
+    p[48:68] += (20, 8)
+    ref, _ = _lined_lips(d, shape)
+    src, lips_p = _lined_lips(p, shape, stripes=False)
+    out, a = match_lip_detail(src, ref, d, p)
+    assert 0.3 < a <= 1.0
+    diff = (out - src)[..., 0]
+    moved = np.roll(np.roll(ref[..., 0], 8, axis=0), 20, axis=1) - 0.5
+    core = cv2.erode(lips_p.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
+    core[:, :int(p[48, 0]) + 12] = False  # away from the corners
+    core[:, int(p[54, 0]) - 12:] = False
+    assert core.sum() > 200
+    assert np.corrcoef(diff[core], moved[core])[0, 1] > 0.8
+    assert np.abs(diff[core]).mean() > 0.3 * a * 0.05
+    outside = ~(cv2.dilate(lips_p.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+    assert np.abs(diff[outside]).max() == 0
+    edge = lips_p & ~(cv2.erode(lips_p.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+    assert np.abs(diff[edge]).mean() < 0.8 * np.abs(diff[core]).mean()  # faded in from the edges
+
+
+def test_match_lip_detail_leaves_detailed_lips_and_bad_points_alone():
+    shape = (120, 200)
+    d = _lips68(80, 60)
+    p = d.copy()
+    p[48:68] += (20, 8)
+    ref, _ = _lined_lips(d, shape)
+    lined, _ = _lined_lips(p, shape)  # the puppet's own lips as lined as the driver's
+    out, a = match_lip_detail(lined, ref, d, p)
+    assert a == 0.0 and np.array_equal(out, lined)
+    flat, _ = _lined_lips(p, shape, stripes=False)
+    bad = p.copy()
+    bad[50] = np.nan
+    for kwargs in ({"puppet68": bad}, {"max_amount": 0.0}, {"driver68": _lips68(80, 60, width=6.0)}):
+        args = {"driver68": d, "puppet68": p, **kwargs}
+        out, a = match_lip_detail(flat, ref, args.pop("driver68"), args.pop("puppet68"), **args)
+        assert a == 0.0 and np.array_equal(out, flat)
