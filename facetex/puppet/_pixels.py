@@ -1,5 +1,5 @@
-"""Pixel helpers of the compositing: the face's box at a working scale (:class:`_Shrunk`), and
-per-channel helpers (numpy broadcasts over a length-3 inner axis and gathers (H, W, 3) pixels by a
+"""Pixel helpers of the compositing: the face's box at a working scale (:class:`_Shrunk`), the
+skin's weights (:func:`_skin_weights`), and per-channel helpers (numpy broadcasts over a length-3 inner axis and gathers (H, W, 3) pixels by a
 bool mask several times slower than the same arithmetic one channel at a time / np.take on flat
 indices)."""
 
@@ -69,3 +69,16 @@ class _Shrunk:
     def back(self, x):
         """``x`` at the shrunk size brought back to the box's (bilinear)."""
         return cv2.resize(x, self.full, interpolation=cv2.INTER_LINEAR) if self.k > 1 else x
+
+
+def _skin_weights(points68, shape) -> np.ndarray:
+    """Weight (H, W) float32 in [0, 1] of the skin at iBUG landmarks ``points68``: 1 minus the eyes,
+    brows, lips (:func:`~facetex.geometry.masks.feature_mask`) and lower nose
+    (:func:`~facetex.geometry.masks.nose_mask`), feathered by 0.04 eye-corner distances: where
+    dark detail is shading, not a feature (a lash line, a nostril)."""
+    from ..geometry.masks import feature_mask, nose_mask
+
+    p = np.asarray(points68, np.float64)
+    m = (feature_mask(p, shape) | nose_mask(p, shape)).astype(np.float32)
+    sig = max(0.5, 0.04 * float(np.linalg.norm(p[36] - p[45])))
+    return 1.0 - np.clip(cv2.GaussianBlur(m, (0, 0), sig), 0, 1)

@@ -61,7 +61,7 @@ import numpy as np
 
 from ..errors import BadInputError
 from ..geometry.masks import disc, feature_mask, inner_feather, nose_mask, polygon_mask
-from ._pixels import _LUMA, _mix, _Shrunk
+from ._pixels import _LUMA, _mix, _Shrunk, _skin_weights
 from .detail import match_grain, match_lip_detail, match_sharpness
 from .lighting import (COLOURS, _lab, _linear, fit_sh_lighting, linear_to_srgb, relight, srgb_to_linear,
                        transfer_skin_colour)
@@ -301,7 +301,10 @@ class CompositeParams:
     bounds of the a*, b* detail's gain, the skins' chroma ratio, and highlight_knee: lightness detail
     above the persona's skin compressed to this (L*) x tanh (both there): on 1000 px studio drivers
     (FRL London) a dark persona's brow ridges were white bands and her lash lines blue-black, an East
-    Asian persona's brows teal, on pale drivers; lip_colour: with colour "driver" the
+    Asian persona's brows teal, on pale drivers; shadow_knee: the same for lightness detail below
+    it on the skin (eyes, brows, lips and the lower nose left out; None:
+    off): a dark persona's under-eye circles and cheek shading were black eyes and bruises on a pale
+    driver (FRL 002); lip_colour: with colour "driver" the
     lips take the driver's lips' colour (:func:`lip_weights`), not the skin's; eye_colour: the
     eyeballs keep the persona's lightness (:func:`eye_weights`; their a*, b* take the frame's
     white balance); eye_grow: out to this x the eye-corner distance beyond the lids' edges (their
@@ -377,6 +380,7 @@ class CompositeParams:
     colour_gain: tuple[float, float] = (2 / 3, 1.2)
     chroma_gain: tuple[float, float] = (0.5, 1.0)
     highlight_knee: float | None = 6.0
+    shadow_knee: float | None = 6.0
     lip_colour: bool = True
     open_lips: bool = True
     lip_ceiling: float | None = 6.0
@@ -511,6 +515,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         out = transfer_skin_colour(out, fr, pup_skin, drv_skin, sigma=max(1.0, params.colour_sigma * iod),
                                    gain=params.colour_gain, colour=params.colour, shrink=sh.k,
                                    chroma_gain=params.chroma_gain, highlight_knee=params.highlight_knee,
+                                   shadows=_skin_weights(drawn68 - [x0, y0], rg.shape)
+                                   if params.shadow_knee else None, shadow_knee=params.shadow_knee or 1.0,
                                    lids=_scaled(lid_weights(p68 - [x0, y0], rg.shape), params.lid_colour)
                                    if params.lid_colour > 0 else None,
                                    keep=eye_weights(drawn68 - [x0, y0], rg.shape,

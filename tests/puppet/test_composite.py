@@ -1418,6 +1418,56 @@ def test_chroma_gain_and_highlight_knee_by_hand():
     np.testing.assert_allclose(out[~band], _lab(ref)[~band], atol=0.8)  # the skin is the driver's
 
 
+def test_shadow_knee_by_hand():
+    """A dark persona (skin L 40) with a shadow band 20 L* under its skin (an under-eye circle) on a
+    pale driver (L 75): the gain 75 / 40 is clipped to 1.2, so the band is 75 - 24 = 51 without the
+    knee, 75 - 1.2 x 6 tanh(20 / 6) = 67.9 with ``shadows`` weight 1 and ``shadow_knee`` 6, 75 - 1.2 x
+    (20 - 0.5 (20 - 6 tanh(20 / 6))) = 59.4 at weight 0.5; a lighter band (L 50) is untouched, and
+    with ``keep_dark`` the rims' darker gain (the skins' ratio 1.875, under ``brow_gain`` 2) takes the
+    compressed detail: 75 - 1.875 x 6 tanh(20 / 6) = 63.8."""
+    band, src = _two_band_skin(40.0, 20.0, 50.0)
+    ref = _flat_skin(75.0, band.shape)
+    a = _lab(src)
+    d = float(np.median(a[15:25, 10:30, 0])) - float(np.median(a[~band][:, 0]))  # ~ -20 (sRGB round trip)
+    knee = 6 * np.tanh(-d / 6)
+    plain = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf))
+    assert np.median(plain[15:25, 10:30, 0]) == pytest.approx(75 + 1.2 * d, abs=0.5)
+    for w, expect in ((1.0, 75 - 1.2 * knee), (0.5, 75 + 1.2 * (d + 0.5 * (-d - knee)))):
+        out = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf, shadows=np.full(band.shape, w, np.float32),
+                                        shadow_knee=6.0))
+        assert np.median(out[15:25, 10:30, 0]) == pytest.approx(expect, abs=0.5)
+        np.testing.assert_allclose(out[15:25, 50:70], plain[15:25, 50:70], atol=1e-3)  # lighter: untouched
+    rims = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf, shadows=np.ones(band.shape, np.float32),
+                                     keep_dark=band.astype(np.float32), brow_gain=2.0))
+    ratio = 75.0 / float(np.median(a[~band][:, 0]))
+    assert np.median(rims[15:25, 10:30, 0]) == pytest.approx(75 - ratio * knee, abs=0.5)
+    # a like-toned or paler driver: the persona's shading as it is (no knee)
+    for driver_l in (40.0, 30.0):
+        like = _flat_skin(driver_l, band.shape)
+        np.testing.assert_allclose(
+            transfer_skin_colour(src, like, ~band, ~band, sigma=np.inf, shadows=np.ones(band.shape, np.float32)),
+            transfer_skin_colour(src, like, ~band, ~band, sigma=np.inf), atol=1e-6)
+
+
+def test_skin_weights_leave_out_the_features():
+    """The shadow knee's weight: ~0 on the eyes, brows, lips and nostrils (their landmarks, some on
+    the features' edges: under 0.15), 1 on the cheeks."""
+    from facetex.puppet._pixels import _skin_weights
+    from facetex.landmarks import detect_face
+    from facetex.io import read_image_uint8
+    from facetex._resources import sample_path
+
+    img = read_image_uint8(sample_path("frl_004_neutral.jpg"))
+    p = np.asarray(detect_face(img).points68, float)
+    w = _skin_weights(p, img.shape[:2])
+    at = lambda q: float(w[int(round(q[1])), int(round(q[0]))])  # noqa: E731
+    for i in (37, 44, 19, 24, 51, 57, 33, 31, 35):  # lids, brows, lips, nose tip and nostrils
+        assert at(p[i]) < 0.15, i
+    iod = np.linalg.norm(p[45] - p[36])
+    for q in (p[2] + (0.25 * iod, 0), p[14] - (0.25 * iod, 0)):  # the cheeks
+        assert at(q) > 0.95
+
+
 def test_brow_gain_by_hand():
     """A dark persona (skin L 40) with a dark brow (L 30) and a light patch (L 50) in its brow
     region, on a pale driver (L 75): the skin's lightness gain is 75 / 40 = 1.875, clipped to 1.2
