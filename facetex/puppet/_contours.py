@@ -19,6 +19,13 @@ EYE = (3, (0, 1, 2, 3), (0, 5, 4, 3), ((1, 5), (2, 4)))
 #: 48-54 then 64-60 (:data:`UPPER_LIP`), the lower's 48, 60, 67-64, 54-59 (:data:`LOWER_LIP`)
 LIP_BAND = (6, (0, 1, 2, 3, 4, 5, 6), (0, 11, 10, 9, 8, 7, 6), ((2, 10), (3, 9), (4, 8)))
 UPPER_LIP = (48, 49, 50, 51, 52, 53, 54, 64, 63, 62, 61, 60)
+#: the soft edges of the driver's mouth interior and eyeballs drawn into the puppet's: a ramp of
+#: 0.3 x the opening (a pixel or three on a 256 px GRID face) but at most this many pixels, never
+#: under :data:`EDGE_MIN_SOFT` x the opening: on a 1000 px driver's smile (a 50 px gap) the ramp
+#: and its lip shade were a 15 px dark maroon band between the teeth and the lower lip (FRL 002,
+#: every persona), round the eyes a 10 px blur between the whites and the lids
+EDGE_MAX_PX = 4.0
+EDGE_MIN_SOFT = 0.12
 LOWER_LIP = (48, 60, 67, 66, 65, 64, 54, 55, 56, 57, 58, 59)
 
 
@@ -119,12 +126,17 @@ class Between:
     warped: np.ndarray
     driver: tuple
 
-    def edge(self, soft: float) -> np.ndarray:
+    def edge(self, soft: float, *, max_px: float | None = None, min_soft: float = EDGE_MIN_SOFT) -> np.ndarray:
         """Alpha (h, w) of the box: 0 outside the contour, rising to 1 over ``soft`` x the widest
-        gap inside it (at least a pixel). A pixel's centre half a pixel inside is half covered (as
-        an anti-aliased polygon's edge); an opening thinner than a pixel is covered by its
-        thickness (a closed contour: nothing)."""
-        width = max(soft * float(self.gap.max()), 1.0)
+        gap inside it (at least a pixel; with ``max_px``, a ramp wider than that many pixels is
+        ``max_px``, never less than ``min_soft`` x the gap). A pixel's centre half a pixel inside
+        is half covered (as an anti-aliased polygon's edge); an opening thinner than a pixel is
+        covered by its thickness (a closed contour: nothing)."""
+        g = float(self.gap.max())
+        width = soft * g
+        if max_px is not None and width > max_px:
+            width = max(max_px, min(min_soft, soft) * g)
+        width = max(width, 1.0)
         return (smoothstep(np.clip((self.depth + 0.5) / width, 0.0, 1.0)) * np.clip(self.gap, 0.0, 1.0)
                 ).astype(np.float32)
 

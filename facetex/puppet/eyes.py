@@ -11,7 +11,7 @@ import numpy as np
 from ..errors import BadInputError
 from ..geometry.masks import disc, polygon_mask
 from ..geometry.skin import _sample_regions, brow_mask
-from ._contours import EYE, _contour_frame, _open_fade, sample_between
+from ._contours import EDGE_MAX_PX, EYE, _contour_frame, _open_fade, sample_between
 from ._pixels import _LUMA, _shape2
 from .lighting import _lab, _linear, _rgb
 
@@ -89,7 +89,7 @@ def _lightness_to_y(L: float) -> float:
 
 
 def eye_interior(frame, driver68, puppet68, shape=None, *, iris=None, inset: float = 1.0, soft: float = 0.3,
-                 closed: float = 0.08) -> tuple[np.ndarray, np.ndarray]:
+                 closed: float = 0.08, soft_px: float | None = EDGE_MAX_PX) -> tuple[np.ndarray, np.ndarray]:
     """The driver's eyeballs moved into the puppet's eyes: (image (H, W, 3), alpha (H, W)).
 
     ``driver68`` (68, 2) the driver's iBUG landmarks in ``frame`` px, ``puppet68`` the puppet's in
@@ -97,7 +97,8 @@ def eye_interior(frame, driver68, puppet68, shape=None, *, iris=None, inset: flo
     edges) every pixel takes the driver's pixel at the same place between the eye's corners and
     between its lids (:func:`~facetex.puppet._contours.sample_between`, pulled towards the centre by
     ``inset``): the driver's whites, lash line and gaze in the puppet's lids, at the puppet's
-    opening. Alpha rises from 0 at the contour to 1 over ``soft`` x the eye's widest opening, faded
+    opening. Alpha rises from 0 at the contour to 1 over ``soft`` x the eye's widest opening (at
+    most ``soft_px`` pixels, :meth:`~facetex.puppet._contours.Between.edge`), faded
     out as the driver's opening falls from 2 x ``closed`` to ``closed`` times its eye width (a
     closing eye shows the puppet's own lids). ``iris`` (3,) linear-light RGB: the colour the
     driver's iris takes (:func:`iris_shift`; the whites keep the driver's), e.g. the driver's skin
@@ -123,7 +124,7 @@ def eye_interior(frame, driver68, puppet68, shape=None, *, iris=None, inset: flo
         if s is None:
             continue
         x0, y0, x1, y1 = s.box
-        a = s.edge(soft) * fade
+        a = s.edge(soft, max_px=soft_px) * fade
         warped = s.warped
         inside = a > 0.5 * a.max()
         if iris is not None and inside.sum() >= 8:

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import BadInputError
 from ..geometry.masks import polygon_mask, smoothstep
-from ._contours import _mouth_frame, _open_fade, sample_between
+from ._contours import EDGE_MAX_PX, _mouth_frame, _open_fade, sample_between
 from ._pixels import _LUMA, _shape2
 from .lighting import _lab, _linear, _rgb, linear_to_srgb
 
@@ -27,8 +27,8 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
                    lip_key: tuple[float, float] | None = (4.0, 12.0),
                    cavity: float | None = 25.0, grow: float = 0.015,
                    edge: float = 0.025, lip_shade: float | None = 0.3,
-                   cavity_shading: bool = True, soft_px: float | None = 4.0,
-                   soft_min: float = 0.12) -> tuple[np.ndarray, np.ndarray]:
+                   cavity_shading: bool = True,
+                   soft_px: float | None = EDGE_MAX_PX) -> tuple[np.ndarray, np.ndarray]:
     """The driver's mouth interior moved into the puppet's mouth: (image (H, W, 3), alpha (H, W)).
 
     ``driver_lips``, ``puppet_lips`` (8, 2): iBUG inner-lip points 60-67 in ``frame`` px (driver)
@@ -95,12 +95,13 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     that colour flat: a tongue or inner lip keyed out as lip is a tongue in shadow, not a flat brown
     slot with straight edges (wide-open mouths at 360 px); elsewhere under the soft edge the flat
     colour stays (teeth there had drawn a light rim that dlib read as part of the opening).
-    ``soft_px`` (None: off): a ramp wider than this many pixels shrinks towards ``soft_min`` x the
-    widest gap (the ramp is ``soft`` x gap up to ``soft_px``, then ``soft_px``, never below
-    ``soft_min`` x gap): the ramp and the lip shade over it are the shadow just inside the lips,
-    a pixel or three on a GRID face, but 0.3 of a 1000 px driver's smile (a 50 px gap) drew a
-    15 px dark maroon band between the driver's teeth and the puppet's lower lip (FRL 002, every
-    persona). Up to a 13 px gap (every mouth of a 256 px frame) nothing changes."""
+    ``soft_px`` (None: off): the ramp is at most this many pixels wide, never under
+    :data:`~facetex.puppet._contours.EDGE_MIN_SOFT` x the widest gap
+    (:meth:`~facetex.puppet._contours.Between.edge`): the ramp and the lip shade over it are the
+    shadow just inside the lips, a pixel or three on a GRID face, but 0.3 of a 1000 px driver's
+    smile (a 50 px gap) drew a 15 px dark maroon band between the driver's teeth and the puppet's
+    lower lip (FRL 002, every persona). Up to a 13 px gap (every mouth of a 256 px frame) nothing
+    changes."""
     f = np.asarray(frame, np.float32)
     h, w = _shape2(f.shape if shape is None else shape)
     dp = np.asarray(driver_lips, np.float64)
@@ -127,9 +128,7 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     # one ramp width for the whole mouth (its widest gap's): the thin parts towards the corners
     # fade instead of ending in hard tips
     alpha = np.zeros((h, w), np.float32)
-    if soft_px is not None and soft > soft_min:
-        soft = float(np.clip(soft_px / max(float(gap.max()), 1e-6), soft_min, soft))
-    ramp = s.edge(soft)
+    ramp = s.edge(soft, max_px=soft_px)
     alpha[y0:y1, x0:x1] = ramp * fade
     if alpha.max() <= 0 and dark_fade <= 0:
         return none

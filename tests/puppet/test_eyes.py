@@ -70,6 +70,27 @@ def test_eye_interior_fades_out_as_the_drivers_eye_closes():
     assert full == pytest.approx(1.0) and part == pytest.approx(t * t * (3 - 2 * t), abs=1e-6) and shut == 0
 
 
+def test_eye_interior_edge_stays_a_few_pixels_wide_on_large_eyes():
+    """A 1000 px driver's eye (opening 30 px): the soft edge is 4 px (``soft_px``), not 0.3 x 30 =
+    9 px; an eye of a 256 px frame (opening 8 px: 2.4 px) is unchanged."""
+    from facetex.puppet._contours import EYE, sample_between
+
+    for gap, scale in ((30.0, 5.0), (8.0, 1.0)):
+        d68 = _eyes68(cx=48 * scale, cy=40 * scale, half=8 * scale, gap=gap, apart=24 * scale)
+        frame = _eye_frame(d68, h=int(80 * scale), w=int(96 * scale))
+        _, capped = eye_interior(frame, d68, d68)
+        _, wide = eye_interior(frame, d68, d68, soft_px=None)
+        s = sample_between(frame, d68[36:42], d68[36:42], frame.shape[:2], layout=EYE)
+        x0, y0, x1, y1 = s.box
+        g = float(s.gap.max())
+        if 0.3 * g > 4:
+            np.testing.assert_allclose(capped[y0:y1, x0:x1], s.edge(4.0 / g), atol=1e-6)
+            np.testing.assert_allclose(wide[y0:y1, x0:x1], s.edge(0.3), atol=1e-6)
+            assert capped.sum() > wide.sum() + 50  # the whites reach closer to the lids
+        else:
+            np.testing.assert_array_equal(capped, wide)
+
+
 def test_eye_interior_skips_missing_eyes_and_rejects_wrong_shapes():
     d68, p68 = _eyes68(), _eyes68()
     p68[42:48] = np.nan  # the right eye is not tracked
