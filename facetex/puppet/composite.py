@@ -67,6 +67,7 @@ from .lighting import (COLOURS, _lab, _linear, fit_sh_lighting, linear_to_srgb, 
                        transfer_skin_colour)
 from .eyes import brow_weights, eye_interior, eye_weights, lid_weights
 from .mouth import lift_inner_lips, lip_regions, lip_weights, mouth_interior  # noqa: F401 (lip_weights re-exported)
+from .occluders import occlusion_mask, persona_hair, skin_pixels
 
 __all__ = [
     "FACE_OVAL",
@@ -77,6 +78,7 @@ __all__ = [
     "eye_weights",
     "skin_pixels",
     "occlusion_mask",
+    "persona_hair",
     "poisson_blend",
     "boundary_color_step",
     "CompositeParams",
@@ -93,76 +95,6 @@ INNER_LIPS = (60, 61, 62, 63, 64, 65, 66, 67)
 def _scaled(weights: tuple, strength: float) -> tuple:
     """(weight x ``strength``, pixels): a region weight of :func:`~facetex.puppet.lighting.transfer_skin_colour` in part."""
     return np.asarray(weights[0], np.float32) * float(np.clip(strength, 0.0, 1.0)), weights[1]
-
-
-# ----------------------------------------------------------------------------- skin and occluders
-def skin_pixels(image, points68, region) -> tuple[np.ndarray | None, np.ndarray]:
-    """(bool (H, W) or None, bool (H, W)): the pixels of the bool ``region`` of ``image``
-    (H, W, 3) sRGB outside the grown eyes, brows, lips and nostrils that have the face's own skin
-    colour (chromaticity and lightness, :func:`facetex.geometry.skin.skin_colour_distance`, fitted
-    robustly to that region: hair, stubble, shadows and glasses frames fall out), and those
-    features (:func:`facetex.geometry.skin.feature_mask`). None when fewer than 20 pixels are left
-    to fit the colour."""
-    from ..geometry.skin import SkinParams, skin_colour_distance
-    from ..geometry.skin import feature_mask as grown_features
-
-    sp = SkinParams()
-    feats = grown_features(points68, region.shape, sp)
-    base = region & ~feats
-    if base.sum() < 20:
-        return None, feats
-    chroma, z = skin_colour_distance(image, points68, region=base)
-    return base & (chroma < sp.chroma_sigmas) & (z > -sp.dark_sigmas), feats
-
-
-def occlusion_mask(region, skin, features, points68, *, min_size: float = 0.03, apart: float = 0.06,
-                   margin: float = 0.02, soft: float = 0.01) -> np.ndarray:
-    """float32 (H, W) in [0, 1]: what lies over the driver's face (a fringe, glasses, a hand of
-    another colour): pixels of the bool ``region`` (the face outline) that are neither ``skin``
-    nor ``features`` (the bool pair of :func:`skin_pixels` on the driver's frame: its eyes, brows,
-    lips and nostrils are replaced by the puppet's). A piece counts when more than (``min_size``
-    x face width)² of it lies further than ``apart`` x face width from the features (a mole or a
-    crease's shadow is smaller; the brow hairs and nostril shadows beyond the landmark polygons
-    lie next to them); it is grown by ``margin`` x face width (strand tips, frame edges) and
-    softened by a Gaussian of ``soft`` x face width."""
-    from ..geometry.masks import face_width
-
-    out = np.zeros(np.shape(region), np.float32)
-    if skin is None:
-        return out
-    fw = face_width(points68)
-    bad = (region & ~features & ~skin).astype(np.uint8)
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(bad, connectivity=8)
-    if n < 2:
-        return out
-    r = max(1, int(round(apart * fw)))
-    near = cv2.dilate(features.view(np.uint8), disc(r)) > 0
-    away = np.bincount(lab[~near], minlength=n)  # each piece's pixels away from the features
-    big = np.flatnonzero(away[1:] >= (min_size * fw) ** 2) + 1
-    if not len(big):
-        return out
-    occ = np.isin(lab, big).astype(np.uint8)
-    r = int(round(margin * fw))
-    if r >= 1:
-        occ = cv2.dilate(occ, disc(r))
-    occ = occ.astype(np.float32)
-    if soft * fw > 0.3:  # 1 up to the grown edge, falling to 0 over ~2 sigma outside it
-        occ = np.minimum(2 * cv2.GaussianBlur(occ, (0, 0), soft * fw), 1.0)
-    return occ * region
-
-
-def persona_hair(image, points68, region) -> np.ndarray:
-    """float32 (H, W) in [0, 1]: the persona's own hair in its rendered face ``image`` (H, W, 3)
-    with its landmarks ``points68``: :func:`occlusion_mask` of the puppet's :func:`skin_pixels` in
-    the bool ``region`` above its lower lids (a fringe or hair over the temples in most of a
-    collection's photos is in its average texture; drawn into the driver's frame it took the
-    driver's skin colour as orange and blue smears round the brows; a beard below is the persona's)."""
-    p = np.asarray(points68, np.float64)
-    upper = np.zeros(np.shape(region), bool)
-    upper[:max(0, int(np.ceil(np.nanmax(p[36:48, 1]))))] = True
-    skin, feats = skin_pixels(image, p, region)
-    # next to the features too (apart 0): hair at the temples meets the brows' grown masks
-    return occlusion_mask(region & upper, skin, feats, p, apart=0.0)
 
 
 # ----------------------------------------------------------------------------- blending
@@ -469,9 +401,10 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     if params.persona_hair and pp68 is not None:  # the driver's frame shows where the persona's hair is
         # (at ~HAIR_IOD px between the eye corners: at WORK_IOD the grown features cover the temples)
         hs = _Shrunk.of(rg.shape, iod, HAIR_IOD)
-        hair = hs.back(persona_hair(hs.image(pu), hs.points(pp68 - [x0, y0]),
-                                    cv2.resize(rg.view(np.uint8), hs.size, interpolation=cv2.INTER_NEAREST) > 0
-                                    if hs.k > 1 else rg)) * rg
+        cov = rg if coverage is None else np.asarray(coverage, np.float32)[box] > 0.5
+        rg_h, cov_h = (cv2.resize(m.view(np.uint8), hs.size, interpolation=cv2.INTER_NEAREST) > 0 if hs.k > 1 else m
+                       for m in (rg, cov))
+        hair = hs.back(persona_hair(hs.image(pu), hs.points(pp68 - [x0, y0]), rg_h, area=cov_h)) * rg
         occ = hair if occ is None else np.maximum(occ, hair)
     # the persona's average texture has no hair or cast shadows on its face (they average out):
     # its features are left out, the trimmed statistics do the rest

@@ -306,6 +306,46 @@ def test_persona_hair_finds_hair_over_the_temples_not_a_beard_or_the_features(dr
     assert np.nonzero(clean > 0.5)[1].max() < p[17, 0] + 2
 
 
+def test_persona_hair_follows_a_strand_into_the_brows_grown_mask_but_leaves_the_brows(driver_face):
+    """A thin strand of dark hair from beyond the face's outline (over the temple, inside the
+    rendered face's ``area``) down to the outer end of the right brow (the model has hair of his
+    own at his left temple), as in Arroyo's photos: inside
+    the outline it is too small a piece to count, so it showed as a dark streak; followed through
+    ``area`` it is hair, up to the brow's own band (not its grown mask). A dark fringe of the brow's
+    own (a ribbon along its upper edge, inside its grown mask only) and the brow's band are not."""
+    import dataclasses
+
+    from facetex.geometry.skin import SkinParams, brow_mask, feature_mask
+    from facetex.puppet.composite import persona_hair
+
+    img, p, _, region = driver_face
+    h, w = region.shape
+    yy, xx = np.mgrid[:h, :w]
+    area = cv2.dilate(region.view(np.uint8), np.ones((31, 31), np.uint8)) > 0
+    tight = dataclasses.replace(SkinParams(), brow_margin=0.0)
+    band = brow_mask(p, (h, w), tight)
+    grown = brow_mask(p, (h, w))
+    iod = float(np.linalg.norm(p[45] - p[36]))
+    a = p[26]
+    b = a + (0.5 * iod, -0.7 * iod)  # up and out over the temple, beyond the outline
+    strand = cv2.line(np.zeros((h, w), np.uint8), tuple(np.round(a).astype(int)), tuple(np.round(b).astype(int)),
+                      1, thickness=2) > 0
+    fringe = grown & ~band & (yy < p[22:27, 1].min()) & (xx < p[24, 0])
+    hairy = img.copy()
+    hairy[(strand & area) | fringe] = (0.2, 0.13, 0.08)
+    inside = strand & region & ~feature_mask(p, (h, w), tight)
+    assert inside.sum() >= 3 and (strand & area & ~region).sum() > 20 and fringe.sum() > 10
+    with_area = persona_hair(hairy, p, region, area=area)
+    alone = persona_hair(hairy, p, region)
+    assert with_area[inside].min() > 0.9 and alone[inside].max() < 0.5
+    # the brow's own edge is not a piece on its own (a pixel or two at the outline's edge is grazed)
+    assert np.mean(with_area[fringe] < 0.05) > 0.95
+    core = cv2.erode(band.view(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    core &= xx < p[25, 0]  # away from the strand's end
+    assert with_area[core].max() < 0.05
+    assert with_area[~region].max() == 0.0
+
+
 def test_composite_shows_the_driver_where_the_persona_has_hair(driver_face):
     """The rendered puppet with hair over a temple on a driver without: the driver's frame shows
     there (alpha ~0) with ``persona_hair``, the puppet's hair without it; the cheeks are the puppet's."""
