@@ -91,8 +91,9 @@ def iter_video_frames(path, *, max_frames: int | None = None, uint8: bool = Fals
                       max_side: int | None = None) -> Iterator[np.ndarray]:
     """Yield frames as float32 RGB (H, W, 3) in [0, 1] (``uint8``: as decoded, uint8 RGB), upright:
     turned as their display matrix says (:func:`display_turns`; a phone's portrait clip is stored
-    landscape and would show every face on its side). ``max_side``: frames with a longer side above it are scaled down to it as they are
-    converted (area averaging; an 8K frame is never held at full size in RGB).
+    landscape and would show every face on its side). ``max_side``: frames with a longer side
+    above it are scaled down to it as they are converted (area averaging; an 8K frame is never
+    held at full size in RGB).
 
     A damaged file that still decodes some frames yields those, then warns
     (UserWarning) and stops; one that decodes none raises BadVideoError."""
@@ -124,13 +125,13 @@ def iter_video_frames(path, *, max_frames: int | None = None, uint8: bool = Fals
                     if max_frames is not None and n >= max_frames:
                         return
                     n += 1
+                    turns = display_turns(frame.rotation)  # (a reformatted frame has no side data)
                     if max_side is not None and max(frame.width, frame.height) > max_side:
                         f = max_side / max(frame.width, frame.height)
                         frame = frame.reformat(width=max(2, round(frame.width * f)),
                                                height=max(2, round(frame.height * f)), format="rgb24",
                                                interpolation="AREA")
                     rgb = frame.to_ndarray(format="rgb24")
-                    turns = display_turns(frame.rotation)
                     if turns:
                         rgb = np.ascontiguousarray(np.rot90(rgb, turns))
                     yield rgb if uint8 else rgb.astype(np.float32) / 255.0

@@ -194,10 +194,9 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     on a darker persona than the driver, the lightness detail below the persona's skin field, d < 0,
     is compressed to -``shadow_knee`` x tanh(-d / ``shadow_knee``) before its gain (and before
     ``keep_dark``'s), in full from a skins' lightness ratio at ``gain``'s upper bound, not at all
-    from a ratio of 1 down (linear between): a persona's dark
-    under-eye circles and cheek shading (Serena Williams' photos: -10 to -22 L* under her skin
-    field round a shiny cheekbone) were black eyes and bruises on a pale driver. ``colour="persona"``: only the
-    lighting moves: linear-light R, G, B x (Y(R_L) / Y(r_L)) / (Y(S_L) / Y(s_L)), the driver's
+    from a ratio of 1 down (linear between): a persona's dark under-eye circles and cheek shading
+    (Serena Williams' photos: -10 to -22 L* under her skin field round a shiny cheekbone) were black
+    eyes and bruises on a pale driver. ``colour="persona"``: only the lighting moves: linear-light R, G, B x (Y(R_L) / Y(r_L)) / (Y(S_L) / Y(s_L)), the driver's
     low-frequency luminance ratio over the persona's (Y(L*) the CIE luminance, the ratio clipped
     to ``light_limits``), the persona's chromaticity kept.
     ``shrink`` > 1: the low-frequency fields are computed on both images shrunk by that factor

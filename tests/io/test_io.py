@@ -430,6 +430,8 @@ def test_frames_come_upright_as_their_display_matrix_says(tmp_path, rotation):
     err = np.mean([np.abs(b.astype(float) - u).mean() for b, u in zip(back, up)])
     wrong = np.mean([np.abs(b.astype(float) - u[::-1, ::-1]).mean() for b, u in zip(back, up)])
     assert err < 6 and wrong > 5 * err, (err, wrong)
+    small = next(fio.iter_video_frames(path, uint8=True, max_side=40))  # scaled down while converted
+    assert small.shape == (24, 40, 3)
     info = fio.video_info(path)
     assert (info["width"], info["height"], info["rotation"], info["n_frames"]) == (80, 48, rotation % 360, 4)
     assert fio.display_turns(-90) == 3 and fio.display_turns(89.0) == 1 and fio.display_turns(None) == 0
