@@ -4,8 +4,9 @@ another person's video. The data flow, one module each: the driver's tracking an
 correspondence (:mod:`~facetex.puppet.correspondence`), the deformation transfer
 (:mod:`~facetex.puppet.deform`), the per-frame puppet (:mod:`~facetex.puppet.puppeteer`), its
 rendering (:mod:`~facetex.puppet.render`) and its compositing into the driver's frame
-(:mod:`~facetex.puppet.composite`, with :mod:`~facetex.puppet.lighting`, :mod:`~facetex.puppet.mouth`,
-:mod:`~facetex.puppet.eyes`, :mod:`~facetex.puppet.detail` and :mod:`~facetex.puppet.occluders`); :mod:`~facetex.puppet.puppetry` runs them over a video. The
+(:mod:`~facetex.puppet.composite`, with :mod:`~facetex.puppet.lighting`,
+:mod:`~facetex.puppet.mouth`, :mod:`~facetex.puppet.eyes`, :mod:`~facetex.puppet.detail` and
+:mod:`~facetex.puppet.occluders`); :mod:`~facetex.puppet.puppetry` runs them over a video. The
 persona itself (photo collection, expression-dependent textures) is :mod:`facetex.persona`."""
 
 from .._lazy import lazy_attributes as _lazy_attributes

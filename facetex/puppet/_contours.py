@@ -19,6 +19,7 @@ EYE = (3, (0, 1, 2, 3), (0, 5, 4, 3), ((1, 5), (2, 4)))
 #: 48-54 then 64-60 (:data:`UPPER_LIP`), the lower's 48, 60, 67-64, 54-59 (:data:`LOWER_LIP`)
 LIP_BAND = (6, (0, 1, 2, 3, 4, 5, 6), (0, 11, 10, 9, 8, 7, 6), ((2, 10), (3, 9), (4, 8)))
 UPPER_LIP = (48, 49, 50, 51, 52, 53, 54, 64, 63, 62, 61, 60)
+LOWER_LIP = (48, 60, 67, 66, 65, 64, 54, 55, 56, 57, 58, 59)
 #: the soft edges of the driver's mouth interior and eyeballs drawn into the puppet's: a ramp of
 #: 0.3 x the opening (a pixel or three on a 256 px GRID face) but at most this many pixels, never
 #: under :data:`EDGE_MIN_SOFT` x the opening: on a 1000 px driver's smile (a 50 px gap) the ramp
@@ -26,7 +27,6 @@ UPPER_LIP = (48, 49, 50, 51, 52, 53, 54, 64, 63, 62, 61, 60)
 #: every persona), round the eyes a 10 px blur between the whites and the lids
 EDGE_MAX_PX = 4.0
 EDGE_MIN_SOFT = 0.12
-LOWER_LIP = (48, 60, 67, 66, 65, 64, 54, 55, 56, 57, 58, 59)
 
 
 def _contour_frame(points: np.ndarray, layout=LIPS) -> tuple[np.ndarray, np.ndarray, float, float]:

@@ -1,7 +1,7 @@
 """Pixel helpers of the compositing: the face's box at a working scale (:class:`_Shrunk`), the
-skin's weights (:func:`_skin_weights`), and per-channel helpers (numpy broadcasts over a length-3 inner axis and gathers (H, W, 3) pixels by a
-bool mask several times slower than the same arithmetic one channel at a time / np.take on flat
-indices)."""
+skin's weights (:func:`_skin_weights`), and per-channel helpers (numpy broadcasts over a length-3
+inner axis and gathers (H, W, 3) pixels by a bool mask several times slower than the same
+arithmetic one channel at a time / np.take on flat indices)."""
 
 from __future__ import annotations
 
@@ -65,6 +65,11 @@ class _Shrunk:
     def points(self, p):
         """Points ``p`` (box px) in the shrunk box's px (pixel centres kept)."""
         return (p + 0.5) * [self.size[0] / self.full[0], self.size[1] / self.full[1]] - 0.5
+
+    def mask(self, m):
+        """bool mask ``m`` at the shrunk size (nearest pixel)."""
+        m = np.asarray(m, bool)
+        return cv2.resize(m.view(np.uint8), self.size, interpolation=cv2.INTER_NEAREST) > 0 if self.k > 1 else m
 
     def back(self, x):
         """``x`` at the shrunk size brought back to the box's (bilinear)."""

@@ -234,8 +234,8 @@ class CompositeParams:
     above the persona's skin compressed to this (L*) x tanh (both there): on 1000 px studio drivers
     (FRL London) a dark persona's brow ridges were white bands and her lash lines blue-black, an East
     Asian persona's brows teal, on pale drivers; shadow_knee: the same for lightness detail below
-    it on the skin (eyes, brows, lips and the lower nose left out; None:
-    off): a dark persona's under-eye circles and cheek shading were black eyes and bruises on a pale
+    it on the skin (eyes, brows, lips and the lower nose left out; None: off), on a darker persona
+    than the driver: her under-eye circles and cheek shading were black eyes and bruises on a pale
     driver (FRL 002); lip_colour: with colour "driver" the
     lips take the driver's lips' colour (:func:`lip_weights`), not the skin's; eye_colour: the
     eyeballs keep the persona's lightness (:func:`eye_weights`; their a*, b* take the frame's
@@ -402,9 +402,7 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         # (at ~HAIR_IOD px between the eye corners: at WORK_IOD the grown features cover the temples)
         hs = _Shrunk.of(rg.shape, iod, HAIR_IOD)
         cov = rg if coverage is None else np.asarray(coverage, np.float32)[box] > 0.5
-        rg_h, cov_h = (cv2.resize(m.view(np.uint8), hs.size, interpolation=cv2.INTER_NEAREST) > 0 if hs.k > 1 else m
-                       for m in (rg, cov))
-        hair = hs.back(persona_hair(hs.image(pu), hs.points(pp68 - [x0, y0]), rg_h, area=cov_h)) * rg
+        hair = hs.back(persona_hair(hs.image(pu), hs.points(pp68 - [x0, y0]), hs.mask(rg), area=hs.mask(cov))) * rg
         occ = hair if occ is None else np.maximum(occ, hair)
     # the persona's average texture has no hair or cast shadows on its face (they average out):
     # its features are left out, the trimmed statistics do the rest
@@ -448,7 +446,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         out = transfer_skin_colour(out, fr, pup_skin, drv_skin, sigma=max(1.0, params.colour_sigma * iod),
                                    gain=params.colour_gain, colour=params.colour, shrink=sh.k,
                                    chroma_gain=params.chroma_gain, highlight_knee=params.highlight_knee,
-                                   shadows=_skin_weights(drawn68 - [x0, y0], rg.shape)
+                                   # drawn only on a darker persona than the driver
+                                   shadows=(lambda: _skin_weights(drawn68 - [x0, y0], rg.shape))
                                    if params.shadow_knee else None, shadow_knee=params.shadow_knee or 1.0,
                                    lids=_scaled(lid_weights(p68 - [x0, y0], rg.shape), params.lid_colour)
                                    if params.lid_colour > 0 else None,

@@ -120,8 +120,8 @@ def match_lip_detail(src, ref, driver68, puppet68, *, max_amount: float = 1.0) -
     1000 px driver they were a flat pink patch beside the frame's lined lips; grain from the same
     pixel (:func:`match_grain`) would print the driver's lip edges where the puppet's lips are not.
     ``driver68``, ``puppet68`` (68, 2) px of the images (H, W, 3) float [0, 1]."""
-    from ..geometry.masks import polygon_mask
     from ._contours import LIP_BAND, LOWER_LIP, UPPER_LIP, sample_between
+    from .mouth import lip_ring
 
     s = np.asarray(src, np.float32)
     r = np.asarray(ref, np.float32)
@@ -136,10 +136,6 @@ def match_lip_detail(src, ref, driver68, puppet68, *, max_amount: float = 1.0) -
         hi = np.minimum(np.ceil(q[48:68].max(axis=0) + grow).astype(int) + 1, [shape[1], shape[0]])
         return lo, hi
 
-    def ring(q, shape):  # the lip pixels: outer polygon minus inner, a pixel in from both edges
-        outer, inner = polygon_mask(q[48:60], shape) > 0.5, polygon_mask(q[60:68], shape) > 0.5
-        return cv2.erode((outer & ~inner).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-
     # only round the lips: the band, rings and Laplacians of a 1000 px frame's face box cost ~25 ms
     dlo, dhi = lip_box(d, r.shape, 4 * sigma + 2)  # the Gaussian reaches 4 sigma
     plo, phi = lip_box(p, s.shape, 2)
@@ -148,7 +144,7 @@ def match_lip_detail(src, ref, driver68, puppet68, *, max_amount: float = 1.0) -
     rd = np.ascontiguousarray(r[dlo[1]:dhi[1], dlo[0]:dhi[0]])
     sp = s[plo[1]:phi[1], plo[0]:phi[0]]
     dq, pq = d - dlo, p - plo
-    ring_d, ring_p = ring(dq, rd.shape[:2]), ring(pq, sp.shape[:2])
+    ring_d, ring_p = lip_ring(dq, rd.shape), lip_ring(pq, sp.shape)
     if ring_d.sum() < 16 or ring_p.sum() < 16:
         return s.copy(), 0.0
     lum = np.ascontiguousarray(rd @ _LUMA)

@@ -190,4 +190,3 @@ def eye_weights(points68, shape, *, feather: float = 0.015, grow: float = 0.0, s
     inner = inner.astype(np.float32)
     w = np.clip(cv2.GaussianBlur(inner, (0, 0), sig), 0, 1) * (m > 0.5)
     return cv2.GaussianBlur(w, (0, 0), max(0.5, spread * iod)) if spread > 0 else w
-

@@ -190,15 +190,18 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     crossed neutral). ``highlight_knee`` (colour "driver", L*; None: off): lightness detail above
     the persona's skin field, d > 0, is compressed to knee x tanh(d / knee) before its gain: a
     persona's specular highlights (a shiny brow ridge or nose in her photos' light) were white
-    bands on a pale driver. ``shadows`` (colour "driver"): weight (H, W) in [0, 1] or None: there,
+    bands on a pale driver. ``shadows`` (colour "driver"): weight (H, W) in [0, 1], a function
+    returning it, or None: there,
     on a darker persona than the driver, the lightness detail below the persona's skin field, d < 0,
     is compressed to -``shadow_knee`` x tanh(-d / ``shadow_knee``) before its gain (and before
     ``keep_dark``'s), in full from a skins' lightness ratio at ``gain``'s upper bound, not at all
     from a ratio of 1 down (linear between): a persona's dark under-eye circles and cheek shading
     (Serena Williams' photos: -10 to -22 L* under her skin field round a shiny cheekbone) were black
-    eyes and bruises on a pale driver. ``colour="persona"``: only the lighting moves: linear-light R, G, B x (Y(R_L) / Y(r_L)) / (Y(S_L) / Y(s_L)), the driver's
-    low-frequency luminance ratio over the persona's (Y(L*) the CIE luminance, the ratio clipped
-    to ``light_limits``), the persona's chromaticity kept.
+    eyes and bruises on a pale driver; like ``brows``, a function returning the weight is called
+    only then. ``colour="persona"``: only the lighting moves: linear-light R, G, B x
+    (Y(R_L) / Y(r_L)) / (Y(S_L) / Y(s_L)), the driver's low-frequency luminance ratio over the
+    persona's (Y(L*) the CIE luminance, the ratio clipped to ``light_limits``), the persona's
+    chromaticity kept.
     ``shrink`` > 1: the low-frequency fields are computed on both images shrunk by that factor
     (area average; ``src_skin`` and ``ref_skin`` are given at the shrunk size) and resized back
     (bilinear): the same fields at a fraction of the cost.
@@ -282,19 +285,19 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     # lid creases) takes the skins' lightness ratio, bounded by brow_gain, not the gain's bound
     gb = float(np.clip(ratio, gain[0], max(brow_gain, gain[1])))
     ratio_dark = gb > g[0] and (keep_dark is not None or brows is not None)
-    # the lightness detail over the persona's skin field (the knee's and the dark detail's)
-    detail = a[..., 0] - full(sa[..., 0]) \
-        if highlight_knee is not None or ratio_dark or (shadows is not None and ratio > 1.0) else None
+    # the shadow knee only for a darker persona than the driver (fully from the gain's upper bound):
+    # on a paler or like-toned driver the shading is the persona's (Blair's folds on a side-lit GRID
+    # speaker read as his on 96 % of frames, 84 % compressed)
+    strength = float(np.clip((ratio - 1.0) / max(gain[1] - 1.0, 1e-6), 0.0, 1.0)) if shadows is not None else 0.0
+    # the lightness detail over the persona's skin field (the knees' and the dark detail's)
+    detail = a[..., 0] - full(sa[..., 0]) if highlight_knee is not None or ratio_dark or strength > 0 else None
     if highlight_knee is not None:
         up = np.maximum(detail, 0.0)
         out[..., 0] -= g[0] * (up - highlight_knee * np.tanh(up / highlight_knee))
-    # only for a darker persona than the driver (fully from the gain's upper bound): on a paler or
-    # like-toned driver the shading is the persona's (Blair's folds on a side-lit GRID speaker read
-    # as his on 96 % of frames, 84 % compressed)
-    strength = float(np.clip((ratio - 1.0) / max(gain[1] - 1.0, 1e-6), 0.0, 1.0)) if shadows is not None else 0.0
     if strength > 0:
         down = np.maximum(-detail, 0.0)
-        cut = strength * np.asarray(shadows, np.float32) * (down - shadow_knee * np.tanh(down / shadow_knee))
+        w = np.asarray(shadows() if callable(shadows) else shadows, np.float32)
+        cut = strength * w * (down - shadow_knee * np.tanh(down / shadow_knee))
         out[..., 0] += g[0] * cut
         detail = detail + cut  # the lid rims' darker gain below (keep_dark) sees the compressed detail
     ref_lab = None

@@ -19,7 +19,7 @@ from .lighting import _lab, _linear, _rgb, linear_to_srgb
 KEY_LIP_LUMINANCE = ((40.0 + 16.0) / 116.0) ** 3
 
 __all__ = ["mouth_interior", "interior_white_balance", "mouth_closure", "fill_mouth_interior", "lift_inner_lips",
-           "lip_weights", "open_lip_weights", "lip_regions"]
+           "lip_ring", "lip_weights", "open_lip_weights", "lip_regions"]
 
 
 def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float = 1.3,
@@ -385,6 +385,17 @@ def interior_white_balance(interior, frame, driver68, image, puppet68, *, bounds
     return linear_to_srgb(_linear(f) * g).astype(np.float32)
 
 
+def lip_ring(points68, shape, *, outer=None) -> np.ndarray:
+    """bool (H, W): the lip pixels at iBUG landmarks ``points68`` (outer polygon 48-59 minus inner
+    60-67, a pixel in from both edges), where lip colour and detail are measured; ``outer``: the
+    outer polygon's mask if the caller has it."""
+    p = np.asarray(points68, np.float64)
+    h, w = _shape2(shape)
+    outer = polygon_mask(p[48:60], (h, w)) if outer is None else outer
+    ring = ((outer > 0.5) & ~(polygon_mask(p[60:68], (h, w)) > 0.5)).astype(np.uint8)
+    return cv2.erode(ring, np.ones((3, 3), np.uint8)) > 0
+
+
 def lip_weights(points68, shape, *, feather: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
     """(weight (H, W) float32, bool (H, W)) of the lips at iBUG landmarks ``points68``: the outer
     lip polygon 48-59 feathered by ``feather`` x the eye-corner distance (Gaussian sigma), and the
@@ -393,11 +404,8 @@ def lip_weights(points68, shape, *, feather: float = 0.02) -> tuple[np.ndarray, 
     p = np.asarray(points68, np.float64)
     h, w = _shape2(shape)
     outer = polygon_mask(p[48:60], (h, w))
-    inner = polygon_mask(p[60:68], (h, w))
-    ring = ((outer > 0.5) & ~(inner > 0.5)).astype(np.uint8)
-    ring = cv2.erode(ring, np.ones((3, 3), np.uint8)) > 0
     sig = max(0.75, feather * float(np.linalg.norm(p[36] - p[45])))
-    return np.clip(cv2.GaussianBlur(outer.astype(np.float32), (0, 0), sig), 0, 1), ring
+    return np.clip(cv2.GaussianBlur(outer.astype(np.float32), (0, 0), sig), 0, 1), lip_ring(p, (h, w), outer=outer)
 
 
 def open_lip_weights(points68, shape, *, feather: float = 0.02, band: float = 0.1,
