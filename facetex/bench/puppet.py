@@ -49,6 +49,12 @@ shows there). Per run:
 face shrunk, dimmed with sensor noise, the skin darkened to a dark-skinned speaker's;
 :mod:`facetex.bench._stress_clips`) are runs like the others.
 
+**Portraits** (``--portraits N``): N high-resolution drivers, still pairs of studio portraits
+(``DATA/frl-london``, 1000 px: a closed neutral face, then the same person's open smile; chosen
+to span skin lightness, :mod:`facetex.bench._portrait_clips`), run at their own size
+(``--portrait-size``, default native): what GRID's 360 px clips cannot show (soft skin and lips
+next to a sharp frame, a dark persona's lids on a pale face at 100 %).
+
 **Worst runs**: per run, each target measure's relative shortfall ``s`` (0 when met; below a
 lower bound lo: (lo − v) / lo, above an upper bound hi: (v − hi) / hi; a measure that could not
 be taken: 1) gives the score Σ (1[s > 0] + s) over the targets (:func:`run_score`: failed targets
@@ -82,6 +88,7 @@ from ._common import (
     write_text,
 )
 from ._puppet_clip import _collection_descriptor, _evaluate_clip, _partial_check, shifted_clip
+from ._portrait_clips import HOLD, portrait_clips
 from ._stress_clips import stress_clips, stress_sources
 from .puppet_measures import (
     COLUMNS,
@@ -160,6 +167,9 @@ def _persona_names(files: Sequence[str]) -> list[str]:
     return [s if stems.count(s) == 1 else f"{s}-{k}" for k, s in enumerate(stems)]
 
 
+#: the portrait pairs' folder inside --data / $FACETEX_DATA (``--portraits``)
+PORTRAIT_SUBFOLDER = "frl-london"
+
 _WORKER_CACHE: dict = {}  # persona file -> persona, per worker process (the items are persona-major)
 
 
@@ -199,7 +209,8 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, puppe
                      clips: int | None = None, size: int | None = 256, max_frames: int | None = None,
                      texture_shape: str = "collection", weights: str = "regional",
                      weight_smoothing: float | None = None, partial: bool = True, resume: bool = False,
-                     stress: bool = False, progress: Callable | None = None, engine=None) -> dict:
+                     stress: bool = False, portraits: int = 0, portrait_folder=None,
+                     portrait_size: int | None = None, progress: Callable | None = None, engine=None) -> dict:
     """Run the puppetry benchmark: every ``*.mpg`` / ``*.mp4`` in ``drivers`` (the first ``clips``)
     drives every persona of ``puppets`` (``puppet``: one or a list; .persona files, or photo
     folders built once and cached in ``out``); ``data`` (or FACETEX_DATA) supplies the defaults
@@ -209,7 +220,9 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, puppe
     ``resume``: reuse the runs already stored in ``out/runs`` with the same settings. ``stress``:
     also a mirrored side-lit, a rotated small-face and a dim noisy copy of the clips
     (:mod:`facetex.bench._stress_clips`, written to ``out/stress/``), each driving every persona.
-    ``engine`` (:mod:`facetex.batch.engines`, started): the runs (and the partial-face check)
+    ``portraits``: also that many still-pair clips of ``portrait_folder`` (default ``DATA/frl-london``;
+    :mod:`facetex.bench._portrait_clips`, written to ``out/portraits/``), run at ``portrait_size``
+    (None: their own size). ``engine`` (:mod:`facetex.batch.engines`, started): the runs (and the partial-face check)
     run as its items, in parallel; default: one after another in this process.
     Returns {"out", "rows", "summary", "worst", "worst_runs", "partial", "files", "targets_met"}."""
     import hashlib
@@ -238,6 +251,19 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, puppe
     out = check_out_dir(out)
     if stress:
         files = files + stress_clips(files, out, max_frames=max_frames)
+    portrait_files = []
+    if portraits:
+        if portrait_folder is None:
+            root = data or os.environ.get("FACETEX_DATA")
+            if not root:
+                raise BadInputError("--portraits needs the portrait folder: give --data DIR (with frl-london/), "
+                                    "set FACETEX_DATA, or give --portrait-folder")
+            portrait_folder = Path(root) / PORTRAIT_SUBFOLDER
+        portrait_files = portrait_clips(portrait_folder, out, portraits)
+        files = files + portrait_files
+    sizes = {str(c): (portrait_size if c in portrait_files else size) for c in files}
+    # a portrait clip is 2 x HOLD frames: cut short it would never smile
+    lengths = {str(c): (None if c in portrait_files else max_frames) for c in files}
     persona_files = [_persona_file(p, out, progress) for p in puppet_paths]
     names = _persona_names(persona_files)
     from ..batch.engines import InlineEngine
@@ -276,8 +302,8 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, puppe
         st = os.stat(pf)
         for c in files:
             settings = {"persona_file": str(Path(pf).resolve()), "persona_bytes": st.st_size,
-                        "persona_mtime": st.st_mtime, "clip": str(c.resolve()), "size": size,
-                        "max_frames": max_frames, "shape": texture_shape, "weights": weights,
+                        "persona_mtime": st.st_mtime, "clip": str(c.resolve()), "size": sizes[str(c)],
+                        "max_frames": lengths[str(c)], "shape": texture_shape, "weights": weights,
                         "weight_smoothing": params.weight_smoothing}
             key = ResultStore.key(name, c.stem)
             old = store.get(key) if resume else None
@@ -287,8 +313,8 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, puppe
             rows.append(None)
             todo.append(len(rows) - 1)
             items.append({"kind": "clip", "clip": str(c), "persona_file": settings["persona_file"], "name": name,
-                          "reference": list(ref), "out": str(out.resolve()), "size": size,
-                          "max_frames": max_frames, "shape": texture_shape, "weights": weights,
+                          "reference": list(ref), "out": str(out.resolve()), "size": sizes[str(c)],
+                          "max_frames": lengths[str(c)], "shape": texture_shape, "weights": weights,
                           "weight_smoothing": params.weight_smoothing, "write_media": len(rows) == 1,
                           "settings": settings, "store": str(store.folder), "key": key})
     if partial:
@@ -303,11 +329,12 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, puppe
         rows[k] = r
     part = results[len(todo)] if partial else None
     return _write_tables(out, rows, part, drivers=drivers, files=files, persona_files=persona_files,
-                         puppet_paths=puppet_paths, size=size, weights=weights, params=params, max_frames=max_frames)
+                         puppet_paths=puppet_paths, size=size, weights=weights, params=params, max_frames=max_frames,
+                         portraits=(portrait_files, portrait_size))
 
 
 def _write_tables(out: Path, rows: list, part, *, drivers, files, persona_files, puppet_paths, size, weights,
-                  params, max_frames) -> dict:
+                  params, max_frames, portraits=((), None)) -> dict:
     """table.md, table.csv, results.json and the worst runs' sheets of a finished bench."""
     from ..io import read_image, write_json
 
@@ -329,7 +356,10 @@ def _write_tables(out: Path, rows: list, part, *, drivers, files, persona_files,
     n_fail = {k: sum(_shortfall(k, r.get(k)) > 0 for r in rows) for k in TARGETS}
     head = (f"# Puppetry benchmark\n\n{len(persona_files)} persona(s) × {len(files)} clip(s) from `{drivers}` = "
             f"{len(rows)} runs; panel size {size or 'native'}; texture weights: {weights}; weight smoothing: "
-            f"{params.weight_smoothing:g} s. Personas: " +
+            f"{params.weight_smoothing:g} s. " +
+            (f"Of the clips, {len(portraits[0])} are portrait pairs (`{portraits[0][0].parent}`: "
+             + ", ".join(f"`{p.stem}`" for p in portraits[0]) + f") at {portraits[1] or 'their own'} px. "
+             if portraits[0] else "") + "Personas: " +
             ", ".join(f"`{Path(f).name}`" for f in persona_files) + ".\n\n"
             "Targets per run (issue 21): mouth slope 0.8–1.3 and r >= 0.85; cheek ΔE to the driver <= 8 (CIELAB, "
             "composite); eye openness >= 0.8 of the driver's; face sharpness >= 0.75 of the driver's; composite "
@@ -390,7 +420,9 @@ def _write_tables(out: Path, rows: list, part, *, drivers, files, persona_files,
     write_json(paths["results"], json_safe({
         "bench": "puppet",
         "settings": {"drivers": str(drivers), "puppets": [str(p) for p in puppet_paths],
-                     "persona_files": persona_files, "size": size, "weights": weights, "max_frames": max_frames,
+                     "persona_files": persona_files, "size": size,
+                     "portraits": [str(p) for p in portraits[0]], "portrait_size": portraits[1],
+                     "weights": weights, "max_frames": max_frames,
                      "targets": {k: list(v) for k, v in TARGETS.items()}, "versions": versions()},
         "rows": rows, "summary": summary, "worst": {**worst, "runs": worst_run}, "worst_runs": worst_list,
         "partial": part, "targets_met": ok}), overwrite=True)
@@ -451,6 +483,14 @@ def register_bench(bench_subparsers) -> argparse.ArgumentParser:
                    help="also drive every persona with four harder copies of the clips: mirrored and side-lit, "
                         "rotated 14 degrees with the face shrunk, dimmed with sensor noise, with a dark skin "
                         "(written to OUT/stress/)")
+    p.add_argument("--portraits", type=positive_int, default=0, metavar="N",
+                   help="also drive every persona with N high-resolution still pairs (a closed neutral face, then "
+                        "the same person's open smile) from DATA/frl-london, chosen to span skin lightness "
+                        "(written to OUT/portraits/)")
+    p.add_argument("--portrait-folder", metavar="DIR",
+                   help="folder of NNN_neutral / NNN_smiling portrait pairs for --portraits (default DATA/frl-london)")
+    p.add_argument("--portrait-size", type=bounded_int(32, 4096), metavar="PX",
+                   help="longer side of the portrait runs' frames (default: the portraits' own size)")
     p.add_argument("--resume", action="store_true",
                    help="reuse the runs already in OUT/runs with the same settings (persona file, clip, options)")
     from ..cli._common import add_engine_options
@@ -466,7 +506,8 @@ def _run(args) -> int:
     from ..io import video_info
     from ._common import data_root, finish_bench
 
-    root = None if (args.drivers and args.puppets and not args.data) else data_root(args.data)
+    root = None if (args.drivers and args.puppets and not args.data
+                    and (args.portrait_folder or not args.portraits)) else data_root(args.data)
     drivers, puppets = _data_paths(root, args.drivers, args.puppets)
     clips = sorted(f for f in drivers.iterdir() if f.suffix.lower() in (".mpg", ".mp4", ".mov", ".avi", ".mkv")) \
         if drivers.is_dir() else [drivers]
@@ -479,6 +520,7 @@ def _run(args) -> int:
         except Exception:  # noqa: BLE001 - the run itself reports a bad clip
             n = 0
         total += min(n, args.max_frames) if args.max_frames else n
+    total += 2 * HOLD * args.portraits  # at most; fewer when the folder has fewer usable pairs
     total *= len(puppets)
     from ..cli._common import engine_from_args
 
@@ -487,7 +529,10 @@ def _run(args) -> int:
         res = run_bench_puppet(drivers, puppets=puppets, out=args.out, clips=args.clips, size=args.size,
                                max_frames=args.max_frames, texture_shape=args.shape, weights=args.weights,
                                weight_smoothing=args.weight_smoothing, partial=not args.no_partial,
-                               resume=args.resume, stress=args.stress, progress=bar, engine=engine)
+                               resume=args.resume, stress=args.stress, portraits=args.portraits,
+                               portrait_folder=args.portrait_folder
+                               or (Path(root) / PORTRAIT_SUBFOLDER if root else None),
+                               portrait_size=args.portrait_size, progress=bar, engine=engine)
     table = Path(res["files"]["table_md"]).read_text(encoding="utf-8")
     finish_bench(args, "puppet", res["out"], res["files"],
                  inputs={"drivers": drivers, **{f"puppet{k}": p for k, p in enumerate(puppets)}},
