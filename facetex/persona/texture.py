@@ -162,12 +162,13 @@ def blend_textures(persona: Persona, fiducials, *, params: TextureParams | None 
 
 
 def sequence_weights(persona: Persona, fiducials, params: TextureParams | None = None, *,
-                     sigma_frames: float = 0.0, range_scale: float = 1.0) -> np.ndarray:
+                     sigma_frames: float = 0.0, range_scale: float = 1.0, segments=None) -> np.ndarray:
     """(N, R, n) regional weights of a sequence of N target fiducials (N, 49 or 68, 2) for
     :func:`blend_weights`: each frame's weights as :func:`blend_textures` would use them (the
     smallest cut, at most ``params.max_photos`` per region), then, with ``sigma_frames`` > 0,
     made temporally coherent (:func:`facetex.persona.weights.temporal_weights`: a bilateral filter
-    over frames and expression distance, ``range_scale`` x the frame's sigma)."""
+    over frames and expression distance, ``range_scale`` x the frame's sigma; ``segments``: shot ids,
+    not mixed)."""
     from .weights import temporal_weights
 
     tp = params or TextureParams()
@@ -179,7 +180,8 @@ def sequence_weights(persona: Persona, fiducials, params: TextureParams | None =
     W = cut_region_weights(S, tp)  # (N, R, n)
     if sigma_frames <= 0:
         return W
-    return temporal_weights(W, coords, sigmas, sigma_frames=sigma_frames, range_scale=range_scale)
+    return temporal_weights(W, coords, sigmas, sigma_frames=sigma_frames, range_scale=range_scale,
+                            segments=segments)
 
 
 def cut_region_weights(similarities, params: TextureParams) -> np.ndarray:

@@ -401,7 +401,7 @@ def global_similarity(target, fiducials, sigma: float = 10.0, *, scale: float = 
 
 
 def temporal_weights(weights, coordinates, sigmas, *, sigma_frames: float, range_scale: float = 1.0,
-                     last: bool = False) -> np.ndarray:
+                     last: bool = False, segments=None) -> np.ndarray:
     """Expression weights of a frame sequence made temporally coherent (puppetry, beyond the paper).
 
     ``weights`` (N, R, n): each frame's per-region photo weights as its blend would use them;
@@ -416,7 +416,8 @@ def temporal_weights(weights, coordinates, sigmas, *, sigma_frames: float, range
     so the expression stays. Each frame keeps its total weight (the uniform term of Eq. 3 is
     relative to it). Frames are filtered in a band (cost O(N x window x n)). ``last``: only the
     last frame's weights, (1, R, n) (a causal filter's newest frame; the same values as the last
-    row of the full result, at 1/N of the cost)."""
+    row of the full result, at 1/N of the cost). ``segments`` (N,): shot ids of an edited clip
+    (:func:`facetex.puppet.driver.shot_starts`); frames of different shots are not mixed."""
     W = np.asarray(weights, np.float64)
     if W.ndim != 3:
         raise BadInputError(f"temporal weights need (frames, regions, photos) weights, got {W.shape}")
@@ -428,6 +429,7 @@ def temporal_weights(weights, coordinates, sigmas, *, sigma_frames: float, range
         return W[-1:].copy() if last else W.copy()
     half = int(math.ceil(3.0 * sigma_frames))
     t0 = N - 1 if last else 0  # the first frame filtered
+    seg = None if segments is None else np.asarray(segments).reshape(N)
     out = np.empty((N - t0, R, n))
     for j in range(R):
         tot = W[:, j].sum(axis=-1)
@@ -444,6 +446,8 @@ def temporal_weights(weights, coordinates, sigmas, *, sigma_frames: float, range
             if s2 is not None and o:
                 d2 = ((c[lo:hi] - c[lo + o:hi + o]) ** 2).sum(axis=-1)
                 k *= np.exp(-d2 / s2[lo:hi])
+            if seg is not None and o:
+                k *= seg[lo:hi] == seg[lo + o:hi + o]
             acc[lo - t0:hi - t0] += k[:, None] * P[lo + o:hi + o]
             norm[lo - t0:hi - t0] += k
         out[:, j] = acc / norm[:, None] * tot[t0:, None]

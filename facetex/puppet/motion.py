@@ -19,6 +19,7 @@ from .driver import (
     generalized_procrustes,
     mouth_opening,
     similarity_procrustes,
+    shot_starts,
     smooth_series,
 )
 
@@ -49,7 +50,8 @@ class DriverMotion:
     grid: :class:`GridInterpolator` onto the depth-map grid, grid_mesh (h, w, 3) the mean
     mesh on it (NaN outside), grid_step; found (N,) as tracked; opening (N,) mouth opening
     of the (filled, unsmoothed) tracked landmarks; frontal_mean68 (68, 2): the mean frontalized
-    landmarks the canonical frame is fitted to."""
+    landmarks the canonical frame is fitted to; shots (N,): each frame's shot of an edited clip
+    (0, 1, ... from :func:`~facetex.puppet.driver.shot_starts`; nothing is smoothed across a cut)."""
 
     pose_A: np.ndarray
     pose_b: np.ndarray
@@ -65,6 +67,7 @@ class DriverMotion:
     points68: np.ndarray
     anchors: np.ndarray = field(repr=False, default=None)
     mouth: "MouthCorrection | None" = field(repr=False, default=None)
+    shots: np.ndarray | None = field(repr=False, default=None)
     fiducials68: np.ndarray | None = field(repr=False, default=None)
     triangles: np.ndarray | None = field(repr=False, default=None)
     frontal_mean68: np.ndarray | None = field(repr=False, default=None)
@@ -368,8 +371,9 @@ def driver_motion(track: DriverTrack, params: DriverParams = DriverParams(), *, 
     from ..landmarks import POINTS49_INDEX
 
     found = track.found
-    mesh = fill_lost(track.mesh, found)
-    p68 = fill_lost(track.points68, found)
+    shots = np.cumsum(shot_starts(track.points68, found))  # nothing is smoothed or filled across a cut
+    mesh = fill_lost(track.mesh, found, segments=shots)
+    p68 = fill_lost(track.points68, found, segments=shots)
     mean, s, R, t = generalized_procrustes(mesh[found], iters=params.procrustes_iters)
     # pose of every frame (interpolated for lost frames; rotation by its rotation vector)
     from scipy.spatial.transform import Rotation
@@ -379,12 +383,12 @@ def driver_motion(track: DriverTrack, params: DriverParams = DriverParams(), *, 
     rv[found] = Rotation.from_matrix(R).as_rotvec()
     ls, tt = np.zeros(n), np.zeros((n, 3))
     ls[found], tt[found] = np.log(s), t
-    rv, ls, tt = (fill_lost(a, found) for a in (rv, ls, tt))
+    rv, ls, tt = (fill_lost(a, found, segments=shots) for a in (rv, ls, tt))
     aligned = np.einsum("nij,nvj->nvi", Rotation.from_rotvec(rv).as_matrix().transpose(0, 2, 1),
                         mesh - tt[:, None]) / np.exp(ls)[:, None, None]
     w, o = params.smooth_window, params.smooth_order
-    aligned = smooth_series(aligned, w, o)
-    rv, ls, tt = smooth_series(rv, w, o), smooth_series(ls, w, o), smooth_series(tt, w, o)
+    aligned = smooth_series(aligned, w, o, segments=shots)
+    rv, ls, tt = (smooth_series(a, w, o, segments=shots) for a in (rv, ls, tt))
     # mean mesh -> canonical frame: anchors (vertices at the fiducials) onto the mean frontalized
     # fiducials (x, y) and the generic face's depth (z)
     anchors = _anchor_vertices(p68, mesh, found)
@@ -407,11 +411,11 @@ def driver_motion(track: DriverTrack, params: DriverParams = DriverParams(), *, 
     for i in np.flatnonzero(found):
         x3 = _lift_points(p68[i], mesh[i], triangles)
         fid68[i] = (np.linalg.solve(A[i], (x3 - b[i]).T).T)[:, :2]
-    filled = fill_lost(fid68, found)
-    fid68 = smooth_series(filled, w, o)
+    filled = fill_lost(fid68, found, segments=shots)
+    fid68 = smooth_series(filled, w, o, segments=shots)
     if params.lip_smooth_window != w:
         mouth_pts = list(_MOUTH_FIDUCIALS)
-        fid68[:, mouth_pts] = smooth_series(filled[:, mouth_pts], params.lip_smooth_window, o)
+        fid68[:, mouth_pts] = smooth_series(filled[:, mouth_pts], params.lip_smooth_window, o, segments=shots)
     fid = fid68[:, POINTS49_INDEX]
     # depth-map grid
     W, H = params.size
@@ -430,7 +434,8 @@ def driver_motion(track: DriverTrack, params: DriverParams = DriverParams(), *, 
     return DriverMotion(pose_A=A, pose_b=b, mean_mesh=mean_c, deltas=deltas, fiducials=fid,
                         mean_fiducials=fid[found].mean(axis=0), grid=grid, grid_mesh=gm, grid_step=st,
                         found=found.copy(), opening=mouth_opening(p68), points68=p68, anchors=anchors,
-                        mouth=mouth, fiducials68=fid68, triangles=triangles, frontal_mean68=fid_mean)
+                        mouth=mouth, fiducials68=fid68, triangles=triangles, frontal_mean68=fid_mean,
+                        shots=shots)
 
 
 # eyelid landmarks (iBUG): per eye the corners, the upper lid and the lower lid (paired top-bottom)

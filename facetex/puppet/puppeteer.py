@@ -431,7 +431,8 @@ class Puppeteer:
             f = np.stack([self.target(i) for i in range(len(self.motion))])
             self._sequence_weights = sequence_weights(self.persona, f, self.params.texture_params(),
                                                       sigma_frames=self.params.weight_smoothing * fps,
-                                                      range_scale=self.params.weight_range)
+                                                      range_scale=self.params.weight_range,
+                                                      segments=self.motion.shots)
         return self._sequence_weights
 
     def pose(self, i: int, scale: float) -> tuple[np.ndarray, np.ndarray]:

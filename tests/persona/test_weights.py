@@ -173,6 +173,17 @@ def test_temporal_weights_hand_computed_three_frames():
     np.testing.assert_allclose(out.sum(axis=-1), W.sum(axis=-1), rtol=1e-12)  # totals kept
 
 
+def test_temporal_weights_do_not_mix_shots():
+    """Frames 0-1 and 2-3 are two shots: each frame averages only its own shot's weights."""
+    from facetex.persona.weights import temporal_weights
+
+    W = np.array([[[1.0, 0.0]], [[1.0, 0.0]], [[0.0, 1.0]], [[0.0, 1.0]]])
+    mixed = temporal_weights(W, _still_coords(4), np.ones((4, 1)), sigma_frames=1.0)
+    assert mixed[1, 0, 1] > 0.2  # across the cut: the next shot's photo
+    out = temporal_weights(W, _still_coords(4), np.ones((4, 1)), sigma_frames=1.0, segments=[0, 0, 1, 1])
+    np.testing.assert_allclose(out, W, atol=1e-12)
+
+
 def test_temporal_weights_last_frame_only_is_the_last_row():
     """``last=True`` (the live session's causal filter) gives exactly the full result's last row."""
     from facetex.persona.weights import temporal_weights

@@ -15,6 +15,7 @@ from facetex.puppet.driver import (
     fill_lost,
     generalized_procrustes,
     mouth_opening,
+    shot_starts,
     similarity_procrustes,
     smooth_series,
     track_driver,
@@ -63,6 +64,46 @@ def test_fill_lost_interpolates_and_holds():
     x = np.array([np.nan, 1.0, np.nan, np.nan, 4.0, np.nan])
     found = np.isfinite(x)
     np.testing.assert_allclose(fill_lost(x, found), [1, 1, 2, 3, 4, 4])
+
+
+def _face(dx=0.0, scale=1.0):
+    """68 points: eye corners 36/45 10 px apart, the other points spread round them, shifted by dx."""
+    p = np.random.default_rng(1).normal(scale=3.0, size=(68, 2))
+    p[36], p[45] = [0.0, 0.0], [10.0, 0.0]
+    return p * scale + [dx, 0.0]
+
+
+def test_shot_starts_at_a_jump_of_the_rigid_points():
+    frames = [_face(0.05 * k) for k in range(5)]  # 0.005 eye distances a frame: a moving head
+    frames += [_face(30.0 + 0.05 * k) for k in range(5)]  # 3 eye distances away: a cut
+    p = np.stack(frames)
+    p[6] = np.nan  # a lost frame after the cut: the next found one is compared with frame 5
+    found = np.isfinite(p[:, 0, 0])
+    assert np.flatnonzero(shot_starts(p, found)).tolist() == [5]
+    moving_mouth = p[:5].copy()
+    moving_mouth[3, 48:68] += 8.0  # lips move 0.8 eye distances: an expression, not a cut
+    assert not shot_starts(moving_mouth, np.ones(5, bool)).any()
+    assert not shot_starts(p[:1], np.ones(1, bool)).any()
+    fast = np.stack([_face(0.9 * k) for k in range(5)])  # 0.09 eye distances a frame: fast, still one shot
+    assert not shot_starts(fast, np.ones(5, bool)).any()
+    assert shot_starts(fast, np.ones(5, bool), jump=0.05)[1:].all()
+
+
+def test_smoothing_and_filling_stay_inside_shots():
+    """A step at a cut: smoothed across it, Savitzky-Golay (5, 2) moves the frame before it 9/35 of the
+    step; by shots, both sides keep their values; a lost frame is filled from its own shot."""
+    x = np.r_[np.zeros(8), np.ones(8)]
+    shots = np.r_[np.zeros(8, int), np.ones(8, int)]
+    assert smooth_series(x, 5, 2)[7] == pytest.approx(9 / 35)
+    np.testing.assert_allclose(smooth_series(x, 5, 2, segments=shots), x, atol=1e-12)
+    y = x.copy()
+    y[[7, 8]] = np.nan
+    found = np.isfinite(y)
+    assert fill_lost(y, found)[7] == pytest.approx(1 / 3)
+    np.testing.assert_allclose(fill_lost(y, found, segments=shots), x)
+    # a shot without any found frame is filled from the whole series
+    z = np.r_[np.nan, np.nan, 2.0, 4.0]
+    np.testing.assert_allclose(fill_lost(z, np.isfinite(z), segments=[0, 0, 1, 1]), [2, 2, 2, 4])
 
 
 def test_smoothing_removes_jitter_without_lag():
@@ -553,3 +594,21 @@ def test_the_tracker_averages_only_the_last_fit_with_its_mirror_when_asked(monke
         params = drv.DriverParams(landmark_refits=refits, landmark_mirror=mirror)
         out = drv._track_frame(img, (face.points68, (face.box, face.points68)), params, detect=detect)
         assert out is not None and len(calls) == n, (mirror, detect, refits)
+
+
+def test_motion_of_an_edited_clip_is_not_smoothed_across_its_cut(tmp_path):
+    """A neutral portrait for 6 frames, then the same person smiling, moved: two shots; the pose of
+    the frame before the cut is its own shot's (smoothed across, it took 9/35 of the jump)."""
+    from facetex.io import read_image
+    from facetex.puppet import driver as drv
+
+    samples = drv.Path(__file__).resolve().parents[2] / "facetex" / "data" / "samples"
+    a, b = (read_image(samples / f"frl_004_{k}.jpg") for k in ("neutral", "smiling"))
+    b = np.roll(b, 60, axis=1)  # the second shot framed 60 px further right
+    clip = tmp_path / "cut.mp4"
+    write_video(clip, [a] * 6 + [b] * 6, 25.0)
+    motion = driver_motion(track_driver(clip, frontal_images=False))
+    # the first frame after the cut may be lost (the carried landmarks disagree) and held from shot 0
+    assert (motion.shots[:6] == 0).all() and (motion.shots[7:] == 1).all()
+    np.testing.assert_allclose(motion.pose_b[5], motion.pose_b[3], atol=1.0)
+    assert motion.pose_b[7, 0] - motion.pose_b[5, 0] > 50
