@@ -204,19 +204,27 @@ def _runs(segments) -> list[slice]:
 def shot_starts(points68, found, *, jump: float = CUT_JUMP) -> np.ndarray:
     """bool (N,): the frames that begin a new shot of an edited clip: the rigid landmarks (nose,
     eye corners) moved by more than ``jump`` x the eye-corner distance (median over the points)
-    since the previous tracked frame. Frame 0 is never a start. Smoothing the pose and the
-    expression across a cut blended two shots: the frames beside it had the next shot's head
-    (a portrait's jaw drawn bulging one frame before the cut)."""
+    since the previous tracked frame, the next tracked frame as far from that one and this one as
+    far from the one before it (a one-frame slip of the landmarks that comes back is not a cut). Frame 0 is never a start.
+    Smoothing the pose and the expression across a cut blended two shots: the frames beside it
+    had the next shot's head (a portrait's jaw drawn bulging one frame before the cut)."""
     p = np.asarray(points68, np.float64)
     found = np.asarray(found, bool)
     starts = np.zeros(len(p), bool)
     idx = np.flatnonzero(found)
     if len(idx) < 2:
         return starts
-    a, b = p[idx[:-1]], p[idx[1:]]
-    iod = np.linalg.norm(a[:, 36] - a[:, 45], axis=1)
-    moved = np.median(np.linalg.norm(b[:, list(_RIGID)] - a[:, list(_RIGID)], axis=2), axis=1)
-    starts[idx[1:][moved > jump * np.maximum(iod, 1e-9)]] = True
+    rigid = list(_RIGID)
+
+    def far(a, b) -> np.ndarray:  # rigid points of b moved from a's by more than the jump
+        moved = np.median(np.linalg.norm(p[b][:, rigid] - p[a][:, rigid], axis=2), axis=1)
+        return moved > jump * np.maximum(np.linalg.norm(p[a][:, 36] - p[a][:, 45], axis=1), 1e-9)
+
+    cut = far(idx[:-1], idx[1:])
+    two = far(idx[:-2], idx[2:])
+    cut[:-1] &= two  # still away one frame later
+    cut[1:] &= two  # and away from the frame before too (not the return from a slip)
+    starts[idx[1:][cut]] = True
     return starts
 
 

@@ -84,6 +84,9 @@ def test_shot_starts_at_a_jump_of_the_rigid_points():
     moving_mouth[3, 48:68] += 8.0  # lips move 0.8 eye distances: an expression, not a cut
     assert not shot_starts(moving_mouth, np.ones(5, bool)).any()
     assert not shot_starts(p[:1], np.ones(1, bool)).any()
+    slip = np.stack([_face(30.0 if k == 2 else 0.0) for k in range(5)])  # one frame off, then back
+    assert not shot_starts(slip, np.ones(5, bool)).any()
+    assert np.flatnonzero(shot_starts(slip[:3], np.ones(3, bool))).tolist() == [2]  # the last frame: a cut
     fast = np.stack([_face(0.9 * k) for k in range(5)])  # 0.09 eye distances a frame: fast, still one shot
     assert not shot_starts(fast, np.ones(5, bool)).any()
     assert shot_starts(fast, np.ones(5, bool), jump=0.05)[1:].all()
