@@ -205,8 +205,8 @@ def shot_starts(points68, found, *, jump: float = CUT_JUMP) -> np.ndarray:
     """bool (N,): the frames that begin a new shot of an edited clip: the rigid landmarks (nose,
     eye corners) moved by more than ``jump`` x the eye-corner distance (median over the points)
     since the previous tracked frame, the next tracked frame as far from that one and this one as
-    far from the one before it (a one-frame slip of the landmarks that comes back is not a cut). Frame 0 is never a start.
-    Smoothing the pose and the expression across a cut blended two shots: the frames beside it
+    far from the one before it (a one-frame slip of the landmarks that comes back is not a cut).
+    Frame 0 is never a start. Smoothing the pose and the expression across a cut blended two shots: the frames beside it
     had the next shot's head (a portrait's jaw drawn bulging one frame before the cut)."""
     p = np.asarray(points68, np.float64)
     found = np.asarray(found, bool)
