@@ -26,9 +26,11 @@ from .puppet_measures import (
     eye_aspect_ratio,
     eye_mask,
     face_skin_mask,
+    lightness_difference,
     rest_lift_difference,
     sharpness_ratio,
     sheet_frames,
+    under_eye_mask,
 )
 
 __all__ = [
@@ -206,6 +208,7 @@ def _evaluate_clip(clip: Path, persona, ref_desc, out: Path, *, size, max_frames
     d_pup, d_drv = np.full(n, np.nan), np.full(n, np.nan)
     step_c, step_d = np.full(n, np.nan), np.full(n, np.nan)
     de, sharp, eye_sharp = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
+    under_eye = np.full(n, np.nan)
     for r in ours:
         i = r["index"]
         if r["lost"]:
@@ -220,6 +223,7 @@ def _evaluate_clip(clip: Path, persona, ref_desc, out: Path, *, size, max_frames
         shown = r["alpha"] > ALPHA_PUPPET
         shape = r["puppet"].shape
         de[i] = cheek_delta_e(r["puppet"], r["driver"], cheek_mask(p68[i], shape) & shown)
+        under_eye[i] = lightness_difference(r["puppet"], r["driver"], under_eye_mask(p68[i], shape) & shown)
         sharp[i] = sharpness_ratio(r["puppet"], r["driver"], face_skin_mask(p68[i], shape) & shown)
         eye_sharp[i] = sharpness_ratio(r["puppet"], r["driver"], eye_mask(p68[i], shape) & shown)
         mask = r["alpha"] > 0.5
@@ -269,6 +273,7 @@ def _evaluate_clip(clip: Path, persona, ref_desc, out: Path, *, size, max_frames
         "lost_causes": track.lost_causes,
         "driver_glasses": pup.glasses,  # kept in front of the puppet
         "cheek_de": _median(de),
+        "under_eye_dl": _median(under_eye),
         "sharp": _median(sharp),
         "eye_sharp": _median(eye_sharp),
         "id_closer": float(closer.mean()) if closer.size else float("nan"),

@@ -18,6 +18,10 @@ shows there). Per run:
   pixels (:func:`cheek_mask`: discs of radius 0.12 × eye-corner distance at the centroid of
   jaw point 1 (15), nostril 31 (35) and lower lid 41 (46): skin below the eye, lateral to the
   nose), the median over frames; target <= 8;
+* **under-eye ΔL*** (no target): mean CIELAB L* of the composite minus the driver's own frame on two
+  discs below the lower lids (:func:`under_eye_mask`), median over frames; < 0 darker. The cheek ΔE
+  missed a dark persona's under-eye circles kept as a dark band on a pale 1000 px driver (-13 to -17
+  L* there, cheek ΔE 4.5); the "worst" row shows the value farthest from 0;
 * **eye openness**: eye aspect ratio (:func:`eye_aspect_ratio`, both eyes averaged) of the
   puppet over the driver's, mean over the frames where the driver's eyes are open (EAR >= 0.75
   × its 90th percentile in the clip): :func:`eye_openness_ratio`, target >= 0.8; **eye r**:
@@ -102,6 +106,8 @@ from .puppet_measures import (
     blink_correlation,
     cheek_delta_e,
     cheek_mask,
+    lightness_difference,
+    under_eye_mask,
     eye_aspect_ratio,
     eye_mask,
     eye_openness_ratio,
@@ -117,7 +123,8 @@ from .puppet_measures import (
 )
 
 __all__ = ["register_bench", "run_bench_puppet", "mouth_slope", "shifted_clip", "eye_aspect_ratio",
-           "eye_openness_ratio", "cheek_mask", "cheek_delta_e", "face_skin_mask", "eye_mask", "sharpness_ratio",
+           "eye_openness_ratio", "cheek_mask", "cheek_delta_e", "under_eye_mask", "lightness_difference",
+           "face_skin_mask", "eye_mask", "sharpness_ratio",
            "blink_correlation", "rest_lift_difference", "run_score", "failed_targets", "worst_runs", "sheet_frames",
            "TARGETS"]
 

@@ -20,6 +20,8 @@ __all__ = [
     "rest_lift_difference",
     "cheek_mask",
     "cheek_delta_e",
+    "under_eye_mask",
+    "lightness_difference",
     "face_skin_mask",
     "eye_mask",
     "sharpness_ratio",
@@ -41,6 +43,10 @@ ID_PHOTOS = 40  # photos of the collection averaged into its identity reference
 EYE_OPEN = 0.75  # the driver's eyes are open when EAR >= this x its 90th percentile
 ALPHA_PUPPET = 0.9  # composite pixels counted as the puppet's
 CHEEK_RADIUS = 0.12  # x outer eye-corner distance
+#: the under-eye patches: discs of this radius, this far below the middle of each lower lid (x outer
+#: eye-corner distance): the skin where a dark persona's circles showed as a band on a pale driver
+UNDER_EYE_RADIUS = 0.06
+UNDER_EYE_DROP = 0.11
 N_WORST = 3
 
 #: targets of issue 21 per run: key -> (lower bound or None, upper bound or None)
@@ -61,6 +67,7 @@ COLUMNS = (
     Column("mouth_slope", "mouth slope", ".2f"),
     Column("mouth_r", "mouth r", ".3f"),
     Column("cheek_de", "cheek ΔE", ".1f"),
+    Column("under_eye_dl", "under-eye ΔL*", "+.1f"),
     Column("eye_ratio", "eye open ratio", ".2f"),
     Column("eye_r", "eye r", ".2f"),
     Column("sharp", "sharpness ratio", ".2f"),
@@ -82,7 +89,7 @@ COLUMNS = (
 WORSE = {"lost": "max", "mouth_r": "min", "cheek_de": "max", "eye_ratio": "min", "eye_r": "min", "sharp": "min",
          "eye_sharp": "min", "id_closer": "min", "score": "max", "mouth_detected": "min", "step_ratio": "max",
          "id_puppet": "max", "id_frac": "min", "id_driver": "min", "flicker": "max", "fps": "min",
-         "rest_lift": "max"}
+         "rest_lift": "max", "under_eye_dl": "abs"}
 
 
 def _pearson(a, b) -> float:
@@ -209,6 +216,26 @@ def cheek_delta_e(image, reference, mask, *, min_pixels: int = 12) -> float:
     return float(np.linalg.norm(_lab(image)[m].mean(axis=0) - _lab(reference)[m].mean(axis=0)))
 
 
+def under_eye_mask(points68, shape) -> np.ndarray:
+    """bool (H, W): the skin below the eyes, discs of radius UNDER_EYE_RADIUS x the outer eye-corner
+    distance, UNDER_EYE_DROP x that distance below the middle of each lower lid (points 40-41, 46-47)."""
+    p = np.asarray(points68, np.float64)
+    d = _eye_distance(p)
+    drop = np.array([0.0, UNDER_EYE_DROP * d])
+    return _disc(shape, (p[40] + p[41]) / 2 + drop, UNDER_EYE_RADIUS * d) | \
+        _disc(shape, (p[46] + p[47]) / 2 + drop, UNDER_EYE_RADIUS * d)
+
+
+def lightness_difference(image, reference, mask, *, min_pixels: int = 12) -> float:
+    """Mean CIELAB L* (0..100) of ``image`` minus ``reference``'s on ``mask``: < 0 darker; NaN when
+    fewer than ``min_pixels`` pixels. Under the eyes (:func:`under_eye_mask`) it sees what the cheek
+    ΔE does not: a dark persona's under-eye circles kept as a dark band on a pale driver."""
+    m = np.asarray(mask, bool)
+    if m.sum() < min_pixels:
+        return float("nan")
+    return float(_lab(image)[..., 0][m].mean() - _lab(reference)[..., 0][m].mean())
+
+
 def face_skin_mask(points68, shape) -> np.ndarray:
     """bool (H, W): the face inside the jaw line and the brows, without the eyes (dilated by
     0.1 x eye distance), the brows (0.12 x thick) and the lips (dilated 0.1 x), eroded 0.05 x
@@ -323,6 +350,8 @@ def _worst_value(key: str, values: list):
         centre = sum(TARGETS[key]) / 2
         return max(vals, key=lambda v: (_shortfall(key, v), abs(v - centre)))
     how = WORSE.get(key)
+    if how == "abs":  # too dark and too light alike: the farthest from 0
+        return max(vals, key=abs)
     return min(vals) if how == "min" else max(vals) if how == "max" else float("nan")
 
 

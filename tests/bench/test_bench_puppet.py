@@ -95,6 +95,24 @@ def test_cheek_delta_e_of_known_colours():
     assert np.isnan(bench.cheek_delta_e(white, black, np.zeros((10, 10), bool)))
 
 
+def test_under_eye_lightness_difference_by_hand():
+    """Grey 0.5 (L* 53.39) against white (100) on the mask: -46.61; the masks sit below the lower lids."""
+    black, white = np.zeros((10, 10, 3), np.float32), np.ones((10, 10, 3), np.float32)
+    m = np.zeros((10, 10), bool)
+    m[2:6, 2:6] = True
+    assert bench.lightness_difference(black + 0.5, white, m) == pytest.approx(53.39 - 100.0, abs=0.1)
+    assert bench.lightness_difference(white, black + 0.5, m) == pytest.approx(100.0 - 53.39, abs=0.1)
+    assert np.isnan(bench.lightness_difference(white, black, np.zeros((10, 10), bool)))
+    m = bench.under_eye_mask(P68, (H, W))
+    ys, xs = np.nonzero(m)
+    d = np.linalg.norm(P68[36] - P68[45])
+    assert ys.min() > P68[[40, 41, 46, 47], 1].max()  # below the lower lids
+    assert ys.max() < P68[31:36, 1].min()  # above the nostrils
+    assert m[:, : W // 2].sum() == pytest.approx(m[:, W // 2:].sum(), rel=0.2)  # both eyes
+    assert m.sum() == pytest.approx(2 * np.pi * (0.06 * d) ** 2, rel=0.3)
+    assert measures._worst_value("under_eye_dl", [-3.0, 5.0, -12.0, np.nan]) == -12.0  # farthest from 0
+
+
 def test_sharpness_ratio_on_synthetic_images():
     rng = np.random.default_rng(0)
     img = (0.5 + 0.1 * rng.standard_normal((64, 64))).astype(np.float32)
