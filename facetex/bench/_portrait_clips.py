@@ -40,18 +40,12 @@ SMILE_OPENING = 0.05
 
 
 def portrait_pairs(folder) -> dict[str, tuple[Path, Path]]:
-    """{id: (neutral, smiling)} of the ``<id>_neutral.*`` / ``<id>_smiling.*`` pairs in ``folder``."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise BadInputError("portrait folder not found (NNN_neutral.jpg / NNN_smiling.jpg pairs)", path=folder)
-    exts = {".jpg", ".jpeg", ".png", ".webp", ".tif", ".tiff"}
-    found: dict[str, dict[str, Path]] = {}
-    for f in sorted(folder.iterdir()):
-        stem = f.stem
-        if f.suffix.lower() in exts and stem.rsplit("_", 1)[-1] in ("neutral", "smiling"):
-            pid, kind = stem.rsplit("_", 1)
-            found.setdefault(pid, {})[kind] = f
-    pairs = {k: (v["neutral"], v["smiling"]) for k, v in found.items() if len(v) == 2}
+    """{id: (neutral, smiling)} of the ``<id>_neutral`` / ``<id>_smiling`` portraits in ``folder``
+    (:func:`~facetex.bench._common.list_portraits`, as ``bench transfer`` reads the same folder)."""
+    from ._common import list_portraits
+
+    neutral, smiling = (list_portraits(folder, tag=t) for t in ("neutral", "smiling"))
+    pairs = {k: (v, smiling[k]) for k, v in neutral.items() if k in smiling}
     if not pairs:
         raise BadInputError("no portrait pairs (NNN_neutral.jpg and NNN_smiling.jpg) in the folder", path=folder)
     return pairs
@@ -61,12 +55,10 @@ def portrait_stats(neutral, smiling) -> dict:
     """{"lightness": median CIELAB L* (0..100) of the neutral portrait's cheek patches, "neutral_open",
     "smiling_open": the mouth openings the bench reads (:func:`~facetex.puppet.driver.mouth_opening`)};
     NaN where no face is found. Images: paths or float RGB arrays."""
-    import cv2
-
     from ..io import read_image
     from ..puppet.driver import mouth_opening
     from ._puppet_clip import _frame_measures
-    from .puppet_measures import cheek_mask
+    from .puppet_measures import _lab, cheek_mask
 
     res = {"lightness": float("nan"), "neutral_open": float("nan"), "smiling_open": float("nan")}
     for key, image in (("neutral_open", neutral), ("smiling_open", smiling)):
@@ -77,8 +69,7 @@ def portrait_stats(neutral, smiling) -> dict:
         res[key] = float(mouth_opening(p))
         if key == "neutral_open":
             m = cheek_mask(p, img.shape[:2])
-            lab = cv2.cvtColor(np.clip(np.ascontiguousarray(img, np.float32), 0, 1), cv2.COLOR_RGB2Lab)
-            res["lightness"] = float(np.median(lab[..., 0][m])) if m.any() else float("nan")
+            res["lightness"] = float(np.median(_lab(img[m][None])[0, :, 0])) if m.any() else float("nan")
     return res
 
 

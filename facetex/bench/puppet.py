@@ -268,9 +268,6 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, puppe
             portrait_folder = Path(root) / PORTRAIT_SUBFOLDER
         portrait_files = portrait_clips(portrait_folder, out, portraits)
         files = files + portrait_files
-    sizes = {str(c): (portrait_size if c in portrait_files else size) for c in files}
-    # a portrait clip is 2 x HOLD frames: cut short it would never smile
-    lengths = {str(c): (None if c in portrait_files else max_frames) for c in files}
     persona_files = [_persona_file(p, out, progress) for p in puppet_paths]
     names = _persona_names(persona_files)
     from ..batch.engines import InlineEngine
@@ -308,9 +305,11 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, puppe
     for pf, name, ref in zip(persona_files, names, refs):
         st = os.stat(pf)
         for c in files:
+            # a portrait clip is 2 x HOLD frames at its own size: cut short it would never smile
+            c_size, c_frames = (portrait_size, None) if c in portrait_files else (size, max_frames)
             settings = {"persona_file": str(Path(pf).resolve()), "persona_bytes": st.st_size,
-                        "persona_mtime": st.st_mtime, "clip": str(c.resolve()), "size": sizes[str(c)],
-                        "max_frames": lengths[str(c)], "shape": texture_shape, "weights": weights,
+                        "persona_mtime": st.st_mtime, "clip": str(c.resolve()), "size": c_size,
+                        "max_frames": c_frames, "shape": texture_shape, "weights": weights,
                         "weight_smoothing": params.weight_smoothing}
             key = ResultStore.key(name, c.stem)
             old = store.get(key) if resume else None
@@ -320,8 +319,8 @@ def run_bench_puppet(drivers=None, puppet=None, out="bench_out/puppet", *, puppe
             rows.append(None)
             todo.append(len(rows) - 1)
             items.append({"kind": "clip", "clip": str(c), "persona_file": settings["persona_file"], "name": name,
-                          "reference": list(ref), "out": str(out.resolve()), "size": sizes[str(c)],
-                          "max_frames": lengths[str(c)], "shape": texture_shape, "weights": weights,
+                          "reference": list(ref), "out": str(out.resolve()), "size": c_size,
+                          "max_frames": c_frames, "shape": texture_shape, "weights": weights,
                           "weight_smoothing": params.weight_smoothing, "write_media": len(rows) == 1,
                           "settings": settings, "store": str(store.folder), "key": key})
     if partial:
@@ -537,9 +536,8 @@ def _run(args) -> int:
                                max_frames=args.max_frames, texture_shape=args.shape, weights=args.weights,
                                weight_smoothing=args.weight_smoothing, partial=not args.no_partial,
                                resume=args.resume, stress=args.stress, portraits=args.portraits,
-                               portrait_folder=args.portrait_folder
-                               or (Path(root) / PORTRAIT_SUBFOLDER if root else None),
-                               portrait_size=args.portrait_size, progress=bar, engine=engine)
+                               portrait_folder=args.portrait_folder, portrait_size=args.portrait_size,
+                               data=root, progress=bar, engine=engine)
     table = Path(res["files"]["table_md"]).read_text(encoding="utf-8")
     finish_bench(args, "puppet", res["out"], res["files"],
                  inputs={"drivers": drivers, **{f"puppet{k}": p for k, p in enumerate(puppets)}},

@@ -206,6 +206,12 @@ def _lab(image: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(np.clip(np.ascontiguousarray(image, np.float32), 0, 1), cv2.COLOR_RGB2Lab)
 
 
+def _mean_lab(image, mask) -> np.ndarray:
+    """Mean Lab (3,) of ``image``'s pixels on the bool ``mask``: only those pixels are converted
+    (the cheek and under-eye measures took two full 1000 px frames to Lab each)."""
+    return _lab(np.asarray(image)[mask][None])[0].mean(axis=0)
+
+
 def cheek_delta_e(image, reference, mask, *, min_pixels: int = 12) -> float:
     """CIE76 ΔE between the mean Lab colours of ``image`` and ``reference`` on ``mask``; NaN when
     fewer than ``min_pixels`` pixels."""
@@ -213,7 +219,7 @@ def cheek_delta_e(image, reference, mask, *, min_pixels: int = 12) -> float:
     if m.sum() < min_pixels:
         return float("nan")
     # ΔE*ab (CIE76) = ||mean Lab(image) − mean Lab(reference)||
-    return float(np.linalg.norm(_lab(image)[m].mean(axis=0) - _lab(reference)[m].mean(axis=0)))
+    return float(np.linalg.norm(_mean_lab(image, m) - _mean_lab(reference, m)))
 
 
 def under_eye_mask(points68, shape) -> np.ndarray:
@@ -233,7 +239,7 @@ def lightness_difference(image, reference, mask, *, min_pixels: int = 12) -> flo
     m = np.asarray(mask, bool)
     if m.sum() < min_pixels:
         return float("nan")
-    return float(_lab(image)[..., 0][m].mean() - _lab(reference)[..., 0][m].mean())
+    return float(_mean_lab(image, m)[0] - _mean_lab(reference, m)[0])
 
 
 def face_skin_mask(points68, shape) -> np.ndarray:
