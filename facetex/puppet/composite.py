@@ -65,7 +65,7 @@ from ._pixels import _LUMA, _mix, _Shrunk, _skin_weights
 from .detail import match_grain, match_lip_detail, match_sharpness
 from .lighting import (COLOURS, _lab, _linear, fit_sh_lighting, linear_to_srgb, relight, srgb_to_linear,
                        transfer_skin_colour)
-from .eyes import brow_weights, eye_interior, eye_weights, lid_weights
+from .eyes import brow_weights, eye_interior, eye_skin_weights, eye_weights, lid_weights
 from .mouth import lift_inner_lips, lip_regions, lip_weights, mouth_interior  # noqa: F401 (lip_weights re-exported)
 from .occluders import occlusion_mask, persona_hair, skin_pixels
 
@@ -236,11 +236,19 @@ class CompositeParams:
     Asian persona's brows teal, on pale drivers; shadow_knee: the same for lightness detail below
     it on the skin (eyes, brows, lips and the lower nose left out; None: off), on a darker persona
     than the driver: her under-eye circles and cheek shading were black eyes and bruises on a pale
-    driver (FRL 002); lip_colour: with colour "driver" the
-    lips take the driver's lips' colour (:func:`lip_weights`), not the skin's; eye_colour: the
-    eyeballs keep the persona's lightness (:func:`eye_weights`; their a*, b* take the frame's
-    white balance); eye_grow: out to this x the eye-corner distance beyond the lids' edges (their
-    inward feather had mapped a dark persona's eye rims to a pale driver's skin: dlib read
+    driver (FRL 002); eye_skin: on such a pair the skin under the eyes
+    (:func:`~facetex.puppet.eyes.eye_skin_weights`) takes the driver's colour down to this x the
+    eye-corner distance (Gaussian sigma; 0: off; ``eye_skin`` of
+    :func:`~facetex.puppet.lighting.transfer_skin_colour`): the skin masks leave a margin round the
+    eyes out, so there both fields were the cheeks', and Williams' under-eye circles stayed a
+    grey-brown band across pale 1000 px drivers' eyes (``bench puppet`` under-eye ΔL* -10 on FRL
+    018, 0.0 now; at 0.05 -2.4); with the upper lids up to the brows as well her puppet read closer
+    to her photos than to GRID lbax4n's speaker on 60 % of frames (100 % without them);
+    lip_colour: with colour "driver" the lips take the driver's lips' colour (:func:`lip_weights`),
+    not the skin's; eye_colour: the eyeballs keep the persona's lightness (:func:`eye_weights`;
+    their a*, b* take the frame's white balance); eye_grow: out to this x the eye-corner distance
+    beyond the lids' edges (their inward feather had mapped a dark persona's eye rims to a pale
+    driver's skin: dlib read
     Williams' eyes on GRID lrwp9a at 360 px 0.77 as open as the driver's, 0.85 with 0.04 and the
     frame's white balance; ``bench puppet`` at 256 px: mean eye ratio 0.984 -> 0.999, share of
     frames at dlib distance < 0.6 worst 0.44 -> 0.56; kept whole, a pale persona's grown eyeballs
@@ -313,6 +321,7 @@ class CompositeParams:
     chroma_gain: tuple[float, float] = (0.5, 1.0)
     highlight_knee: float | None = 6.0
     shadow_knee: float | None = 6.0
+    eye_skin: float = 0.03
     lip_colour: bool = True
     open_lips: bool = True
     lip_ceiling: float | None = 6.0
@@ -332,6 +341,14 @@ class CompositeParams:
     mouth: bool = True
     lip_band: float = 0.20
     eyes: str = "driver"
+
+
+def _eye_skin(drawn68, driver68, shape) -> tuple[np.ndarray, np.ndarray]:
+    """The skin under the puppet's eyes (:func:`~facetex.puppet.eyes.eye_skin_weights`), without the
+    eyeballs of either face: the driver's lower lash line lies in the puppet's zone wherever its eyes
+    sit lower than the puppet draws them."""
+    weight, eyes = eye_skin_weights(drawn68, shape)
+    return weight, eyes | eye_skin_weights(driver68, shape)[1]
 
 
 def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_points68, puppet_points68=None,
@@ -462,7 +479,10 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
                                    if params.brow_gain > 0 else None, brow_gain=params.brow_gain,
                                    **(lip_regions(p68 - [x0, y0], None if pp68 is None else pp68 - [x0, y0],
                                                   rg.shape, open_lips=params.open_lips) if params.lip_colour else {}),
-                                   lip_ceiling=params.lip_ceiling)
+                                   lip_ceiling=params.lip_ceiling,
+                                   eye_skin=(lambda: _eye_skin(drawn68 - [x0, y0], p68 - [x0, y0], rg.shape))
+                                   if params.eye_skin > 0 else None,
+                                   eye_skin_sigma=max(1.0, params.eye_skin * iod))
     if params.sharpen > 1 or params.grain > 0:
         # after the colour transfer: a dark persona's detail is small in sRGB until it takes a pale
         # driver's tone (measured before, Williams' puppets were sharpened to 2x the driver's detail).

@@ -15,7 +15,8 @@ from ._contours import EDGE_MAX_PX, EYE, _contour_frame, _open_fade, sample_betw
 from ._pixels import _LUMA, _shape2
 from .lighting import _lab, _linear, _rgb
 
-__all__ = ["persona_iris", "iris_shift", "eye_interior", "eye_weights", "lid_weights", "brow_weights"]
+__all__ = ["persona_iris", "iris_shift", "eye_interior", "eye_weights", "lid_weights", "brow_weights",
+           "eye_skin_weights"]
 
 #: iBUG-68 eye contours (outer or inner corner, upper lid, other corner, lower lid)
 EYES = ((36, 37, 38, 39, 40, 41), (42, 43, 44, 45, 46, 47))
@@ -157,6 +158,28 @@ def lid_weights(points68, shape, *, margin: float = 0.045, feather: float = 0.01
     inner = cv2.erode(ring.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
     sig = max(0.75, feather * float(np.linalg.norm(p[36] - p[45])))
     return np.clip(cv2.GaussianBlur(grown.astype(np.float32), (0, 0), sig), 0, 1), inner
+
+
+def eye_skin_weights(points68, shape, *, below: float = 0.25, beyond: float = 0.25, feather: float = 0.05,
+                     lashes: float = 0.06) -> tuple[np.ndarray, np.ndarray]:
+    """(weight (H, W) float32 in [0, 1], bool (H, W)) of the skin under both eyes at iBUG landmarks
+    ``points68``: each lower lid's outline, its outer corner moved out by ``beyond`` x the eye-corner
+    distance, and the band between it and the same moved down by ``below`` x that distance,
+    feathered by ``feather`` x that distance (Gaussian sigma, x 1.5 and clipped: 1 inside); and the
+    eyeballs grown by ``lashes`` x that distance (the lash lines and the lids' rims), which are not
+    skin."""
+    p = np.asarray(points68, np.float64)
+    h, w = _shape2(shape)
+    iod = float(np.linalg.norm(p[36] - p[45]))
+    zone = np.zeros((h, w), np.float32)
+    for lower in ([36, 41, 40, 39], [45, 46, 47, 42]):  # from the outer corner in
+        q = p[lower].copy()
+        q[0, 0] += beyond * iod * np.sign(q[0, 0] - q[-1, 0])
+        zone = np.maximum(zone, polygon_mask(np.concatenate([q, (q + [0.0, below * iod])[::-1]]), (h, w)))
+    weight = np.clip(1.5 * cv2.GaussianBlur(zone, (0, 0), max(0.75, feather * iod)), 0, 1)
+    balls = np.maximum(polygon_mask(p[36:42], (h, w)), polygon_mask(p[42:48], (h, w))) > 0.5
+    eyes = cv2.dilate(balls.astype(np.uint8), disc(max(1, int(round(lashes * iod))))) > 0
+    return weight, eyes
 
 
 def brow_weights(points68, shape, *, feather: float = 0.03) -> np.ndarray:

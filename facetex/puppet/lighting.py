@@ -168,12 +168,43 @@ def _lightness_to_luminance(L):
 LIP_SPREAD_PERCENTILE = 90.0
 
 
+def _eye_skin_shading(out, detail, src_lab, ref_lab, src_field, ref_field, g, eye_skin, src_skin, ref_skin,
+                      shrink: int, sigma: float, strength: float, trim: float = 6.0) -> None:
+    """``eye_skin`` of :func:`transfer_skin_colour`, in place on ``out`` (H, W, 3 CIELAB) and the
+    lightness ``detail`` (H, W): the two skins' fields (``src_field``, ``ref_field``) replaced, in the
+    eye zone's box, by their normalized low passes (Gaussian ``sigma``) with the zone counted as skin."""
+    zone_weight, eyes = eye_skin() if callable(eye_skin) else eye_skin
+    zone_weight = np.asarray(zone_weight, np.float32)
+    weight = zone_weight * strength
+    ys, xs = np.nonzero(weight > 0.01)
+    if len(ys) == 0:
+        return
+    h, w = weight.shape
+    pad = int(3 * sigma) + 2
+    box = (slice(max(0, ys.min() - pad), min(h, ys.max() + pad + 1)),
+           slice(max(0, xs.min() - pad), min(w, xs.max() + pad + 1)))
+    zone = (zone_weight[box] > 0.05) & ~np.asarray(eyes, bool)[box]
+
+    def skin(m):  # the masks are given at the fields' (shrunk) size
+        m = np.asarray(m, np.uint8)
+        return ((cv2.resize(m, (w, h), interpolation=cv2.INTER_NEAREST) if shrink > 1 else m)[box] > 0) | zone
+
+    sf, _ = skin_low_pass(src_lab[box], skin(src_skin), sigma, trim=trim)
+    rf, _ = skin_low_pass(ref_lab[box], skin(ref_skin), sigma, trim=trim)
+    wb, ob = weight[box], out[box]
+    for c in range(3):
+        own = sf[..., c] - src_field[box][..., c]  # the persona's shading under its skin field
+        ob[..., c] += wb * (rf[..., c] - ref_field[box][..., c] - g[c] * own)
+        if c == 0 and detail is not None:
+            detail[box] -= wb * own
+
+
 def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 / 3, 1.2), colour: str = "driver",
                          light_limits=(0.5, 2.0), shrink: int = 1, lips=None, lids=None, keep=None,
                          lip_parts=(), lip_ceiling: float | None = None, keep_chroma: bool = True,
                          keep_dark=None, brows=None, brow_gain: float = 2.0, chroma_gain=(1.0, 1.0),
                          highlight_knee: float | None = None, shadows=None,
-                         shadow_knee: float = 6.0) -> np.ndarray:
+                         shadow_knee: float = 6.0, eye_skin=None, eye_skin_sigma: float = 4.0) -> np.ndarray:
     """``src`` (H, W, 3) sRGB with the low-frequency colour of ``ref`` (the same size, aligned),
     measured on skin pixels only (bool ``src_skin``, ``ref_skin``), the detail of ``src`` kept.
 
@@ -198,7 +229,15 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     from a ratio of 1 down (linear between): a persona's dark under-eye circles and cheek shading
     (Serena Williams' photos: -10 to -22 L* under her skin field round a shiny cheekbone) were black
     eyes and bruises on a pale driver; like ``brows``, a function returning the weight is called
-    only then. ``colour="persona"``: only the lighting moves: linear-light R, G, B x
+    only then. ``eye_skin`` (colour "driver"): (weight (H, W) in [0, 1], bool (H, W) eyeballs) or a
+    function returning them (called only when used), or None: there, on a darker persona than the
+    driver (in full and not at all as for ``shadows``), the skins' low-frequency colour is also
+    measured on the skin round the eyes (the skin masks plus the weight's zone minus the eyeballs;
+    Gaussian ``eye_skin_sigma`` px, outliers clipped at 6 MADs, not 3) and the persona's shading at
+    that scale is replaced by the driver's: the skin masks leave out a margin round the eyes (and the
+    skin model the darkest skin), so both fields there were interpolated from the cheeks, and a dark
+    persona's under-eye circles (in Williams' photos 18 L* under her cheeks) stayed as a grey-brown
+    mask across a pale driver's eyes. ``colour="persona"``: only the lighting moves: linear-light R, G, B x
     (Y(R_L) / Y(r_L)) / (Y(S_L) / Y(s_L)), the driver's low-frequency luminance ratio over the
     persona's (Y(L*) the CIE luminance, the ratio clipped to ``light_limits``), the persona's
     chromaticity kept.
@@ -288,19 +327,26 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     # the shadow knee only for a darker persona than the driver (fully from the gain's upper bound):
     # on a paler or like-toned driver the shading is the persona's (Blair's folds on a side-lit GRID
     # speaker read as his on 96 % of frames, 84 % compressed)
-    strength = float(np.clip((ratio - 1.0) / max(gain[1] - 1.0, 1e-6), 0.0, 1.0)) if shadows is not None else 0.0
+    darker = float(np.clip((ratio - 1.0) / max(gain[1] - 1.0, 1e-6), 0.0, 1.0))
+    strength = darker if shadows is not None else 0.0
+    eye_strength = darker if eye_skin is not None else 0.0
     # the lightness detail over the persona's skin field (the knees' and the dark detail's)
-    detail = a[..., 0] - full(sa[..., 0]) if highlight_knee is not None or ratio_dark or strength > 0 else None
+    detail = a[..., 0] - full(sa[..., 0]) if (highlight_knee is not None or ratio_dark or strength > 0
+                                               or eye_strength > 0) else None
     if highlight_knee is not None:
         up = np.maximum(detail, 0.0)
         out[..., 0] -= g[0] * (up - highlight_knee * np.tanh(up / highlight_knee))
     if strength > 0:
         down = np.maximum(-detail, 0.0)
-        w = np.asarray(shadows() if callable(shadows) else shadows, np.float32)
-        cut = strength * w * (down - shadow_knee * np.tanh(down / shadow_knee))
+        ws = np.asarray(shadows() if callable(shadows) else shadows, np.float32)
+        cut = strength * ws * (down - shadow_knee * np.tanh(down / shadow_knee))
         out[..., 0] += g[0] * cut
         detail = detail + cut  # the lid rims' darker gain below (keep_dark) sees the compressed detail
     ref_lab = None
+    if eye_strength > 0:
+        ref_lab = _lab(ref)
+        _eye_skin_shading(out, detail, a, ref_lab, full(sa), full(sb), g, eye_skin, sm, rm, k,
+                          eye_skin_sigma, eye_strength)
     ceiling = None
     g_light = g[0]  # the lips' gain for lightness detail above their median
     for region in (lips, *lip_parts, lids):

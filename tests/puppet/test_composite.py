@@ -1530,3 +1530,38 @@ def test_brow_gain_by_hand():
         np.testing.assert_array_equal(lazy, out)
         assert len(drawn) == (driver_l == 75.0)
     np.testing.assert_allclose(out, plain, atol=1e-3)  # the darker driver: as without brows
+
+
+def test_eye_skin_takes_the_drivers_shading_under_the_eyes_by_hand():
+    """A dark persona (skin L 40, noise 3 L*) with an under-eye circle 20 L* darker (band 15:25,
+    10:30), left out of both skin masks as the feature margin leaves it, on a pale driver (L 75, noise 3) whose
+    own skin is 10 L* darker there: the skins' fields are interpolated over the band, so without
+    ``eye_skin`` the circle is 75 - 1.2 x 20 = 51; with the band as ``eye_skin``'s zone it takes the
+    driver's 65 (the persona's own shading replaced, its noise kept). Outside the zone's box nothing
+    changes; on a darker driver the weights are not drawn and nothing changes."""
+    rng = np.random.default_rng(0)
+    band = np.zeros((40, 80), bool)
+    band[15:25, 10:30] = True
+    lab = np.broadcast_to(np.float32([40.0, 12.0, 18.0]), (40, 80, 3)).copy()
+    lab[..., 0] += rng.normal(0.0, 3.0, (40, 80)).astype(np.float32)
+    lab[15:25, 10:30, 0] -= 20.0
+    src = _rgb(lab)
+    ref_lab = np.broadcast_to(np.float32([75.0, 14.0, 22.0]), (40, 80, 3)).copy()
+    ref_lab[..., 0] += rng.normal(0.0, 3.0, (40, 80)).astype(np.float32)  # (a flat skin has no spread:
+    ref_lab[15:25, 10:30, 0] -= 10.0  # its fields' outlier clip would cut the circle)
+    ref = _rgb(ref_lab)
+    zone = (band.astype(np.float32), np.zeros_like(band))
+    plain = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=20.0))
+    out = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=20.0, eye_skin=zone, eye_skin_sigma=2.0))
+    inner = (slice(18, 22), slice(14, 26))
+    assert np.median(plain[inner][..., 0]) == pytest.approx(51.0, abs=1.5)
+    assert np.median(out[inner][..., 0]) == pytest.approx(65.0, abs=1.5)
+    grain = lambda x: x[inner][..., 0] - cv2.GaussianBlur(x[..., 0], (0, 0), 2.0)[inner]  # noqa: E731
+    assert np.corrcoef(grain(out).ravel(), grain(_lab(src)).ravel())[0, 1] > 0.8  # its own fine detail
+    np.testing.assert_allclose(out[:, 40:], plain[:, 40:], atol=1e-4)  # beyond the zone's box (pad 8 px)
+    like = _flat_skin(35.0, band.shape)
+    drawn = []
+    np.testing.assert_array_equal(
+        transfer_skin_colour(src, like, ~band, ~band, sigma=20.0, eye_skin=lambda: drawn.append(1) or zone),
+        transfer_skin_colour(src, like, ~band, ~band, sigma=20.0))
+    assert not drawn

@@ -191,3 +191,21 @@ def test_eye_interior_survives_degenerate_and_off_frame_eyes():
     off[36:48] += (-60.0, -60.0)  # both puppet eyes off the top-left of the frame
     img, alpha = eye_interior(frame, d68, off)
     assert np.isfinite(img).all() and alpha.max() == 0
+
+
+def test_eye_skin_weights_cover_the_skin_under_the_lower_lids():
+    """Weight 1 on the skin just under each lower lid and past its outer corner, 0 over the upper lid,
+    well below the band (``below`` 0.25 eye-corner distances) and between the eyes' inner corners; the
+    lash zone covers the eyeball and its lid rims, not the skin under it."""
+    from facetex.puppet.eyes import eye_skin_weights
+
+    p = _eyes68(cx=60.0, cy=40.0, half=10.0, gap=8.0, apart=40.0)
+    w, eyes = eye_skin_weights(p, (100, 120))
+    iod = float(np.linalg.norm(p[36] - p[45]))  # 60 px: the band is 15 px deep
+    for ex, out in ((40, -1), (80, 1)):
+        assert w[52, ex] == pytest.approx(1.0)  # 8 px under the lower lid (44)
+        assert w[28, ex] < 0.01 and w[40 + 4 + int(0.25 * iod) + 12, ex] < 0.01
+        assert w[45, ex + out * 13] > 0.9  # 3 px past the outer corner
+        assert eyes[40, ex] and eyes[45, ex] and not eyes[52, ex]
+    assert w[48, 60] < 0.05  # between the eyes, under the inner corners' line
+    assert w.dtype == np.float32 and eyes.dtype == bool
