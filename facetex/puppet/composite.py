@@ -343,14 +343,6 @@ class CompositeParams:
     eyes: str = "driver"
 
 
-def _eye_skin(drawn68, driver68, shape) -> tuple[np.ndarray, np.ndarray]:
-    """The skin under the puppet's eyes (:func:`~facetex.puppet.eyes.eye_skin_weights`), without the
-    eyeballs of either face: the driver's lower lash line lies in the puppet's zone wherever its eyes
-    sit lower than the puppet draws them."""
-    weight, eyes = eye_skin_weights(drawn68, shape)
-    return weight, eyes | eye_skin_weights(driver68, shape)[1]
-
-
 def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_points68, puppet_points68=None,
                    driver_normals=None, iris=None, rims=None,
                    params: CompositeParams = CompositeParams()) -> tuple[np.ndarray, np.ndarray]:
@@ -480,7 +472,10 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
                                    **(lip_regions(p68 - [x0, y0], None if pp68 is None else pp68 - [x0, y0],
                                                   rg.shape, open_lips=params.open_lips) if params.lip_colour else {}),
                                    lip_ceiling=params.lip_ceiling,
-                                   eye_skin=(lambda: _eye_skin(drawn68 - [x0, y0], p68 - [x0, y0], rg.shape))
+                                   # without the driver's eyes either: its lower lash line lies in the
+                                   # puppet's zone wherever its eyes sit lower than the puppet draws them
+                                   eye_skin=(lambda: eye_skin_weights(drawn68 - [x0, y0], rg.shape,
+                                                                      other68=p68 - [x0, y0]))
                                    if params.eye_skin > 0 else None,
                                    eye_skin_sigma=max(1.0, params.eye_skin * iod))
     if params.sharpen > 1 or params.grain > 0:

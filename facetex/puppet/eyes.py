@@ -141,6 +141,11 @@ def eye_interior(frame, driver68, puppet68, shape=None, *, iris=None, inset: flo
 
 
 # ----------------------------------------------------------------------------- the persona's own eyes
+def _eyeballs(p: np.ndarray, shape) -> np.ndarray:
+    """bool (H, W): inside either eye outline (36-41, 42-47) of iBUG landmarks ``p``."""
+    return np.maximum(polygon_mask(p[36:42], shape), polygon_mask(p[42:48], shape)) > 0.5
+
+
 def lid_weights(points68, shape, *, margin: float = 0.045, feather: float = 0.015) -> tuple[np.ndarray, np.ndarray]:
     """(weight (H, W) float32, bool (H, W)) of the lids round both eyes at iBUG landmarks
     ``points68``: the eye outlines (36-41, 42-47) grown by ``margin`` x the face width (the
@@ -151,7 +156,7 @@ def lid_weights(points68, shape, *, margin: float = 0.045, feather: float = 0.01
 
     p = np.asarray(points68, np.float64)
     h, w = _shape2(shape)
-    balls = np.maximum(polygon_mask(p[36:42], (h, w)), polygon_mask(p[42:48], (h, w))) > 0.5
+    balls = _eyeballs(p, (h, w))
     r = max(1, int(round(margin * face_width(p))))
     grown = cv2.dilate(balls.astype(np.uint8), disc(r)) > 0
     ring = grown & ~balls
@@ -160,14 +165,14 @@ def lid_weights(points68, shape, *, margin: float = 0.045, feather: float = 0.01
     return np.clip(cv2.GaussianBlur(grown.astype(np.float32), (0, 0), sig), 0, 1), inner
 
 
-def eye_skin_weights(points68, shape, *, below: float = 0.25, beyond: float = 0.25, feather: float = 0.05,
-                     lashes: float = 0.06) -> tuple[np.ndarray, np.ndarray]:
+def eye_skin_weights(points68, shape, *, other68=None, below: float = 0.25, beyond: float = 0.25,
+                     feather: float = 0.05, lashes: float = 0.06) -> tuple[np.ndarray, np.ndarray]:
     """(weight (H, W) float32 in [0, 1], bool (H, W)) of the skin under both eyes at iBUG landmarks
     ``points68``: each lower lid's outline, its outer corner moved out by ``beyond`` x the eye-corner
     distance, and the band between it and the same moved down by ``below`` x that distance,
     feathered by ``feather`` x that distance (Gaussian sigma, x 1.5 and clipped: 1 inside); and the
     eyeballs grown by ``lashes`` x that distance (the lash lines and the lids' rims), which are not
-    skin."""
+    skin, those of ``other68`` (another face's landmarks in the same image, or None) as well."""
     p = np.asarray(points68, np.float64)
     h, w = _shape2(shape)
     iod = float(np.linalg.norm(p[36] - p[45]))
@@ -177,8 +182,10 @@ def eye_skin_weights(points68, shape, *, below: float = 0.25, beyond: float = 0.
         q[0, 0] += beyond * iod * np.sign(q[0, 0] - q[-1, 0])
         zone = np.maximum(zone, polygon_mask(np.concatenate([q, (q + [0.0, below * iod])[::-1]]), (h, w)))
     weight = np.clip(1.5 * cv2.GaussianBlur(zone, (0, 0), max(0.75, feather * iod)), 0, 1)
-    balls = np.maximum(polygon_mask(p[36:42], (h, w)), polygon_mask(p[42:48], (h, w))) > 0.5
-    eyes = cv2.dilate(balls.astype(np.uint8), disc(max(1, int(round(lashes * iod))))) > 0
+    eyes = np.zeros((h, w), bool)
+    for q in (p,) if other68 is None else (p, np.asarray(other68, np.float64)):
+        r = max(1, int(round(lashes * float(np.linalg.norm(q[36] - q[45])))))
+        eyes |= cv2.dilate(_eyeballs(q, (h, w)).astype(np.uint8), disc(r)) > 0
     return weight, eyes
 
 

@@ -168,11 +168,12 @@ def _lightness_to_luminance(L):
 LIP_SPREAD_PERCENTILE = 90.0
 
 
-def _eye_skin_shading(out, detail, src_lab, ref_lab, src_field, ref_field, g, eye_skin, src_skin, ref_skin,
+def _eye_skin_shading(out, detail, src_lab, ref_lab, field, src_light, g, eye_skin, src_skin, ref_skin,
                       shrink: int, sigma: float, strength: float, trim: float = 6.0) -> None:
-    """``eye_skin`` of :func:`transfer_skin_colour`, in place on ``out`` (H, W, 3 CIELAB) and the
-    lightness ``detail`` (H, W): the two skins' fields (``src_field``, ``ref_field``) replaced, in the
-    eye zone's box, by their normalized low passes (Gaussian ``sigma``) with the zone counted as skin."""
+    """``eye_skin`` of :func:`transfer_skin_colour`, in place on ``out`` = g src + ``field`` (H, W, 3
+    CIELAB; ``field`` = R - g S at full size) and the lightness ``detail`` = src L - ``src_light``
+    (S's L at full size): in the eye zone's box R and S are replaced by the skins' normalized low
+    passes (Gaussian ``sigma``) with the zone counted as skin."""
     zone_weight, eyes = eye_skin() if callable(eye_skin) else eye_skin
     zone_weight = np.asarray(zone_weight, np.float32)
     weight = zone_weight * strength
@@ -193,10 +194,9 @@ def _eye_skin_shading(out, detail, src_lab, ref_lab, src_field, ref_field, g, ey
     rf, _ = skin_low_pass(ref_lab[box], skin(ref_skin), sigma, trim=trim)
     wb, ob = weight[box], out[box]
     for c in range(3):
-        own = sf[..., c] - src_field[box][..., c]  # the persona's shading under its skin field
-        ob[..., c] += wb * (rf[..., c] - ref_field[box][..., c] - g[c] * own)
-        if c == 0 and detail is not None:
-            detail[box] -= wb * own
+        ob[..., c] += wb * (rf[..., c] - g[c] * sf[..., c] - field[box][..., c])
+    if detail is not None:  # the persona's shading under its skin field is no longer detail
+        detail[box] -= wb * (sf[..., 0] - src_light[box])
 
 
 def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 / 3, 1.2), colour: str = "driver",
@@ -331,8 +331,9 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     strength = darker if shadows is not None else 0.0
     eye_strength = darker if eye_skin is not None else 0.0
     # the lightness detail over the persona's skin field (the knees' and the dark detail's)
-    detail = a[..., 0] - full(sa[..., 0]) if (highlight_knee is not None or ratio_dark or strength > 0
-                                               or eye_strength > 0) else None
+    s_light = full(sa[..., 0]) if (highlight_knee is not None or ratio_dark or strength > 0
+                                   or eye_strength > 0) else None
+    detail = None if s_light is None else a[..., 0] - s_light
     if highlight_knee is not None:
         up = np.maximum(detail, 0.0)
         out[..., 0] -= g[0] * (up - highlight_knee * np.tanh(up / highlight_knee))
@@ -345,8 +346,8 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     ref_lab = None
     if eye_strength > 0:
         ref_lab = _lab(ref)
-        _eye_skin_shading(out, detail, a, ref_lab, full(sa), full(sb), g, eye_skin, sm, rm, k,
-                          eye_skin_sigma, eye_strength)
+        _eye_skin_shading(out, detail, a, ref_lab, field, s_light, g, eye_skin, sm, rm, k, eye_skin_sigma,
+                          eye_strength)
     ceiling = None
     g_light = g[0]  # the lips' gain for lightness detail above their median
     for region in (lips, *lip_parts, lids):

@@ -209,3 +209,7 @@ def test_eye_skin_weights_cover_the_skin_under_the_lower_lids():
         assert eyes[40, ex] and eyes[45, ex] and not eyes[52, ex]
     assert w[48, 60] < 0.05  # between the eyes, under the inner corners' line
     assert w.dtype == np.float32 and eyes.dtype == bool
+    # another face's eyes (the driver's, 8 px lower) are left out too; the zone stays this face's
+    w2, both = eye_skin_weights(p, (100, 120), other68=p + [0.0, 8.0])
+    np.testing.assert_array_equal(w2, w)
+    assert both[52, 40] and both[52, 80] and (both >= eyes).all()
