@@ -126,17 +126,21 @@ class Between:
     warped: np.ndarray
     driver: tuple
 
-    def edge(self, soft: float, *, max_px: float | None = None, min_soft: float = EDGE_MIN_SOFT) -> np.ndarray:
-        """Alpha (h, w) of the box: 0 outside the contour, rising to 1 over ``soft`` x the widest
-        gap inside it (at least a pixel; with ``max_px``, a ramp wider than that many pixels is
-        ``max_px``, never less than ``min_soft`` x the gap). A pixel's centre half a pixel inside
-        is half covered (as an anti-aliased polygon's edge); an opening thinner than a pixel is
-        covered by its thickness (a closed contour: nothing)."""
+    def ramp_width(self, soft: float, *, max_px: float | None = None, min_soft: float = EDGE_MIN_SOFT) -> float:
+        """The width in px of :meth:`edge`'s ramp: ``soft`` x the widest gap inside the contour (at
+        least a pixel; with ``max_px``, a ramp wider than that many pixels is ``max_px``, never less
+        than ``min_soft`` x the gap)."""
         g = float(self.gap.max())
         width = soft * g
         if max_px is not None and width > max_px:
             width = max(max_px, min(min_soft, soft) * g)
-        width = max(width, 1.0)
+        return max(width, 1.0)
+
+    def edge(self, soft: float, *, max_px: float | None = None, min_soft: float = EDGE_MIN_SOFT) -> np.ndarray:
+        """Alpha (h, w) of the box: 0 outside the contour, rising to 1 over :meth:`ramp_width`. A
+        pixel's centre half a pixel inside is half covered (as an anti-aliased polygon's edge); an
+        opening thinner than a pixel is covered by its thickness (a closed contour: nothing)."""
+        width = self.ramp_width(soft, max_px=max_px, min_soft=min_soft)
         return (smoothstep(np.clip((self.depth + 0.5) / width, 0.0, 1.0)) * np.clip(self.gap, 0.0, 1.0)
                 ).astype(np.float32)
 

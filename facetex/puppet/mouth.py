@@ -45,10 +45,14 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     256 px): mouth slopes 0.87-1.19 (mean 1.023) at 1, 0.90-1.20 (1.016) at 1.3, mouth r >= 0.919 /
     0.917, Arroyo/lrwp9a 0.90 -> 0.98 (1.3 along the corner line too, which samples the driver's
     skin beyond its corners: 0.89-1.19); a smaller inset shrank the teeth (earlier: Arroyo/lrwp9a
-    0.77 at 0.9, 0.72 at 0.8). Alpha: 0 outside the puppet's inner lips, rising to 1 over
-    ``soft`` x the opening's widest gap inside them (the puppet's lips overlap the interior: no
-    polygon edge; 0.3, as the eyes' (:func:`~facetex.puppet.eyes.eye_interior`): at 0.15 dlib read
-    the widest, teeth-showing frames of Koizumi's persona on GRID bbaf2n as a quarter open, and
+    0.77 at 0.9, 0.72 at 0.8). Where the soft edge is capped (``soft_px``: a 1000 px smile) the
+    inset's margin is cut in the same proportion (1.3 -> ~1.1 on a 40 px gap): at 1.3 the driver's
+    teeth, lip to lip, filled 0.77 of the puppet's opening under a dark band, and dlib read a smile
+    less open than the driver's (Chavez on FRL 062: 0.085 against 0.098; 0.092 with the cut).
+    Alpha: 0 outside the puppet's inner lips, rising to 1 over ``soft`` x the opening's widest gap
+    inside them (the puppet's lips overlap the interior: no polygon edge; 0.3, as the eyes'
+    (:func:`~facetex.puppet.eyes.eye_interior`): at 0.15 dlib read the widest, teeth-showing
+    frames of Koizumi's persona on GRID bbaf2n as a quarter open, and
     ``facetex bench puppet``'s worst mouth r was 0.843, 0.893 at 0.3; its slopes 0.886-1.208 at
     256 px, 0.891-1.223; at 360 px 0.844-1.147, 0.896-1.118), faded out as the driver's lip gap
     falls from 2 x ``closed`` to ``closed`` times its mouth width (closed lips have no interior to
@@ -122,6 +126,12 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     s = sample_between(f, dp, pp, (h, w), inset=inset)
     if s is None:
         return none
+    if inset > 1 and soft_px is not None:
+        # the inset's margin goes with the soft edge: where the ramp is capped (a 1000 px smile), so
+        # is the margin, else the driver's teeth filled 0.77 of the opening under a dark band
+        cut = s.ramp_width(soft, max_px=soft_px) / max(soft * float(s.gap.max()), 1e-6)
+        if cut < 1:
+            s = sample_between(f, dp, pp, (h, w), inset=1.0 + (inset - 1.0) * cut) or s
     x0, y0, x1, y1 = s.box
     gap, depth, warped = s.gap, s.depth, s.warped
     up_d, lo_d, du0, du1, Rd, cd, _ = s.driver

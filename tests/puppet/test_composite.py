@@ -567,6 +567,40 @@ def test_mouth_interior_moves_the_drivers_mouth_into_the_puppets_lips():
     assert mouth_interior(frame, shut, p_lips)[1].max() == 0
 
 
+
+def _teeth_mouth(scale: float):
+    """A driver's frame whose open mouth (inner lips 60-67 scaled by ``scale``) is white teeth from
+    lip to lip, the lips red round it; the puppet's lips the same."""
+    lips = np.array([[-15, 0], [-8, -6], [0, -7], [8, -6], [15, 0], [8, 6], [0, 7], [-8, 6]], float) * scale
+    lips += [6 * scale + 20, 4 * scale + 20]
+    h, w = int(8 * scale + 40), int(12 * scale + 40)
+    frame = np.zeros((h, w, 3), np.float32)
+    frame[:] = (0.55, 0.15, 0.15)
+    cv2.fillPoly(frame, [np.round(lips * 16).astype(np.int32)], (0.95, 0.95, 0.92), shift=4)
+    return frame, lips
+
+
+def _teeth_rows(img, alpha, lips) -> float:
+    """The fraction of the opening's height down its middle column that shows the teeth."""
+    x = int(round(lips[[2, 6], 0].mean()))
+    y0, y1 = int(np.ceil(lips[2, 1])), int(np.floor(lips[6, 1]))
+    col = (img[y0:y1 + 1, x] * alpha[y0:y1 + 1, x, None]).mean(axis=-1)
+    return float((col > 0.8).sum()) / (lips[6, 1] - lips[2, 1])
+
+
+def test_mouth_interior_margin_is_capped_with_its_soft_edge():
+    """On a large mouth (the soft edge capped at a few px) the driver's teeth, lip to lip, fill the
+    puppet's opening up to that edge instead of 1 / inset of it under a dark band; a small mouth
+    (its ramp not capped) samples the driver's interior exactly as without the cap."""
+    frame, lips = _teeth_mouth(4.0)  # a 56 px gap: the ramp is capped
+    capped = _teeth_rows(*mouth_interior(frame, lips, lips), lips)
+    uncapped = _teeth_rows(*mouth_interior(frame, lips, lips, soft_px=None), lips)
+    assert capped > 0.8 > uncapped
+    frame, lips = _teeth_mouth(0.6)  # an 8 px gap: nothing changes
+    a, b = mouth_interior(frame, lips, lips), mouth_interior(frame, lips, lips, soft_px=1e6)
+    np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_array_equal(a[1], b[1])
+
 def test_pchip_matches_scipy():
     from scipy.interpolate import PchipInterpolator
 
@@ -677,8 +711,10 @@ def test_mouth_interior_ramp_stays_a_few_pixels_wide_on_a_large_mouth():
     # narrower: the middle column's shortfall under the upper lip, sum(1 - alpha), ~(6.2 - 4) / 2 less
     top = slice(0, 90)
     assert (1 - wide[top, 100]).sum() - (1 - capped[top, 100]).sum() > 0.5
-    np.testing.assert_array_equal(mouth_interior(frame, d, p, cavity=None, soft_px=0.0)[1],
-                                  mouth_interior(frame, d, p, cavity=None, soft=0.12, soft_px=None)[1])
+    # capped at 0.12 x the gap, the inset's margin with it: 1 + 0.3 x 0.12 / 0.3
+    np.testing.assert_allclose(mouth_interior(frame, d, p, cavity=None, soft_px=0.0)[1],
+                               mouth_interior(frame, d, p, cavity=None, soft=0.12, soft_px=None, inset=1.12)[1],
+                               atol=1e-5)
     c = p.mean(axis=0)
     small = c + 0.5 * (p - c)  # gap ~10 px: 0.3 x 10 < 4
     np.testing.assert_array_equal(mouth_interior(frame, d, small, cavity=None)[1],

@@ -867,3 +867,26 @@ def test_open_eyes_show_the_drivers_eyeballs_only_inside_the_puppets_lids(sessio
     # (float32 rounding only: with the driver's eyeballs the persona's own keep their lightness from
     # a little inside the lids, which moves the sharpening's statistics by ~1e-7)
     assert diff[~near].max() < 1e-5
+
+
+def test_lip_motion_lands_the_remainder_where_the_grid_is_sampled(session):
+    """The lip field of :meth:`Puppeteer._lip_motion_for`'s motion moves the lip points by the
+    remainder asked for, on a grid whose cells hold both inner lips (the half-size test persona,
+    2 px grid): the plain field of the remainder parts them short."""
+    pup = session.puppeteer
+    lips = np.arange(48, 68)
+    r = np.zeros((68, 2))
+    r[[61, 62, 63], 1] = -1.0  # part the inner lips by 2 px
+    r[[65, 66, 67], 1] = 1.0
+    r[[56, 57, 58], 1] = 0.5
+
+    def landed(motion):
+        g = np.zeros(pup.puppet_mask.shape + (3,), np.float32)
+        g[..., :2] = pup.lip_fields(motion) * pup.puppet_mask[..., None]
+        return pup._sample_grid(g, pup.mean68[lips])[:, :2]
+
+    plain = np.abs(landed(r) - r[lips]).max()
+    solved = pup._lip_motion_for(r)
+    assert plain > 0.2
+    assert np.abs(landed(solved) - r[lips]).max() < 0.25 * plain
+    np.testing.assert_array_equal(solved[:48], r[:48])  # only the lips' motion is solved for
