@@ -67,7 +67,7 @@ from .lighting import (COLOURS, _lab, _linear, fit_sh_lighting, linear_to_srgb, 
                        transfer_skin_colour)
 from .eyes import brow_weights, eye_interior, eye_skin_weights, eye_weights, lid_weights
 from .mouth import lift_inner_lips, lip_regions, lip_weights, mouth_interior  # noqa: F401 (lip_weights re-exported)
-from .occluders import occlusion_mask, persona_hair, skin_pixels
+from .occluders import occlusion_mask, outline_band, persona_hair, skin_pixels
 
 __all__ = [
     "FACE_OVAL",
@@ -284,8 +284,10 @@ class CompositeParams:
     on pale drivers, and at 1 Williams' eye openness rose (0.83-0.90 -> 0.84-0.95 of the driver's)
     and Bush/sbwe5n's mouth slope came into range (1.32 -> 1.20), but Chavez's deep-set eyes read
     less open (pwij3p 0.83 -> 0.79, at 0.5 0.80) and Koizumi/id2 came out 80 % closer to the
-    persona (100 %); occlusion: keep the driver's occluders in front (:func:`occlusion_mask`; its glasses' rims
-    when ``composite_face`` is given them); persona_hair: the driver's frame shows where the
+    persona (100 %); occlusion: keep the driver's occluders in front (:func:`occlusion_mask`, the
+    pieces that reach its face's outline: a fringe, a hand; a pale-skinned driver's nose highlight,
+    apart from it, showed as a pink patch on a dark persona's nose; its glasses' rims when
+    ``composite_face`` is given them); persona_hair: the driver's frame shows where the
     persona's own hair lies over its forehead or temples (:func:`persona_hair`); sharpen: the
     puppet's fine detail is raised towards the driver's frame's, at most by this gain (1: off;
     :func:`match_sharpness`); grain: then the frame's own grain is added where the puppet is still
@@ -404,7 +406,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
     skin_s = rg_s & ~feats if (rg_s & ~feats).sum() >= 16 else rg_s
     occ = None
     if params.occlusion:
-        occ = sh.back(occlusion_mask(rg_s, drv_skin, feats, p_s)) * rg
+        # over the outline only: a highlight on the nose or a birthmark is the driver's face
+        occ = sh.back(occlusion_mask(rg_s, drv_skin, feats, p_s, touching=outline_band(rg_s, p_s))) * rg
         if rims is not None:
             occ = np.maximum(occ, np.asarray(rims, np.float32)[box] * rg)
     if params.persona_hair and pp68 is not None:  # the driver's frame shows where the persona's hair is

@@ -10,7 +10,20 @@ import numpy as np
 
 from ..geometry.masks import disc
 
-__all__ = ["skin_pixels", "occlusion_mask", "persona_hair"]
+__all__ = ["skin_pixels", "occlusion_mask", "persona_hair", "outline_band", "REACH"]
+
+#: what lies over a face comes in over its outline: a piece reaches this close to it (x face width)
+REACH = 0.03
+
+
+def outline_band(region, points68, *, reach: float = REACH) -> np.ndarray:
+    """bool (H, W): the pixels within ``reach`` x face width of the edge of the bool face
+    ``region`` or outside it (the image's border counts as an edge)."""
+    from ..geometry.masks import face_width
+
+    r = max(1, int(round(reach * face_width(points68))))
+    inner = cv2.erode(np.asarray(region, np.uint8), disc(r), borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    return inner == 0
 
 
 def skin_pixels(image, points68, region, *, inside_features: bool = False) -> tuple[np.ndarray | None, np.ndarray]:
@@ -34,16 +47,16 @@ def skin_pixels(image, points68, region, *, inside_features: bool = False) -> tu
 
 
 def occlusion_mask(region, skin, features, points68, *, min_size: float = 0.03, apart: float = 0.06,
-                   margin: float = 0.02, soft: float = 0.01, counted=None) -> np.ndarray:
+                   margin: float = 0.02, soft: float = 0.01, counted=None, touching=None) -> np.ndarray:
     """float32 (H, W) in [0, 1]: what lies over the driver's face (a fringe, glasses, a hand of
     another colour): pixels of the bool ``region`` (the face outline) that are neither ``skin``
     nor ``features`` (the bool pair of :func:`skin_pixels` on the driver's frame: its eyes, brows,
     lips and nostrils are replaced by the puppet's). A piece counts when more than (``min_size``
     x face width)² of it lies further than ``apart`` x face width from the features (a mole or a
     crease's shadow is smaller; the brow hairs and nostril shadows beyond the landmark polygons
-    lie next to them; ``counted``: other features for that distance, default ``features``); it is
-    grown by ``margin`` x face width (strand tips, frame edges) and softened by a Gaussian of
-    ``soft`` x face width."""
+    lie next to them; ``counted``: other features for that distance, default ``features``) and,
+    with a bool ``touching`` (H, W), has a pixel there; it is grown by ``margin`` x face width
+    (strand tips, frame edges) and softened by a Gaussian of ``soft`` x face width."""
     from ..geometry.masks import face_width
 
     out = np.zeros(np.shape(region), np.float32)
@@ -57,7 +70,10 @@ def occlusion_mask(region, skin, features, points68, *, min_size: float = 0.03, 
     r = max(1, int(round(apart * fw)))
     near = cv2.dilate((features if counted is None else counted).view(np.uint8), disc(r)) > 0
     away = np.bincount(lab[~near], minlength=n)  # each piece's pixels away from the features
-    big = np.flatnonzero(away[1:] >= (min_size * fw) ** 2) + 1
+    keep = away >= (min_size * fw) ** 2
+    if touching is not None:
+        keep &= np.bincount(lab[np.asarray(touching, bool)], minlength=n) > 0
+    big = np.flatnonzero(keep[1:]) + 1
     if not len(big):
         return out
     occ = np.isin(lab, big).astype(np.uint8)
@@ -80,7 +96,13 @@ def persona_hair(image, points68, region, *, area=None) -> np.ndarray:
     ``region`` (the mask stays inside it). Inside the brows' grown masks the pieces are cut along the
     brows' own band (no margin): a strand over a temple that runs into a brow's tail (Arroyo's
     photos) showed as a dark streak there, while the brows' edges, within their grown masks, never
-    count as a piece on their own (its size is counted outside the grown masks)."""
+    count as a piece on their own (its size is counted outside the grown masks). A piece is hair only
+    where it reaches the face's outline (:func:`outline_band` of ``region``, or beyond it in
+    ``area``): hair grows in from the scalp, while a dark-skinned persona's shaded
+    upper lids and brow heads (Williams, Blair, Arroyo: a blob over each inner lid, apart from
+    the outline) are the face's own, and taken for hair they showed the driver's skin there, a
+    pale patch over each lid under the colour of ``colour="persona"`` and a brow raised at its head
+    under the driver's."""
     import dataclasses
 
     from ..geometry.skin import SkinParams
@@ -94,5 +116,6 @@ def persona_hair(image, points68, region, *, area=None) -> np.ndarray:
     if skin is None:
         return np.zeros(np.shape(region), np.float32)
     tight = grown_features(p, np.shape(region), dataclasses.replace(SkinParams(), brow_margin=0.0))
+    edge = outline_band(region, p)
     # next to the features too (apart 0): hair at the temples meets the brows' grown masks
-    return occlusion_mask(search & upper, skin, tight, p, apart=0.0, counted=feats) * region
+    return occlusion_mask(search & upper, skin, tight, p, apart=0.0, counted=feats, touching=edge) * region

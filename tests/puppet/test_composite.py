@@ -254,6 +254,41 @@ def test_occlusion_mask_finds_a_fringe_and_not_the_features_or_a_mole(driver_fac
     assert occlusion_mask(region, skin0, feats0, p).mean() < 0.01
 
 
+def test_outline_band_is_the_regions_edge_within_reach():
+    """A 40 x 40 square face region of face width 100 (jaw ends 100 px apart): reach 0.03 is a
+    3 px disc, so the band is everything but the square eroded by 3 px."""
+    from facetex.puppet.occluders import outline_band
+
+    region = np.zeros((60, 60), bool)
+    region[10:50, 10:50] = True
+    p = np.zeros((68, 2))
+    p[16] = (100.0, 0.0)
+    band = outline_band(region, p, reach=0.03)
+    assert band[0, 0] and band[10, 30] and band[12, 30]  # outside, on the edge, 2 px in
+    assert not band[13, 30] and not band[30, 30]  # 3 px in (the 3 px disc's reach ends), the middle
+    assert band.sum() == 60 * 60 - 34 * 34
+
+
+def test_occlusion_mask_leaves_a_highlight_apart_from_the_outline(driver_face):
+    """A pale, whitish patch on the nose (a driver's specular highlight, as big as a fringe's piece)
+    is the face's own when pieces must reach the outline (``touching``); the fringe still counts."""
+    from facetex.puppet.occluders import outline_band
+
+    img, p, _, region = driver_face
+    hair, band = _fringe(img, p, region)
+    yy, xx = np.mgrid[:region.shape[0], :region.shape[1]]
+    c = p[[28, 30]].mean(0)
+    shine = (xx - c[0]) ** 2 + (yy - c[1]) ** 2 <= 3.5 ** 2
+    hair[shine] = (0.97, 0.93, 0.92)
+    skin, feats = skin_pixels(hair, p, region)
+    assert (shine & ~skin & ~feats).sum() > 20  # not skin-coloured: a piece
+    loose = occlusion_mask(region, skin, feats, p, min_size=0.02)
+    held = occlusion_mask(region, skin, feats, p, min_size=0.02, touching=outline_band(region, p))
+    assert loose[shine].mean() > 0.9  # without the rule the highlight stood in front of the puppet
+    assert held[shine].max() == 0.0
+    assert held[band].mean() > 0.95
+
+
 def test_composite_keeps_the_drivers_fringe_in_front(driver_face):
     img, p, oval, region = driver_face
     hair, band = _fringe(img, p, region)
@@ -270,6 +305,14 @@ def test_composite_keeps_the_drivers_fringe_in_front(driver_face):
     np.testing.assert_allclose(out[covered], hair[covered], atol=0.02)
     c = np.round(p[[2, 31, 41, 48]].mean(0)).astype(int)
     assert alpha[c[1], c[0]] > 0.99  # the cheeks are the puppet's
+    # a whitish highlight on the driver's nose lies apart from the outline: the puppet covers it
+    shiny = hair.copy()
+    yy, xx = np.mgrid[:region.shape[0], :region.shape[1]]
+    m = p[[28, 30]].mean(0)
+    shine = (xx - m[0]) ** 2 + (yy - m[1]) ** 2 <= 3.5 ** 2
+    shiny[shine] = (0.97, 0.93, 0.92)
+    alpha2 = composite_face(shiny, puppet, coverage, None, params=CompositeParams(mouth=False), **kw)[1]
+    assert alpha2[shine].min() > 0.99 and alpha2[covered].max() < 0.02
 
 
 
@@ -304,6 +347,28 @@ def test_persona_hair_finds_hair_over_the_temples_not_a_beard_or_the_features(dr
     clean = persona_hair(img, p, region)  # only the model's own hair, at the edge of his left temple
     assert clean.sum() < 0.015 * region.sum()
     assert np.nonzero(clean > 0.5)[1].max() < p[17, 0] + 2
+
+
+def test_persona_hair_leaves_dark_lids_apart_from_the_outline(driver_face):
+    """A dark patch over each inner upper lid (a dark-skinned persona's shaded lids and brow heads,
+    hair-coloured, each larger than a piece's minimum) is not hair: it does not reach the face's
+    outline; the temple's hair in the same face still is."""
+    from facetex.puppet.composite import persona_hair
+
+    img, p, _, region = driver_face
+    hairy, temple, _ = _temple_hair(img, p, region)
+    yy, xx = np.mgrid[:region.shape[0], :region.shape[1]]
+    iod = float(np.linalg.norm(p[45] - p[36]))
+    lids = np.zeros(region.shape, bool)
+    for a, b in ((38, 20), (43, 23)):  # between the upper lid and the brow
+        c = 0.5 * (p[a] + p[b])
+        lids |= (xx - c[0]) ** 2 + (yy - c[1]) ** 2 <= (0.12 * iod) ** 2
+    hairy[lids] = (0.2, 0.13, 0.08)
+    h = persona_hair(hairy, p, region)
+    feats = skin_pixels(hairy, p, region)[1]
+    assert (lids & ~feats).sum() > 20
+    assert h[lids].max() < 0.05
+    assert h[temple & ~feats].min() > 0.95
 
 
 def test_persona_hair_follows_a_strand_into_the_brows_grown_mask_but_leaves_the_brows(driver_face):
