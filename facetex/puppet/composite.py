@@ -62,7 +62,7 @@ import numpy as np
 from ..errors import BadInputError
 from ..geometry.masks import disc, feature_mask, inner_feather, nose_mask, polygon_mask
 from ._pixels import _LUMA, _mix, _Shrunk, _skin_weights
-from .detail import match_grain, match_lip_detail, match_sharpness
+from .detail import match_grain, match_lid_detail, match_lip_detail, match_sharpness
 from .lighting import (COLOURS, _lab, _linear, fit_sh_lighting, linear_to_srgb, relight, srgb_to_linear,
                        transfer_skin_colour)
 from .eyes import brow_weights, eye_interior, eye_skin_weights, eye_weights, lid_weights
@@ -298,7 +298,9 @@ class CompositeParams:
     mask of the skin's gain leaves out, and the persona's nose, a blend of many photos, is soft (at
     the driver's 360 px, face sharpness 0.67-0.73 of the driver's on 4 of 36 runs without it, the
     nose 0.41-0.47); lip_detail: the driver's lip lines moved onto the puppet's lips, at most at this
-    strength (0: off; :func:`~facetex.puppet.detail.match_lip_detail`); poisson:
+    strength (0: off; :func:`~facetex.puppet.detail.match_lip_detail`); lid_detail: the driver's lash
+    lines and lid creases round the puppet's eyes, at most at this strength (0: off;
+    :func:`~facetex.puppet.detail.match_lid_detail`); poisson:
     gradient-domain blending at the border; feather: width of the inward feather as a fraction of the eye-corner distance;
     erode: the driver's outline is shrunk by this fraction (the face-oval vertices sit on the
     silhouette, where skin meets hair or background); mouth: draw the driver's mouth interior
@@ -337,6 +339,7 @@ class CompositeParams:
     grain: float = 1.0
     nose_sharpen: float = 3.0
     lip_detail: float = 1.0
+    lid_detail: float = 1.0
     poisson: bool = True
     feather: float = 0.06
     erode: float = 0.03
@@ -508,6 +511,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
                                      coverage=np.asarray(coverage, np.float32)[box], where=where)
     if params.lip_detail > 0 and params.mouth and pp68 is not None:
         out, _ = match_lip_detail(out, fr, p68 - [x0, y0], pp68 - [x0, y0], max_amount=params.lip_detail)
+    if params.lid_detail > 0 and pp68 is not None:
+        out, _ = match_lid_detail(out, fr, p68 - [x0, y0], pp68 - [x0, y0], max_amount=params.lid_detail)
     if params.poisson and params.colour == "driver":  # the membrane would bring the driver's tone back
         out = poisson_blend(out, fr, rg)
     if params.mouth and pp68 is not None:

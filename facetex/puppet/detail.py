@@ -1,6 +1,7 @@
 """The puppet's fine detail against the driver's frame: its own detail raised
-(:func:`match_sharpness`), the frame's grain where its own detail is short (:func:`match_grain`)
-and the driver's lip lines on its lips (:func:`match_lip_detail`)."""
+(:func:`match_sharpness`), the frame's grain where its own detail is short (:func:`match_grain`),
+the driver's lip lines on its lips (:func:`match_lip_detail`) and its lash lines round its eyes
+(:func:`match_lid_detail`)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ import numpy as np
 
 from ._pixels import _LUMA
 
-__all__ = ["match_sharpness", "match_grain", "match_lip_detail", "GRAIN_CLIP", "LIP_DETAIL_SIGMA"]
+__all__ = ["match_sharpness", "match_grain", "match_lip_detail", "match_lid_detail", "GRAIN_CLIP", "LIP_DETAIL_SIGMA",
+           "LID_DETAIL_SIGMA", "LID_DETAIL_REACH"]
 
 _K4 = np.array([[0, 0.25, 0], [0.25, 0, 0.25], [0, 0.25, 0]], np.float32)
 #: the frame's fine band is clipped at this many robust standard deviations of its skin's: the lash
@@ -164,6 +166,110 @@ def match_lip_detail(src, ref, driver68, puppet68, *, max_amount: float = 1.0) -
         add[y0:y1, x0:x1] = np.where(w > 0, b.warped * w, add[y0:y1, x0:x1])
     hd = np.repeat(add[..., None], 3, axis=2)
     a = min(_gain_to_variance(_lap(sp)[ring_p], _lap(hd)[ring_p], float(np.var(_lap(rd)[ring_d]))), max_amount)
+    out = s.copy()
+    if a > 0:
+        out[plo[1]:phi[1], plo[0]:phi[0]] = np.clip(sp + a * hd, 0.0, 1.0)
+    return out, max(a, 0.0)
+
+
+#: the lids' detail band: the frame's luminance minus its Gaussian blur of this many eye-corner
+#: distances (sigma; at least a pixel): lashes, the lid's margin and its crease
+LID_DETAIL_SIGMA = 0.01
+#: the lid detail reaches this many eye-corner distances out from each eye's outline (full up to
+#: half of it, fading out beyond): the lash lines and the upper lid's crease
+LID_DETAIL_REACH = 0.12
+#: iBUG-68 eye outlines (right, left)
+_EYES = (tuple(range(36, 42)), tuple(range(42, 48)))
+
+
+def _eye_affine(puppet_eye: np.ndarray, driver_eye: np.ndarray) -> np.ndarray:
+    """(2, 3) affine map of puppet px onto driver px for one eye's six points (corner, two upper,
+    corner, two lower): corner to corner, and across the eye by the ratio of the two openings
+    (clipped to [0.5, 2]; 1 when either eye is nearly shut, where a least-squares fit of six
+    points on a line would be unbounded across it)."""
+    def frame(q):
+        o = 0.5 * (q[0] + q[3])
+        u = q[3] - q[0]
+        width = max(float(np.hypot(*u)), 1e-6)
+        u = u / width
+        v = np.array([-u[1], u[0]])
+        opening = 0.5 * (np.linalg.norm(q[1] - q[5]) + np.linalg.norm(q[2] - q[4])) / width
+        return o, u, v, width, opening
+
+    po, pu, pv, pw, pa = frame(np.asarray(puppet_eye, np.float64))
+    do, du, dv, dw, da = frame(np.asarray(driver_eye, np.float64))
+    k = float(np.clip(da / pa, 0.5, 2.0)) if min(pa, da) > 0.05 else 1.0
+    # x -> do + dw/pw * (du (pu.(x - po)) + k dv (pv.(x - po)))
+    M = (dw / pw) * (np.outer(du, pu) + k * np.outer(dv, pv))
+    return np.c_[M, do - M @ po]
+
+
+def _lid_ring(points68, shape, reach: float, inside_px: float = 1.5) -> np.ndarray:
+    """float32 (H, W): 1 from ``inside_px`` px inside either eye's outline out to half of ``reach``
+    px beyond it, falling linearly to 0 at ``reach`` px; 0 deeper inside (the eyeball)."""
+    h, w = shape
+    eyes = np.zeros((h, w), np.uint8)
+    for idx in _EYES:
+        cv2.fillPoly(eyes, [np.round(points68[list(idx)]).astype(np.int32)], 1)
+    out = cv2.distanceTransform(1 - eyes, cv2.DIST_L2, 3)
+    inn = cv2.distanceTransform(eyes, cv2.DIST_L2, 3)
+    ring = np.clip(2.0 * (reach - out) / max(reach, 1e-6), 0.0, 1.0)
+    return np.where(eyes > 0, (inn <= inside_px).astype(np.float32), ring).astype(np.float32)
+
+
+def match_lid_detail(src, ref, driver68, puppet68, *, max_amount: float = 1.0) -> tuple[np.ndarray, float]:
+    """(``src`` with the driver's lash lines, amount a): the frame ``ref``'s luminance band
+    (:data:`LID_DETAIL_SIGMA`) round each of the driver's eyes (its lids out to
+    :data:`LID_DETAIL_REACH`, not its eyeball) moved onto the puppet's same eye (corner to corner,
+    scaled across by the ratio of the openings), clipped at :data:`GRAIN_CLIP` robust
+    standard deviations of its value there, added round the puppet's eyes (not inside them: the
+    eyeballs are drawn apart, :func:`~facetex.puppet.eyes.eye_interior`) to the three channels
+    times the a in [0, ``max_amount``] that brings the variance of the luminance Laplacian there up
+    to the driver's round its own eyes (0 when they have it). The persona's lids are a blend of
+    ~250 px photos: on a 1000 px driver they were a soft grey smear round the driver's sharp
+    eyeballs, without lashes or a crease (eye sharpness 0.17-0.42 of the driver's on 36 portrait
+    runs). ``driver68``, ``puppet68`` (68, 2) px of the images (H, W, 3) float [0, 1]."""
+    s = np.asarray(src, np.float32)
+    r = np.asarray(ref, np.float32)
+    d, p = np.asarray(driver68, np.float64), np.asarray(puppet68, np.float64)
+    if max_amount <= 0 or not (np.all(np.isfinite(d[36:48])) and np.all(np.isfinite(p[36:48]))):
+        return s.copy(), 0.0
+    iod = float(np.linalg.norm(d[36] - d[45]))
+    sigma = max(1.0, LID_DETAIL_SIGMA * iod)
+    reach = LID_DETAIL_REACH * iod
+    pad = reach + 4 * sigma + 2
+
+    def box(q, shape):  # the eyes' box grown by ``pad`` px, in the image
+        lo = np.maximum(np.floor(q[36:48].min(axis=0) - pad).astype(int), 0)
+        hi = np.minimum(np.ceil(q[36:48].max(axis=0) + pad).astype(int) + 1, [shape[1], shape[0]])
+        return lo, hi
+
+    dlo, dhi = box(d, r.shape)
+    plo, phi = box(p, s.shape)
+    if iod < 8 or np.any(dhi - dlo < 8) or np.any(phi - plo < 8):
+        return s.copy(), 0.0
+    rd = np.ascontiguousarray(r[dlo[1]:dhi[1], dlo[0]:dhi[0]])
+    sp = s[plo[1]:phi[1], plo[0]:phi[0]]
+    dq, pq = d - dlo, p - plo
+    wd, wp = _lid_ring(dq, rd.shape[:2], reach), _lid_ring(pq, sp.shape[:2], reach * float(
+        np.linalg.norm(p[36] - p[45])) / iod)
+    md, mp = wd > 0.5, wp > 0.5
+    if md.sum() < 16 or mp.sum() < 16:
+        return s.copy(), 0.0
+    lum = np.ascontiguousarray(rd @ _LUMA)
+    band = lum - cv2.GaussianBlur(lum, (0, 0), sigma)
+    sd = 1.4826 * float(np.median(np.abs(band[md])))
+    band = np.clip(band, -GRAIN_CLIP * sd, GRAIN_CLIP * sd) * wd
+    h, w = sp.shape[:2]
+    left = (np.arange(w) < 0.5 * (pq[39, 0] + pq[42, 0]))[None, :]  # each eye's half takes its map
+    add = np.zeros((h, w), np.float32)
+    for idx, side in zip(_EYES, (left, ~left)):
+        A = _eye_affine(pq[list(idx)], dq[list(idx)])  # puppet px -> driver px
+        moved = cv2.warpAffine(band, A, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                               borderMode=cv2.BORDER_CONSTANT)
+        add = np.where(side, moved, add)
+    hd = np.repeat((add * wp)[..., None], 3, axis=2)
+    a = min(_gain_to_variance(_lap(sp)[mp], _lap(hd)[mp], float(np.var(_lap(rd)[md]))), max_amount)
     out = s.copy()
     if a > 0:
         out[plo[1]:phi[1], plo[0]:phi[0]] = np.clip(sp + a * hd, 0.0, 1.0)

@@ -1,12 +1,12 @@
 """facetex.puppet.detail: the frame's grain on a puppet that its own bounded sharpening left smoother,
-and the driver's lip lines on the puppet's lips."""
+the driver's lip lines on the puppet's lips and its lash lines round the puppet's eyes."""
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
-from facetex.puppet.detail import GRAIN_CLIP, match_grain, match_lip_detail
+from facetex.puppet.detail import GRAIN_CLIP, _eye_affine, match_grain, match_lid_detail, match_lip_detail
 from facetex.geometry.masks import polygon_mask
 
 
@@ -131,3 +131,91 @@ def test_match_lip_detail_leaves_detailed_lips_and_bad_points_alone():
         args = {"driver68": d, "puppet68": p, **kwargs}
         out, a = match_lip_detail(flat, ref, args.pop("driver68"), args.pop("puppet68"), **args)
         assert a == 0.0 and np.array_equal(out, flat)
+
+
+def _eyes68(cx, cy, iod=100.0, opening=0.3):
+    """68 points with both eyes (36-47) centred iod apart round (cx, cy); eye width 0.3 iod, open by
+    ``opening`` x the width; the other points far away at the eyes' centre (unused)."""
+    p = np.tile([cx, cy], (68, 1)).astype(np.float64)
+    w = 0.3 * iod
+    for k, ex in ((36, cx - iod / 2), (42, cx + iod / 2)):
+        x = ex + w * np.array([-0.5, -1 / 6, 1 / 6, 0.5, 1 / 6, -1 / 6])
+        y = cy + 0.5 * opening * w * np.array([0, -1, -1, 0, 1, 1])
+        p[k:k + 6] = np.c_[x, y]
+    p[36], p[45] = (cx - iod / 2 - w / 2, cy), (cx + iod / 2 + w / 2, cy)
+    return p
+
+
+def _lashed(p, shape, lashes=True):
+    """Grey 0.6 skin; each eye's polygon white 0.9; with ``lashes`` a dark 0.2 line 2 px thick along
+    each upper lid (36-37-38-39, 42-43-44-45) and a fainter 0.45 line 4 px above it (a crease)."""
+    img = np.full(shape, 0.6, np.float32)
+    for k in (36, 42):
+        cv2.fillPoly(img, [np.round(p[k:k + 6]).astype(np.int32)], 0.9)
+        if lashes:
+            upper = np.round(p[k:k + 4]).astype(np.int32)
+            cv2.polylines(img, [upper], False, 0.2, 2)
+            cv2.polylines(img, [upper - (0, 5)], False, 0.45, 1)
+    return np.repeat(img[..., None], 3, axis=2)
+
+
+def test_eye_affine_maps_corner_to_corner_and_across_by_the_openings():
+    """The puppet's eye twice the driver's, 30 px right and 10 px up, opened 0.2 x its width to the
+    driver's 0.3: every puppet point lands on the driver's (the corners exactly, the lids by the
+    ratio 0.3 / 0.2 across); a shut puppet eye is mapped across by 1 (its width's scale)."""
+    d = _eyes68(100, 80, iod=100.0, opening=0.3)[36:42]
+    p = _eyes68(0, 0, iod=200.0, opening=0.2)[36:42]
+    p += (230.0 - p[[0, 3]].mean(0)[0], 70.0 - p[[0, 3]].mean(0)[1])
+    A = _eye_affine(p, d)
+    mapped = p @ A[:, :2].T + A[:, 2]
+    np.testing.assert_allclose(mapped, d, atol=1e-9)
+    shut = p.copy()
+    shut[:, 1] = shut[[0, 3], 1].mean()
+    B = _eye_affine(shut, d)
+    np.testing.assert_allclose(B[:, :2], 0.5 * np.eye(2), atol=1e-12)
+
+
+def test_match_lid_detail_moves_the_drivers_lash_lines_round_the_puppets_eyes():
+    """The driver's lashes and creases (dark lines along its upper lids, on skin with a fine grain of
+    sd 0.02) onto a puppet with bare lids 20 px right and 6 px lower: the lines land along the
+    puppet's upper lids (where they lie on the driver's, moved by (20, 6); clipped at GRAIN_CLIP
+    robust sds of the grain), nothing is added deep inside the puppet's eyeballs nor beyond the
+    reach, and the amount stays in (0, 1]."""
+    from facetex.puppet.detail import LID_DETAIL_REACH
+
+    shape = (160, 260)
+    d = _eyes68(120, 70)
+    p = d.copy()
+    p[36:48] += (20, 6)
+    grain = np.random.default_rng(0).normal(0.0, 0.02, shape).astype(np.float32)[..., None]
+    ref, src = _lashed(d, shape) + grain, _lashed(p, shape, lashes=False)
+    out, a = match_lid_detail(src, ref, d, p)
+    assert 0.0 < a <= 1.0
+    diff = (out - src)[..., 0]
+    moved = np.roll(np.roll(ref[..., 0] - _lashed(d, shape, lashes=False)[..., 0], 6, axis=0), 20, axis=1)
+    lines = moved < -0.1
+    assert lines.sum() > 60
+    assert diff[lines].mean() < -0.02 * a  # darker along the puppet's lash lines
+    eyes = np.zeros(shape, np.uint8)
+    for k in (36, 42):
+        cv2.fillPoly(eyes, [np.round(p[k:k + 6]).astype(np.int32)], 1)
+    deep = cv2.erode(eyes, np.ones((7, 7), np.uint8)) > 0
+    assert deep.sum() > 30 and np.abs(diff[deep]).max() == 0.0
+    far = cv2.dilate(eyes, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * 40 + 1, 2 * 40 + 1))) == 0
+    assert LID_DETAIL_REACH * np.linalg.norm(d[36] - d[45]) < 40 and np.abs(diff[far]).max() == 0.0
+
+
+def test_match_lid_detail_leaves_lashed_lids_and_bad_points_alone():
+    shape = (160, 260)
+    d = _eyes68(120, 70)
+    p = d.copy()
+    p[36:48] += (20, 6)
+    ref, lashed = _lashed(d, shape), _lashed(p, shape)
+    out, a = match_lid_detail(lashed, ref, d, p)
+    assert a == 0.0 and np.array_equal(out, lashed)
+    bare = _lashed(p, shape, lashes=False)
+    bad = p.copy()
+    bad[40] = np.nan
+    for dd, pp, amount in ((d, bad, 1.0), (d, p, 0.0)):
+        out, a = match_lid_detail(bare, ref, dd, pp, max_amount=amount)
+        assert a == 0.0 and np.array_equal(out, bare)
