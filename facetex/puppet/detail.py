@@ -15,6 +15,14 @@ from ._pixels import _LUMA
 __all__ = ["match_sharpness", "match_grain", "match_lip_detail", "match_lid_detail", "GRAIN_CLIP", "LIP_DETAIL_SIGMA",
            "LID_DETAIL_SIGMA", "LID_DETAIL_REACH"]
 
+def _points_box(q: np.ndarray, shape, grow: float) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) int (x, y) of the points ``q`` (k, 2)'s box grown by ``grow`` px, inside an image
+    of ``shape`` (H, W, ...)."""
+    lo = np.maximum(np.floor(q.min(axis=0) - grow).astype(int), 0)
+    hi = np.minimum(np.ceil(q.max(axis=0) + grow).astype(int) + 1, [shape[1], shape[0]])
+    return lo, hi
+
+
 _K4 = np.array([[0, 0.25, 0], [0.25, 0, 0.25], [0, 0.25, 0]], np.float32)
 #: the frame's fine band is clipped at this many robust standard deviations of its skin's: the lash
 #: lines, glasses rims and creases that survive the feature cut are far stronger than skin grain.
@@ -136,14 +144,9 @@ def match_lip_detail(src, ref, driver68, puppet68, *, max_amount: float = 1.0) -
         return s.copy(), 0.0
     sigma = max(1.0, LIP_DETAIL_SIGMA * width)
 
-    def lip_box(q, shape, grow):  # the lips' box grown by ``grow`` px, in the image
-        lo = np.maximum(np.floor(q[48:68].min(axis=0) - grow).astype(int), 0)
-        hi = np.minimum(np.ceil(q[48:68].max(axis=0) + grow).astype(int) + 1, [shape[1], shape[0]])
-        return lo, hi
-
     # only round the lips: the band, rings and Laplacians of a 1000 px frame's face box cost ~25 ms
-    dlo, dhi = lip_box(d, r.shape, 4 * sigma + 2)  # the Gaussian reaches 4 sigma
-    plo, phi = lip_box(p, s.shape, 2)
+    dlo, dhi = _points_box(d[48:68], r.shape, 4 * sigma + 2)  # the Gaussian reaches 4 sigma
+    plo, phi = _points_box(p[48:68], s.shape, 2)
     if np.any(dhi - dlo < 3) or np.any(phi - plo < 3):
         return s.copy(), 0.0
     rd = np.ascontiguousarray(r[dlo[1]:dhi[1], dlo[0]:dhi[0]])
@@ -178,8 +181,6 @@ LID_DETAIL_SIGMA = 0.01
 #: the lid detail reaches this many eye-corner distances out from each eye's outline (full up to
 #: half of it, fading out beyond): the lash lines and the upper lid's crease
 LID_DETAIL_REACH = 0.12
-#: iBUG-68 eye outlines (right, left)
-_EYES = (tuple(range(36, 42)), tuple(range(42, 48)))
 
 
 def _eye_affine(puppet_eye: np.ndarray, driver_eye: np.ndarray) -> np.ndarray:
@@ -207,9 +208,10 @@ def _eye_affine(puppet_eye: np.ndarray, driver_eye: np.ndarray) -> np.ndarray:
 def _lid_ring(points68, shape, reach: float, inside_px: float = 1.5) -> np.ndarray:
     """float32 (H, W): 1 from ``inside_px`` px inside either eye's outline out to half of ``reach``
     px beyond it, falling linearly to 0 at ``reach`` px; 0 deeper inside (the eyeball)."""
-    h, w = shape
-    eyes = np.zeros((h, w), np.uint8)
-    for idx in _EYES:
+    from .eyes import EYES
+
+    eyes = np.zeros(shape, np.uint8)
+    for idx in EYES:  # filled at the rounded points: a tiny eye still has its pixels
         cv2.fillPoly(eyes, [np.round(points68[list(idx)]).astype(np.int32)], 1)
     out = cv2.distanceTransform(1 - eyes, cv2.DIST_L2, 3)
     inn = cv2.distanceTransform(eyes, cv2.DIST_L2, 3)
@@ -239,13 +241,8 @@ def match_lid_detail(src, ref, driver68, puppet68, *, max_amount: float = 1.0) -
     reach = LID_DETAIL_REACH * iod
     pad = reach + 4 * sigma + 2
 
-    def box(q, shape):  # the eyes' box grown by ``pad`` px, in the image
-        lo = np.maximum(np.floor(q[36:48].min(axis=0) - pad).astype(int), 0)
-        hi = np.minimum(np.ceil(q[36:48].max(axis=0) + pad).astype(int) + 1, [shape[1], shape[0]])
-        return lo, hi
-
-    dlo, dhi = box(d, r.shape)
-    plo, phi = box(p, s.shape)
+    dlo, dhi = _points_box(d[36:48], r.shape, pad)
+    plo, phi = _points_box(p[36:48], s.shape, pad)
     if iod < 8 or np.any(dhi - dlo < 8) or np.any(phi - plo < 8):
         return s.copy(), 0.0
     rd = np.ascontiguousarray(r[dlo[1]:dhi[1], dlo[0]:dhi[0]])
@@ -263,7 +260,9 @@ def match_lid_detail(src, ref, driver68, puppet68, *, max_amount: float = 1.0) -
     h, w = sp.shape[:2]
     left = (np.arange(w) < 0.5 * (pq[39, 0] + pq[42, 0]))[None, :]  # each eye's half takes its map
     add = np.zeros((h, w), np.float32)
-    for idx, side in zip(_EYES, (left, ~left)):
+    from .eyes import EYES
+
+    for idx, side in zip(EYES, (left, ~left)):
         A = _eye_affine(pq[list(idx)], dq[list(idx)])  # puppet px -> driver px
         moved = cv2.warpAffine(band, A, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                borderMode=cv2.BORDER_CONSTANT)
