@@ -63,8 +63,8 @@ from ..errors import BadInputError
 from ..geometry.masks import disc, feature_mask, inner_feather, nose_mask, polygon_mask
 from ._pixels import _LUMA, _mix, _Shrunk, _skin_weights
 from .detail import match_grain, match_lid_detail, match_lip_detail, match_sharpness
-from .lighting import (COLOURS, _lab, _linear, fit_sh_lighting, linear_to_srgb, relight, srgb_to_linear,
-                       transfer_skin_colour)
+from .lighting import (COLOURS, _lab, _linear, fit_sh_lighting, floor_nostrils, linear_to_srgb, relight,
+                       srgb_to_linear, transfer_skin_colour)
 from .eyes import brow_weights, eye_interior, eye_skin_weights, eye_weights, lid_weights
 from .mouth import lift_inner_lips, lip_regions, lip_weights, mouth_interior  # noqa: F401 (lip_weights re-exported)
 from .occluders import occlusion_mask, outline_band, persona_hair, skin_pixels
@@ -297,7 +297,9 @@ class CompositeParams:
     Laplacian energy inside the face is its nose (nostrils, the shaded sides), which the skin-colour
     mask of the skin's gain leaves out, and the persona's nose, a blend of many photos, is soft (at
     the driver's 360 px, face sharpness 0.67-0.73 of the driver's on 4 of 36 runs without it, the
-    nose 0.41-0.47); lip_detail: the driver's lip lines moved onto the puppet's lips, at most at this
+    nose 0.41-0.47); nostril_knee: then the puppet's lower nose is no darker than the driver's
+    nostrils but for a soft knee of this many L* (0: off; :func:`~facetex.puppet.lighting.floor_nostrils`);
+    lip_detail: the driver's lip lines moved onto the puppet's lips, at most at this
     strength (0: off; :func:`~facetex.puppet.detail.match_lip_detail`); lid_detail: the driver's lash
     lines and lid creases round the puppet's eyes, at most at this strength (0: off;
     :func:`~facetex.puppet.detail.match_lid_detail`); poisson:
@@ -338,6 +340,7 @@ class CompositeParams:
     sharpen: float = 2.5
     grain: float = 1.0
     nose_sharpen: float = 3.0
+    nostril_knee: float = 6.0
     lip_detail: float = 1.0
     lid_detail: float = 1.0
     poisson: bool = True
@@ -502,13 +505,16 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
             if pp68 is not None:  # neither face's features: the frame's lash lines and creases stay out
                 skin_full = skin_full & ~feature_mask(pp68 - [x0, y0], rg.shape)
             out, _ = match_grain(out, fr, skin_full, max_amount=params.grain)
-    if params.nose_sharpen > 1 and pp68 is not None:
+    if (params.nose_sharpen > 1 or params.nostril_knee > 0) and pp68 is not None:
         nose_p = nose_mask(pp68 - [x0, y0], rg.shape) & rg  # where the puppet's nose is drawn
         nose_d = nose_mask(p68 - [x0, y0], rg.shape) & rg
         if nose_p.sum() >= 16 and nose_d.sum() >= 16:
             where = cv2.GaussianBlur(nose_p.astype(np.float32), (0, 0), max(0.7, 0.04 * iod))
-            out, _ = match_sharpness(out, fr, nose_p, nose_d, max_gain=params.nose_sharpen,
-                                     coverage=np.asarray(coverage, np.float32)[box], where=where)
+            if params.nose_sharpen > 1:
+                out, _ = match_sharpness(out, fr, nose_p, nose_d, max_gain=params.nose_sharpen,
+                                         coverage=np.asarray(coverage, np.float32)[box], where=where)
+            if params.nostril_knee > 0:
+                out = floor_nostrils(out, fr, where, nose_d, knee=params.nostril_knee)
     if params.lip_detail > 0 and params.mouth and pp68 is not None:
         out, _ = match_lip_detail(out, fr, p68 - [x0, y0], pp68 - [x0, y0], max_amount=params.lip_detail)
     if params.lid_detail > 0 and pp68 is not None:

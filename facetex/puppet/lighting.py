@@ -22,6 +22,8 @@ __all__ = [
     "skin_low_pass",
     "COLOURS",
     "transfer_skin_colour",
+    "NOSTRIL_PERCENTILE",
+    "floor_nostrils",
 ]
 
 
@@ -388,3 +390,39 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     return _rgb(out)
 
 
+
+
+#: the driver's nostrils' darkness: this percentile of L* on its lower nose
+NOSTRIL_PERCENTILE = 3.0
+
+
+def floor_nostrils(src, ref, src_nose, ref_nose, *, knee: float = 6.0,
+                   percentile: float = NOSTRIL_PERCENTILE) -> np.ndarray:
+    """``src`` (H, W, 3) sRGB with its lower nose no darker than ``ref``'s nostrils, softly:
+    f = the ``percentile`` of L* on ``ref``'s bool ``ref_nose`` (the driver's frame: how dark the
+    deepest shadow under a nose is in its light); where ``src_nose`` (weight (H, W) in [0, 1])
+    is darker, L* < f, it becomes f − ``knee`` log(1 + (f − L*) / ``knee``) (its shading kept,
+    compressed, not cut flat) and its a*, b* move to
+    the mean of ``ref``'s nostril pixels (its nose at or below f) by 1 − exp(−(f − L*) /
+    ``knee``). A persona whose photos' nostrils are black (Serena Williams: L* 1-3 in her
+    texture, neutral grey in a*, b*) drew black holes with a blue cast under the driver's
+    softer light (its nostrils L* 27-39). Unchanged where ``src`` is at f or lighter, or when
+    either mask has fewer than 8 pixels. Written here: no library bounds a region's shadows by
+    another image's."""
+    s = np.asarray(src, np.float32)
+    w = np.asarray(src_nose, np.float32)
+    rm = np.asarray(ref_nose, bool)
+    if rm.sum() < 8 or (w > 0).sum() < 8 or knee <= 0:
+        return s.copy()
+    r = _pixels(_lab(ref), rm)
+    f = float(np.percentile(r[:, 0], percentile))
+    a = _lab(s)
+    depth = np.maximum(f - a[..., 0], 0.0) * w
+    if not (depth > 0).any():
+        return s.copy()
+    dark_ab = r[r[:, 0] <= f, 1:].mean(axis=0)
+    out = a.copy()
+    out[..., 0] = a[..., 0] + depth - knee * np.log1p(depth / knee)
+    t = (1.0 - np.exp(-depth / knee))[..., None]
+    out[..., 1:] = a[..., 1:] + t * (dark_ab - a[..., 1:])
+    return np.where((depth > 0)[..., None], _rgb(out), s)

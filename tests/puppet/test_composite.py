@@ -21,6 +21,7 @@ from facetex.puppet.composite import (
 from facetex.puppet.mouth import lip_regions, lip_weights, open_lip_weights
 from facetex.puppet.lighting import (
     fit_sh_lighting,
+    floor_nostrils,
     linear_to_srgb,
     match_color_statistics,
     relight,
@@ -1047,6 +1048,62 @@ def test_composite_raises_the_puppets_soft_nose_to_the_drivers_nose():
     assert _lap_var(on, core) > 4 * _lap_var(off, core)
     assert _lap_var(on, core) < _lap_var(frame, core)  # bounded: the driver's nose is far rougher
     far = cv2.dilate(nose.astype(np.uint8), np.ones((15, 15), np.uint8)) == 0
+    np.testing.assert_array_equal(on[far], off[far])
+
+
+def _lab_image(lab):
+    from facetex.puppet.lighting import _rgb
+
+    return _rgb(np.asarray(lab, np.float32))
+
+
+def test_floor_nostrils_hand_case():
+    """Driver: skin L* 60, nostrils L* 30 (8 % of its nose: the 3rd percentile is 30); puppet:
+    black nostrils (L* 2, a* 0, b* -3) become 30 - 6 log(1 + 28 / 6) = 19.6 L* with a*, b* moved
+    0.99 of the way (1 - exp(-28 / 6)) to the driver's nostrils' (12, 10); a pixel at L* 40 (above
+    the floor) and everything outside the weight stay as they were."""
+    ref_lab = np.zeros((30, 30, 3), np.float32)
+    ref_lab[:] = (60, 15, 15)
+    ref_lab[12:16, 8:12] = ref_lab[12:16, 18:22] = (30, 12, 10)
+    src_lab = np.zeros_like(ref_lab)
+    src_lab[:] = (60, 15, 15)
+    src_lab[12:16, 8:12] = (2, 0, -3)
+    src_lab[12, 18] = (40, 10, 10)
+    src_lab[25, 25] = (2, 0, -3)  # dark, outside the nose
+    ref, src = _lab_image(ref_lab), _lab_image(src_lab)
+    nose = np.zeros((30, 30), bool)
+    nose[5:25, 5:25] = True
+    out = floor_nostrils(src, ref, nose.astype(np.float32), nose)
+    lab = _lab(out)
+    np.testing.assert_allclose(lab[12:16, 8:12], np.broadcast_to([19.6, 11.9, 9.9], (4, 4, 3)), atol=0.6)
+    unchanged = np.ones((30, 30), bool)
+    unchanged[12:16, 8:12] = False
+    np.testing.assert_array_equal(out[unchanged], src[unchanged])  # L* 40, the skin, outside the weight
+    # a puppet no darker than the driver's nostrils is left alone; so is everything with knee 0
+    np.testing.assert_array_equal(floor_nostrils(ref, ref, nose.astype(np.float32), nose), ref)
+    np.testing.assert_array_equal(floor_nostrils(src, ref, nose.astype(np.float32), nose, knee=0), src)
+
+
+def test_composite_lifts_a_puppets_black_nostrils_to_the_drivers_light():
+    """A puppet with black nostrils (sRGB 0.02) in a frame whose nostrils are a mid brown: with
+    ``nostril_knee`` (default) its nostrils are within 12 L* of the driver's, without it 30 darker;
+    far from the nose nothing changes."""
+    frame, face, inner, coverage, kw = _oval_scene()
+    p = kw["driver_points68"].copy()
+    p[27:36] = [(48, 30), (48, 36), (48, 42), (48, 50), (42, 56), (45, 57), (48, 58), (51, 57), (54, 56)]
+    kw = {**kw, "driver_points68": p, "puppet_points68": p}
+    holes = np.zeros(frame.shape[:2], bool)
+    holes[55:58, 42:46] = holes[55:58, 50:54] = True
+    frame[holes] = (0.3, 0.18, 0.12)
+    puppet = np.broadcast_to(np.float32([0.6, 0.45, 0.35]), frame.shape).copy()
+    puppet[holes] = 0.02
+    cp = dict(mouth=False, eyes="persona", poisson=False, occlusion=False)
+    on = composite_face(frame, puppet, coverage, None, params=CompositeParams(**cp), **kw)[0]
+    off = composite_face(frame, puppet, coverage, None, params=CompositeParams(nostril_knee=0, **cp), **kw)[0]
+    drv = _lab(frame)[holes][:, 0].mean()
+    assert _lab(off)[holes][:, 0].mean() < drv - 20
+    assert _lab(on)[holes][:, 0].mean() > drv - 12
+    far = cv2.dilate(nose_mask(p, frame.shape).astype(np.uint8), np.ones((15, 15), np.uint8)) == 0
     np.testing.assert_array_equal(on[far], off[far])
 
 
