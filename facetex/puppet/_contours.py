@@ -125,6 +125,7 @@ class Between:
     depth: np.ndarray
     warped: np.ndarray
     driver: tuple
+    across: np.ndarray | None = None
 
     def ramp_width(self, soft: float, *, max_px: float | None = None, min_soft: float = EDGE_MIN_SOFT) -> float:
         """The width in px of :meth:`edge`'s ramp: ``soft`` x the widest gap inside the contour (at
@@ -174,10 +175,11 @@ def sample_between(frame: np.ndarray, driver: np.ndarray, puppet: np.ndarray, sh
     # depth inside (px): to the nearer curve across the opening, to the nearer corner along it
     depth = np.minimum(np.minimum(v - a, b - v), np.minimum(u - pu0, pu1 - u))
     su = 0.5 + min(inset, 1.0) * ((uc - pu0) / (pu1 - pu0) - 0.5)
-    sv = 0.5 + inset * (np.clip((v - a) / np.maximum(gap, 1e-6), 0.0, 1.0) - 0.5)
+    across = np.clip((v - a) / np.maximum(gap, 1e-6), 0.0, 1.0)
+    sv = 0.5 + inset * (across - 0.5)
     ud = du0 + su * (du1 - du0)
     vd = up_d(ud) + sv * (lo_d(ud) - up_d(ud))
     xy = np.stack([ud, vd], axis=-1) @ Rd + cd
     warped = cv2.remap(np.asarray(frame, np.float32), xy[..., 0].astype(np.float32), xy[..., 1].astype(np.float32),
                        cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return Between((x0, y0, x1, y1), gap, depth, warped, (up_d, lo_d, du0, du1, Rd, cd, wd))
+    return Between((x0, y0, x1, y1), gap, depth, warped, (up_d, lo_d, du0, du1, Rd, cd, wd), across)

@@ -65,7 +65,10 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     shadow lose it and teeth lose it and gain light (measured on GRID clips with the Bush and
     Blair puppets: median a-b distance 3-4 on the inner lip surface of slightly open mouths,
     14-25 in open mouths with teeth).
-    The lip colour is the median of the driver's frame just outside its inner-lip contour; lips
+    The lips' colour is the median of the driver's frame just above its upper inner-lip curve at the
+    upper lip, just below the lower one at the lower lip, blended across the opening (one median for
+    both kept a glossy lower lip, lighter than the upper, as a pink band in the opening: the
+    puppet's teeth 8 px tall against the driver's 19 on FRL 006); lips
     darker than L* 40 are brought to it (one gain on the linear light of the lips and the
     interior, :data:`KEY_LIP_LUMINANCE`) before the differences are measured.
     ``cavity`` (percentile, None: off): under the interior's soft edge and its keyed-out lips, the
@@ -157,8 +160,13 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
         # exposure that brings the lips to KEY_LIP_LUMINANCE
         gain = max(1.0, KEY_LIP_LUMINANCE / max(float(np.median(lip_lin[0] @ _LUMA)), 1e-4))
         key_lab = lab if gain == 1.0 else cv2.cvtColor(np.minimum(lin * gain, 1.0), cv2.COLOR_LRGB2Lab)
-        lip_lab = np.median(cv2.cvtColor(np.minimum(lip_lin * gain, 1.0), cv2.COLOR_LRGB2Lab)[0], axis=0)
-        unlike = np.maximum(np.linalg.norm(key_lab[..., 1:] - lip_lab[1:], axis=-1), key_lab[..., 0] - lip_lab[0])
+        ring_lab = cv2.cvtColor(np.minimum(lip_lin * gain, 1.0), cv2.COLOR_LRGB2Lab)[0]
+        # each lip its own colour, blended across the opening: a glossy lower lip much lighter than
+        # the upper lip was "lighter than the lips" and stayed in the opening as a pink band
+        up_lab, lo_lab = np.median(ring_lab[:len(us)], axis=0), np.median(ring_lab[len(us):], axis=0)
+        lip_lab = up_lab + smoothstep(s.across)[..., None].astype(np.float32) * (lo_lab - up_lab)
+        unlike = np.maximum(np.linalg.norm(key_lab[..., 1:] - lip_lab[..., 1:], axis=-1),
+                            key_lab[..., 0] - lip_lab[..., 0])
         lo, hi = lip_key
         k = np.clip((unlike - lo) / max(hi - lo, 1e-6), 0.0, 1.0)
         k = smoothstep(k).astype(np.float32)

@@ -806,6 +806,32 @@ def test_mouth_interior_keys_out_the_drivers_lip_colour():
                                atol=0.02)
 
 
+def test_mouth_interior_keys_each_lip_against_its_own_colour():
+    """A dark upper lip and a light, glossy-pink lower lip whose colour reaches 6 px into dlib's
+    inner contour: that band is lighter than the two lips' joint median (it was kept as interior,
+    a pink band under the teeth), but it is the lower lip's colour: keyed out now; the teeth
+    (white) stay."""
+    frame, d, p = _mouths()
+    yy = np.mgrid[0:frame.shape[0], 0:frame.shape[1]][0]
+    outer = np.zeros(frame.shape[:2], np.uint8)
+    o = d.copy()
+    o[:, 1] = 40 + (d[:, 1] - 40) * 1.8
+    o[:, 0] = 60 + (d[:, 0] - 60) * 1.15
+    cv2.fillPoly(outer, [np.round(o).astype(np.int32)], 1)
+    inner = np.zeros_like(outer)
+    cv2.fillPoly(inner, [np.round(d).astype(np.int32)], 1)
+    frame[(outer > 0) & (inner == 0) & (yy < 40)] = (0.3, 0.15, 0.17)  # dark upper lip
+    frame[(outer > 0) & (inner == 0) & (yy >= 40)] = (0.75, 0.5, 0.55)  # light pink lower lip
+    frame[(inner > 0) & (yy >= 48)] = (0.75, 0.5, 0.55)  # its colour inside dlib's contour
+    img, alpha = mouth_interior(frame, d, p, cavity=None)  # img: the driver's pixels moved in
+    deep = cv2.erode((alpha > 0).astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
+    pink = (np.abs(img - np.float32([0.75, 0.5, 0.55])).max(axis=-1) < 0.02) & deep
+    teeth = (img.min(axis=-1) > 0.85) & deep
+    assert pink.sum() > 20 and teeth.sum() > 20
+    assert alpha[pink].mean() < 0.2
+    assert alpha[teeth].mean() > 0.8
+
+
 def test_mouth_interior_cavity_starts_at_the_contour_in_the_lips_shade():
     """With ``lip_shade`` the cavity's colour at the puppet's contour is the driver's lips x 0.3 in
     linear light (sRGB (0.75, 0.3, 0.3) -> (0.432, 0.160, 0.160), hand-computed), turning into the
