@@ -414,15 +414,21 @@ def floor_nostrils(src, ref, src_nose, ref_nose, *, knee: float = 6.0,
     rm = np.asarray(ref_nose, bool)
     if rm.sum() < 8 or (w > 0).sum() < 8 or knee <= 0:
         return s.copy()
-    r = _pixels(_lab(ref), rm)
+    ys, xs = np.nonzero(rm)
+    r = _pixels(_lab(np.asarray(ref, np.float32)[ys.min():ys.max() + 1, xs.min():xs.max() + 1]),
+                rm[ys.min():ys.max() + 1, xs.min():xs.max() + 1])
     f = float(np.percentile(r[:, 0], percentile))
-    a = _lab(s)
-    depth = np.maximum(f - a[..., 0], 0.0) * w
+    ys, xs = np.nonzero(w > 0)  # the weight's box only: the nose of a 1000 px face
+    box = (slice(ys.min(), ys.max() + 1), slice(xs.min(), xs.max() + 1))
+    a = _lab(s[box])
+    depth = np.maximum(f - a[..., 0], 0.0) * w[box]
+    out = s.copy()
     if not (depth > 0).any():
-        return s.copy()
+        return out
     dark_ab = r[r[:, 0] <= f, 1:].mean(axis=0)
-    out = a.copy()
-    out[..., 0] = a[..., 0] + depth - knee * np.log1p(depth / knee)
+    lab = a.copy()
+    lab[..., 0] = a[..., 0] + depth - knee * np.log1p(depth / knee)
     t = (1.0 - np.exp(-depth / knee))[..., None]
-    out[..., 1:] = a[..., 1:] + t * (dark_ab - a[..., 1:])
-    return np.where((depth > 0)[..., None], _rgb(out), s)
+    lab[..., 1:] = a[..., 1:] + t * (dark_ab - a[..., 1:])
+    out[box] = np.where((depth > 0)[..., None], _rgb(lab), s[box])
+    return out
