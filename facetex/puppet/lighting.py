@@ -390,8 +390,6 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     return _rgb(out)
 
 
-
-
 #: the driver's nostrils' darkness: this percentile of L* on its lower nose
 NOSTRIL_PERCENTILE = 3.0
 
@@ -402,9 +400,9 @@ def floor_nostrils(src, ref, src_nose, ref_nose, *, knee: float = 6.0,
     f = the ``percentile`` of L* on ``ref``'s bool ``ref_nose`` (the driver's frame: how dark the
     deepest shadow under a nose is in its light); where ``src_nose`` (weight (H, W) in [0, 1])
     is darker, L* < f, it becomes f − ``knee`` log(1 + (f − L*) / ``knee``) (its shading kept,
-    compressed, not cut flat) and its a*, b* move to
-    the mean of ``ref``'s nostril pixels (its nose at or below f) by 1 − exp(−(f − L*) /
-    ``knee``). A persona whose photos' nostrils are black (Serena Williams: L* 1-3 in her
+    compressed, not cut flat: a tanh knee drew flat brown cut-outs) and its a*, b* move to the
+    mean of ``ref``'s nostril pixels (its nose at or below f) by 1 − exp(−(f − L*) / ``knee``).
+    A persona whose photos' nostrils are black (Serena Williams: L* 1-3 in her
     texture, neutral grey in a*, b*) drew black holes with a blue cast under the driver's
     softer light (its nostrils L* 27-39). Unchanged where ``src`` is at f or lighter, or when
     either mask has fewer than 8 pixels. Written here: no library bounds a region's shadows by

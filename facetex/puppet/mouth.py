@@ -67,8 +67,8 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     14-25 in open mouths with teeth).
     The lips' colour is the median of the driver's frame just above its upper inner-lip curve at the
     upper lip, just below the lower one at the lower lip, blended across the opening (one median for
-    both kept a glossy lower lip, lighter than the upper, as a pink band in the opening: the
-    puppet's teeth 8 px tall against the driver's 19 on FRL 006); lips
+    both kept a glossy lower lip, lighter than the upper, as a pink band under the teeth that dlib
+    read as lip: mouth slope 0.51 on FRL 006 with Williams' persona, 0.72 now); lips
     darker than L* 40 are brought to it (one gain on the linear light of the lips and the
     interior, :data:`KEY_LIP_LUMINANCE`) before the differences are measured.
     ``cavity`` (percentile, None: off): under the interior's soft edge and its keyed-out lips, the
