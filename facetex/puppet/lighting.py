@@ -221,10 +221,10 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     a saturated persona's dark features (lash lines, brows, lid shadows), less saturated than her
     skin, turned blue or teal on a pale, less saturated driver (their chroma offset from her skin
     crossed neutral). ``highlight_knee`` (colour "driver", L*; None: off): lightness detail above
-    the persona's skin field, d > 0, is compressed to knee x tanh(d / knee) before its gain, and its
-    a*, b* detail by the same ratio: a persona's specular highlights (a shiny brow ridge or nose in
-    her photos' light) were white bands on a pale driver, lavender ones on a dark driver.
-    ``shadows`` (colour "driver"): weight (H, W) in [0, 1], a function returning it, or None: there,
+    the persona's skin field, d > 0, is compressed to knee x tanh(d / knee) before its gain: a
+    persona's specular highlights (a shiny brow ridge or nose in her photos' light) were white
+    bands on a pale driver. ``shadows`` (colour "driver"): weight (H, W) in [0, 1], a function
+    returning it, or None: there,
     on a darker persona than the driver, the lightness detail below the persona's skin field, d < 0,
     is compressed to -``shadow_knee`` x tanh(-d / ``shadow_knee``) before its gain (and before
     ``keep_dark``'s), in full from a skins' lightness ratio at ``gain``'s upper bound, not at all
@@ -338,13 +338,7 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     detail = None if s_light is None else a[..., 0] - s_light
     if highlight_knee is not None:
         up = np.maximum(detail, 0.0)
-        kept_up = highlight_knee * np.tanh(up / highlight_knee)
-        out[..., 0] -= g[0] * (up - kept_up)
-        # its a*, b* detail goes with it: a compressed highlight kept its whiteness, and a dark
-        # persona's shiny brow ridge was a lavender band on a dark driver (Williams on FRL 006)
-        cut = np.where(up > 1e-3, 1.0 - kept_up / np.maximum(up, 1e-3), 0.0)
-        for c in (1, 2):
-            out[..., c] -= cut * g[c] * (a[..., c] - full(sa[..., c]))
+        out[..., 0] -= g[0] * (up - highlight_knee * np.tanh(up / highlight_knee))
     if strength > 0:
         down = np.maximum(-detail, 0.0)
         ws = np.asarray(shadows() if callable(shadows) else shadows, np.float32)
