@@ -10,10 +10,13 @@ import math
 import cv2
 import numpy as np
 
+from ._contours import EYE, _contour_frame
 from ._pixels import _LUMA
+from .eyes import EYES
 
 __all__ = ["match_sharpness", "match_grain", "match_lip_detail", "match_lid_detail", "GRAIN_CLIP", "LIP_DETAIL_SIGMA",
            "LID_DETAIL_SIGMA", "LID_DETAIL_REACH"]
+
 
 def _points_box(q: np.ndarray, shape, grow: float) -> tuple[np.ndarray, np.ndarray]:
     """(lo, hi) int (x, y) of the points ``q`` (k, 2)'s box grown by ``grow`` px, inside an image
@@ -188,14 +191,9 @@ def _eye_affine(puppet_eye: np.ndarray, driver_eye: np.ndarray) -> np.ndarray:
     corner, two lower): corner to corner, and across the eye by the ratio of the two openings
     (clipped to [0.5, 2]; 1 when either eye is nearly shut, where a least-squares fit of six
     points on a line would be unbounded across it)."""
-    def frame(q):
-        o = 0.5 * (q[0] + q[3])
-        u = q[3] - q[0]
-        width = max(float(np.hypot(*u)), 1e-6)
-        u = u / width
-        v = np.array([-u[1], u[0]])
-        opening = 0.5 * (np.linalg.norm(q[1] - q[5]) + np.linalg.norm(q[2] - q[4])) / width
-        return o, u, v, width, opening
+    def frame(q):  # the corners' midpoint, the axes, the width and the opening over the width
+        _, R, width, gap = _contour_frame(q, EYE)
+        return 0.5 * (q[0] + q[3]), R[0], R[1], max(width, 1e-6), gap / max(width, 1e-6)
 
     po, pu, pv, pw, pa = frame(np.asarray(puppet_eye, np.float64))
     do, du, dv, dw, da = frame(np.asarray(driver_eye, np.float64))
@@ -208,8 +206,6 @@ def _eye_affine(puppet_eye: np.ndarray, driver_eye: np.ndarray) -> np.ndarray:
 def _lid_ring(points68, shape, reach: float, inside_px: float = 1.5) -> np.ndarray:
     """float32 (H, W): 1 from ``inside_px`` px inside either eye's outline out to half of ``reach``
     px beyond it, falling linearly to 0 at ``reach`` px; 0 deeper inside (the eyeball)."""
-    from .eyes import EYES
-
     eyes = np.zeros(shape, np.uint8)
     for idx in EYES:  # filled at the rounded points: a tiny eye still has its pixels
         cv2.fillPoly(eyes, [np.round(points68[list(idx)]).astype(np.int32)], 1)
@@ -260,8 +256,6 @@ def match_lid_detail(src, ref, driver68, puppet68, *, max_amount: float = 1.0) -
     h, w = sp.shape[:2]
     left = (np.arange(w) < 0.5 * (pq[39, 0] + pq[42, 0]))[None, :]  # each eye's half takes its map
     add = np.zeros((h, w), np.float32)
-    from .eyes import EYES
-
     for idx, side in zip(EYES, (left, ~left)):
         A = _eye_affine(pq[list(idx)], dq[list(idx)])  # puppet px -> driver px
         moved = cv2.warpAffine(band, A, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
