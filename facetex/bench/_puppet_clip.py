@@ -208,6 +208,7 @@ def _evaluate_clip(clip: Path, persona, ref_desc, out: Path, *, size, max_frames
     d_pup, d_drv = np.full(n, np.nan), np.full(n, np.nan)
     step_c, step_d = np.full(n, np.nan), np.full(n, np.nan)
     de, sharp, eye_sharp = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
+    sharp_half = np.full(n, np.nan)
     under_eye = np.full(n, np.nan)
     for r in ours:
         i = r["index"]
@@ -224,7 +225,9 @@ def _evaluate_clip(clip: Path, persona, ref_desc, out: Path, *, size, max_frames
         shape = r["puppet"].shape
         de[i] = cheek_delta_e(r["puppet"], r["driver"], cheek_mask(p68[i], shape) & shown)
         under_eye[i] = lightness_difference(r["puppet"], r["driver"], under_eye_mask(p68[i], shape) & shown)
-        sharp[i] = sharpness_ratio(r["puppet"], r["driver"], face_skin_mask(p68[i], shape) & shown)
+        skin = face_skin_mask(p68[i], shape) & shown
+        sharp[i] = sharpness_ratio(r["puppet"], r["driver"], skin)
+        sharp_half[i] = sharpness_ratio(r["puppet"], r["driver"], skin, scale=0.5)
         eye_sharp[i] = sharpness_ratio(r["puppet"], r["driver"], eye_mask(p68[i], shape) & shown)
         mask = r["alpha"] > 0.5
         if mask.sum() > 16:
@@ -275,6 +278,7 @@ def _evaluate_clip(clip: Path, persona, ref_desc, out: Path, *, size, max_frames
         "cheek_de": _median(de),
         "under_eye_dl": _median(under_eye),
         "sharp": _median(sharp),
+        "sharp_half": _median(sharp_half),
         "eye_sharp": _median(eye_sharp),
         "id_closer": float(closer.mean()) if closer.size else float("nan"),
         "mouth_detected": float(np.isfinite(pup_open[found]).mean()) if found.any() else float("nan"),

@@ -30,7 +30,9 @@ shows there). Per run:
 * **sharpness**: variance of the Laplacian (3 × 3, luminance) of the composite over the
   driver's own frame on the same face-skin pixels (:func:`face_skin_mask`: inside jaw and
   brows, eyes, brows and lips cut out; :func:`sharpness_ratio`), median over frames; target
-  >= 0.75; the same on the eyes (dilated eye outlines) as **eye sharpness** (no target);
+  >= 0.75; the same on both images at half size (``cv2.INTER_AREA``) as **sharpness at ½
+  size** (no target: the detail a pixel-scale grain does not give) and on the eyes (dilated eye
+  outlines) as **eye sharpness** (no target);
 * **identity**: on every :data:`ID_STEP`-th tracked frame, the dlib FaceRecognitionNet
   descriptor of the composite is compared with the mean descriptor of the persona's photos
   (up to :data:`ID_PHOTOS` evenly spaced) and with the driver's mean (every 5th frame):

@@ -37,7 +37,8 @@ def register(sub) -> None:
                         "this gain (default 2.5; 1 = off; 1..4)")
     p.add_argument("--grain", type=finite_float(0.0, 1.0), default=1.0, metavar="AMOUNT",
                    help="composite mode: where the puppet is still smoother than the driver's frame, add the "
-                        "frame's own fine grain on the skin, at most at this strength (default 1; 0 = off)")
+                        "frame's own fine grain on the skin (on a large frame, also its skin texture a few pixels "
+                        "across, finer than the persona's photos), at most at this strength (default 1; 0 = off)")
     p.add_argument("--nose-sharpen", type=finite_float(1.0, 4.0), default=3.0, metavar="GAIN",
                    help="composite mode: then raise the puppet's lower nose (nostrils, its shaded sides) towards the "
                         "driver's nose's fine detail, at most by this further gain (default 3; 1 = off; 1..4)")

@@ -24,8 +24,8 @@ __all__ = [
 # ---------------------------------------------------------------- persona and puppet benches
 
 PERSONA_METRICS = ("face_ssim", "mouth_ssim", "eyes_ssim", "face_grad_corr", "face_colour_diff")
-PUPPET_METRICS = ("mouth_slope", "mouth_r", "cheek_de", "eye_ratio", "sharp", "id_closer", "id_puppet", "flicker",
-                  "fps", "fail_score")
+PUPPET_METRICS = ("mouth_slope", "mouth_r", "cheek_de", "eye_ratio", "sharp", "sharp_half", "id_closer", "id_puppet",
+                  "flicker", "fps", "fail_score")
 
 
 def _sheet(path: Path, caption: str, *, max_side: int = 1600) -> str:

@@ -65,6 +65,7 @@ _KNOWN = {m.key: m for m in (
     MetricInfo("cheek_de", "cheek ΔE", 0, INF, "lower"),
     MetricInfo("eye_ratio", "eye open ratio", 0, INF, None),
     MetricInfo("sharp", "sharpness ratio", 0, INF, "higher"),
+    MetricInfo("sharp_half", "sharpness at ½ size", 0, INF, "higher"),
     MetricInfo("id_closer", "closer to persona", 0, 1, "higher"),
     MetricInfo("id_puppet", "id dist. puppet", 0, INF, "lower"),
     MetricInfo("id_frac", "id < 0.6", 0, 1, "higher"),

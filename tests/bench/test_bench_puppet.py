@@ -129,6 +129,21 @@ def test_sharpness_ratio_on_synthetic_images():
     assert np.isnan(bench.sharpness_ratio(rgb, rgb, np.zeros_like(m)))
 
 
+def test_sharpness_ratio_at_half_size_sees_past_a_pixel_grain():
+    """A puppet whose only detail is a pixel checkerboard, as strong at full size as the frame's
+    2-4 px structure, is flat at half size (every 2 x 2 block averages to its mean): ratio 0 there."""
+    rng = np.random.default_rng(1)
+    ref = cv2.GaussianBlur(rng.standard_normal((64, 64)).astype(np.float32), (0, 0), 1.5)
+    ref = np.repeat((0.5 + 0.5 * ref / ref.std() * 0.1)[..., None], 3, axis=2)
+    yy, xx = np.mgrid[0:64, 0:64]
+    check = np.repeat((0.5 + 0.05 * np.where((yy + xx) % 2 == 0, 1.0, -1.0)).astype(np.float32)[..., None], 3, axis=2)
+    m = np.zeros((64, 64), bool)
+    m[8:56, 8:56] = True
+    assert bench.sharpness_ratio(check, ref, m) > 0.5
+    assert bench.sharpness_ratio(check, ref, m, scale=0.5) == pytest.approx(0.0, abs=1e-9)
+    assert bench.sharpness_ratio(ref, ref, m, scale=0.5) == pytest.approx(1.0)
+
+
 def test_face_masks_at_canonical_landmarks():
     cheeks, skin, eyes = bench.cheek_mask(P68, (H, W)), bench.face_skin_mask(P68, (H, W)), bench.eye_mask(P68, (H, W))
     iod = np.linalg.norm(P68[36] - P68[45])

@@ -6,7 +6,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from facetex.puppet.detail import GRAIN_CLIP, _eye_affine, match_grain, match_lid_detail, match_lip_detail
+from facetex.puppet.detail import (GRAIN_BAND_SIGMAS, GRAIN_CLIP, _eye_affine, match_grain, match_grain_bands,
+                                   match_lid_detail, match_lip_detail)
 from facetex.geometry.masks import polygon_mask
 
 
@@ -62,6 +63,67 @@ def test_match_grain_clips_the_frames_strong_lines_and_stays_on_the_skin():
     assert np.abs(out[30, 5:35] - 0.6).max() < 0.2 * 0.5  # far below its 0.5 depth
     np.testing.assert_array_equal(out[:, 45:], src[:, 45:])
     assert np.std(out[5:25, 5:35] - src[5:25, 5:35]) > 0.01  # grain where the skin is
+
+
+def _waves(h=96, w=96, period=7.0, amp=0.05) -> np.ndarray:
+    """(h, w, 3) 0.5 + a diagonal sinusoid of ``period`` px: most of its energy in the bands between
+    the pixel and a few pixels."""
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    return (0.5 + amp * np.sin(2 * np.pi * (xx + yy) / period))[..., None] * np.ones(3, np.float32)
+
+
+def test_match_grain_bands_adds_the_frames_octaves_a_flat_puppet_lacks():
+    """A flat puppet lacks every band: each amount is 1 (its variance is the frame's; a sinusoid's
+    robust sd is 1.05 x its amplitude, under the clip; its local energy is the skin's median, where
+    the texture weight is 1 / (1 + 1/4^4)) and the bands telescope: the result is the puppet plus
+    G(0.7) - G(2.8) of the frame (reach 3: the two octaves 0.7-1.4 and 1.4-2.8)."""
+    ref = _waves()
+    src = np.full_like(ref, 0.5)
+    skin = np.ones(ref.shape[:2], bool)
+    out, amounts = match_grain_bands(src, ref, skin, reach=3.0)
+    assert amounts == (1.0, 1.0)  # 1 / 0.996, capped
+    want = src + (cv2.GaussianBlur(ref, (0, 0), 0.7) - cv2.GaussianBlur(ref, (0, 0), 2.8)) / (1 + 4.0 ** -4)
+    np.testing.assert_allclose(out[12:-12, 12:-12], want[12:-12, 12:-12], atol=2e-4)
+    _, three = match_grain_bands(src, ref, skin, reach=GRAIN_BAND_SIGMAS[3])  # one octave more
+    assert len(three) == 3
+
+
+def test_match_grain_bands_adds_nothing_below_the_reach_or_where_the_puppet_has_the_band():
+    ref = _waves()
+    skin = np.ones(ref.shape[:2], bool)
+    out, amounts = match_grain_bands(np.full_like(ref, 0.5), ref, skin, reach=1.3)  # under one octave
+    assert amounts == () and np.all(out == 0.5)
+    out, amounts = match_grain_bands(ref, ref, skin, reach=3.0)  # already as detailed
+    assert amounts == (0.0, 0.0) and np.array_equal(out, ref)
+    half = 0.5 + 0.5 * (ref - 0.5)  # the same wave at half the amplitude: (1/2 + 0.996 a)^2 = 1
+    out, amounts = match_grain_bands(half, ref, skin, reach=3.0)
+    assert np.allclose(amounts, 0.5 * (1 + 4.0 ** -4), atol=2e-3)
+    _, capped = match_grain_bands(np.full_like(ref, 0.5), ref, skin, reach=3.0, max_amount=0.3)
+    assert capped == (0.3, 0.3)
+
+
+def test_match_grain_bands_leave_out_patches_of_strong_structure():
+    """A patch of the frame whose band is 4x the skin's amplitude (stubble, a moustache): its local
+    energy is 16x the skin's median, the weight 1 / (1 + (16 / kappa^2)^4) = 1/257 inside it."""
+    ref = _waves(amp=0.02)
+    ref[30:60, 30:60] = 0.5 + 4 * (ref[30:60, 30:60] - 0.5)
+    src = np.full_like(ref, 0.5)
+    out, amounts = match_grain_bands(src, ref, np.ones(ref.shape[:2], bool), reach=3.0)
+    inner = np.s_[38:52, 38:52]
+    assert np.abs(out[inner] - 0.5).max() < 2 * 4 * 0.02 / 257 * 1.5  # two bands, each 1/257 of 0.08
+    assert np.abs(out[5:20, 70:90] - 0.5).max() > 0.5 * 0.02  # the skin's own texture comes through
+
+
+def test_match_grain_bands_stay_on_the_skin():
+    """Pixels beyond the skin by more than 4 x the coarsest band's finer sigma are untouched."""
+    ref = _waves()
+    src = np.full_like(ref, 0.5)
+    skin = np.zeros(ref.shape[:2], bool)
+    skin[:, :40] = True
+    out, amounts = match_grain_bands(src, ref, skin, reach=3.0)
+    assert min(amounts) > 0
+    np.testing.assert_array_equal(out[:, 40 + 4 * 2:], src[:, 40 + 4 * 2:])  # 4 x 1.4 px feather
+    assert np.std(out[:, 5:30] - src[:, 5:30]) > 0.01
 
 
 def _lips68(cx, cy, width=80.0, thick=12.0, gap=10.0):
