@@ -983,6 +983,30 @@ def test_composite_gives_a_smooth_puppet_the_frames_grain_only_inside_the_face()
     np.testing.assert_array_equal(grainy[~face], frame[~face])
 
 
+def test_composite_gives_a_smooth_puppet_the_frames_texture_a_few_pixels_across_with_grain_reach():
+    """The frame's skin has texture ~2 px across (noise blurred by 1 px), which a pixel grain cannot
+    give: at half size the composite with ``grain_reach`` (0.06 x the 24 px eye distance: the
+    0.7-1.4 px octave) has most of the frame's Laplacian variance, without it little; the frame
+    outside the driver's outline stays as it was."""
+    frame, face, inner, coverage, kw = _oval_scene()
+    rng = np.random.default_rng(2)
+    tex = cv2.GaussianBlur(rng.normal(0, 1, frame.shape[:2]).astype(np.float32), (0, 0), 1.0)
+    frame[face] += (0.03 * tex / tex.std())[face][:, None]
+    puppet = np.broadcast_to(np.float32([0.6, 0.45, 0.35]), frame.shape).copy()
+    cp = dict(mouth=False, poisson=False, sharpen=1.0)
+    banded = composite_face(frame, puppet, coverage, None, params=CompositeParams(grain_reach=0.06, **cp), **kw)[0]
+    pixel = composite_face(frame, puppet, coverage, None, params=CompositeParams(grain_reach=0.0, **cp), **kw)[0]
+
+    def half(x):
+        return cv2.resize(x, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+
+    small = cv2.resize(inner.astype(np.uint8), None, fx=0.5, fy=0.5, interpolation=cv2.INTER_NEAREST) > 0
+    own = _lap_var(half(frame), small)
+    assert _lap_var(half(banded), small) > 0.5 * own
+    assert _lap_var(half(pixel), small) < 0.6 * _lap_var(half(banded), small)  # 0.38 vs 0.80 of the frame
+    np.testing.assert_array_equal(banded[~face], frame[~face])
+
+
 def test_composite_rejects_an_unknown_lighting():
     with pytest.raises(BadInputError, match="lighting"):
         composite_face(np.zeros((8, 8, 3)), np.zeros((8, 8, 3)), np.ones((8, 8)), np.zeros((8, 8, 3)),
