@@ -296,7 +296,8 @@ class CompositeParams:
     grain_reach: before it, the frame's octave bands up to this x the eye-corner distance (sigma)
     are added where the puppet is smoother (:func:`~facetex.puppet.detail.match_grain_bands`; 0:
     the pixel band only): with the pixel band alone the puppets on 1000 px FRL drivers measured
-    0.77-0.97 of the driver's face sharpness at full size and 0.20-0.28 at half size;
+    0.65-1.04 of the driver's face sharpness at full size and 0.17-0.39 at half size (36 runs of
+    ``bench puppet --portraits 6``), with 0.015 0.71-1.28 and 0.37-0.86;
     nose_sharpen: then the puppet's lower nose (:func:`~facetex.geometry.masks.nose_mask`) is raised
     to the driver's nose's fine detail, at most by this further gain (1: off): half of a GRID frame's
     Laplacian energy inside the face is its nose (nostrils, the shaded sides), which the skin-colour
