@@ -41,6 +41,13 @@ def _high_pass(x: np.ndarray) -> np.ndarray:
     return x - cv2.filter2D(x, -1, _K4, borderType=cv2.BORDER_REFLECT)
 
 
+def _clip_robust(band: np.ndarray, where: np.ndarray) -> np.ndarray:
+    """``band`` clipped at :data:`GRAIN_CLIP` robust standard deviations (1.4826 x the median
+    absolute value) of its values on the bool ``where``, per channel when it has channels."""
+    sd = 1.4826 * np.median(np.abs(band[where]), axis=0)
+    return np.clip(band, -GRAIN_CLIP * sd, GRAIN_CLIP * sd)
+
+
 def _lap(x: np.ndarray) -> np.ndarray:
     return cv2.Laplacian(np.ascontiguousarray(x @ _LUMA), cv2.CV_32F, ksize=1)
 
@@ -128,8 +135,7 @@ def match_grain(src, ref, skin, *, max_amount: float = 1.0, feather: float = 1.0
     if m.sum() < 64 or max_amount <= 0:
         return s.copy(), 0.0
     hd = _high_pass(r)
-    sd = 1.4826 * np.median(np.abs(hd[m]), axis=0)
-    hd = np.clip(hd, -GRAIN_CLIP * sd, GRAIN_CLIP * sd)
+    hd = _clip_robust(hd, m)
     hd *= cv2.GaussianBlur(m.astype(np.float32), (0, 0), feather)[..., None] if feather > 0 else m[..., None]
     a = min(_gain_to_variance(_lap(s)[m], _lap(hd)[m], float(np.var(_lap(r)[m]))), max_amount)
     if a <= 0:
@@ -165,8 +171,7 @@ def match_grain_bands(src, ref, skin, *, reach: float, max_amount: float = 1.0) 
         coarse_r, coarse_s = cv2.GaussianBlur(r, (0, 0), hi), cv2.GaussianBlur(s, (0, 0), hi)
         br, bs = fine_r - coarse_r, fine_s - coarse_s
         fine_r, fine_s = coarse_r, coarse_s
-        sd = 1.4826 * np.median(np.abs(br[m]), axis=0)
-        add = np.clip(br, -GRAIN_CLIP * sd, GRAIN_CLIP * sd)
+        add = _clip_robust(br, m)
         lr, ls = br @ _LUMA, bs @ _LUMA
         add *= (cv2.GaussianBlur(m.astype(np.float32), (0, 0), lo) * _texture_weight(lr, m, 2 * hi))[..., None]
         la = add @ _LUMA
@@ -221,8 +226,7 @@ def match_lip_detail(src, ref, driver68, puppet68, *, max_amount: float = 1.0) -
         return s.copy(), 0.0
     lum = np.ascontiguousarray(rd @ _LUMA)
     band = lum - cv2.GaussianBlur(lum, (0, 0), sigma)
-    sd = 1.4826 * float(np.median(np.abs(band[ring_d])))
-    band = np.clip(band, -GRAIN_CLIP * sd, GRAIN_CLIP * sd)
+    band = _clip_robust(band, ring_d)
     add = np.zeros(sp.shape[:2], np.float32)
     for idx in (UPPER_LIP, LOWER_LIP):
         b = sample_between(band, dq[list(idx)], pq[list(idx)], sp.shape[:2], layout=LIP_BAND)
@@ -312,8 +316,7 @@ def match_lid_detail(src, ref, driver68, puppet68, *, max_amount: float = 1.0) -
         return s.copy(), 0.0
     lum = np.ascontiguousarray(rd @ _LUMA)
     band = lum - cv2.GaussianBlur(lum, (0, 0), sigma)
-    sd = 1.4826 * float(np.median(np.abs(band[md])))
-    band = np.clip(band, -GRAIN_CLIP * sd, GRAIN_CLIP * sd) * wd
+    band = _clip_robust(band, md) * wd
     h, w = sp.shape[:2]
     left = (np.arange(w) < 0.5 * (pq[39, 0] + pq[42, 0]))[None, :]  # each eye's half takes its map
     add = np.zeros((h, w), np.float32)
