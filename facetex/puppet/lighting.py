@@ -394,6 +394,12 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
 NOSTRIL_PERCENTILE = 3.0
 
 
+def _nonzero_box(mask: np.ndarray) -> tuple[slice, slice]:
+    """(rows, columns) slices of the bounding box of a 2-D mask's nonzero pixels (some must be)."""
+    ys, xs = np.nonzero(mask)
+    return slice(ys.min(), ys.max() + 1), slice(xs.min(), xs.max() + 1)
+
+
 def floor_nostrils(src, ref, src_nose, ref_nose, *, knee: float = 6.0,
                    percentile: float = NOSTRIL_PERCENTILE) -> np.ndarray:
     """``src`` (H, W, 3) sRGB with its lower nose no darker than ``ref``'s nostrils, softly:
@@ -412,12 +418,10 @@ def floor_nostrils(src, ref, src_nose, ref_nose, *, knee: float = 6.0,
     rm = np.asarray(ref_nose, bool)
     if rm.sum() < 8 or (w > 0).sum() < 8 or knee <= 0:
         return s.copy()
-    ys, xs = np.nonzero(rm)
-    r = _pixels(_lab(np.asarray(ref, np.float32)[ys.min():ys.max() + 1, xs.min():xs.max() + 1]),
-                rm[ys.min():ys.max() + 1, xs.min():xs.max() + 1])
+    rbox = _nonzero_box(rm)
+    r = _pixels(_lab(np.asarray(ref, np.float32)[rbox]), rm[rbox])
     f = float(np.percentile(r[:, 0], percentile))
-    ys, xs = np.nonzero(w > 0)  # the weight's box only: the nose of a 1000 px face
-    box = (slice(ys.min(), ys.max() + 1), slice(xs.min(), xs.max() + 1))
+    box = _nonzero_box(w > 0)  # the weight's box only: the nose of a 1000 px face
     a = _lab(s[box])
     depth = np.maximum(f - a[..., 0], 0.0) * w[box]
     out = s.copy()
