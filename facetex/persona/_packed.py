@@ -4,7 +4,9 @@ Each photo's array is stored as one zlib stream of its rows minus the row above 
 2^bits; the bytes of wider integers in separate planes): neighbouring rows of a photo, a
 confidence map or a smooth flow are alike, so the differences are small and deflate well
 (a frontalized 192 x 240 photo: 138 kB -> ~50 kB). Unpacking is one inflate and a prefix sum
-over the rows (log2(rows) vector additions).
+over the rows (log2(rows) vector additions). Streams are written by zlib and inflated by ISA-L
+(``isal``, the same deflate format, 2.4x faster on these streams: 0.17 s instead of 0.40 s for a
+520-photo persona's aligned photos) when it is installed, else by zlib.
 """
 
 from __future__ import annotations
@@ -13,6 +15,11 @@ import zlib
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+
+try:  # ISA-L's zlib: the same streams and checksums, faster (a dependency; zlib where it has no wheel)
+    from isal import isal_zlib as fast_zlib
+except ImportError:  # pragma: no cover - isal ships wheels for the platforms facetex supports
+    fast_zlib = zlib
 
 #: deflate level of the packed streams (inflating costs the same at any level; measured on 192 x 240
 #: photos: level 2 packs in 3 ms at 57 kB, level 6 in 13 ms at 51 kB)
@@ -79,8 +86,11 @@ class Packed:
         shape = self.shape[1:]
         out = np.empty(shape, self.dtype) if out is None else out
         nbytes = int(np.prod(shape)) * self.dtype.itemsize
-        d = zlib.decompressobj()
-        raw = d.decompress(self.blob[self.offsets[i]:self.offsets[i + 1]], nbytes)
+        d = fast_zlib.decompressobj()
+        try:
+            raw = d.decompress(self.blob[self.offsets[i]:self.offsets[i + 1]], nbytes)
+        except fast_zlib.error as e:  # ISA-L's error is not zlib's: one type for the callers
+            raise zlib.error(f"packed photo {i}: {e}") from None
         if len(raw) != nbytes or not d.eof or d.unconsumed_tail or d.unused_data:
             raise ValueError(f"packed photo {i} does not hold {nbytes} bytes")
         u = out.view(_unsigned(self.dtype)).reshape(shape[0], -1)

@@ -8,14 +8,13 @@ import hashlib
 import json
 import struct
 import zipfile
-import zlib
 from pathlib import Path
 
 import numpy as np
 
 from .._schema import check_shape
 from ..errors import BadPersonaError, PersonaNotFoundError
-from ._packed import Packed
+from ._packed import Packed, fast_zlib
 from ._persona import (
     _ARRAYS,
     _CORRUPT,
@@ -307,7 +306,7 @@ def _read_stored(raw, info: zipfile.ZipInfo) -> np.ndarray:
     if head + buf.nbytes != info.file_size or raw.readinto(buf) != buf.nbytes:
         raise EOFError(f"member {info.filename} is truncated")
     raw.seek(start)
-    crc = zlib.crc32(buf, zlib.crc32(raw.read(head)))
+    crc = fast_zlib.crc32(buf, fast_zlib.crc32(raw.read(head)))  # ISA-L's: 5x zlib's (~40 ms of a 97 MB load)
     if crc != info.CRC:
         raise zipfile.BadZipFile(f"bad CRC-32 for {info.filename}")
     return arr

@@ -543,6 +543,9 @@ def test_packed_arrays_round_trip_exactly():
     short = Packed(ten, np.array([0, ten.size]), (1, 13, 7, 2), np.int16)
     with pytest.raises(ValueError, match="does not hold"):
         short.photo(0)
+    junk = np.frombuffer(b"not a deflate stream", np.uint8)  # zlib's error type whichever library inflates
+    with pytest.raises(zlib.error, match="packed photo 0"):
+        Packed(junk, np.array([0, junk.size]), (1, 4, 5), np.uint8).photo(0)
     with pytest.raises(ValueError, match="offsets"):
         Packed(p.blob, p.offsets[::-1].copy(), p.shape, p.dtype)
 
