@@ -66,6 +66,9 @@ def _collection_descriptor(persona_file, limit: int = ID_PHOTOS) -> np.ndarray:
 #: Frames are upscaled (bicubic) to at least this longer side before measuring landmarks: dlib's
 #: 68-point predictor is much noisier on GRID's ~100 px faces (driver and puppet alike).
 MEASURE_SIDE = 720
+#: Version of the landmark reading (:func:`_frame_measures`) in the driver cache's name: a cache of
+#: an earlier reading is not used
+MEASURE_VERSION = 2
 
 
 def _frame_measures(image: np.ndarray, *, descriptor: bool = True):
@@ -75,16 +78,17 @@ def _frame_measures(image: np.ndarray, *, descriptor: bool = True):
 
     from ..landmarks import detect_faces
     from ..nets.dlib_resnet import face_descriptor
-    from .._landmark_fit import _mouth_exposed
+    from .._landmark_fit import jittered_landmarks
 
     k = max(1.0, MEASURE_SIDE / max(image.shape[:2]))
     big = np.clip(cv2.resize(image, None, fx=k, fy=k, interpolation=cv2.INTER_CUBIC) if k > 1 else image, 0, 1)
     faces = detect_faces(big, upsample=0)
     if not faces:
         return None, None
-    # a dark frame's mouth is read at a normalised exposure, as the tracker reads it: read plainly,
-    # a dim copy of GRID lbax4n opened 0.53 as far as the clip itself
-    p = _mouth_exposed(big, faces[0].box, faces[0].points68)
+    # the median of 14 fits (jittered boxes, mirrored): one fit read a still closed mouth 0.005 and
+    # 0.051 open on two frames; a dark frame's mouth is read at a normalised exposure, as the tracker
+    # reads it: read plainly, a dim copy of GRID lbax4n opened 0.53 as far as the clip itself
+    p = jittered_landmarks(big, faces[0].box)
     return (p + 0.5) / k - 0.5, (face_descriptor(image, (p + 0.5) / k - 0.5) if descriptor else None)
 
 

@@ -5,8 +5,10 @@ is extremely hard"); we measure what a viewer of the composited videos sees, on 
 persona × every clip** (default: the collections ``DATA/lfw/*`` × the clips ``DATA/grid``,
 6 × 6 = 36 runs), and report each run and the **worst** run of every measure, not only means.
 Landmarks of a rendered frame are re-detected by dlib (68 points) on a copy upscaled to
-720 px (:data:`MEASURE_SIDE`; its predictor is noisy on GRID's ~100 px faces), the driver's the
-same way on its own frame; masks are cut at the driver's tracked landmarks (the composite sits
+720 px (:data:`MEASURE_SIDE`; its predictor is noisy on GRID's ~100 px faces), as the median of 14
+fits in jittered boxes and their mirror images (:func:`~facetex._landmark_fit.jittered_landmarks`:
+one fit read a still closed mouth 0.005 and 0.051 open on two frames), the driver's the same way
+on its own frame; masks are cut at the driver's tracked landmarks (the composite sits
 there) and, for the composite, kept where its mask alpha > 0.9 (the puppet, not the driver,
 shows there). Per run:
 
@@ -93,7 +95,7 @@ from ._common import (
     versions,
     write_text,
 )
-from ._puppet_clip import _collection_descriptor, _evaluate_clip, _partial_check, shifted_clip
+from ._puppet_clip import MEASURE_VERSION, _collection_descriptor, _evaluate_clip, _partial_check, shifted_clip
 from ._portrait_clips import HOLD, portrait_clips
 from ._stress_clips import stress_clips, stress_sources
 from .puppet_measures import (
@@ -203,7 +205,7 @@ def _bench_item(p: dict):
                                                  weight_smoothing=p["weight_smoothing"]),
                              write_media=p["write_media"], progress=None, name=p["name"],
                              cache=Path(p["out"]) / "_cache" / f"driver_{Path(p['clip']).stem}_{p['size']}_"
-                                                               f"{p['max_frames']}.npz")
+                                                               f"{p['max_frames']}_m{MEASURE_VERSION}.npz")
     except Exception as e:  # noqa: BLE001 - one failed run is a row of the table, not the end of the bench
         row = {"run": f"{p['name']}/{Path(p['clip']).stem}", "persona": p["name"], "clip": Path(p["clip"]).stem,
                "error": f"{type(e).__name__}: {e}", "frames": 0, "lost": 0}

@@ -172,3 +172,38 @@ def test_refine_landmarks_with_mirror_is_the_same_on_a_mirrored_photo():
     np.testing.assert_allclose(fm, m, atol=1e-6)
     plain = refine_landmarks(img, b, face.points68, exposure=False)
     assert 0.05 < np.linalg.norm(m - plain, axis=1).mean() < 1.5
+
+
+def test_jittered_landmarks_commute_with_a_flip_ignore_far_pixels_and_stay_near_one_fit():
+    """The median of the jittered, mirror-averaged fits: the same (flipped) on the mirrored photo
+    (the jitters are left-right symmetric), the same on a photo with a wide border (only a crop
+    round the box is read), within a pixel or two of a single fit, and a dark face's mouth read on
+    the brightened copy (its points move, the eyes' do not)."""
+    from facetex._landmark_fit import jittered_landmarks
+    from facetex._resources import sample_path
+    from facetex.geometry._generic_face import FLIP68
+    from facetex.io import read_image
+    from facetex.landmarks import detect_faces, landmarks_in_box
+
+    img = read_image(sample_path("frl_004_smiling.jpg"))
+    s = 200.0 / (detect_faces(img)[0].box[2] - detect_faces(img)[0].box[0])
+    img = cv2.resize(img, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
+    box = tuple(float(round(v)) for v in detect_faces(img, upsample=1)[0].box)
+    w = img.shape[1]
+    a = jittered_landmarks(img, box, exposure=False)
+    flipped, fbox = np.ascontiguousarray(img[:, ::-1]), (w - 1 - box[2], box[1], w - 1 - box[0], box[3])
+    back = jittered_landmarks(flipped, fbox, exposure=False)[FLIP68].copy()
+    back[:, 0] = w - 1 - back[:, 0]
+    np.testing.assert_allclose(back, a, atol=1e-9)
+    big = cv2.copyMakeBorder(img, 300, 300, 300, 300, cv2.BORDER_CONSTANT, value=(0, 0, 0))
+    shifted = jittered_landmarks(big, np.add(box, 300), exposure=False) - 300
+    np.testing.assert_allclose(shifted, a, atol=1e-9)
+    d = np.linalg.norm(a - landmarks_in_box(img, box), axis=1)
+    assert 0.05 < d.mean() < 2.0
+    dark = np.asarray(img, np.float32) * 0.25
+    assert exposure_gain(dark, box) > 1.05
+    plain, exposed = jittered_landmarks(dark, box, exposure=False), jittered_landmarks(dark, box)
+    np.testing.assert_allclose(exposed[:48], plain[:48], atol=1e-9)
+    assert np.abs(exposed[48:] - plain[48:]).max() > 0
+    with pytest.raises(ValueError, match="face box"):
+        jittered_landmarks(img, (10, 10, 5, 20))
