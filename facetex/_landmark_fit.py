@@ -124,8 +124,7 @@ def jittered_landmarks(image, box, *, exposure: bool = True) -> np.ndarray:
     for dx, dy, k in BOX_JITTERS:
         cc = c - shift + np.array([dx, dy]) * 2 * half[0]
         bb = np.r_[cc - k * half, cc + k * half]
-        mb = (cw - 1 - bb[2], bb[1], cw - 1 - bb[0], bb[3])
-        fits.append((fit(views, bb) + _mirror_points(fit(flipped, mb), cw)) / 2)
+        fits.append((fit(views, bb) + _mirror_points(fit(flipped, _mirror_box(bb, cw)), cw)) / 2)
     return np.median(fits, axis=0) + shift
 
 
@@ -134,7 +133,12 @@ def _mirrored(image, box) -> tuple[np.ndarray, tuple]:
     a = np.asarray(image)
     w = a.shape[1]
     b = np.asarray(box, np.float64).ravel()
-    return np.ascontiguousarray(a[:, ::-1]), (w - 1 - b[2], b[1], w - 1 - b[0], b[3])
+    return np.ascontiguousarray(a[:, ::-1]), _mirror_box(b, w)
+
+
+def _mirror_box(box, width: int) -> tuple:
+    """A box (x0, y0, x1, y1) of an image ``width`` px wide as it is in its mirror image."""
+    return (width - 1 - box[2], box[1], width - 1 - box[0], box[3])
 
 
 def _mirror_points(points68, width: int) -> np.ndarray:
