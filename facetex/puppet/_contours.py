@@ -147,13 +147,16 @@ class Between:
 
 
 def sample_between(frame: np.ndarray, driver: np.ndarray, puppet: np.ndarray, shape: tuple[int, int], *,
-                   layout=LIPS, inset: float = 1.0) -> Between | None:
+                   layout=LIPS, inset: float = 1.0, edge_margin: tuple[float, float] | None = None) -> Between | None:
     """The driver's ``frame`` pixels moved into the puppet's opening: every puppet pixel takes the
     driver's pixel at the same place between the corners (along the corner line) and between the
     upper and lower curve (across it), both scaled about the centre by ``inset`` (along the corner
-    line at most 1: beyond the driver's corners lies its skin, not its lips). ``driver``,
-    ``puppet``: the contours (frame px, output px of ``shape`` (h, w)). None when a contour is
-    degenerate or the box is empty."""
+    line at most 1: beyond the driver's corners lies its skin, not its lips). ``edge_margin`` (m, r)
+    px, instead of a scale across the opening: a puppet pixel at depth d < r from the upper or lower
+    curve samples the driver's m x (1 - d / r) px further out (beyond its curve at the curve itself),
+    deeper ones at their own place: the edge looks as an inset's does, the middle keeps its size.
+    ``driver``, ``puppet``: the contours (frame px, output px of ``shape`` (h, w)). None when a
+    contour is degenerate or the box is empty."""
     h, w = shape
     cd, Rd, wd, _ = _contour_frame(driver, layout)
     cp, Rp, _, _ = _contour_frame(puppet, layout)
@@ -177,6 +180,11 @@ def sample_between(frame: np.ndarray, driver: np.ndarray, puppet: np.ndarray, sh
     su = 0.5 + min(inset, 1.0) * ((uc - pu0) / (pu1 - pu0) - 0.5)
     across = np.clip((v - a) / np.maximum(gap, 1e-6), 0.0, 1.0)
     sv = 0.5 + inset * (across - 0.5)
+    if edge_margin is not None:
+        m, r = edge_margin
+        g = np.maximum(gap, 1e-6)
+        push = lambda d: m * np.clip(1.0 - d / max(r, 1e-6), 0.0, 1.0) / g  # noqa: E731
+        sv = across - push(np.maximum(v - a, 0.0)) + push(np.maximum(b - v, 0.0))
     ud = du0 + su * (du1 - du0)
     vd = up_d(ud) + sv * (lo_d(ud) - up_d(ud))
     xy = np.stack([ud, vd], axis=-1) @ Rd + cd

@@ -130,11 +130,15 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     if s is None:
         return none
     if inset > 1 and soft_px is not None:
-        # the inset's margin goes with the soft edge: where the ramp is capped (a 1000 px smile), so
-        # is the margin, else the driver's teeth filled 0.77 of the opening under a dark band
-        cut = s.ramp_width(soft, max_px=soft_px) / max(soft * float(s.gap.max()), 1e-6)
-        if cut < 1:
-            s = sample_between(f, dp, pp, (h, w), inset=1.0 + (inset - 1.0) * cut) or s
+        # where the ramp is capped (a 1000 px smile) the inset's margin stays the px it is where the
+        # cap starts, and only the ramp's pixels are moved by it: scaled about the centre, the
+        # driver's teeth had been drawn 1/inset as tall (dlib read the puppets' smiles 0.85-0.95 as
+        # open as the drivers' on the 1000 px portrait runs, Williams' 0.78)
+        r = s.ramp_width(soft, max_px=soft_px)
+        uncapped = soft * float(s.gap.max())
+        if r < uncapped:
+            margin = 0.5 * r / soft * (1.0 - 1.0 / inset)  # the landing depth of a gap whose ramp is r
+            s = sample_between(f, dp, pp, (h, w), edge_margin=(margin, r)) or s
     x0, y0, x1, y1 = s.box
     gap, depth, warped = s.gap, s.depth, s.warped
     up_d, lo_d, du0, du1, Rd, cd, _ = s.driver

@@ -777,10 +777,18 @@ def test_mouth_interior_ramp_stays_a_few_pixels_wide_on_a_large_mouth():
     # narrower: the middle column's shortfall under the upper lip, sum(1 - alpha), ~(6.2 - 4) / 2 less
     top = slice(0, 90)
     assert (1 - wide[top, 100]).sum() - (1 - capped[top, 100]).sum() > 0.5
-    # capped at 0.12 x the gap, the inset's margin with it: 1 + 0.3 x 0.12 / 0.3
-    np.testing.assert_allclose(mouth_interior(frame, d, p, cavity=None, soft_px=0.0)[1],
-                               mouth_interior(frame, d, p, cavity=None, soft=0.12, soft_px=None, inset=1.12)[1],
-                               atol=1e-5)
+    # capped, the inset's margin is the px it is where the cap starts (a 4 / 0.3 px gap: half of it x
+    # (1 - 1 / 1.3) = 1.538 px), moving only the ramp's pixels: deeper ones sample the driver 1:1 (the
+    # teeth keep their size; scaled by 1.3 they had been 1/1.3 as tall)
+    img, alpha = mouth_interior(frame, d, p, cavity=None, lip_key=None, lip_shade=None)
+    one = sample_between(frame, d, p, frame.shape[:2])
+    edged = sample_between(frame, d, p, frame.shape[:2], edge_margin=(0.5 * 4.0 / 0.3 * (1 - 1 / 1.3), 4.0))
+    box_img, box_alpha = img[y0:y1, x0:x1], alpha[y0:y1, x0:x1]
+    drawn, deep = box_alpha > 0, (one.depth >= 5) & (box_alpha > 0.99)
+    assert deep.sum() > 200
+    np.testing.assert_allclose(box_img[drawn], edged.warped[drawn], atol=1e-6)
+    np.testing.assert_allclose(box_img[deep], one.warped[deep], atol=1e-6)
+    assert np.abs(box_img[deep] - s.warped[deep]).max() > 0.5  # not the inset's scaled interior
     c = p.mean(axis=0)
     small = c + 0.5 * (p - c)  # gap ~10 px: 0.3 x 10 < 4
     np.testing.assert_array_equal(mouth_interior(frame, d, small, cavity=None)[1],
