@@ -46,9 +46,13 @@ def mouth_interior(frame, driver_lips, puppet_lips, shape=None, *, inset: float 
     0.917, Arroyo/lrwp9a 0.90 -> 0.98 (1.3 along the corner line too, which samples the driver's
     skin beyond its corners: 0.89-1.19); a smaller inset shrank the teeth (earlier: Arroyo/lrwp9a
     0.77 at 0.9, 0.72 at 0.8). Where the soft edge is capped (``soft_px``: a 1000 px smile) the
-    inset's margin is cut in the same proportion (1.3 -> ~1.1 on a 40 px gap): at 1.3 the driver's
-    teeth, lip to lip, filled 0.77 of the puppet's opening under a dark band, and dlib read a smile
-    less open than the driver's (Chavez on FRL 062: 0.085 against 0.098; 0.092 with the cut).
+    margin is the pixels it is where the cap starts (half of a ``soft_px`` / ``soft`` gap x (1 -
+    1 / ``inset``): 1.5 px), and it moves only the ramp's pixels (``edge_margin`` of
+    :func:`~facetex.puppet._contours.sample_between`): deeper, the driver's interior is drawn at its
+    own size. Scaled about the centre (at 1.3 the driver's teeth, lip to lip, filled 0.77 of the
+    puppet's opening under a dark band; with the scale cut with the ramp, 1.3 -> ~1.1 on a 40 px gap
+    but ~1.27 on a 15 px one) the teeth were drawn up to 1/1.27 as tall and dlib read 1000 px smiles
+    0.85-0.95 as open as the drivers' (Williams on FRL 006: 0.78).
     Alpha: 0 outside the puppet's inner lips, rising to 1 over ``soft`` x the opening's widest gap
     inside them (the puppet's lips overlap the interior: no polygon edge; 0.3, as the eyes'
     (:func:`~facetex.puppet.eyes.eye_interior`): at 0.15 dlib read the widest, teeth-showing
