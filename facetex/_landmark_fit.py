@@ -91,12 +91,9 @@ def jittered_landmarks(image, box, *, exposure: bool = True) -> np.ndarray:
     fell from 0.0019-0.0118 (one fit, the mouth refitted at the exposure) to 0.0006-0.0024 (mean
     0.0048 -> 0.0013), the neutral -> smile step the same (0.055-0.118 -> 0.058-0.122). A noisy
     reading of the driver's opening flattens a slope fitted on it (regression dilution)."""
-    from .landmarks import _as_uint8_rgb, _shape68
-    import dlib
+    from .landmarks import _as_uint8_rgb, _checked_box, _dlib_rect, _shape68
 
-    b = np.asarray(box, np.float64).ravel()
-    if b.size != 4 or not np.all(np.isfinite(b)) or b[2] <= b[0] or b[3] <= b[1]:
-        raise ValueError(f"a face box must be 4 finite numbers x0 < x1, y0 < y1, got {list(b)}")
+    b = _checked_box(box)
     a = np.asarray(image)
     h, w = a.shape[:2]
     c, half = (b[:2] + b[2:]) / 2, (b[2:] - b[:2]) / 2
@@ -108,13 +105,12 @@ def jittered_landmarks(image, box, *, exposure: bool = True) -> np.ndarray:
     views = [_as_uint8_rgb(crop)]
     g = exposure_gain(crop, b - np.tile(shift, 2)) if exposure else 1.0
     if g >= MIN_EXPOSURE_GAIN:
-        f = views[0].astype(np.float32) / 255.0
-        views.append(_as_uint8_rgb(linear_to_srgb(srgb_to_linear(f) * np.float32(g))))
+        views.append(_as_uint8_rgb(_exposed(views[0].astype(np.float32) / 255.0, g)))
     cw = x1 - x0
     flipped = [np.ascontiguousarray(v[:, ::-1]) for v in views]
 
     def fit(imgs, bb):  # the whole face on the first image, the mouth on the brightened one
-        rect = dlib.rectangle(*(int(round(v)) for v in bb))
+        rect = _dlib_rect(bb)
         p = _shape68(imgs[0], rect)
         if len(imgs) > 1:
             p[48:68] = _shape68(imgs[1], rect)[48:68]
@@ -151,6 +147,11 @@ def _mirror_points(points68, width: int) -> np.ndarray:
     return q
 
 
+def _exposed(image: np.ndarray, gain: float) -> np.ndarray:
+    """Float sRGB ``image`` in [0, 1] brightened by ``gain`` in linear light (a camera's exposure)."""
+    return linear_to_srgb(srgb_to_linear(image) * np.float32(gain))
+
+
 def _mouth_exposed(image, box, p) -> np.ndarray:
     """``p`` (68, 2) with the mouth's points refitted at a normalised exposure on a dark face."""
     g = exposure_gain(image, box)
@@ -158,7 +159,7 @@ def _mouth_exposed(image, box, p) -> np.ndarray:
         return p
     a = np.asarray(image)
     a = a.astype(np.float32) / 255.0 if a.dtype == np.uint8 else np.clip(np.asarray(a, np.float32), 0, 1)
-    q = landmarks_in_box(linear_to_srgb(srgb_to_linear(a) * np.float32(g)), box)
+    q = landmarks_in_box(_exposed(a, g), box)
     p = np.array(p, np.float64)
     p[48:68] = q[48:68]
     return p

@@ -389,14 +389,24 @@ def detect_face(
     return faces[face_index]
 
 
-def landmarks_in_box(image: np.ndarray, box: Sequence[float]) -> np.ndarray:
-    """(68, 2) landmarks inside a known face ``box`` (x0, y0, x1, y1), e.g. for tracking video frames."""
-    import dlib
-
+def _checked_box(box: Sequence[float]) -> np.ndarray:
+    """A face ``box`` (x0, y0, x1, y1) as 4 float64; BadInputError unless finite with x0 < x1, y0 < y1."""
     b = np.asarray(box, dtype=np.float64).ravel()
     if b.size != 4 or not np.all(np.isfinite(b)) or b[2] <= b[0] or b[3] <= b[1]:
         raise BadInputError(f"a face box must be 4 finite numbers x0 < x1, y0 < y1, got {list(b)}")
-    rect = dlib.rectangle(*(int(round(v)) for v in b))
+    return b
+
+
+def _dlib_rect(box: Sequence[float]):
+    """The dlib.rectangle (rounded to pixels) of a :func:`_checked_box`."""
+    import dlib
+
+    return dlib.rectangle(*(int(round(v)) for v in _checked_box(box)))
+
+
+def landmarks_in_box(image: np.ndarray, box: Sequence[float]) -> np.ndarray:
+    """(68, 2) landmarks inside a known face ``box`` (x0, y0, x1, y1), e.g. for tracking video frames."""
+    rect = _dlib_rect(box)
     return _shape68(_as_uint8_rgb(image), rect)
 
 

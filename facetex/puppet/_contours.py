@@ -182,8 +182,10 @@ def sample_between(frame: np.ndarray, driver: np.ndarray, puppet: np.ndarray, sh
     sv = 0.5 + inset * (across - 0.5)
     if edge_margin is not None:
         m, r = edge_margin
-        g = np.maximum(gap, 1e-6)
-        push = lambda d: m * np.clip(1.0 - d / max(r, 1e-6), 0.0, 1.0) / g  # noqa: E731
+
+        def push(depth):  # the outward shift at a depth from a curve, in gaps
+            return m * np.clip(1.0 - depth / max(r, 1e-6), 0.0, 1.0) / np.maximum(gap, 1e-6)
+
         sv = across - push(np.maximum(v - a, 0.0)) + push(np.maximum(b - v, 0.0))
     ud = du0 + su * (du1 - du0)
     vd = up_d(ud) + sv * (lo_d(ud) - up_d(ud))
