@@ -36,9 +36,11 @@ looks pasted on unless its colour, lighting and outline come from the frame it s
   pixel and the persona's resolution too (:func:`~facetex.puppet.detail.match_grain_bands`); the
   lower nose gets its own gain, matched to the driver's nose (its nostrils and shaded sides are not
   skin-coloured, so the skin's gain never saw them);
-* **gradient-domain blending**: the puppet's gradients with the driver's values on the mask
-  border (Pérez et al. 2003; ``seamlessClone``'s guidance field solved in float32 by the DST), so
-  the colour is continuous across the border;
+* **gradient-domain blending** (optional, ``poisson``): the puppet's gradients with the driver's
+  values on the mask border (Pérez et al. 2003; ``seamlessClone``'s guidance field solved in float32
+  by the DST). Off by default: after the skin-colour transfer its membrane only carried the
+  driver's hair, ears and jaw shadow at the outline into the face, a darker, greyer cast (see
+  :class:`CompositeParams`);
 * **mouth interior**: the driver's own mouth interior (teeth, tongue, dark cavity), each
   puppet pixel taking the driver's pixel at the same place between the mouth corners and
   between the upper and lower inner lip (smooth curves through the landmarks), drawn inside the
@@ -212,7 +214,8 @@ EYE_KEEP_INSET = 0.03
 #: where the puppet's eyeballs come from: the driver's frame (with the persona's iris colour) or
 #: the persona's texture
 EYE_SOURCES = ("driver", "persona")
-#: the inward feather is this many times wider with ``colour="persona"`` (no Poisson seam there)
+#: the inward feather is this many times wider with ``colour="persona"`` (the persona's own tone
+#: meets the driver's at the outline)
 PERSONA_FEATHER = 3.0
 
 
@@ -308,8 +311,15 @@ class CompositeParams:
     lip_detail: the driver's lip lines moved onto the puppet's lips, at most at this
     strength (0: off; :func:`~facetex.puppet.detail.match_lip_detail`); lid_detail: the driver's lash
     lines and lid creases round the puppet's eyes, at most at this strength (0: off;
-    :func:`~facetex.puppet.detail.match_lid_detail`); poisson:
-    gradient-domain blending at the border; feather: width of the inward feather as a fraction of the eye-corner distance;
+    :func:`~facetex.puppet.detail.match_lid_detail`); poisson: gradient-domain blending at the
+    border (:func:`poisson_blend`; colour "driver" only). Off: the skin-colour transfer already gives
+    the puppet the driver's low-frequency colour, and the membrane interpolated the outline's
+    difference (the driver's hair, ears, jaw shadow and background there) across the whole face: a
+    darker, greyer, ashy face (``bench puppet``, 36 portrait runs at 1000 px: cheek ΔE to the driver
+    mean 3.1 / worst 5.6 with it, 0.85 / 1.95 without; under-eye ΔL* worst -8.6 / -3.9; 60 GRID and
+    stress runs at 256 px: 2.9 / 5.6 -> 1.1 / 2.6); the inward feather alone joins the two (the
+    colour step across the outline over the driver's own there: GRID 0.84-1.09, 0.90-1.08 with it;
+    portraits 0.87-1.41, 0.60-1.11, no edge seen at 100 %); feather: width of the inward feather as a fraction of the eye-corner distance;
     erode: the driver's outline is shrunk by this fraction (the face-oval vertices sit on the
     silhouette, where skin meets hair or background); mouth: draw the driver's mouth interior
     inside the puppet's lips; lip_band: an open mouth's inner lip band (this x the mouth width) is
@@ -350,7 +360,7 @@ class CompositeParams:
     nostril_knee: float = 6.0
     lip_detail: float = 1.0
     lid_detail: float = 1.0
-    poisson: bool = True
+    poisson: bool = False
     feather: float = 0.06
     erode: float = 0.03
     mouth: bool = True
@@ -544,8 +554,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
             _linear(fr_s[drv_skin]), axis=0)
         ei, ea = eye_interior(fr, p68 - [x0, y0], pp68 - [x0, y0], rg.shape, iris=target)
         out = _mix(ea * rg, ei, out)
-    # the persona's own skin tone meets the driver's at the outline: a wider ramp than the
-    # gradient-domain seam needs
+    # the persona's own skin tone meets the driver's at the outline: a wider ramp than the driver's
+    # colour needs
     feather = params.feather * (PERSONA_FEATHER if params.colour == "persona" else 1.0)
     alpha = inner_feather(rg, max(1.0, feather * iod))
     if occ is not None:  # the driver's occluders stay in front of the puppet, the persona's hair out of it

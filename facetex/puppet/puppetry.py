@@ -36,8 +36,8 @@ Per driver video (see :mod:`facetex.puppet.driver` for the motion):
    leaves a mouth opening alone (its frames are far apart in the mouth region's coordinates).
 5. **Rendering** with the driver's head pose (orthographic, z-buffered, 2x supersampled).
    ``mode="composite"``: put into the driver's frame (:mod:`facetex.puppet.composite`:
-   the driver's face outline as mask, SH lighting and colour transfer, Poisson blending, the
-   driver's mouth interior); ``mode="face"``: the puppet alone on a plain background, as in
+   the driver's face outline as mask, SH lighting and colour transfer, the driver's mouth
+   interior); ``mode="face"``: the puppet alone on a plain background, as in
    the paper's figures. Frames where the driver's face is lost, partly outside the frame or
    implausible (:func:`facetex.puppet.driver.track_driver`) show the driver's own frame
    (a plain frame in face mode) and are reported.

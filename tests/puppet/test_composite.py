@@ -1781,3 +1781,23 @@ def test_eye_skin_takes_the_drivers_shading_under_the_eyes_by_hand():
         transfer_skin_colour(src, like, ~band, ~band, sigma=20.0, eye_skin=lambda: drawn.append(1) or zone),
         transfer_skin_colour(src, like, ~band, ~band, sigma=20.0))
     assert not drawn
+
+
+def test_composite_keeps_the_drivers_skin_colour_inside_a_dark_outline():
+    """The driver's face has a dark grey band 6 px wide along its outline (hair: not its skin
+    colour); the puppet is a flat pale skin. By default the face's middle takes the driver's skin
+    colour (ΔE < 2); the gradient-domain blend (``poisson=True``) keeps the puppet's gradients and
+    takes the band as its border values, so the band's darkness fills the whole face (the middle's
+    L* 35 under the driver's skin here: the darker, greyer cast on real drivers)."""
+    frame, face, inner, coverage, kw = _oval_scene()
+    yy, xx = np.mgrid[0:96, 0:96]
+    middle = ((xx - 48) / 12.0) ** 2 + ((yy - 50) / 16.0) ** 2 <= 1
+    rim = face & ~(((xx - 48) / 20.0) ** 2 + ((yy - 50) / 26.0) ** 2 <= 1)
+    frame[rim] = (0.12, 0.12, 0.13)
+    puppet = np.broadcast_to(np.float32([0.85, 0.75, 0.75]), frame.shape).copy()
+    cp = dict(mouth=False, grain=0.0, sharpen=1.0, nose_sharpen=1.0, occlusion=False)
+    out = composite_face(frame, puppet, coverage, None, params=CompositeParams(**cp), **kw)[0]
+    pois = composite_face(frame, puppet, coverage, None, params=CompositeParams(poisson=True, **cp), **kw)[0]
+    skin = _lab(frame)[middle].mean(axis=0)
+    assert np.linalg.norm(_lab(out)[middle].mean(axis=0) - skin) < 2.0
+    assert _lab(pois)[middle].mean(axis=0)[0] < skin[0] - 4.0
