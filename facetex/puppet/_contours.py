@@ -179,8 +179,9 @@ def sample_between(frame: np.ndarray, driver: np.ndarray, puppet: np.ndarray, sh
     depth = np.minimum(np.minimum(v - a, b - v), np.minimum(u - pu0, pu1 - u))
     su = 0.5 + min(inset, 1.0) * ((uc - pu0) / (pu1 - pu0) - 0.5)
     across = np.clip((v - a) / np.maximum(gap, 1e-6), 0.0, 1.0)
-    sv = 0.5 + inset * (across - 0.5)
-    if edge_margin is not None:
+    if edge_margin is None:
+        sv = 0.5 + inset * (across - 0.5)
+    else:
         m, r = edge_margin
 
         def push(depth):  # the outward shift at a depth from a curve, in gaps
