@@ -34,7 +34,8 @@ def register(sub) -> None:
                         "the persona's skin tone and takes only the driver's lighting (persona)")
     p.add_argument("--sharpen", type=finite_float(1.0, 4.0), default=2.5, metavar="GAIN",
                    help="composite mode: raise the puppet's fine detail towards the driver frame's, at most by "
-                        "this gain (default 2.5; 1 = off; 1..4)")
+                        "this gain, its skin and its features (eyes, brows, lips, nostrils) each to the driver's "
+                        "(default 2.5; 1 = off; 1..4)")
     p.add_argument("--grain", type=finite_float(0.0, 1.0), default=1.0, metavar="AMOUNT",
                    help="composite mode: where the puppet is still smoother than the driver's frame, add the "
                         "frame's own fine grain on the skin (on a large frame, also its skin texture a few pixels "

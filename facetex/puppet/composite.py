@@ -68,7 +68,7 @@ from ._pixels import _LUMA, _mix, _Shrunk, _skin_weights
 from .detail import match_grain, match_grain_bands, match_lid_detail, match_lip_detail, match_sharpness
 from .lighting import (COLOURS, _lab, _linear, fit_sh_lighting, floor_nostrils, linear_to_srgb, relight,
                        srgb_to_linear, transfer_skin_colour)
-from .eyes import brow_weights, eye_interior, eye_skin_weights, eye_weights, lid_weights
+from .eyes import _eyeballs, brow_weights, eye_interior, eye_skin_weights, eye_weights, lid_weights
 from .mouth import lift_inner_lips, lip_regions, lip_weights, mouth_interior  # noqa: F401 (lip_weights re-exported)
 from .occluders import occlusion_mask, outline_band, persona_hair, skin_pixels
 
@@ -294,7 +294,11 @@ class CompositeParams:
     ``composite_face`` is given them); persona_hair: the driver's frame shows where the
     persona's own hair lies over its forehead or temples (:func:`persona_hair`); sharpen: the
     puppet's fine detail is raised towards the driver's frame's, at most by this gain (1: off;
-    :func:`match_sharpness`); grain: then the frame's own grain is added where the puppet is still
+    :func:`match_sharpness`), on its skin (feathered by ``sharpen_feather`` x the eye-corner
+    distance) and on its features (eyes, brows, lips, nostrils) by a gain of their own, measured
+    against the driver's features (0: the skin's gain on the whole face, as before: on a small,
+    compressed GRID face it drew the puppet's eyes, brows and lips harder than the video's own, the
+    eyes up to 4.8x the driver's Laplacian variance); grain: then the frame's own grain is added where the puppet is still
     smoother, at most at this strength (0: off; :func:`~facetex.puppet.detail.match_grain`);
     grain_reach: before it, the frame's octave bands up to this x the eye-corner distance (sigma)
     are added where the puppet is smoother (:func:`~facetex.puppet.detail.match_grain_bands`; 0:
@@ -354,6 +358,7 @@ class CompositeParams:
     occlusion: bool = True
     persona_hair: bool = True
     sharpen: float = 2.5
+    sharpen_feather: float = 0.03
     grain: float = 1.0
     grain_reach: float = 0.015
     nose_sharpen: float = 3.0
@@ -510,17 +515,34 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         # Skin of both at full size: the driver's landmarks (the puppet sits there), features cut out,
         # and only what has the driver's skin colour (its hair, fringe, glasses and the background
         # at the outline would set a far higher target)
-        skin_full = rg & ~feature_mask(p68 - [x0, y0], rg.shape)
+        feats_d = feature_mask(p68 - [x0, y0], rg.shape)
+        feats_p = None if pp68 is None else feature_mask(pp68 - [x0, y0], rg.shape)
+        skin_full = rg & ~feats_d
         colour_skin = cv2.resize(drv_skin.astype(np.uint8), (bw, bh), interpolation=cv2.INTER_NEAREST) > 0 \
             if sh.k > 1 else drv_skin
         if (skin_full & colour_skin).sum() >= 64:
             skin_full = skin_full & colour_skin
         if params.sharpen > 1:
-            out, _ = match_sharpness(out, fr, skin_full, skin_full, max_gain=params.sharpen,
-                                     coverage=np.asarray(coverage, np.float32)[box])
+            cov = np.asarray(coverage, np.float32)[box]
+            where = None if params.sharpen_feather <= 0 else cv2.GaussianBlur(
+                skin_full.astype(np.float32), (0, 0), max(0.5, params.sharpen_feather * iod))
+            out, _ = match_sharpness(out, fr, skin_full, skin_full, max_gain=params.sharpen, coverage=cov,
+                                     where=where)
+            if where is not None and feats_p is not None:
+                # the features by their own gain: a texture's eyes, brows and lips are softer than a
+                # 1000 px frame's and crisper than a soft 256 px video's
+                near = cv2.GaussianBlur((feats_p | feats_d).astype(np.float32), (0, 0),
+                                        max(0.5, params.sharpen_feather * iod))
+                # measured without the eyeballs (the driver's are drawn in: the gain must not depend on
+                # the puppet's own), grown by the Laplacian's reach
+                balls = [cv2.dilate(_eyeballs(q - [x0, y0], rg.shape).view(np.uint8), np.ones((5, 5), np.uint8)) > 0
+                         for q in (pp68, p68)]
+                out, _ = match_sharpness(out, fr, rg & feats_p & ~balls[0], rg & feats_d & ~balls[1],
+                                         max_gain=params.sharpen, coverage=cov,
+                                         where=np.minimum(1.0 - where, near) * rg)
         if params.grain > 0:  # where even the bounded gain left it smoother than the frame
-            if pp68 is not None:  # neither face's features: the frame's lash lines and creases stay out
-                skin_full = skin_full & ~feature_mask(pp68 - [x0, y0], rg.shape)
+            if feats_p is not None:  # neither face's features: the frame's lash lines and creases stay out
+                skin_full = skin_full & ~feats_p
             if params.grain_reach > 0:  # the bands the persona's resolution lacks, coarsest first
                 out, _ = match_grain_bands(out, fr, skin_full, reach=params.grain_reach * iod,
                                            max_amount=params.grain)

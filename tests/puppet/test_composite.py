@@ -1801,3 +1801,46 @@ def test_composite_keeps_the_drivers_skin_colour_inside_a_dark_outline():
     skin = _lab(frame)[middle].mean(axis=0)
     assert np.linalg.norm(_lab(out)[middle].mean(axis=0) - skin) < 2.0
     assert _lab(pois)[middle].mean(axis=0)[0] < skin[0] - 4.0
+
+
+def test_composite_sharpens_the_puppets_skin_and_features_each_to_the_drivers():
+    """The skin's sharpening gain (matched on the skin) is added on the skin only; the features get
+    a gain of their own, matched on the features of both faces. A puppet's crisp dark brow (a 3 px
+    bar on its brow line) on soft skin, a driver with grainy skin: on a driver whose brows are flat
+    the bar's edges stay as without sharpening (within 0.01) while the skin is sharpened; with
+    ``sharpen_feather=0`` (the skin's gain on the whole face, as before) they are over-drawn; on a
+    driver whose brows carry strong fine detail, a soft bar is sharpened."""
+    frame, face, inner, coverage, kw = _oval_scene()
+    p = kw["driver_points68"].copy()
+    p[0], p[16] = (24, 50), (72, 50)  # the face's width: the brows' thickness
+    p[17:22] = np.c_[np.linspace(34, 44, 5), np.full(5, 34.0)]
+    p[22:27] = np.c_[np.linspace(52, 62, 5), np.full(5, 34.0)]
+    kw = {**kw, "driver_points68": p, "puppet_points68": p}
+    rng = np.random.default_rng(5)
+    frame[face] += rng.normal(0, 0.03, (int(face.sum()), 3)).astype(np.float32)
+    flat = frame.copy()
+    flat[30:39, 30:66] = (0.55, 0.4, 0.3)  # the driver's brows: no fine detail
+    hairy = flat.copy()
+    hairy[32:37, 33:64] += rng.normal(0, 0.15, (5, 31, 1)).astype(np.float32)
+    frame, flat, hairy = (np.clip(x, 0, 1) for x in (frame, flat, hairy))
+    puppet = np.broadcast_to(np.float32([0.6, 0.45, 0.35]), frame.shape).copy()
+    puppet += cv2.GaussianBlur(rng.normal(0, 0.01, frame.shape).astype(np.float32), (0, 0), 1.0)
+    crisp = puppet.copy()
+    crisp[33:36, 34:45] = (0.2, 0.15, 0.1)
+    soft = puppet.copy()
+    soft[32:37, 34:45] = cv2.GaussianBlur(crisp, (0, 0), 1.2)[32:37, 34:45]
+    bar = np.zeros(frame.shape[:2], bool)
+    bar[[33, 35], 36:43] = True  # its edges
+    skin = inner.copy()
+    skin[26:42, 28:68] = False
+    cp = dict(mouth=False, grain=0.0, nose_sharpen=1.0, occlusion=False, persona_hair=False, lip_detail=0.0,
+              lid_detail=0.0, eyes="persona")
+
+    def run(drv, pup, **kv):
+        return composite_face(drv, pup, coverage, None, params=CompositeParams(**{**cp, **kv}), **kw)[0]
+
+    plain, default = run(flat, crisp, sharpen=1.0), run(flat, crisp)
+    assert _lap_var(default, skin) > 2.0 * _lap_var(plain, skin)  # the skin is sharpened
+    assert np.abs(default - plain)[bar].max() < 0.01
+    assert np.abs(run(flat, crisp, sharpen_feather=0.0) - plain)[bar].max() > 0.03
+    assert np.abs(run(hairy, soft) - run(hairy, soft, sharpen=1.0))[bar].max() > 0.02
