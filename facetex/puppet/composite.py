@@ -298,8 +298,8 @@ class CompositeParams:
     distance) and on its features (eyes, brows, lips, nostrils) by a gain of their own, measured
     against the driver's features (0: the skin's gain on the whole face, as before: on a small,
     compressed GRID face it drew the puppet's eyes, brows and lips harder than the video's own, the
-    eyes up to 4.8x the driver's Laplacian variance); grain: then the frame's own grain is added where the puppet is still
-    smoother, at most at this strength (0: off; :func:`~facetex.puppet.detail.match_grain`);
+    eyes up to 4.8x the driver's Laplacian variance); grain: then the frame's own grain is added
+    where the puppet is still smoother, at most at this strength (0: off; :func:`~facetex.puppet.detail.match_grain`);
     grain_reach: before it, the frame's octave bands up to this x the eye-corner distance (sigma)
     are added where the puppet is smoother (:func:`~facetex.puppet.detail.match_grain_bands`; 0:
     the pixel band only): with the pixel band alone the puppets on 1000 px FRL drivers measured
@@ -535,8 +535,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
                                         max(0.5, params.sharpen_feather * iod))
                 # measured without the eyeballs (the driver's are drawn in: the gain must not depend on
                 # the puppet's own), grown by the Laplacian's reach
-                balls = [cv2.dilate(_eyeballs(q - [x0, y0], rg.shape).view(np.uint8), np.ones((5, 5), np.uint8)) > 0
-                         for q in (pp68, p68)]
+                balls = [cv2.dilate(_eyeballs(q - [x0, y0], rg.shape).view(np.uint8),
+                                    np.ones((5, 5), np.uint8)) > 0 for q in (pp68, p68)]
                 out, _ = match_sharpness(out, fr, rg & feats_p & ~balls[0], rg & feats_d & ~balls[1],
                                          max_gain=params.sharpen, coverage=cov,
                                          where=np.minimum(1.0 - where, near) * rg)
