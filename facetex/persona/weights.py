@@ -109,6 +109,9 @@ distance on its 40 or 80 lip points, on dlib's 18 and its 40, or dlib's points m
 contours, Koizumi -0.0010 to +0.0003, Arroyo -0.0007 to +0.0004 (s.e. 0.001-0.002); its whole mesh, or
 the points below the nose, -0.0016 to -0.0031. Nor the photos' lip points moved by their collection flow
 there (what the flow found the fiducials missed): the flow is under 0.2 px, Koizumi within 0.0001.
+Nor can any shrinkage towards the static average: static + lambda (ours - static) scores best at
+lambda = 1 on both collections, and even lambda chosen per target by the held-out photo itself (an
+oracle) reaches only +0.0384 on Koizumi and +0.0431 on Arroyo (5 folds).
 """
 
 from __future__ import annotations
