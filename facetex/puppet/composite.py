@@ -299,7 +299,8 @@ class CompositeParams:
     against the driver's features (0: the skin's gain on the whole face, as before: on a small,
     compressed GRID face it drew the puppet's eyes, brows and lips harder than the video's own, the
     eyes up to 4.8x the driver's Laplacian variance); grain: then the frame's own grain is added
-    where the puppet is still smoother, at most at this strength (0: off; :func:`~facetex.puppet.detail.match_grain`);
+    where the puppet is still smoother, at most at this strength (0: off;
+    :func:`~facetex.puppet.detail.match_grain`);
     grain_reach: before it, the frame's octave bands up to this x the eye-corner distance (sigma)
     are added where the puppet is smoother (:func:`~facetex.puppet.detail.match_grain_bands`; 0:
     the pixel band only): with the pixel band alone the puppets on 1000 px FRL drivers measured
@@ -323,7 +324,8 @@ class CompositeParams:
     mean 3.1 / worst 5.6 with it, 0.85 / 1.95 without; under-eye ΔL* worst -8.6 / -3.9; 60 GRID and
     stress runs at 256 px: 2.9 / 5.6 -> 1.1 / 2.6); the inward feather alone joins the two (the
     colour step across the outline over the driver's own there: GRID 0.84-1.09, 0.90-1.08 with it;
-    portraits 0.87-1.41, 0.60-1.11, no edge seen at 100 %); feather: width of the inward feather as a fraction of the eye-corner distance;
+    portraits 0.87-1.41, 0.60-1.11, no edge seen at 100 %); feather: width of the inward feather as
+    a fraction of the eye-corner distance;
     erode: the driver's outline is shrunk by this fraction (the face-oval vertices sit on the
     silhouette, where skin meets hair or background); mouth: draw the driver's mouth interior
     inside the puppet's lips; lip_band: an open mouth's inner lip band (this x the mouth width) is
@@ -524,15 +526,15 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
             skin_full = skin_full & colour_skin
         if params.sharpen > 1:
             cov = np.asarray(coverage, np.float32)[box]
+            fsig = max(0.5, params.sharpen_feather * iod)
             where = None if params.sharpen_feather <= 0 else cv2.GaussianBlur(
-                skin_full.astype(np.float32), (0, 0), max(0.5, params.sharpen_feather * iod))
+                skin_full.astype(np.float32), (0, 0), fsig)
             out, _ = match_sharpness(out, fr, skin_full, skin_full, max_gain=params.sharpen, coverage=cov,
                                      where=where)
             if where is not None and feats_p is not None:
                 # the features by their own gain: a texture's eyes, brows and lips are softer than a
                 # 1000 px frame's and crisper than a soft 256 px video's
-                near = cv2.GaussianBlur((feats_p | feats_d).astype(np.float32), (0, 0),
-                                        max(0.5, params.sharpen_feather * iod))
+                near = cv2.GaussianBlur((feats_p | feats_d).astype(np.float32), (0, 0), fsig)
                 # measured without the eyeballs (the driver's are drawn in: the gain must not depend on
                 # the puppet's own), grown by the Laplacian's reach
                 balls = [cv2.dilate(_eyeballs(q - [x0, y0], rg.shape).view(np.uint8),
