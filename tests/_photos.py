@@ -60,3 +60,22 @@ def draw_glasses(img: np.ndarray, points68: np.ndarray, *, arms: bool = True, co
     cv2.line(out, (int(p[39, 0]), y), (int(p[42, 0]), y), c3, t)
     return out
 
+
+def simple_face68() -> np.ndarray:
+    """(68, 2) iBUG-shaped points of a frontal face in a 256 px frame: jaw, brows at y ~ 80, eyes at
+    y 100, nose, lips at y ~ 170."""
+    p = np.zeros((68, 2))
+    t = np.linspace(np.pi, 0, 17)
+    p[0:17] = np.c_[128 + 90 * np.cos(t), 100 + 110 * np.sin(t)]
+    p[17:22] = np.c_[np.linspace(60, 115, 5), 80 - 8 * np.sin(np.linspace(0, np.pi, 5))]
+    p[22:27] = np.c_[np.linspace(141, 196, 5), 80 - 8 * np.sin(np.linspace(0, np.pi, 5))]
+    p[27:31] = np.c_[np.full(4, 128.0), np.linspace(100, 140, 4)]
+    p[31:36] = np.c_[np.linspace(114, 142, 5), np.full(5, 145.0)]
+    for k, cx in ((36, 88.0), (42, 168.0)):
+        a = np.linspace(np.pi, -np.pi, 6, endpoint=False)
+        p[k:k + 6] = np.c_[cx + 16 * np.cos(a), 100 - 6 * np.sin(a)]
+    a = np.linspace(np.pi, -np.pi, 12, endpoint=False)
+    p[48:60] = np.c_[128 + 30 * np.cos(a), 170 - 10 * np.sin(a)]
+    a = np.linspace(np.pi, -np.pi, 8, endpoint=False)
+    p[60:68] = np.c_[128 + 20 * np.cos(a), 170 - 3 * np.sin(a)]
+    return p

@@ -232,15 +232,17 @@ def inner_feather(mask, width: float) -> np.ndarray:
     return smoothstep(t).astype(np.float32)
 
 
-def feature_mask(points68, shape, *, dilate: float = 0.06) -> np.ndarray:
-    """bool (H, W): eyes, brows and lips of the iBUG-68 ``points68`` (frame px), each polygon
-    dilated by ``dilate`` x the outer eye-corner distance: the pixels that are not skin."""
+def feature_mask(points68, shape, *, dilate: float = 0.06, parts=("eyes", "brows", "lips")) -> np.ndarray:
+    """bool (H, W): eyes, brows and lips (``parts``) of the iBUG-68 ``points68`` (frame px), each
+    polygon dilated by ``dilate`` x the outer eye-corner distance: the pixels that are not skin."""
     p = np.asarray(points68, np.float64)
     h, w = _shape2(shape)
     m = np.zeros((h, w), np.float32)
-    for idx in (range(36, 42), range(42, 48), range(48, 60)):
+    for idx in ((range(36, 42), range(42, 48)) if "eyes" in parts else ()) + \
+            ((range(48, 60),) if "lips" in parts else ()):
         m = np.maximum(m, polygon_mask(p[list(idx)], (h, w)))
-    for idx in (range(17, 22), range(22, 27)):  # brows: a band from the brow to its mirrored lower edge
+    for idx in (range(17, 22), range(22, 27)) if "brows" in parts else ():
+        # brows: a band from the brow to its mirrored lower edge
         b = p[list(idx)]
         m = np.maximum(m, polygon_mask(np.r_[b, b[::-1] + [0, 0.08 * np.ptp(p[:, 1])]], (h, w)))
     iod = float(np.linalg.norm(p[36] - p[45]))

@@ -66,7 +66,8 @@ from ..errors import BadInputError
 from ..geometry.masks import disc, feature_mask, inner_feather, nose_mask, polygon_mask
 from ._pixels import _LUMA, _mix, _Shrunk, _skin_weights
 from ._poisson import poisson_blend
-from .detail import match_grain, match_grain_bands, match_lid_detail, match_lip_detail, match_sharpness
+from .detail import (GRAIN_FILL_STEP, brow_bands, match_grain, match_grain_bands, match_lid_detail, match_lip_detail,
+                     match_sharpness)
 from .lighting import (COLOURS, _lab, _linear, fit_sh_lighting, floor_nostrils, linear_to_srgb, relight,
                        srgb_to_linear, transfer_skin_colour)
 from .eyes import _eyeballs, brow_weights, eye_interior, eye_skin_weights, eye_weights, lid_weights
@@ -153,6 +154,8 @@ EYE_KEEP_INSET = 0.03
 #: where the puppet's eyeballs come from: the driver's frame (with the persona's iris colour) or
 #: the persona's texture
 EYE_SOURCES = ("driver", "persona")
+#: the feather (Gaussian sigma, x the eye-corner distance) of the brows' own highlight knee
+BROW_KNEE_FEATHER = 0.03
 #: the inward feather is this many times wider with ``colour="persona"`` (the persona's own tone
 #: meets the driver's at the outline)
 PERSONA_FEATHER = 3.0
@@ -176,7 +179,12 @@ class CompositeParams:
     bounds of the a*, b* detail's gain, the skins' chroma ratio, and highlight_knee: lightness detail
     above the persona's skin compressed to this (L*) x tanh (both there): on 1000 px studio drivers
     (FRL London) a dark persona's brow ridges were white bands and her lash lines blue-black, an East
-    Asian persona's brows teal, on pale drivers; shadow_knee: the same for lightness detail below
+    Asian persona's brows teal, on pale drivers; brow_highlight_knee: this knee instead where either
+    face's brows are (:func:`~facetex.puppet.detail.brow_bands`, feathered by ``BROW_KNEE_FEATHER``;
+    None: off): a persona's brow ridge lit by her photos' flash lies where a driver's thicker brows
+    were, and at 6 it was a pale arch over Williams' eyes on a stubbled pale 1000 px driver (FRL
+    022); at 2 everywhere the persona's own highlights went too (its nose flattened, and FRL 096's
+    composites read nearer that driver: 4 more frames in 10 on Arroyo); shadow_knee: the same for lightness detail below
     it on the skin (eyes, brows, lips and the lower nose left out; None: off), on a darker persona
     than the driver: her under-eye circles and cheek shading were black eyes and bruises on a pale
     driver (FRL 002); eye_skin: on such a pair the skin under the eyes
@@ -244,7 +252,9 @@ class CompositeParams:
     are added where the puppet is smoother (:func:`~facetex.puppet.detail.match_grain_bands`; 0:
     the pixel band only): with the pixel band alone the puppets on 1000 px FRL drivers measured
     0.65-1.04 of the driver's face sharpness at full size and 0.17-0.39 at half size (36 runs of
-    ``bench puppet --portraits 6``), with 0.015 0.71-1.28 and 0.37-0.86;
+    ``bench puppet --portraits 6``), with 0.015 0.71-1.28 and 0.37-0.86; grain_brows: both bands take
+    the skin's grain where either face's brows are too (:func:`~facetex.puppet.detail.brow_bands`):
+    left out, the driver's brows were a smooth arch over a persona with thinner brows;
     nose_sharpen: then the puppet's lower nose (:func:`~facetex.geometry.masks.nose_mask`) is raised
     to the driver's nose's fine detail, at most by this further gain (1: off): half of a GRID frame's
     Laplacian energy inside the face is its nose (nostrils, the shaded sides), which the skin-colour
@@ -287,6 +297,7 @@ class CompositeParams:
     colour_gain: tuple[float, float] = (2 / 3, 1.2)
     chroma_gain: tuple[float, float] = (0.5, 1.0)
     highlight_knee: float | None = 6.0
+    brow_highlight_knee: float | None = 2.0
     shadow_knee: float | None = 6.0
     eye_skin: float = 0.03
     lip_colour: bool = True
@@ -302,6 +313,7 @@ class CompositeParams:
     sharpen_feather: float = 0.03
     grain: float = 1.0
     grain_reach: float = 0.015
+    grain_brows: bool = True
     nose_sharpen: float = 3.0
     nostril_knee: float = 6.0
     lip_detail: float = 1.0
@@ -312,6 +324,16 @@ class CompositeParams:
     mouth: bool = True
     lip_band: float = 0.20
     eyes: str = "driver"
+
+
+def _knee_map(params: CompositeParams, bands, iod: float):
+    """``params.highlight_knee``, or on the bool ``bands`` (:func:`brow_bands`; None: nowhere),
+    feathered by BROW_KNEE_FEATHER x ``iod``, ``brow_highlight_knee``: an (H, W) map."""
+    knee, brow = params.highlight_knee, params.brow_highlight_knee
+    if knee is None or brow is None or bands is None:
+        return knee
+    w = cv2.GaussianBlur(bands.astype(np.float32), (0, 0), max(0.5, BROW_KNEE_FEATHER * iod))
+    return knee + (brow - knee) * w
 
 
 def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_points68, puppet_points68=None,
@@ -420,13 +442,16 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         ld = fit_sh_lighting(lum_d, nd, skin)
         ratio = relight(np.ones_like(lum_p), nr, lp, ld) ** params.sh_strength
         out = linear_to_srgb(lin_p * ratio)
+    # where either face's brows are: their own highlight knee, and the skin's grain shifted in
+    bands = brow_bands(p68 - [x0, y0], pp68 - [x0, y0], rg) if pp68 is not None and (
+        params.brow_highlight_knee is not None or params.grain_brows) else None
     if params.lighting in ("sh", "stats"):
         # the puppet's eyeballs, lids and brows are where it draws them: at the driver's landmarks the
         # persona's pale lids were kept as white crescents under a dark driver's eyes (FRL 042)
         drawn68 = p68 if pp68 is None else pp68
         out = transfer_skin_colour(out, fr, pup_skin, drv_skin, sigma=max(1.0, params.colour_sigma * iod),
                                    gain=params.colour_gain, colour=params.colour, shrink=sh.k,
-                                   chroma_gain=params.chroma_gain, highlight_knee=params.highlight_knee,
+                                   chroma_gain=params.chroma_gain, highlight_knee=_knee_map(params, bands, iod),
                                    # drawn only on a darker persona than the driver
                                    shadows=(lambda: _skin_weights(drawn68 - [x0, y0], rg.shape))
                                    if params.shadow_knee else None, shadow_knee=params.shadow_knee or 1.0,
@@ -484,10 +509,12 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         if params.grain > 0:  # where even the bounded gain left it smoother than the frame
             if feats_p is not None:  # neither face's features: the frame's lash lines and creases stay out
                 skin_full = skin_full & ~feats_p
+            fill = bands if params.grain_brows else None  # the driver's brow hair stays out
+            step = GRAIN_FILL_STEP * iod
             if params.grain_reach > 0:  # the bands the persona's resolution lacks, coarsest first
                 out, _ = match_grain_bands(out, fr, skin_full, reach=params.grain_reach * iod,
-                                           max_amount=params.grain)
-            out, _ = match_grain(out, fr, skin_full, max_amount=params.grain)
+                                           max_amount=params.grain, fill=fill, fill_step=step)
+            out, _ = match_grain(out, fr, skin_full, max_amount=params.grain, fill=fill, fill_step=step)
     if (params.nose_sharpen > 1 or params.nostril_knee > 0) and pp68 is not None:
         nose_p = nose_mask(pp68 - [x0, y0], rg.shape) & rg  # where the puppet's nose is drawn
         nose_d = nose_mask(p68 - [x0, y0], rg.shape) & rg

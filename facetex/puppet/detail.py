@@ -15,8 +15,9 @@ from ._contours import EYE, _contour_frame
 from ._pixels import _LUMA
 from .eyes import EYES
 
-__all__ = ["match_sharpness", "match_grain", "match_grain_bands", "match_lip_detail", "match_lid_detail", "GRAIN_CLIP",
-           "GRAIN_BAND_SIGMAS", "GRAIN_TEXTURE_KAPPA", "LIP_DETAIL_SIGMA", "LID_DETAIL_SIGMA", "LID_DETAIL_REACH"]
+__all__ = ["match_sharpness", "match_grain", "match_grain_bands", "brow_bands", "match_lip_detail", "match_lid_detail",
+           "GRAIN_CLIP", "GRAIN_BAND_SIGMAS", "GRAIN_TEXTURE_KAPPA", "GRAIN_FILL_STEP", "LIP_DETAIL_SIGMA",
+           "LID_DETAIL_SIGMA", "LID_DETAIL_REACH"]
 
 
 def _points_box(q: np.ndarray, shape, grow: float) -> tuple[np.ndarray, np.ndarray]:
@@ -46,6 +47,64 @@ def _clip_robust(band: np.ndarray, where: np.ndarray) -> np.ndarray:
     absolute value) of its values on the bool ``where``, per channel when it has channels."""
     sd = 1.4826 * np.median(np.abs(band[where]), axis=0)
     return np.clip(band, -GRAIN_CLIP * sd, GRAIN_CLIP * sd)
+
+
+#: the rigid offsets of :func:`_shift_map`, in units of its step, nearest first; up first (above
+#: the driver's brows lies its forehead)
+FILL_OFFSETS = tuple((k * dy, k * dx) for k in (1, 2, 3, 4)
+                     for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1)))
+
+
+#: the step of :func:`_shift_map`'s offsets, as a fraction of the eye-corner distance (about a
+#: brow band's height: the first offset up moves it onto the forehead)
+GRAIN_FILL_STEP = 0.1
+
+
+def brow_bands(driver68, puppet68, region) -> np.ndarray:
+    """bool (H, W): the pixels of the bool ``region`` in either face's brow band
+    (:func:`~facetex.geometry.masks.feature_mask`'s brows) and in neither's eyes or lips: where the
+    puppet's skin or brows lie over the driver's brows (the frame's grain there is its brow hair)."""
+    from ..geometry.masks import feature_mask
+
+    r = np.asarray(region, bool)
+    qs = (np.asarray(driver68, np.float64), np.asarray(puppet68, np.float64))
+    brows = feature_mask(qs[0], r.shape, parts=("brows",)) | feature_mask(qs[1], r.shape, parts=("brows",))
+    others = feature_mask(qs[0], r.shape, parts=("eyes", "lips")) | feature_mask(qs[1], r.shape, parts=("eyes", "lips"))
+    return r & brows & ~others
+
+
+def _shift_map(source: np.ndarray, hole: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """(hole pixels, their source pixels), flat indices: each pixel of the bool ``hole`` (not in
+    ``source``) takes the ``source`` pixel at the first offset of :data:`FILL_OFFSETS` (x ``step`` px)
+    that lands on one; pixels no offset reaches are left out."""
+    src = np.asarray(source, bool)
+    ys, xs = np.nonzero(np.asarray(hole, bool) & ~src)
+    H, W = src.shape
+    dst_idx, src_idx = [], []
+    for oy, ox in FILL_OFFSETS:
+        if ys.size == 0:
+            break
+        sy, sx = ys + int(round(oy * step)), xs + int(round(ox * step))
+        ok = (sy >= 0) & (sy < H) & (sx >= 0) & (sx < W)
+        ok[ok] = src[sy[ok], sx[ok]]
+        dst_idx.append(ys[ok] * W + xs[ok])
+        src_idx.append(sy[ok] * W + sx[ok])
+        ys, xs = ys[~ok], xs[~ok]
+    if not dst_idx:
+        return np.zeros(0, np.intp), np.zeros(0, np.intp)
+    return np.concatenate(dst_idx), np.concatenate(src_idx)
+
+
+def _fill_shifted(band: np.ndarray, shift_map: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """``band`` (H, W[, C]) with the hole pixels of :func:`_shift_map` copied from their source
+    pixels. Neighbouring hole pixels share an offset, so the hole takes rigid, shifted pieces of the
+    skin's grain (a shift-map fill, written here: ``cv2.inpaint`` diffuses and leaves a hole smooth,
+    a nearest-pixel fill streaks, and :func:`facetex.transfer.detail.fill_from_source`'s blended
+    blocks take ~0.1 s a band on a 1000 px frame's face)."""
+    out = band.copy()
+    flat = out.reshape(band.shape[0] * band.shape[1], -1)
+    flat[shift_map[0]] = band.reshape(flat.shape)[shift_map[1]]
+    return out
 
 
 def _lap(x: np.ndarray) -> np.ndarray:
@@ -118,7 +177,8 @@ def _texture_weight(band: np.ndarray, skin: np.ndarray, sigma: float) -> np.ndar
     return (1.0 / (1.0 + (e * e) ** 2)).astype(np.float32)
 
 
-def match_grain(src, ref, skin, *, max_amount: float = 1.0, feather: float = 1.0) -> tuple[np.ndarray, float]:
+def match_grain(src, ref, skin, *, max_amount: float = 1.0, feather: float = 1.0, fill=None,
+                fill_step: float = 8.0) -> tuple[np.ndarray, float]:
     """(``src`` with ``ref``'s grain added on ``skin``, amount a): the frame's pixel-scale band
     (−∇²/4 of ``ref``, each channel clipped at :data:`GRAIN_CLIP` robust standard deviations of
     its skin's), times a soft ``skin`` mask (Gaussian, ``feather`` px), times the a in
@@ -128,7 +188,10 @@ def match_grain(src, ref, skin, *, max_amount: float = 1.0, feather: float = 1.0
     puppet's own detail, even sharpened to its bound, stays smoother than the video it sits in
     (Laplacian variance 0.36-0.72 of the driver's), and a smooth face in a grainy frame looks
     pasted on. The grain is the frame's own, so it moves and flickers with the video; features
-    are the caller's to cut out of ``skin``. Images (H, W, 3) float [0, 1]."""
+    are the caller's to cut out of ``skin``. ``fill`` (bool (H, W)): where the puppet shows skin and the
+    frame does not (its brows, where the persona's are thinner), the grain is the skin's, shifted in
+    by :func:`_shift_map` and :func:`_fill_shifted` (``fill_step`` px); without it such a hole stayed smooth, an arch the
+    shape of the driver's brows. Images (H, W, 3) float [0, 1]."""
     s = np.asarray(src, np.float32)
     r = np.asarray(ref, np.float32)
     m = np.asarray(skin, bool)
@@ -136,14 +199,18 @@ def match_grain(src, ref, skin, *, max_amount: float = 1.0, feather: float = 1.0
         return s.copy(), 0.0
     hd = _high_pass(r)
     hd = _clip_robust(hd, m)
-    hd *= cv2.GaussianBlur(m.astype(np.float32), (0, 0), feather)[..., None] if feather > 0 else m[..., None]
+    on = m
+    if fill is not None:
+        hd, on = _fill_shifted(hd, _shift_map(m, fill, fill_step)), m | np.asarray(fill, bool)
+    hd *= cv2.GaussianBlur(on.astype(np.float32), (0, 0), feather)[..., None] if feather > 0 else on[..., None]
     a = min(_gain_to_variance(_lap(s)[m], _lap(hd)[m], float(np.var(_lap(r)[m]))), max_amount)
     if a <= 0:
         return s.copy(), 0.0
     return np.clip(s + a * hd, 0.0, 1.0), a
 
 
-def match_grain_bands(src, ref, skin, *, reach: float, max_amount: float = 1.0) -> tuple[np.ndarray, tuple]:
+def match_grain_bands(src, ref, skin, *, reach: float, max_amount: float = 1.0, fill=None,
+                      fill_step: float = 8.0) -> tuple[np.ndarray, tuple]:
     """(``src`` with ``ref``'s octave bands added on ``skin``, their amounts): for every band of
     :data:`GRAIN_BAND_SIGMAS` whose coarser sigma is at most ``reach`` px, the frame's band (each
     channel clipped at :data:`GRAIN_CLIP` robust standard deviations of its skin's, faded where its
@@ -157,8 +224,8 @@ def match_grain_bands(src, ref, skin, *, reach: float, max_amount: float = 1.0) 
     composites read nearer the driver (dlib, the puppet's distance to its persona minus to the driver
     +0.008 on average, +0.038 on the worst run; +0.004 with it). ``reach``: the caller's bound on
     what the persona lacks (a fraction of the eye distance); the coarser bands carry a face's
-    wrinkles and spots, which stay the persona's. Images
-    (H, W, 3) float [0, 1]; the result is not clipped (:func:`match_grain` follows and clips)."""
+    wrinkles and spots, which stay the persona's. ``fill``, ``fill_step``: as :func:`match_grain`'s.
+    Images (H, W, 3) float [0, 1]; the result is not clipped (:func:`match_grain` follows and clips)."""
     s = np.asarray(src, np.float32)
     r = np.asarray(ref, np.float32)
     m = np.asarray(skin, bool)
@@ -166,14 +233,18 @@ def match_grain_bands(src, ref, skin, *, reach: float, max_amount: float = 1.0) 
     if m.sum() < 64 or max_amount <= 0 or len(edges) < 2:
         return s.copy(), ()
     out, amounts = s.copy(), []
+    on = m if fill is None else m | np.asarray(fill, bool)
+    shift = None if fill is None else _shift_map(m, fill, fill_step)
     fine_r, fine_s = cv2.GaussianBlur(r, (0, 0), edges[0]), cv2.GaussianBlur(s, (0, 0), edges[0])
     for lo, hi in zip(edges[:-1], edges[1:]):
         coarse_r, coarse_s = cv2.GaussianBlur(r, (0, 0), hi), cv2.GaussianBlur(s, (0, 0), hi)
         br, bs = fine_r - coarse_r, fine_s - coarse_s
         fine_r, fine_s = coarse_r, coarse_s
+        if shift is not None:
+            br = _fill_shifted(br, shift)
         add = _clip_robust(br, m)
         lr, ls = br @ _LUMA, bs @ _LUMA
-        add *= (cv2.GaussianBlur(m.astype(np.float32), (0, 0), lo) * _texture_weight(lr, m, 2 * hi))[..., None]
+        add *= (cv2.GaussianBlur(on.astype(np.float32), (0, 0), lo) * _texture_weight(lr, m, 2 * hi))[..., None]
         la = add @ _LUMA
         a = min(_gain_to_variance(ls[m], la[m], float(np.var(lr[m]))), max_amount)
         if a > 0:

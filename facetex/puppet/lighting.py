@@ -220,10 +220,13 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     chroma (sqrt(a*^2 + b*^2), driver over persona) clipped to these bounds (default (1, 1): 1):
     a saturated persona's dark features (lash lines, brows, lid shadows), less saturated than her
     skin, turned blue or teal on a pale, less saturated driver (their chroma offset from her skin
-    crossed neutral). ``highlight_knee`` (colour "driver", L*; None: off): lightness detail above
-    the persona's skin field, d > 0, is compressed to knee x tanh(d / knee) before its gain: a
+    crossed neutral). ``highlight_knee`` (colour "driver", L*, or an (H, W) map of it; None: off):
+    lightness detail above the persona's skin field, d > 0, is compressed to knee x tanh(d / knee)
+    before its gain: a
     persona's specular highlights (a shiny brow ridge or nose in her photos' light) were white
-    bands on a pale driver. ``shadows`` (colour "driver"): weight (H, W) in [0, 1], a function
+    bands on a pale driver; their a*, b* detail is cut in the same proportion (a highlight is white
+    light: with its lightness alone cut, Williams' brow ridge stayed a grey band, a* 5 against the
+    forehead's 11, on FRL 022). ``shadows`` (colour "driver"): weight (H, W) in [0, 1], a function
     returning it, or None: there,
     on a darker persona than the driver, the lightness detail below the persona's skin field, d < 0,
     is compressed to -``shadow_knee`` x tanh(-d / ``shadow_knee``) before its gain (and before
@@ -337,8 +340,14 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
                                    or eye_strength > 0) else None
     detail = None if s_light is None else a[..., 0] - s_light
     if highlight_knee is not None:
+        highlight_knee = np.asarray(highlight_knee, np.float32)
         up = np.maximum(detail, 0.0)
-        out[..., 0] -= g[0] * (up - highlight_knee * np.tanh(up / highlight_knee))
+        cut = up - highlight_knee * np.tanh(up / highlight_knee)
+        out[..., 0] -= g[0] * cut
+        # a highlight is white light: its chroma deficit is cut in the same proportion as its lightness
+        frac = cut / np.maximum(up, 1e-3)
+        for c in (1, 2):
+            out[..., c] -= g[c] * frac * (a[..., c] - full(sa[..., c]))
     if strength > 0:
         down = np.maximum(-detail, 0.0)
         ws = np.asarray(shadows() if callable(shadows) else shadows, np.float32)

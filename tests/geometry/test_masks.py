@@ -10,6 +10,7 @@ from facetex.geometry.masks import (
     face_outline,
     face_width,
     facial_prior_mask,
+    feature_mask,
     forehead_points,
     nose_mask,
     prior_mask,
@@ -121,3 +122,14 @@ def test_nose_mask_is_the_lower_nose_grown_by_the_eye_distance():
     assert m[55, 35] and not m[55, 31]  # beside the left ala (x 38): 3 px in, 7 px out
     assert not m[30, 45] and not m[22, 45]  # the bridge's top
     assert nose_mask(p, (80, 90), grow=0.2)[63, 45]  # grown 10 px
+
+
+def test_feature_mask_parts_make_up_the_whole(face):
+    p, shape = face
+    whole = feature_mask(p, shape)
+    parts = {k: feature_mask(p, shape, parts=(k,)) for k in ("eyes", "brows", "lips")}
+    np.testing.assert_array_equal(parts["eyes"] | parts["brows"] | parts["lips"], whole)
+    assert all(m.any() for m in parts.values())
+    assert _at(parts["brows"], p[19] + [0, 2]) and not _at(parts["brows"], p[62])
+    assert _at(parts["lips"], p[62]) and not _at(parts["lips"], p[19] + [0, 2])
+    assert not feature_mask(p, shape, parts=()).any()

@@ -1674,6 +1674,68 @@ def test_chroma_gain_and_highlight_knee_by_hand():
     np.testing.assert_allclose(out[~band], _lab(ref)[~band], atol=0.8)  # the skin is the driver's
 
 
+def test_highlight_knee_cuts_a_highlights_chroma_deficit_in_proportion_by_hand():
+    """A white highlight (L 65, a* 10, b* 15) on a persona's skin (L 50, a* 20, b* 30), over a driver
+    of L 50, a* 8, b* 12: the highlight's +15 L* is cut to 6 tanh(15 / 6) with ``highlight_knee`` 6,
+    a share f = (15 - 6 tanh(15 / 6)) / 15 = 0.61 of it, and so is its a*, b* detail: a* = 8 + (1 - f)
+    (10 - 20) = 4.1, b* = 12 + (1 - f) (15 - 30) = 6.1, not (-2, -3) (the grey band of a shiny brow
+    ridge on a pale driver); without the knee, (-2, -3)."""
+    band = np.zeros((40, 80), bool)
+    band[15:25, 50:70] = True
+    lab = np.broadcast_to(np.float32([50.0, 20.0, 30.0]), (40, 80, 3)).copy()
+    lab[band] = (65.0, 10.0, 15.0)
+    src = _rgb(lab)
+    ref = _rgb(np.ascontiguousarray(np.broadcast_to(np.float32([50.0, 8.0, 12.0]), (40, 80, 3))))
+    a = _lab(src)
+    skin, light = np.median(a[~band], 0), np.median(a[band], 0)
+    up = float(light[0] - skin[0])
+    f = (up - 6 * np.tanh(up / 6)) / up
+    assert f == pytest.approx(0.61, abs=0.02)
+    plain = np.median(_lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf))[band], 0)
+    out = np.median(_lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf, highlight_knee=6.0))[band], 0)
+    np.testing.assert_allclose(plain[1:], [8 + light[1] - skin[1], 12 + light[2] - skin[2]], atol=0.8)
+    np.testing.assert_allclose(out[1:], [8 + (1 - f) * (light[1] - skin[1]), 12 + (1 - f) * (light[2] - skin[2])],
+                               atol=0.8)
+    np.testing.assert_allclose(out[1:], [4.1, 6.1], atol=1.0)
+
+
+def test_highlight_knee_map_knees_each_pixel_by_its_own_value():
+    """Two equal highlights (+15 L*) under a knee map of 6 (left) and 2 (right): each is cut to its
+    own knee x tanh(15 / knee) (5.92 and 2.0), as with that number everywhere."""
+    band = np.zeros((40, 80), bool)
+    band[15:25, 10:30] = band[15:25, 50:70] = True
+    lab = np.broadcast_to(np.float32([50.0, 20.0, 30.0]), (40, 80, 3)).copy()
+    lab[band, 0] = 65.0
+    src = _rgb(lab)
+    ref = _rgb(np.ascontiguousarray(np.broadcast_to(np.float32([50.0, 20.0, 30.0]), (40, 80, 3))))
+    knee = np.full((40, 80), 6.0, np.float32)
+    knee[:, 40:] = 2.0
+    out = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf, highlight_knee=knee))
+    for x, k in ((slice(10, 30), 6.0), (slice(50, 70), 2.0)):
+        alone = _lab(transfer_skin_colour(src, ref, ~band, ~band, sigma=np.inf, highlight_knee=k))
+        np.testing.assert_allclose(out[15:25, x], alone[15:25, x], atol=1e-3)
+    assert np.median(out[15:25, 50:70, 0]) == pytest.approx(50 + 2 * np.tanh(15 / 2), abs=0.8)
+
+
+def test_brows_take_their_own_highlight_knee():
+    """``_knee_map``: ``brow_highlight_knee`` inside the brow bands (their middle), the
+    ``highlight_knee`` away from them (the cheek), a number without bands or with
+    ``brow_highlight_knee`` None."""
+    from _photos import simple_face68
+    from facetex.puppet.composite import _knee_map
+    from facetex.puppet.detail import brow_bands
+
+    p = simple_face68()
+    bands = brow_bands(p, p, np.ones((256, 256), bool))
+    params = CompositeParams()
+    m = _knee_map(params, bands, 80.0)
+    assert m.shape == (256, 256)
+    assert m[int(p[19, 1]) + 3, int(p[19, 0])] == pytest.approx(params.brow_highlight_knee, abs=0.05)
+    assert m[150, 60] == pytest.approx(params.highlight_knee)
+    assert _knee_map(params, None, 80.0) == params.highlight_knee
+    assert _knee_map(CompositeParams(brow_highlight_knee=None), bands, 80.0) == params.highlight_knee
+
+
 def test_shadow_knee_by_hand():
     """A dark persona (skin L 40) with a shadow band 20 L* under its skin (an under-eye circle) on a
     pale driver (L 75): the gain 75 / 40 is clipped to 1.2, so the band is 75 - 24 = 51 without the

@@ -6,9 +6,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from facetex.puppet.detail import (GRAIN_BAND_SIGMAS, GRAIN_CLIP, _eye_affine, match_grain, match_grain_bands,
-                                   match_lid_detail, match_lip_detail)
+from facetex.puppet.detail import (GRAIN_BAND_SIGMAS, GRAIN_CLIP, _eye_affine, _fill_shifted, _shift_map, brow_bands,
+                                   match_grain, match_grain_bands, match_lid_detail, match_lip_detail)
 from facetex.geometry.masks import polygon_mask
+
+from _photos import simple_face68
 
 
 def _checker(h=40, w=48) -> np.ndarray:
@@ -63,6 +65,54 @@ def test_match_grain_clips_the_frames_strong_lines_and_stays_on_the_skin():
     assert np.abs(out[30, 5:35] - 0.6).max() < 0.2 * 0.5  # far below its 0.5 depth
     np.testing.assert_array_equal(out[:, 45:], src[:, 45:])
     assert np.std(out[5:25, 5:35] - src[5:25, 5:35]) > 0.01  # grain where the skin is
+
+
+def test_fill_shifted_copies_rigid_pieces_of_the_source_nearest_offset_first():
+    """A 4-row hole under 10 source rows: with step 5 the first offset (up 5 px) lands on the source
+    for every hole pixel, so the hole is the band 5 rows up, copied rigidly (not the boundary row
+    repeated); a hole pixel with no source at any offset stays as it was."""
+    band = np.arange(20 * 12, dtype=np.float32).reshape(20, 12)
+    source = np.zeros((20, 12), bool)
+    source[:10] = True
+    hole = np.zeros((20, 12), bool)
+    hole[10:14] = True
+    out = _fill_shifted(band, _shift_map(source, hole, 5.0))
+    np.testing.assert_array_equal(out[10:14], band[5:9])
+    np.testing.assert_array_equal(out[~hole], band[~hole])
+    alone = _fill_shifted(band, _shift_map(np.zeros((20, 12), bool), hole, 5.0))
+    np.testing.assert_array_equal(alone, band)
+
+
+def test_match_grain_fills_the_brow_hole_with_the_skins_grain_not_the_frames_hair():
+    """The frame: grainy skin with a dark, strongly textured band (brow hair) across it; the puppet
+    flat. Without ``fill`` the band stays flat on the puppet (it is not skin); with it the band takes
+    the skin's grain, at the skin's amplitude, and none of the hair's darkness."""
+    rng = np.random.default_rng(1)
+    h, w = 80, 64
+    ref = 0.6 + rng.normal(0, 0.02, (h, w, 1)).astype(np.float32) * np.ones(3, np.float32)
+    ref[36:44] = 0.2 + rng.normal(0, 0.1, (8, w, 1)).astype(np.float32)  # the hair
+    src = np.full((h, w, 3), 0.6, np.float32)
+    skin = np.ones((h, w), bool)
+    skin[34:46] = False
+    hole = ~skin
+    plain, _ = match_grain(src, ref, skin)
+    out, a = match_grain(src, ref, skin, fill=hole, fill_step=12.0)
+    assert np.std(plain[38:42, 8:-8] - 0.6) < 1e-3
+    inside, outside = np.std(out[38:42, 8:-8] - 0.6), np.std(out[10:30, 8:-8] - 0.6)
+    assert 0.6 * outside < inside < 1.5 * outside
+    assert abs(float(np.mean(out[36:44] - 0.6))) < 0.005  # no hair
+
+
+def test_brow_bands_are_either_faces_brows_without_their_eyes_and_lips():
+    face68 = simple_face68()
+    region = np.ones((256, 256), bool)
+    low = face68 + [0, 6]  # the puppet's features lower than the driver's
+    m = brow_bands(face68, low, region)
+    from facetex.geometry.masks import feature_mask
+    brows = feature_mask(face68, (256, 256), parts=("brows",)) | feature_mask(low, (256, 256), parts=("brows",))
+    assert m.sum() > 0 and not (m & ~brows).any()
+    assert not (m & feature_mask(low, (256, 256), parts=("eyes", "lips"))).any()
+    assert not brow_bands(face68, low, np.zeros((256, 256), bool)).any()
 
 
 def _waves(h=96, w=96, period=7.0, amp=0.05) -> np.ndarray:
