@@ -184,9 +184,9 @@ class CompositeParams:
     None: off): a persona's brow ridge lit by her photos' flash lies where a driver's thicker brows
     were, and at 6 it was a pale arch over Williams' eyes on a stubbled pale 1000 px driver (FRL
     022); at 2 everywhere the persona's own highlights went too (its nose flattened, and FRL 096's
-    composites read nearer that driver: 4 more frames in 10 on Arroyo); shadow_knee: the same for lightness detail below
-    it on the skin (eyes, brows, lips and the lower nose left out; None: off), on a darker persona
-    than the driver: her under-eye circles and cheek shading were black eyes and bruises on a pale
+    composites read nearer that driver: 4 more frames in 10 on Arroyo); shadow_knee: the same for
+    lightness detail below it on the skin (eyes, brows, lips and the lower nose left out; None: off),
+    on a darker persona than the driver: her under-eye circles and cheek shading were black eyes and bruises on a pale
     driver (FRL 002); eye_skin: on such a pair the skin under the eyes
     (:func:`~facetex.puppet.eyes.eye_skin_weights`) takes the driver's colour down to this x the
     eye-corner distance (Gaussian sigma; 0: off; ``eye_skin`` of

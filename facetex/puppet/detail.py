@@ -68,9 +68,11 @@ def brow_bands(driver68, puppet68, region) -> np.ndarray:
 
     r = np.asarray(region, bool)
     qs = (np.asarray(driver68, np.float64), np.asarray(puppet68, np.float64))
-    brows = feature_mask(qs[0], r.shape, parts=("brows",)) | feature_mask(qs[1], r.shape, parts=("brows",))
-    others = feature_mask(qs[0], r.shape, parts=("eyes", "lips")) | feature_mask(qs[1], r.shape, parts=("eyes", "lips"))
-    return r & brows & ~others
+
+    def either(parts):
+        return feature_mask(qs[0], r.shape, parts=parts) | feature_mask(qs[1], r.shape, parts=parts)
+
+    return r & either(("brows",)) & ~either(("eyes", "lips"))
 
 
 def _shift_map(source: np.ndarray, hole: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
@@ -190,8 +192,8 @@ def match_grain(src, ref, skin, *, max_amount: float = 1.0, feather: float = 1.0
     pasted on. The grain is the frame's own, so it moves and flickers with the video; features
     are the caller's to cut out of ``skin``. ``fill`` (bool (H, W)): where the puppet shows skin and the
     frame does not (its brows, where the persona's are thinner), the grain is the skin's, shifted in
-    by :func:`_shift_map` and :func:`_fill_shifted` (``fill_step`` px); without it such a hole stayed smooth, an arch the
-    shape of the driver's brows. Images (H, W, 3) float [0, 1]."""
+    by :func:`_shift_map` and :func:`_fill_shifted` (``fill_step`` px); without it such a hole
+    stayed smooth, an arch the shape of the driver's brows. Images (H, W, 3) float [0, 1]."""
     s = np.asarray(src, np.float32)
     r = np.asarray(ref, np.float32)
     m = np.asarray(skin, bool)
