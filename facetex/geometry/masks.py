@@ -232,14 +232,17 @@ def inner_feather(mask, width: float) -> np.ndarray:
     return smoothstep(t).astype(np.float32)
 
 
+#: the iBUG-68 polygons of :func:`feature_mask`'s eyes and lips
+_FEATURE_POLYGONS = {"eyes": (range(36, 42), range(42, 48)), "lips": (range(48, 60),)}
+
+
 def feature_mask(points68, shape, *, dilate: float = 0.06, parts=("eyes", "brows", "lips")) -> np.ndarray:
     """bool (H, W): eyes, brows and lips (``parts``) of the iBUG-68 ``points68`` (frame px), each
     polygon dilated by ``dilate`` x the outer eye-corner distance: the pixels that are not skin."""
     p = np.asarray(points68, np.float64)
     h, w = _shape2(shape)
     m = np.zeros((h, w), np.float32)
-    for idx in ((range(36, 42), range(42, 48)) if "eyes" in parts else ()) + \
-            ((range(48, 60),) if "lips" in parts else ()):
+    for idx in (idx for part in ("eyes", "lips") if part in parts for idx in _FEATURE_POLYGONS[part]):
         m = np.maximum(m, polygon_mask(p[list(idx)], (h, w)))
     for idx in (range(17, 22), range(22, 27)) if "brows" in parts else ():
         # brows: a band from the brow to its mirrored lower edge

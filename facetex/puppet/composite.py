@@ -66,8 +66,8 @@ from ..errors import BadInputError
 from ..geometry.masks import disc, feature_mask, inner_feather, nose_mask, polygon_mask
 from ._pixels import _LUMA, _mix, _Shrunk, _skin_weights
 from ._poisson import poisson_blend
-from .detail import (GRAIN_FILL_STEP, brow_bands, match_grain, match_grain_bands, match_lid_detail, match_lip_detail,
-                     match_sharpness)
+from .detail import (GRAIN_FILL_STEP, brow_bands, feature_parts, grain_fill, match_grain, match_grain_bands,
+                     match_lid_detail, match_lip_detail, match_sharpness)
 from .lighting import (COLOURS, _lab, _linear, fit_sh_lighting, floor_nostrils, linear_to_srgb, relight,
                        srgb_to_linear, transfer_skin_colour)
 from .eyes import _eyeballs, brow_weights, eye_interior, eye_skin_weights, eye_weights, lid_weights
@@ -442,9 +442,15 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         ld = fit_sh_lighting(lum_d, nd, skin)
         ratio = relight(np.ones_like(lum_p), nr, lp, ld) ** params.sh_strength
         out = linear_to_srgb(lin_p * ratio)
+    # each face's brows and its eyes and lips, grown (made once: the brow bands, the sharpening's
+    # features and the grain's cut all come from them)
+    want_bands = pp68 is not None and (params.brow_highlight_knee is not None or params.grain_brows)
+    parts_d = parts_p = None
+    if want_bands or params.sharpen > 1 or params.grain > 0:
+        parts_d = feature_parts(p68 - [x0, y0], rg.shape)
+        parts_p = None if pp68 is None else feature_parts(pp68 - [x0, y0], rg.shape)
     # where either face's brows are: their own highlight knee, and the skin's grain shifted in
-    bands = brow_bands(p68 - [x0, y0], pp68 - [x0, y0], rg) if pp68 is not None and (
-        params.brow_highlight_knee is not None or params.grain_brows) else None
+    bands = brow_bands(rg, parts_d, parts_p) if want_bands else None
     if params.lighting in ("sh", "stats"):
         # the puppet's eyeballs, lids and brows are where it draws them: at the driver's landmarks the
         # persona's pale lids were kept as white crescents under a dark driver's eyes (FRL 042)
@@ -481,8 +487,8 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         # Skin of both at full size: the driver's landmarks (the puppet sits there), features cut out,
         # and only what has the driver's skin colour (its hair, fringe, glasses and the background
         # at the outline would set a far higher target)
-        feats_d = feature_mask(p68 - [x0, y0], rg.shape)
-        feats_p = None if pp68 is None else feature_mask(pp68 - [x0, y0], rg.shape)
+        feats_d = parts_d[0] | parts_d[1]
+        feats_p = None if parts_p is None else parts_p[0] | parts_p[1]
         skin_full = rg & ~feats_d
         colour_skin = cv2.resize(drv_skin.astype(np.uint8), (bw, bh), interpolation=cv2.INTER_NEAREST) > 0 \
             if sh.k > 1 else drv_skin
@@ -509,12 +515,13 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         if params.grain > 0:  # where even the bounded gain left it smoother than the frame
             if feats_p is not None:  # neither face's features: the frame's lash lines and creases stay out
                 skin_full = skin_full & ~feats_p
-            fill = bands if params.grain_brows else None  # the driver's brow hair stays out
-            step = GRAIN_FILL_STEP * iod
+            # the driver's brow hair stays out
+            fill = grain_fill(skin_full, bands, GRAIN_FILL_STEP * iod) if params.grain_brows and bands is not None \
+                else None
             if params.grain_reach > 0:  # the bands the persona's resolution lacks, coarsest first
                 out, _ = match_grain_bands(out, fr, skin_full, reach=params.grain_reach * iod,
-                                           max_amount=params.grain, fill=fill, fill_step=step)
-            out, _ = match_grain(out, fr, skin_full, max_amount=params.grain, fill=fill, fill_step=step)
+                                           max_amount=params.grain, fill=fill)
+            out, _ = match_grain(out, fr, skin_full, max_amount=params.grain, fill=fill)
     if (params.nose_sharpen > 1 or params.nostril_knee > 0) and pp68 is not None:
         nose_p = nose_mask(pp68 - [x0, y0], rg.shape) & rg  # where the puppet's nose is drawn
         nose_d = nose_mask(p68 - [x0, y0], rg.shape) & rg

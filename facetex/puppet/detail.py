@@ -7,6 +7,7 @@ the driver's lip lines on its lips (:func:`match_lip_detail`) and its lash lines
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -15,9 +16,9 @@ from ._contours import EYE, _contour_frame
 from ._pixels import _LUMA
 from .eyes import EYES
 
-__all__ = ["match_sharpness", "match_grain", "match_grain_bands", "brow_bands", "match_lip_detail", "match_lid_detail",
-           "GRAIN_CLIP", "GRAIN_BAND_SIGMAS", "GRAIN_TEXTURE_KAPPA", "GRAIN_FILL_STEP", "LIP_DETAIL_SIGMA",
-           "LID_DETAIL_SIGMA", "LID_DETAIL_REACH"]
+__all__ = ["match_sharpness", "match_grain", "match_grain_bands", "feature_parts", "brow_bands", "grain_fill",
+           "GrainFill", "match_lip_detail", "match_lid_detail", "GRAIN_CLIP", "GRAIN_BAND_SIGMAS",
+           "GRAIN_TEXTURE_KAPPA", "GRAIN_FILL_STEP", "LIP_DETAIL_SIGMA", "LID_DETAIL_SIGMA", "LID_DETAIL_REACH"]
 
 
 def _points_box(q: np.ndarray, shape, grow: float) -> tuple[np.ndarray, np.ndarray]:
@@ -49,40 +50,51 @@ def _clip_robust(band: np.ndarray, where: np.ndarray) -> np.ndarray:
     return np.clip(band, -GRAIN_CLIP * sd, GRAIN_CLIP * sd)
 
 
-#: the rigid offsets of :func:`_shift_map`, in units of its step, nearest first; up first (above
+#: the rigid offsets of :func:`grain_fill`, in units of its step, nearest first; up first (above
 #: the driver's brows lies its forehead)
 FILL_OFFSETS = tuple((k * dy, k * dx) for k in (1, 2, 3, 4)
                      for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1)))
 
 
-#: the step of :func:`_shift_map`'s offsets, as a fraction of the eye-corner distance (about a
+#: the step of :func:`grain_fill`'s offsets, as a fraction of the eye-corner distance (about a
 #: brow band's height: the first offset up moves it onto the forehead)
 GRAIN_FILL_STEP = 0.1
 
 
-def brow_bands(driver68, puppet68, region) -> np.ndarray:
-    """bool (H, W): the pixels of the bool ``region`` in either face's brow band
-    (:func:`~facetex.geometry.masks.feature_mask`'s brows) and in neither's eyes or lips: where the
-    puppet's skin or brows lie over the driver's brows (the frame's grain there is its brow hair)."""
+def feature_parts(points68, shape) -> tuple[np.ndarray, np.ndarray]:
+    """(brows, eyes and lips): bool (H, W) masks of :func:`~facetex.geometry.masks.feature_mask` at
+    iBUG ``points68``; their union is its whole mask."""
     from ..geometry.masks import feature_mask
 
-    r = np.asarray(region, bool)
-    qs = (np.asarray(driver68, np.float64), np.asarray(puppet68, np.float64))
-
-    def either(parts):
-        return feature_mask(qs[0], r.shape, parts=parts) | feature_mask(qs[1], r.shape, parts=parts)
-
-    return r & either(("brows",)) & ~either(("eyes", "lips"))
+    return tuple(feature_mask(points68, shape, parts=k) for k in (("brows",), ("eyes", "lips")))
 
 
-def _shift_map(source: np.ndarray, hole: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
-    """(hole pixels, their source pixels), flat indices: each pixel of the bool ``hole`` (not in
-    ``source``) takes the ``source`` pixel at the first offset of :data:`FILL_OFFSETS` (x ``step`` px)
-    that lands on one; pixels no offset reaches are left out."""
-    src = np.asarray(source, bool)
+def brow_bands(region, driver_parts, puppet_parts) -> np.ndarray:
+    """bool (H, W): the pixels of the bool ``region`` in either face's brow band and in neither's eyes
+    or lips (each face's :func:`feature_parts`): where the puppet's skin or brows lie over the
+    driver's brows (the frame's grain there is its brow hair)."""
+    (brows_d, others_d), (brows_p, others_p) = driver_parts, puppet_parts
+    return np.asarray(region, bool) & (brows_d | brows_p) & ~(others_d | others_p)
+
+
+class GrainFill(NamedTuple):
+    """Where :func:`match_grain` and :func:`match_grain_bands` shift the skin's grain in
+    (:func:`grain_fill`): the bool ``hole`` (H, W) and the flat indices of its pixels (``dst``) and of
+    their source pixels (``src``)."""
+
+    hole: np.ndarray
+    dst: np.ndarray
+    src: np.ndarray
+
+
+def grain_fill(skin: np.ndarray, hole: np.ndarray, step: float) -> GrainFill:
+    """The :class:`GrainFill` of the bool ``hole``: each of its pixels (not in the bool ``skin``)
+    takes the ``skin`` pixel at the first offset of :data:`FILL_OFFSETS` (x ``step`` px) that lands
+    on one; pixels no offset reaches are left out. Pass the same ``skin`` to the grain functions."""
+    src = np.asarray(skin, bool)
     ys, xs = np.nonzero(np.asarray(hole, bool) & ~src)
     H, W = src.shape
-    dst_idx, src_idx = [], []
+    dst_idx, src_idx = [np.zeros(0, np.intp)], [np.zeros(0, np.intp)]
     for oy, ox in FILL_OFFSETS:
         if ys.size == 0:
             break
@@ -92,20 +104,18 @@ def _shift_map(source: np.ndarray, hole: np.ndarray, step: float) -> tuple[np.nd
         dst_idx.append(ys[ok] * W + xs[ok])
         src_idx.append(sy[ok] * W + sx[ok])
         ys, xs = ys[~ok], xs[~ok]
-    if not dst_idx:
-        return np.zeros(0, np.intp), np.zeros(0, np.intp)
-    return np.concatenate(dst_idx), np.concatenate(src_idx)
+    return GrainFill(np.asarray(hole, bool), np.concatenate(dst_idx), np.concatenate(src_idx))
 
 
-def _fill_shifted(band: np.ndarray, shift_map: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """``band`` (H, W[, C]) with the hole pixels of :func:`_shift_map` copied from their source
-    pixels. Neighbouring hole pixels share an offset, so the hole takes rigid, shifted pieces of the
-    skin's grain (a shift-map fill, written here: ``cv2.inpaint`` diffuses and leaves a hole smooth,
-    a nearest-pixel fill streaks, and :func:`facetex.transfer.detail.fill_from_source`'s blended
+def _fill_shifted(band: np.ndarray, fill: GrainFill) -> np.ndarray:
+    """``band`` (H, W[, C]) with the hole pixels of ``fill`` copied from their source pixels.
+    Neighbouring hole pixels share an offset, so the hole takes rigid, shifted pieces of the skin's
+    grain (a shift-map fill, written here: ``cv2.inpaint`` diffuses and leaves a hole smooth, a
+    nearest-pixel fill streaks, and :func:`facetex.transfer.detail.fill_from_source`'s blended
     blocks take ~0.1 s a band on a 1000 px frame's face)."""
     out = band.copy()
     flat = out.reshape(band.shape[0] * band.shape[1], -1)
-    flat[shift_map[0]] = band.reshape(flat.shape)[shift_map[1]]
+    flat[fill.dst] = band.reshape(flat.shape)[fill.src]
     return out
 
 
@@ -179,8 +189,8 @@ def _texture_weight(band: np.ndarray, skin: np.ndarray, sigma: float) -> np.ndar
     return (1.0 / (1.0 + (e * e) ** 2)).astype(np.float32)
 
 
-def match_grain(src, ref, skin, *, max_amount: float = 1.0, feather: float = 1.0, fill=None,
-                fill_step: float = 8.0) -> tuple[np.ndarray, float]:
+def match_grain(src, ref, skin, *, max_amount: float = 1.0, feather: float = 1.0,
+                fill: GrainFill | None = None) -> tuple[np.ndarray, float]:
     """(``src`` with ``ref``'s grain added on ``skin``, amount a): the frame's pixel-scale band
     (−∇²/4 of ``ref``, each channel clipped at :data:`GRAIN_CLIP` robust standard deviations of
     its skin's), times a soft ``skin`` mask (Gaussian, ``feather`` px), times the a in
@@ -190,10 +200,10 @@ def match_grain(src, ref, skin, *, max_amount: float = 1.0, feather: float = 1.0
     puppet's own detail, even sharpened to its bound, stays smoother than the video it sits in
     (Laplacian variance 0.36-0.72 of the driver's), and a smooth face in a grainy frame looks
     pasted on. The grain is the frame's own, so it moves and flickers with the video; features
-    are the caller's to cut out of ``skin``. ``fill`` (bool (H, W)): where the puppet shows skin and the
-    frame does not (its brows, where the persona's are thinner), the grain is the skin's, shifted in
-    by :func:`_shift_map` and :func:`_fill_shifted` (``fill_step`` px); without it such a hole
-    stayed smooth, an arch the shape of the driver's brows. Images (H, W, 3) float [0, 1]."""
+    are the caller's to cut out of ``skin``. ``fill`` (:func:`grain_fill` of ``skin``): where the
+    puppet shows skin and the frame does not (its brows, where the persona's are thinner), the grain
+    is the skin's, shifted in; without it such a hole stayed smooth, an arch the shape of the
+    driver's brows. Images (H, W, 3) float [0, 1]."""
     s = np.asarray(src, np.float32)
     r = np.asarray(ref, np.float32)
     m = np.asarray(skin, bool)
@@ -203,7 +213,7 @@ def match_grain(src, ref, skin, *, max_amount: float = 1.0, feather: float = 1.0
     hd = _clip_robust(hd, m)
     on = m
     if fill is not None:
-        hd, on = _fill_shifted(hd, _shift_map(m, fill, fill_step)), m | np.asarray(fill, bool)
+        hd, on = _fill_shifted(hd, fill), m | fill.hole
     hd *= cv2.GaussianBlur(on.astype(np.float32), (0, 0), feather)[..., None] if feather > 0 else on[..., None]
     a = min(_gain_to_variance(_lap(s)[m], _lap(hd)[m], float(np.var(_lap(r)[m]))), max_amount)
     if a <= 0:
@@ -211,8 +221,8 @@ def match_grain(src, ref, skin, *, max_amount: float = 1.0, feather: float = 1.0
     return np.clip(s + a * hd, 0.0, 1.0), a
 
 
-def match_grain_bands(src, ref, skin, *, reach: float, max_amount: float = 1.0, fill=None,
-                      fill_step: float = 8.0) -> tuple[np.ndarray, tuple]:
+def match_grain_bands(src, ref, skin, *, reach: float, max_amount: float = 1.0,
+                      fill: GrainFill | None = None) -> tuple[np.ndarray, tuple]:
     """(``src`` with ``ref``'s octave bands added on ``skin``, their amounts): for every band of
     :data:`GRAIN_BAND_SIGMAS` whose coarser sigma is at most ``reach`` px, the frame's band (each
     channel clipped at :data:`GRAIN_CLIP` robust standard deviations of its skin's, faded where its
@@ -226,7 +236,7 @@ def match_grain_bands(src, ref, skin, *, reach: float, max_amount: float = 1.0, 
     composites read nearer the driver (dlib, the puppet's distance to its persona minus to the driver
     +0.008 on average, +0.038 on the worst run; +0.004 with it). ``reach``: the caller's bound on
     what the persona lacks (a fraction of the eye distance); the coarser bands carry a face's
-    wrinkles and spots, which stay the persona's. ``fill``, ``fill_step``: as :func:`match_grain`'s.
+    wrinkles and spots, which stay the persona's. ``fill``: as :func:`match_grain`'s.
     Images (H, W, 3) float [0, 1]; the result is not clipped (:func:`match_grain` follows and clips)."""
     s = np.asarray(src, np.float32)
     r = np.asarray(ref, np.float32)
@@ -235,15 +245,14 @@ def match_grain_bands(src, ref, skin, *, reach: float, max_amount: float = 1.0, 
     if m.sum() < 64 or max_amount <= 0 or len(edges) < 2:
         return s.copy(), ()
     out, amounts = s.copy(), []
-    on = m if fill is None else m | np.asarray(fill, bool)
-    shift = None if fill is None else _shift_map(m, fill, fill_step)
+    on = m if fill is None else m | fill.hole
     fine_r, fine_s = cv2.GaussianBlur(r, (0, 0), edges[0]), cv2.GaussianBlur(s, (0, 0), edges[0])
     for lo, hi in zip(edges[:-1], edges[1:]):
         coarse_r, coarse_s = cv2.GaussianBlur(r, (0, 0), hi), cv2.GaussianBlur(s, (0, 0), hi)
         br, bs = fine_r - coarse_r, fine_s - coarse_s
         fine_r, fine_s = coarse_r, coarse_s
-        if shift is not None:
-            br = _fill_shifted(br, shift)
+        if fill is not None:
+            br = _fill_shifted(br, fill)
         add = _clip_robust(br, m)
         lr, ls = br @ _LUMA, bs @ _LUMA
         add *= (cv2.GaussianBlur(on.astype(np.float32), (0, 0), lo) * _texture_weight(lr, m, 2 * hi))[..., None]

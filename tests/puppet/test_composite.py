@@ -1723,10 +1723,10 @@ def test_brows_take_their_own_highlight_knee():
     ``brow_highlight_knee`` None."""
     from _photos import simple_face68
     from facetex.puppet.composite import _knee_map
-    from facetex.puppet.detail import brow_bands
+    from facetex.puppet.detail import brow_bands, feature_parts
 
     p = simple_face68()
-    bands = brow_bands(p, p, np.ones((256, 256), bool))
+    bands = brow_bands(np.ones((256, 256), bool), feature_parts(p, (256, 256)), feature_parts(p, (256, 256)))
     params = CompositeParams()
     m = _knee_map(params, bands, 80.0)
     assert m.shape == (256, 256)

@@ -6,8 +6,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from facetex.puppet.detail import (GRAIN_BAND_SIGMAS, GRAIN_CLIP, _eye_affine, _fill_shifted, _shift_map, brow_bands,
-                                   match_grain, match_grain_bands, match_lid_detail, match_lip_detail)
+from facetex.puppet.detail import (GRAIN_BAND_SIGMAS, GRAIN_CLIP, _eye_affine, _fill_shifted, brow_bands, feature_parts,
+                                   grain_fill, match_grain, match_grain_bands, match_lid_detail, match_lip_detail)
 from facetex.geometry.masks import polygon_mask
 
 from _photos import simple_face68
@@ -76,10 +76,10 @@ def test_fill_shifted_copies_rigid_pieces_of_the_source_nearest_offset_first():
     source[:10] = True
     hole = np.zeros((20, 12), bool)
     hole[10:14] = True
-    out = _fill_shifted(band, _shift_map(source, hole, 5.0))
+    out = _fill_shifted(band, grain_fill(source, hole, 5.0))
     np.testing.assert_array_equal(out[10:14], band[5:9])
     np.testing.assert_array_equal(out[~hole], band[~hole])
-    alone = _fill_shifted(band, _shift_map(np.zeros((20, 12), bool), hole, 5.0))
+    alone = _fill_shifted(band, grain_fill(np.zeros((20, 12), bool), hole, 5.0))
     np.testing.assert_array_equal(alone, band)
 
 
@@ -96,7 +96,7 @@ def test_match_grain_fills_the_brow_hole_with_the_skins_grain_not_the_frames_hai
     skin[34:46] = False
     hole = ~skin
     plain, _ = match_grain(src, ref, skin)
-    out, a = match_grain(src, ref, skin, fill=hole, fill_step=12.0)
+    out, a = match_grain(src, ref, skin, fill=grain_fill(skin, hole, 12.0))
     assert np.std(plain[38:42, 8:-8] - 0.6) < 1e-3
     inside, outside = np.std(out[38:42, 8:-8] - 0.6), np.std(out[10:30, 8:-8] - 0.6)
     assert 0.6 * outside < inside < 1.5 * outside
@@ -107,12 +107,13 @@ def test_brow_bands_are_either_faces_brows_without_their_eyes_and_lips():
     face68 = simple_face68()
     region = np.ones((256, 256), bool)
     low = face68 + [0, 6]  # the puppet's features lower than the driver's
-    m = brow_bands(face68, low, region)
+    m = brow_bands(region, feature_parts(face68, (256, 256)), feature_parts(low, (256, 256)))
     from facetex.geometry.masks import feature_mask
     brows = feature_mask(face68, (256, 256), parts=("brows",)) | feature_mask(low, (256, 256), parts=("brows",))
     assert m.sum() > 0 and not (m & ~brows).any()
     assert not (m & feature_mask(low, (256, 256), parts=("eyes", "lips"))).any()
-    assert not brow_bands(face68, low, np.zeros((256, 256), bool)).any()
+    assert not brow_bands(np.zeros((256, 256), bool), feature_parts(face68, (256, 256)),
+                          feature_parts(low, (256, 256))).any()
 
 
 def _waves(h=96, w=96, period=7.0, amp=0.05) -> np.ndarray:
