@@ -175,7 +175,14 @@ class CompositeParams:
     the persona's and takes only the lighting ("persona"; no Poisson blending then, its membrane
     would bring the driver's tone back); colour_sigma: the scale below which the colour is the
     driver's, as a fraction of the eye-corner distance, and colour_gain: the bounds of the
-    lightness-detail gain (:func:`~facetex.puppet.lighting.transfer_skin_colour`); chroma_gain: the
+    lightness-detail gain (:func:`~facetex.puppet.lighting.transfer_skin_colour`): at 0.06 the
+    persona's shading above ~0.1 eye distances (eye sockets, the nose's sides, the cheek folds) was
+    the driver's, and dlib read the composites nearer the driver (``bench puppet`` portraits: 6 of 42
+    runs under 80 % of frames nearer the persona's photos, Koizumi on FRL 096 0 %; at 0.15 one run,
+    Koizumi on FRL 096, 50 %; cheek ΔE to the driver worst 1.9 -> 5.5 and 2.6 -> 5.8 on 60 GRID
+    runs, within the bruise bound of 8; at 0.25 7.9). A gain of at least 1 (a pale persona's features
+    at full contrast on a dark driver) read nearer still, but dlib then read Koizumi's puppet's mouth
+    opening at 0.70-0.76 of a dim or dark-skinned GRID driver's (0.92-0.96 before); chroma_gain: the
     bounds of the a*, b* detail's gain, the skins' chroma ratio, and highlight_knee: lightness detail
     above the persona's skin compressed to this (L*) x tanh (both there): on 1000 px studio drivers
     (FRL London) a dark persona's brow ridges were white bands and her lash lines blue-black, an East
@@ -293,7 +300,7 @@ class CompositeParams:
     sh_strength: float = 1.0
     normal_smoothing: float = 0.05
     colour: str = "driver"
-    colour_sigma: float = 0.06
+    colour_sigma: float = 0.15
     colour_gain: tuple[float, float] = (2 / 3, 1.2)
     chroma_gain: tuple[float, float] = (0.5, 1.0)
     highlight_knee: float | None = 6.0
