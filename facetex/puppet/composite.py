@@ -156,6 +156,9 @@ EYE_KEEP_INSET = 0.03
 EYE_SOURCES = ("driver", "persona")
 #: the feather (Gaussian sigma, x the eye-corner distance) of the brows' own highlight knee
 BROW_KNEE_FEATHER = 0.03
+#: the lips' polygons grown by this and feathered by that (Gaussian sigma), x the eye-corner
+#: distance: where ``CompositeParams.mouth_colour_sigma`` sets the colour field's scale
+MOUTH_FIELD_GROW, MOUTH_FIELD_FEATHER = 0.15, 0.05
 #: the inward feather is this many times wider with ``colour="persona"`` (the persona's own tone
 #: meets the driver's at the outline)
 PERSONA_FEATHER = 3.0
@@ -182,7 +185,12 @@ class CompositeParams:
     Koizumi on FRL 096, 50 %; cheek ΔE to the driver worst 1.9 -> 5.5 and 2.6 -> 5.8 on 60 GRID
     runs, within the bruise bound of 8; at 0.25 7.9). A gain of at least 1 (a pale persona's features
     at full contrast on a dark driver) read nearer still, but dlib then read Koizumi's puppet's mouth
-    opening at 0.70-0.76 of a dim or dark-skinned GRID driver's (0.92-0.96 before); chroma_gain: the
+    opening at 0.70-0.76 of a dim or dark-skinned GRID driver's (0.92-0.96 before);
+    mouth_colour_sigma: round both faces' lips (grown by ``MOUTH_FIELD_GROW``, feathered by
+    ``MOUTH_FIELD_FEATHER`` eye-corner distances) the colour field's scale is this instead (None:
+    colour_sigma there too): with the persona's own shading round its mouth dlib read Koizumi's
+    puppet's opening at 0.84-0.85 of two GRID drivers' (0.92-0.93 at 0.06 everywhere; with this 0.87-0.90,
+    his identity on FRL 096 unchanged; grown by 0.3 it was 0.89-0.90 but read nearer that driver); chroma_gain: the
     bounds of the a*, b* detail's gain, the skins' chroma ratio, and highlight_knee: lightness detail
     above the persona's skin compressed to this (L*) x tanh (both there): on 1000 px studio drivers
     (FRL London) a dark persona's brow ridges were white bands and her lash lines blue-black, an East
@@ -301,6 +309,7 @@ class CompositeParams:
     normal_smoothing: float = 0.05
     colour: str = "driver"
     colour_sigma: float = 0.15
+    mouth_colour_sigma: float | None = 0.06
     colour_gain: tuple[float, float] = (2 / 3, 1.2)
     chroma_gain: tuple[float, float] = (0.5, 1.0)
     highlight_knee: float | None = 6.0
@@ -462,7 +471,14 @@ def composite_face(frame, puppet, coverage, normals, *, driver_oval, driver_poin
         # the puppet's eyeballs, lids and brows are where it draws them: at the driver's landmarks the
         # persona's pale lids were kept as white crescents under a dark driver's eyes (FRL 042)
         drawn68 = p68 if pp68 is None else pp68
-        out = transfer_skin_colour(out, fr, pup_skin, drv_skin, sigma=max(1.0, params.colour_sigma * iod),
+        fine = None
+        if params.mouth_colour_sigma is not None:  # round both faces' lips (the fields' size)
+            lips = feature_mask(p_s, rg_s.shape, dilate=MOUTH_FIELD_GROW, parts=("lips",))
+            if pp68 is not None:
+                lips |= feature_mask(sh.points(pp68 - [x0, y0]), rg_s.shape, dilate=MOUTH_FIELD_GROW, parts=("lips",))
+            fine = (cv2.GaussianBlur(lips.astype(np.float32), (0, 0), max(0.5, MOUTH_FIELD_FEATHER * iod / sh.k)),
+                    max(1.0, params.mouth_colour_sigma * iod))
+        out = transfer_skin_colour(out, fr, pup_skin, drv_skin, sigma=max(1.0, params.colour_sigma * iod), fine=fine,
                                    gain=params.colour_gain, colour=params.colour, shrink=sh.k,
                                    chroma_gain=params.chroma_gain, highlight_knee=_knee_map(params, bands, iod),
                                    # drawn only on a darker persona than the driver

@@ -206,7 +206,8 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
                          lip_parts=(), lip_ceiling: float | None = None, keep_chroma: bool = True,
                          keep_dark=None, brows=None, brow_gain: float = 2.0, chroma_gain=(1.0, 1.0),
                          highlight_knee: float | None = None, shadows=None,
-                         shadow_knee: float = 6.0, eye_skin=None, eye_skin_sigma: float = 4.0) -> np.ndarray:
+                         shadow_knee: float = 6.0, eye_skin=None, eye_skin_sigma: float = 4.0,
+                         fine=None) -> np.ndarray:
     """``src`` (H, W, 3) sRGB with the low-frequency colour of ``ref`` (the same size, aligned),
     measured on skin pixels only (bool ``src_skin``, ``ref_skin``), the detail of ``src`` kept.
 
@@ -246,6 +247,8 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     (Y(R_L) / Y(r_L)) / (Y(S_L) / Y(s_L)), the driver's low-frequency luminance ratio over the
     persona's (Y(L*) the CIE luminance, the ratio clipped to ``light_limits``), the persona's
     chromaticity kept.
+    ``fine``: (weight (H, W) in [0, 1] at the fields' size, sigma px) or None: where the weight is,
+    both fields are mixed towards their low passes at that (finer) sigma.
     ``shrink`` > 1: the low-frequency fields are computed on both images shrunk by that factor
     (area average; ``src_skin`` and ``ref_skin`` are given at the shrunk size) and resized back
     (bilinear): the same fields at a fraction of the cost.
@@ -299,6 +302,11 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
         s_small, r_small = src, ref
     sa, ca = skin_low_pass(_lab(s_small), sm, sigma / k)
     sb, cb = skin_low_pass(_lab(r_small), rm, sigma / k)
+    if fine is not None:
+        fw, fs = fine
+        fw = np.asarray(fw, np.float32)[..., None]
+        sa = sa + fw * (skin_low_pass(_lab(s_small), sm, fs / k)[0] - sa)
+        sb = sb + fw * (skin_low_pass(_lab(r_small), rm, fs / k)[0] - sb)
 
     def full(x):
         return cv2.resize(x, (w, h), interpolation=cv2.INTER_LINEAR) if k > 1 else x

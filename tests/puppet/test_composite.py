@@ -144,6 +144,27 @@ def test_skin_colour_transfer_clamps_the_gain_and_keeps_the_detail():
     np.testing.assert_allclose(hp[inner], hp_src[inner], atol=0.3)
 
 
+def test_skin_colour_transfer_takes_a_finer_field_where_its_weight_is():
+    """A persona with two soft bumps (+2.5 L*, Gaussian sigma 5 px: within the fields' outlier trim)
+    on a flat driver, gain 1: with the field at sigma inf both are detail and kept; with ``fine``
+    (weight 1 on the left half, sigma 1.5) the left one is the field's there and takes the driver's
+    flat skin, the right one stays."""
+    h, w = 40, 96
+    yy, xx = np.mgrid[0:h, 0:w]
+    bumps = sum(2.5 * np.exp(-((xx - cx) ** 2 + (yy - 20) ** 2) / (2 * 5.0 ** 2)) for cx in (24, 72))
+    src_lab = np.float32([45.0, 14.0, 20.0]) + np.stack([bumps, 0 * bumps, 0 * bumps], -1).astype(np.float32)
+    ref = _rgb(np.broadcast_to(np.float32([45.0, 14.0, 20.0]), src_lab.shape))
+    skin = np.ones((h, w), bool)
+    left = np.zeros((h, w), np.float32)
+    left[:, :48] = 1.0
+    plain = _lab(transfer_skin_colour(_rgb(src_lab), ref, skin, skin, sigma=np.inf, gain=(1.0, 1.0)))
+    fine = _lab(transfer_skin_colour(_rgb(src_lab), ref, skin, skin, sigma=np.inf, gain=(1.0, 1.0),
+                                     fine=(left, 1.5)))
+    assert plain[20, 24, 0] - plain[20, 5, 0] == pytest.approx(2.5, abs=0.3)
+    assert fine[20, 24, 0] - fine[20, 5, 0] < 0.4  # the left bump is gone
+    assert fine[20, 72, 0] - fine[20, 90, 0] == pytest.approx(2.5, abs=0.3)  # the right one is kept
+
+
 def test_skin_colour_transfer_ignores_what_is_not_skin():
     """A dark brow and a dark lid on the persona (outside its skin mask) and the driver's dark
     fringe (outside its skin mask) do not move the colour of the skin."""
