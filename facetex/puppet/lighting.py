@@ -300,13 +300,14 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
         s_small, r_small = (cv2.resize(np.asarray(x, np.float32), small, interpolation=cv2.INTER_AREA) for x in (src, ref))
     else:
         s_small, r_small = src, ref
-    sa, ca = skin_low_pass(_lab(s_small), sm, sigma / k)
-    sb, cb = skin_low_pass(_lab(r_small), rm, sigma / k)
+    lab_s, lab_r = _lab(s_small), _lab(r_small)
+    sa, ca = skin_low_pass(lab_s, sm, sigma / k)
+    sb, cb = skin_low_pass(lab_r, rm, sigma / k)
     if fine is not None:
         fw, fs = fine
         fw = np.asarray(fw, np.float32)[..., None]
-        sa = sa + fw * (skin_low_pass(_lab(s_small), sm, fs / k)[0] - sa)
-        sb = sb + fw * (skin_low_pass(_lab(r_small), rm, fs / k)[0] - sb)
+        sa = sa + fw * (skin_low_pass(lab_s, sm, fs / k)[0] - sa)
+        sb = sb + fw * (skin_low_pass(lab_r, rm, fs / k)[0] - sb)
 
     def full(x):
         return cv2.resize(x, (w, h), interpolation=cv2.INTER_LINEAR) if k > 1 else x
