@@ -345,8 +345,9 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
     strength = darker if shadows is not None else 0.0
     eye_strength = darker if eye_skin is not None else 0.0
     # the lightness detail over the persona's skin field (the knees' and the dark detail's)
-    s_light = full(sa[..., 0]) if (highlight_knee is not None or ratio_dark or strength > 0
-                                   or eye_strength > 0) else None
+    # the persona's skin field at full size (one resize of its three channels)
+    s_full = full(sa) if (highlight_knee is not None or ratio_dark or strength > 0 or eye_strength > 0) else None
+    s_light = None if s_full is None else s_full[..., 0]
     detail = None if s_light is None else a[..., 0] - s_light
     if highlight_knee is not None:
         highlight_knee = np.asarray(highlight_knee, np.float32)
@@ -356,7 +357,7 @@ def transfer_skin_colour(src, ref, src_skin, ref_skin, *, sigma: float, gain=(2 
         # a highlight is white light: its chroma deficit is cut in the same proportion as its lightness
         frac = cut / np.maximum(up, 1e-3)
         for c in (1, 2):
-            out[..., c] -= g[c] * frac * (a[..., c] - full(sa[..., c]))
+            out[..., c] -= g[c] * frac * (a[..., c] - s_full[..., c])
     if strength > 0:
         down = np.maximum(-detail, 0.0)
         ws = np.asarray(shadows() if callable(shadows) else shadows, np.float32)
